@@ -1,0 +1,347 @@
+"""Host wrapper and NumPy twin of ``synth_shade.cl``: many directional lights, cast shadows.
+
+The synthetic studio renders its ground truth with this: a head given as a height field
+(pixels, +Z toward the camera) with per-pixel normals and skin parameters, lit by directional
+lights whose power (radiance x solid angle, per output) is summed into several outputs at
+once - every truth environment and one-light image in one pass, visibility computed once per
+pixel and light.
+
+Units: ``power`` is radiance times solid angle (for a flash, pi); an output pixel is the
+reflected radiance toward the camera, so a white Lambertian pixel facing a light of power
+pi reads 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import maximum_filter
+
+from relight.errors import InputError
+
+from .runtime import build_program, get_runtime
+
+#: Tile size of the empty-space-skipping maxima (must match TILE in synth_shade.cl).
+TILE = 8
+#: Height of pixels without surface (never occludes); matches NO_SURFACE in common.h.
+NO_SURFACE = -1.0e30
+#: Most outputs one pass accumulates (MAX_OUT in the kernel).
+MAX_OUT = 16
+SKIN_F0 = 0.028
+
+
+@dataclass(frozen=True)
+class Surface:
+    """A height-field surface to shade.
+
+    height : (H, W) float32, pixels, +Z toward the camera; ``NO_SURFACE`` where empty.
+    pix : (P,) int32 flat indices of the pixels to shade.
+    normal : (P, 3) float32 unit normals. albedo : (P, 3) float32 linear diffuse albedo.
+    specular : (P,) float32 specular scale. roughness : (P,) float32 GGX roughness (0-1].
+    wrap : (P, 3) float32 per-channel wrap (0 = Lambert; larger = softer terminator).
+    """
+
+    height: np.ndarray
+    pix: np.ndarray
+    normal: np.ndarray
+    albedo: np.ndarray
+    specular: np.ndarray
+    roughness: np.ndarray
+    wrap: np.ndarray
+
+
+@dataclass(frozen=True)
+class MarchSettings:
+    """Shadow-ray marching in image-plane pixels: samples at t = start, then
+    t += max(step, growth * t) (finer near the pixel, coarser far away); a sample occludes
+    when the surface is more than ``bias`` pixels above the ray."""
+
+    start: float = 1.0
+    step: float = 1.0
+    growth: float = 0.03
+    bias: float = 0.1
+
+
+def tile_maxima(height: np.ndarray) -> np.ndarray:
+    """(ceil(H/TILE), ceil(W/TILE)) max height over each tile, its 1-pixel rim and the 8 tiles around it."""
+    h, w = height.shape
+    grown = maximum_filter(height, size=3, mode="constant", cval=NO_SURFACE)
+    th, tw = -(-h // TILE), -(-w // TILE)
+    padded = np.full((th * TILE, tw * TILE), NO_SURFACE, dtype=np.float32)
+    padded[:h, :w] = grown
+    tiles = padded.reshape(th, TILE, tw, TILE).max(axis=(1, 3))
+    return maximum_filter(tiles, size=3, mode="constant", cval=NO_SURFACE).astype(np.float32)
+
+
+def _check(surface: Surface, dirs: np.ndarray, power: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+    power = np.asarray(power, dtype=np.float64)
+    if power.ndim == 2:
+        power = power[:, None, :]
+    if power.shape[0] != dirs.shape[0] or power.ndim != 3 or power.shape[2] != 3:
+        raise InputError(f"power must be (L, E, 3) for {dirs.shape[0]} lights, got {power.shape}")
+    if power.shape[1] > MAX_OUT:
+        raise InputError(f"at most {MAX_OUT} outputs per pass, got {power.shape[1]}; split the call")
+    if not (np.isfinite(dirs).all() and np.isfinite(power).all()):
+        raise InputError("light directions and powers must be finite")
+    norm = np.linalg.norm(dirs, axis=1, keepdims=True)
+    if (norm < 1e-9).any():
+        raise InputError("a light direction has zero length")
+    return dirs / norm, power
+
+
+# --------------------------------------------------------------------------------------
+# NumPy twin (reference for the tests; same maths as the kernel, float32 where it is)
+# --------------------------------------------------------------------------------------
+
+def _sample_height(height: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    h, w = height.shape
+    inside = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+    xc = np.clip(x, 0, w - 1)
+    yc = np.clip(y, 0, h - 1)
+    x0 = np.minimum(xc.astype(np.int64), w - 2)
+    y0 = np.minimum(yc.astype(np.int64), h - 2)
+    fx = (xc - x0).astype(np.float32)
+    fy = (yc - y0).astype(np.float32)
+    a = height[y0, x0] + (height[y0, x0 + 1] - height[y0, x0]) * fx
+    b = height[y0 + 1, x0] + (height[y0 + 1, x0 + 1] - height[y0 + 1, x0]) * fx
+    return np.where(inside, a + (b - a) * fy, np.float32(NO_SURFACE))
+
+
+def march_samples(march: MarchSettings, tend: float) -> np.ndarray:
+    """The march's sample distances t (float32, as the kernel computes them)."""
+    ts = []
+    t = np.float32(march.start)
+    step, growth = np.float32(march.step), np.float32(march.growth)
+    while t < tend:
+        ts.append(t)
+        t = np.float32(t + max(step, np.float32(growth * t)))
+    return np.array(ts, dtype=np.float32)
+
+
+def visibility_numpy(height: np.ndarray, px: np.ndarray, py: np.ndarray, pz: np.ndarray,
+                     light: np.ndarray, march: MarchSettings) -> np.ndarray:
+    """(P,) bool: does the ray from each (px, py, pz) toward ``light`` leave the height field?
+
+    The plain march, every sample tested (the kernel's empty-space skipping and horizon
+    tables only avoid samples that cannot occlude).
+    """
+    h, w = height.shape
+    l = np.asarray(light, dtype=np.float32)
+    s = np.float32(np.sqrt(l[0] * l[0] + l[1] * l[1]))
+    vis = np.ones(px.shape, dtype=bool)
+    if s < 1e-6:
+        return vis
+    dx, dy, dz = l[0] / s, -l[1] / s, l[2] / s
+    active = np.ones(px.shape, dtype=bool)
+    for t in march_samples(march, 2.0 * (w + h)):
+        if not active.any():
+            break
+        idx = np.nonzero(active)[0]
+        x = px[idx] + t * dx
+        y = py[idx] + t * dy
+        z = pz[idx] + t * dz
+        out = (x < 0) | (y < 0) | (x > w - 1) | (y > h - 1)
+        hit = ~out & (_sample_height(height, x, y) > z + np.float32(march.bias))
+        vis[idx[hit]] = False
+        active[idx[out | hit]] = False
+    return vis
+
+
+def horizon_numpy(height: np.ndarray, px: np.ndarray, py: np.ndarray, pz: np.ndarray,
+                  direction: np.ndarray, march: MarchSettings) -> np.ndarray:
+    """(P,) largest slope (h(q) - z - bias) / t along image direction (dx, dy) (twin of ``horizon``)."""
+    h, w = height.shape
+    dx, dy = (np.float32(v) for v in direction)
+    m = np.full(px.shape, -1.0e30, dtype=np.float32)
+    for t in march_samples(march, 2.0 * (w + h)):
+        x = px + t * dx
+        y = py + t * dy
+        ok = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+        slope = (_sample_height(height, x, y) - pz - np.float32(march.bias)) / t
+        m = np.where(ok, np.maximum(m, slope), m)
+    return m
+
+
+def skin_brdf_cos_numpy(n: np.ndarray, l: np.ndarray, albedo: np.ndarray, specular: np.ndarray,
+                        roughness: np.ndarray, wrap: np.ndarray) -> np.ndarray:
+    """(P, 3) f * cos for one light ``l`` (3,), per pixel parameters (see :class:`Surface`)."""
+    c = n @ l
+    diffuse = albedo / np.pi * np.maximum(c[:, None] + wrap, 0.0) / (1.0 + wrap)
+    nv = n[:, 2]
+    hv = l + np.array([0.0, 0.0, 1.0])
+    hv = hv / np.linalg.norm(hv)
+    nh = np.maximum(n @ hv, 0.0)
+    vh = max(hv[2], 0.0)
+    a = roughness**2
+    a2 = a * a
+    d = nh * nh * (a2 - 1.0) + 1.0
+    D = a2 / (np.pi * d * d)
+    k = 0.5 * a
+    ok = (c > 0) & (nv > 0) & (specular > 0)
+    cs = np.where(ok, c, 1.0)
+    nvs = np.where(ok, nv, 1.0)
+    G = (cs / (cs * (1 - k) + k)) * (nvs / (nvs * (1 - k) + k))
+    F = SKIN_F0 + (1 - SKIN_F0) * (1 - vh) ** 5
+    spec = np.where(ok, specular * D * G * F / (4.0 * nvs), 0.0)
+    return diffuse + spec[:, None]
+
+
+def shade_lights_numpy(surface: Surface, dirs: np.ndarray, power: np.ndarray, *,
+                       march: MarchSettings = MarchSettings(), shadows: bool = True) -> np.ndarray:
+    """NumPy twin of :meth:`LightShader.shade`: (E, P, 3) float32 outputs."""
+    dirs, power = _check(surface, dirs, power)
+    hgt = surface.height.astype(np.float32)
+    w = hgt.shape[1]
+    pix = surface.pix.astype(np.int64)
+    px = (pix % w).astype(np.float32)
+    py = (pix // w).astype(np.float32)
+    pz = hgt.ravel()[pix]
+    n = surface.normal.astype(np.float64)
+    out = np.zeros((power.shape[1], pix.size, 3), dtype=np.float64)
+    wrap_max = surface.wrap.max(axis=1)
+    for l, pw in zip(dirs, power, strict=True):
+        lit = (n @ l + wrap_max) > 0
+        if shadows and lit.any():
+            idx = np.nonzero(lit)[0]
+            lit[idx] = visibility_numpy(hgt, px[idx], py[idx], pz[idx], l, march)
+        if not lit.any():
+            continue
+        f = skin_brdf_cos_numpy(n[lit], l, surface.albedo[lit], surface.specular[lit],
+                                surface.roughness[lit], surface.wrap[lit])
+        out[:, lit, :] += f[None, :, :] * pw[:, None, :]
+    return out.astype(np.float32)
+
+
+# --------------------------------------------------------------------------------------
+# OpenCL
+# --------------------------------------------------------------------------------------
+
+def grid_directions(n_dir: int) -> np.ndarray:
+    """(n_dir, 2) unit image-plane directions (x right, y down) of a camera-axis grid's azimuths.
+
+    Azimuth ``beta_k = 2 pi (k + 0.5) / n_dir`` around +Z, measured from +X toward +Y (up); see
+    :func:`camera_grid`.
+    """
+    beta = 2.0 * np.pi * (np.arange(n_dir) + 0.5) / n_dir
+    return np.stack([np.cos(beta), -np.sin(beta)], axis=1).astype(np.float32)
+
+
+class LightShader:
+    """Shades one fixed :class:`Surface` under batches of lights on the OpenCL device.
+
+    The surface's buffers are uploaded once; :meth:`shade` only moves lights in and outputs
+    back. :meth:`prepare_horizons` tabulates visibility along ``n_dir`` image-plane
+    directions, after which lights tagged with a direction index cost no ray march.
+    """
+
+    def __init__(self, surface: Surface, *, march: MarchSettings = MarchSettings()):
+        import pyopencl as cl
+
+        self.rt = get_runtime()
+        self.surface = surface
+        self.march = march
+        prg = build_program("synth_shade", (f"-DMAX_OUT={MAX_OUT}",))
+        self._shade = cl.Kernel(prg, "shade_lights")
+        self._horizon = cl.Kernel(prg, "horizon")
+        ctx = self.rt.context
+        mf = cl.mem_flags
+        hgt = np.ascontiguousarray(surface.height, dtype=np.float32)
+        self.h, self.w = hgt.shape
+        tiles = tile_maxima(hgt)
+        self.th, self.tw = tiles.shape
+        self.hmax = np.float32(hgt.max())
+        p = surface.pix.size
+        self.n_pix = p
+
+        def f4(a3, w=None):
+            a = np.zeros((p, 4), dtype=np.float32)
+            a[:, :3] = a3
+            if w is not None:
+                a[:, 3] = w
+            return a
+
+        def buf(a):
+            return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
+
+        mat = np.zeros((p, 4), dtype=np.float32)
+        mat[:, 0] = surface.roughness
+        mat[:, 1:] = surface.wrap
+        self._bufs = dict(
+            height=buf(hgt), tiles=buf(tiles), pix=buf(surface.pix.astype(np.int32)),
+            normal=buf(f4(surface.normal)), albedo=buf(f4(surface.albedo, surface.specular)),
+            material=buf(mat),
+        )
+        self.n_dir = 0
+        self._horizons = buf(np.zeros(1, dtype=np.float32))
+
+    def _geometry(self) -> tuple:
+        b = self._bufs
+        return (b["height"], np.int32(self.w), np.int32(self.h), b["tiles"], np.int32(self.tw),
+                np.int32(self.th), b["pix"], np.int32(self.n_pix))
+
+    def prepare_horizons(self, n_dir: int) -> None:
+        """Tabulate horizon slopes along the ``n_dir`` directions of :func:`grid_directions`."""
+        import pyopencl as cl
+
+        ctx, queue = self.rt.context, self.rt.queue
+        mf = cl.mem_flags
+        dirs = grid_directions(n_dir)
+        dbuf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dirs)
+        hbuf = cl.Buffer(ctx, mf.READ_WRITE, max(self.n_pix * n_dir * 4, 4))
+        m = self.march
+        self._horizon(queue, (self.n_pix,), None, *self._geometry(), dbuf, np.int32(n_dir),
+                      np.float32(m.start), np.float32(m.step), np.float32(m.growth), np.float32(m.bias),
+                      self.hmax, hbuf)
+        queue.finish()
+        self._horizons = hbuf
+        self.n_dir = n_dir
+
+    def horizons(self) -> np.ndarray:
+        """(P, n_dir) float32 copy of the horizon table (for tests and plots)."""
+        import pyopencl as cl
+
+        out = np.empty((self.n_pix, self.n_dir), dtype=np.float32)
+        cl.enqueue_copy(self.rt.queue, out, self._horizons)
+        return out
+
+    def shade(self, dirs: np.ndarray, power: np.ndarray, *, direction_index: np.ndarray | None = None,
+              shadows: bool = True) -> np.ndarray:
+        """(E, P, 3) float32 outputs for lights ``dirs`` (L, 3) with ``power`` (L, E, 3) or (L, 3).
+
+        direction_index : (L,) int, the :func:`grid_directions` column each light lies along
+        (its visibility is then read from the horizon table), or -1 to march the light.
+        """
+        import pyopencl as cl
+
+        dirs, power = _check(self.surface, dirs, power)
+        n_l, n_e = power.shape[:2]
+        if n_l == 0:
+            return np.zeros((n_e, self.n_pix, 3), dtype=np.float32)
+        idx = np.full(n_l, -1, dtype=np.int32) if direction_index is None else \
+            np.asarray(direction_index, dtype=np.int32).reshape(n_l)
+        if (idx >= self.n_dir).any():
+            raise InputError(f"direction index beyond the {self.n_dir} prepared horizon directions")
+        ctx, queue = self.rt.context, self.rt.queue
+        mf = cl.mem_flags
+        l4 = np.zeros((n_l, 4), dtype=np.float32)
+        l4[:, :3] = dirs
+        p4 = np.zeros((n_l, n_e, 4), dtype=np.float32)
+        p4[..., :3] = power
+        out = np.empty((n_e, self.n_pix, 4), dtype=np.float32)
+        lbuf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=l4)
+        ibuf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=idx)
+        pbuf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=p4)
+        obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+        b = self._bufs
+        m = self.march
+        self._shade(
+            queue, (self.n_pix,), None, *self._geometry(),
+            b["normal"], b["albedo"], b["material"],
+            lbuf, np.int32(n_l), ibuf, self._horizons, np.int32(max(self.n_dir, 1)), pbuf, np.int32(n_e),
+            np.float32(m.start), np.float32(m.step), np.float32(m.growth), np.float32(m.bias), self.hmax,
+            np.int32(1 if shadows else 0), obuf,
+        )
+        cl.enqueue_copy(queue, out, obuf)
+        return out[..., :3]

@@ -1,0 +1,189 @@
+/* Ground-truth shading of the synthetic studio's head (relight.kernels.shading).
+ *
+ * A head is a height field (pixels, +Z toward the camera). Each work item shades one pixel
+ * under many directional lights: a skin BRDF (wrapped diffuse with a per-channel wrap for the
+ * subsurface look, plus a GGX lobe with Schlick Fresnel) times a cast-shadow test along the
+ * light ray. power[l, e] weights light l into output e, so several environments and
+ * one-light images accumulate in one pass (in double precision).
+ *
+ * Shadow test: march the ray over the height field at t = start, then t += max(step, growth*t)
+ * (image-plane pixels); occluded iff some sample has h(q) > z + t*dz + bias. Two exact forms:
+ *  - visible(): march one light;
+ *  - horizon(): for an image-plane direction, the largest slope (h(q) - z - bias) / t over the
+ *    same samples; any light along that direction is visible iff its dz >= that slope.
+ * Lights on a camera-axis grid share a few image-plane directions, so their visibility costs
+ * one table lookup. Both skip empty space with dilated tile maxima, which only skips samples
+ * that cannot occlude, so results equal the plain march (NumPy twin:
+ * relight.kernels.shading.shade_lights_numpy).
+ */
+#include "common.h"
+
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+
+#ifndef MAX_OUT
+#define MAX_OUT 16
+#endif
+#define TILE 8
+#define SKIN_F0 0.028f
+#define NO_SLOPE (-1.0e30f)
+
+inline float next_t(float t, float step, float growth) { return t + fmax(step, growth * t); }
+
+inline int outside(float px, float py, int w, int h)
+{
+    return px < 0.0f || py < 0.0f || px > (float)(w - 1) || py > (float)(h - 1);
+}
+
+inline float tile_max(__global const float *tilemax, int tw, int th, float px, float py)
+{
+    int ti = min((int)(px * (1.0f / TILE)), tw - 1), tj = min((int)(py * (1.0f / TILE)), th - 1);
+    return tilemax[tj * tw + ti];
+}
+
+/* 1 if the ray from (x, y, z) along image direction (dx, dy) rising dz per pixel is unblocked. */
+inline int visible(__global const float *height, int w, int h,
+                   __global const float *tilemax, int tw, int th,
+                   float x, float y, float z, float dx, float dy, float dz,
+                   float start, float step, float growth, float bias, float hmax)
+{
+    float tend = 2.0f * (float)(w + h);
+    float t = start;
+    while (t < tend) {
+        float px = x + t * dx, py = y + t * dy, pz = z + t * dz;
+        if (pz > hmax || outside(px, py, w, h))
+            return 1;
+        /* tilemax covers everything within TILE pixels of here: skip samples that cannot hit. */
+        if (pz + fmin(0.0f, (float)TILE * dz) > tile_max(tilemax, tw, th, px, py) + bias) {
+            float t1 = t + (float)TILE;
+            while (t < t1)
+                t = next_t(t, step, growth);
+            continue;
+        }
+        if (sample_height(height, w, h, px, py) > pz + bias)
+            return 0;
+        t = next_t(t, step, growth);
+    }
+    return 1;
+}
+
+/* Largest (h(q) - z - bias) / t over the samples along image direction (dx, dy). */
+inline float horizon_slope(__global const float *height, int w, int h,
+                           __global const float *tilemax, int tw, int th,
+                           float x, float y, float z, float dx, float dy,
+                           float start, float step, float growth, float bias, float hmax)
+{
+    float m = NO_SLOPE;
+    float tend = 2.0f * (float)(w + h);
+    float t = start;
+    while (t < tend) {
+        float px = x + t * dx, py = y + t * dy;
+        if (outside(px, py, w, h) || fmax(hmax - z - bias, 0.0f) / t <= m)
+            break; /* nothing further can raise the slope */
+        float num = tile_max(tilemax, tw, th, px, py) - z - bias;
+        float t1 = t + (float)TILE;
+        if (fmax(num / t, num / t1) <= m) {
+            while (t < t1)
+                t = next_t(t, step, growth);
+            continue;
+        }
+        m = fmax(m, (sample_height(height, w, h, px, py) - z - bias) / t);
+        t = next_t(t, step, growth);
+    }
+    return m;
+}
+
+/* Reflected radiance per unit irradiance, already multiplied by the cosine (f * cos). */
+inline float3 skin_brdf_cos(float3 n, float3 l, float4 alb, float4 mat)
+{
+    float c = dot(n, l);
+    float3 wrap = mat.yzw;
+    float3 diffuse = alb.xyz * (1.0f / PI_F) * fmax((float3)(c) + wrap, 0.0f) / (1.0f + wrap);
+    float spec = 0.0f;
+    float nv = n.z;
+    if (c > 0.0f && nv > 0.0f && alb.w > 0.0f) {
+        float3 hv = unit3(l + (float3)(0.0f, 0.0f, 1.0f));
+        float nh = fmax(dot(n, hv), 0.0f);
+        float vh = fmax(hv.z, 0.0f);
+        float a = mat.x * mat.x;
+        float a2 = a * a;
+        float d = nh * nh * (a2 - 1.0f) + 1.0f;
+        float D = a2 / (PI_F * d * d);
+        float k = 0.5f * a;
+        float G = (c / (c * (1.0f - k) + k)) * (nv / (nv * (1.0f - k) + k));
+        float F = SKIN_F0 + (1.0f - SKIN_F0) * pow5(1.0f - vh);
+        spec = alb.w * D * G * F / (4.0f * nv);
+    }
+    return diffuse + (float3)(spec);
+}
+
+/* Horizon slopes: out[i * n_dir + k] for pixel i and image-plane direction k. */
+__kernel void horizon(
+    __global const float *height, int w, int h,
+    __global const float *tilemax, int tw, int th,
+    __global const int *pix, int n_pix,
+    __global const float2 *dirs, int n_dir,            /* unit image-plane directions (x right, y down) */
+    float start, float step, float growth, float bias, float hmax,
+    __global float *out)
+{
+    int i = get_global_id(0);
+    if (i >= n_pix)
+        return;
+    int p = pix[i];
+    float x = (float)(p % w), y = (float)(p / w), z = height[p];
+    for (int k = 0; k < n_dir; ++k) {
+        float2 d = dirs[k];
+        out[(size_t)i * n_dir + k] = horizon_slope(height, w, h, tilemax, tw, th, x, y, z, d.x, d.y,
+                                                   start, step, growth, bias, hmax);
+    }
+}
+
+__kernel void shade_lights(
+    __global const float *height, int w, int h,         /* (h, w) heights, pixels, +Z to camera */
+    __global const float *tilemax, int tw, int th,      /* (th, tw) dilated tile maxima */
+    __global const int *pix, int n_pix,                 /* (P,) flat indices of shaded pixels */
+    __global const float4 *normal,                      /* (P,) unit normals, xyz */
+    __global const float4 *albedo,                      /* (P,) diffuse albedo rgb, w = specular scale */
+    __global const float4 *material,                    /* (P,) x = GGX roughness, yzw = wrap rgb */
+    __global const float4 *lights, int n_lights,        /* (L,) unit directions toward the lights */
+    __global const int *light_dir,                      /* (L,) horizon column, or -1: march */
+    __global const float *horizons, int n_dir,          /* (P, n_dir) slopes from horizon() */
+    __global const float4 *power, int n_out,            /* (L, E) radiance x solid angle, rgb */
+    float start, float step, float growth, float bias, float hmax, int shadows,
+    __global float4 *out)                               /* (E, P) rgb */
+{
+    int i = get_global_id(0);
+    if (i >= n_pix)
+        return;
+    int p = pix[i];
+    float x = (float)(p % w), y = (float)(p / w), z = height[p];
+    float3 n = normal[i].xyz;
+    float4 alb = albedo[i], mat = material[i];
+    float wrap_max = fmax(mat.y, fmax(mat.z, mat.w));
+    double4 acc[MAX_OUT];
+    for (int e = 0; e < n_out; ++e)
+        acc[e] = (double4)(0.0);
+    for (int j = 0; j < n_lights; ++j) {
+        float3 l = lights[j].xyz;
+        if (dot(n, l) + wrap_max <= 0.0f)
+            continue;
+        if (shadows) {
+            float s = len2(l.x, l.y);
+            if (s >= 1e-6f) {
+                float dz = l.z / s;
+                int k = light_dir[j];
+                int vis = k >= 0 ? dz >= horizons[(size_t)i * n_dir + k]
+                                 : visible(height, w, h, tilemax, tw, th, x, y, z, l.x / s, -l.y / s, dz,
+                                           start, step, growth, bias, hmax);
+                if (!vis)
+                    continue;
+            }
+        }
+        float3 f = skin_brdf_cos(n, l, alb, mat);
+        double4 fd = convert_double4((float4)(f, 0.0f));
+        __global const float4 *pw = power + (size_t)j * n_out;
+        for (int e = 0; e < n_out; ++e)
+            acc[e] += fd * convert_double4(pw[e]);
+    }
+    for (int e = 0; e < n_out; ++e)
+        out[(size_t)e * n_pix + i] = convert_float4(acc[e]);
+}

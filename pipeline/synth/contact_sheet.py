@@ -1,0 +1,123 @@
+"""A contact sheet of a synthetic capture: what a person checks first, on one PNG.
+
+Rows: the reference (no-flash) frame and three flash frames; the mirror sphere in each
+(highlight position predicted from the truth's light direction marked with a ring); the
+truth relit under each truth environment; normals, albedo, a one-light image and the
+sampled flash directions on a lat-long map.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from relight.colour import encode_srgb8
+from relight.directions import direction_to_equirect_uv, sphere_point_for_light
+from relight.imageio import read_image, write_image
+from relight.video import read_frames
+
+TILE = (480, 270)
+
+
+def _fit(img: np.ndarray, size=TILE) -> np.ndarray:
+    """Scale an RGB uint8 image to fit in ``size`` (w, h), centred on black."""
+    w, h = size
+    s = min(w / img.shape[1], h / img.shape[0])
+    nw, nh = max(int(img.shape[1] * s), 1), max(int(img.shape[0] * s), 1)
+    interp = cv2.INTER_AREA if s < 1 else cv2.INTER_NEAREST
+    small = cv2.resize(img, (nw, nh), interpolation=interp)
+    out = np.zeros((h, w, 3), dtype=np.uint8)
+    y0, x0 = (h - nh) // 2, (w - nw) // 2
+    out[y0:y0 + nh, x0:x0 + nw] = small
+    return out
+
+
+def _label(tile: np.ndarray, text: str) -> np.ndarray:
+    tile = tile.copy()
+    cv2.rectangle(tile, (0, 0), (tile.shape[1], 18), (0, 0, 0), -1)
+    cv2.putText(tile, text, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (255, 255, 255), 1, cv2.LINE_AA)
+    return tile
+
+
+def _tonemap(linear: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    vals = linear[mask].max(axis=1) if mask.any() else linear.reshape(-1, 3).max(axis=1)
+    scale = 0.8 / max(float(np.percentile(vals, 98)), 1e-6)
+    return encode_srgb8(linear * scale)
+
+
+def contact_sheet(capture: str | Path, out: str | Path) -> Path:
+    """Write the contact sheet of the capture folder ``capture`` (from ``relight synth``) to ``out``."""
+    capture = Path(capture)
+    meta = json.loads((capture / "truth" / "meta.json").read_text())
+    ref = meta["reference_frame"]
+    flashes = meta["flash_frames"]
+    picks = [ref] + [flashes[int(i)] for i in np.linspace(0, len(flashes) - 1, 3)] if flashes else [ref]
+    wanted = set(picks)
+    frames = {}
+    for i, f in enumerate(read_frames(capture / meta["files"]["video"])):
+        if i in wanted:
+            frames[i] = f
+        if len(frames) == len(wanted):
+            break
+    cx, cy, r = meta["sphere"]
+    rows = []
+    row1, row2 = [], []
+    for i in picks:
+        f = frames[i]
+        d = meta["light_dirs"].get(str(i))
+        text = f"frame {i} (reference, no flash)" if d is None else \
+            f"frame {i}, light ({d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f})"
+        row1.append(_label(_fit(f), text))
+        pad = int(1.3 * r)
+        x0, y0 = int(cx) - pad, int(cy) - pad
+        crop = np.ascontiguousarray(f[max(y0, 0):int(cy) + pad, max(x0, 0):int(cx) + pad])
+        scale = TILE[1] / crop.shape[0]
+        big = cv2.resize(crop, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        if d is not None:
+            px, py = sphere_point_for_light(np.asarray(d), (cx, cy, r))
+            c = (int(round((px - max(x0, 0) + 0.5) * scale - 0.5)), int(round((py - max(y0, 0) + 0.5) * scale - 0.5)))
+            cv2.circle(big, c, int(6 * scale / 2), (0, 255, 0), 1, cv2.LINE_AA)
+        row2.append(_label(_fit(big), f"sphere, frame {i}" + (" (ring: truth)" if d else "")))
+    rows += [row1, row2]
+    mask = cv2.imread(str(capture / meta["files"]["mask"]), cv2.IMREAD_GRAYSCALE) > 0
+    ys, xs = np.nonzero(mask)
+    bb = (slice(max(ys.min() - 4, 0), ys.max() + 5), slice(max(xs.min() - 4, 0), xs.max() + 5))
+    row3 = []
+    for name, rel in meta["files"]["relit"].items():
+        img = read_image(capture / rel)
+        row3.append(_label(_fit(_tonemap(img, mask)[bb]), f"truth relit: {name}"))
+    rows.append(row3)
+    normals = read_image(capture / meta["files"]["normals"])
+    albedo = read_image(capture / meta["files"]["albedo"])
+    olat_name, olat_rel = next(iter(meta["files"]["olat"].items()))
+    olat_name = "olat_side" if "olat_side" in meta["files"]["olat"] else olat_name
+    olat = read_image(capture / meta["files"]["olat"][olat_name])
+    row4 = [
+        _label(_fit(np.round(np.clip(normals * 0.5 + 0.5, 0, 1) * 255 * mask[..., None]).astype(np.uint8)[bb]),
+               "truth normals (xyz -> rgb)"),
+        _label(_fit(encode_srgb8(albedo)[bb]), "truth albedo"),
+        _label(_fit(_tonemap(olat, mask)[bb]), f"truth {olat_name}"),
+        _label(_directions_plot(meta), f"{len(meta['light_dirs'])} flash directions (lat-long)"),
+    ]
+    rows.append(row4)
+    width = max(len(r_) for r_ in rows)
+    blank = np.zeros((TILE[1], TILE[0], 3), dtype=np.uint8)
+    sheet = np.concatenate([np.concatenate(r_ + [blank] * (width - len(r_)), axis=1) for r_ in rows], axis=0)
+    return write_image(out, sheet)
+
+
+def _directions_plot(meta: dict) -> np.ndarray:
+    w, h = TILE[0], TILE[0] // 2
+    img = np.full((h, w, 3), 30, dtype=np.uint8)
+    for frac in (0.25, 0.5, 0.75):
+        cv2.line(img, (int(frac * w), 0), (int(frac * w), h), (70, 70, 70), 1)
+    cv2.line(img, (0, h // 2), (w, h // 2), (70, 70, 70), 1)
+    for d in meta["light_dirs"].values():
+        u, v = direction_to_equirect_uv(np.asarray(d))
+        cv2.circle(img, (int(u * w), int(v * h)), 2, (255, 200, 60), -1, cv2.LINE_AA)
+    for text, frac in (("-X", 0.75), ("+Z", 0.5), ("+X", 0.25)):
+        cv2.putText(img, text, (int(frac * w) + 3, h - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (200, 200, 200), 1)
+    return _fit(img)

@@ -1,0 +1,113 @@
+"""Everything in the synthetic frame that is not the head: the wall and the mirror sphere.
+
+The mirror sphere (orthographic view) reflects the room and, during a flash, shows the flash
+as a small disc whose light the lens spreads into a saturated blob (glare), as phone
+cameras do; its centre obeys the mirror law exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from relight.directions import direction_to_equirect_uv
+from relight.numerics import FLOAT
+
+#: Angular radius of the flash as seen from the face (degrees) and the sphere's reflectance.
+FLASH_RADIUS_DEG = 1.5
+MIRROR_REFLECTANCE = 0.6
+#: Sub-samples per pixel side when rendering the sphere.
+SPHERE_SUPERSAMPLE = 4
+#: The wall sits behind the head: it gets this fraction of the flash (inverse-square falloff).
+WALL_FLASH = 0.3
+WALL_ALBEDO = 0.45
+
+
+def sphere_placement(width: int, height: int) -> tuple[float, float, float]:
+    """(cx, cy, r) of the mirror sphere in pixels: right of the head, radius 1/10 of the height."""
+    return 0.80 * width, 0.64 * height, 0.10 * height
+
+
+def sample_environment(env: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a lat-long map (H, W, 3) at directions (..., 3) -> (..., 3) float32."""
+    h, w = env.shape[:2]
+    u, v = direction_to_equirect_uv(dirs)
+    padded = np.concatenate([env[:, -1:], env, env[:, :1]], axis=1)
+    padded = np.concatenate([padded[:1], padded, padded[-1:]], axis=0).astype(np.float32)
+    # cv2.remap wants maps under 32767 per side: lay the lookups out as rows of 1024.
+    n = u.size
+    cols = 1024
+    rows = -(-n // cols)
+    mx = np.zeros(rows * cols, dtype=np.float32)
+    my = np.zeros(rows * cols, dtype=np.float32)
+    mx[:n] = (u.ravel() * w + 0.5)
+    my[:n] = (v.ravel() * h + 0.5)
+    out = cv2.remap(padded, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1, 3)[:n].reshape(*np.shape(dirs)[:-1], 3)
+
+
+@dataclass(frozen=True)
+class MirrorSphere:
+    """A chrome ball of radius ``r`` pixels centred at (cx, cy)."""
+
+    cx: float
+    cy: float
+    r: float
+    glare_sigma: float
+
+    @property
+    def bbox(self) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1) region holding the sphere and its glare."""
+        pad = int(np.ceil(4 * self.glare_sigma)) + 2
+        return (int(np.floor(self.cx - self.r)) - pad, int(np.floor(self.cy - self.r)) - pad,
+                int(np.ceil(self.cx + self.r)) + pad + 1, int(np.ceil(self.cy + self.r)) + pad + 1)
+
+    def _subsamples(self):
+        x0, y0, x1, y1 = self.bbox
+        k = SPHERE_SUPERSAMPLE
+        xs = x0 + (np.arange((x1 - x0) * k) + 0.5) / k - 0.5
+        ys = y0 + (np.arange((y1 - y0) * k) + 0.5) / k - 0.5
+        nx = (xs[None, :] - self.cx) / self.r
+        ny = -(ys[:, None] - self.cy) / self.r
+        rr = nx**2 + ny**2
+        inside = rr < 1.0
+        nz = np.sqrt(np.clip(1.0 - rr, 0.0, 1.0))
+        # Reflection of the view ray (0, 0, 1) about n: 2 nz n - v.
+        refl = np.stack(np.broadcast_arrays(2 * nz * nx, 2 * nz * ny, 2 * nz * nz - 1.0), axis=-1)
+        return inside, refl
+
+    def _box(self, a: np.ndarray) -> np.ndarray:
+        k = SPHERE_SUPERSAMPLE
+        h, w = a.shape[0] // k, a.shape[1] // k
+        return a.reshape(h, k, w, k, *a.shape[2:]).mean(axis=(1, 3))
+
+    def ambient_layer(self, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(premultiplied radiance (h, w, 3), coverage (h, w)) of the sphere reflecting ``env``."""
+        inside, refl = self._subsamples()
+        rad = sample_environment(env, refl) * (MIRROR_REFLECTANCE * inside[..., None])
+        return self._box(rad).astype(FLOAT), self._box(inside.astype(np.float64)).astype(FLOAT)
+
+    def flash_layer(self, direction: np.ndarray, strength: float = 1.0) -> np.ndarray:
+        """(h, w, 3) radiance the flash adds (its reflection plus glare), for a full-exposure flash."""
+        inside, refl = self._subsamples()
+        d = np.asarray(direction, dtype=np.float64)
+        d = d / np.linalg.norm(d)
+        ang = np.degrees(np.arccos(np.clip(refl @ d, -1.0, 1.0)))
+        alpha = np.radians(FLASH_RADIUS_DEG)
+        radiance = strength * np.pi / (2 * np.pi * (1 - np.cos(alpha)))
+        disc = (ang < FLASH_RADIUS_DEG) & inside
+        img = self._box(disc.astype(np.float64)) * (MIRROR_REFLECTANCE * radiance)
+        img = cv2.GaussianBlur(img.astype(np.float32), (0, 0), self.glare_sigma)
+        return np.repeat(img[..., None], 3, axis=2)
+
+
+def wall(width: int, height: int, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) wall albedo: a faint vertical gradient and a soft plaster texture."""
+    y = np.linspace(0.0, 1.0, height)[:, None]
+    n = rng.standard_normal((height, width)).astype(np.float32)
+    n = cv2.GaussianBlur(n, (0, 0), max(2.0, width / 200))
+    n /= max(float(n.std()), 1e-6)
+    return (WALL_ALBEDO * (1.05 - 0.1 * y) * (1 + 0.03 * n)).astype(FLOAT)

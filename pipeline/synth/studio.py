@@ -1,0 +1,473 @@
+"""The synthetic capture studio: the paper's acquisition (section 3.1) on a head whose truth is known.
+
+``Studio`` holds one capture's scene (head, rig, sphere, wall, camera) and renders its frames;
+:func:`synthesize` writes ``OUT/capture.mp4`` and ``OUT/truth/`` (see :data:`TRUTH_FILES`).
+
+Radiometry (linear Rec.709 RGB throughout): a pixel is the radiance reflected toward the
+camera times the camera's exposure gain. The flash is a directional light of power pi (a
+white Lambertian surface facing it reads 1); truth images (``relit_*.exr``, ``olat_*.exr``)
+are rendered at the reference pose with exposure gain 1, no noise, no clipping, ambient off,
+so rendering a captured flash direction with a light as strong as the flash reproduces the
+flash's share of that frame. Environment maps are integrated as directional lights on a
+128x64 lat-long grid plus their bright texels (sun, lamps) at full resolution - finer than
+the 64x32 maps the pipeline builds, and rendered by the shader itself, not interpolated.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+from tqdm import tqdm
+
+from relight.directions import rotation_matrix
+from relight.envmap import Lights, environment_stem, environment_to_lights, load_environment
+from relight.errors import InputError
+from relight.imageio import atomic_path, write_image
+from relight.kernels.shading import LightShader
+from relight.numerics import FLOAT, require_finite
+from relight.video import VideoWriter
+
+from . import rig
+from .camera import Sensor
+from .head import Head, build_head
+from .scene import WALL_FLASH, MirrorSphere, sphere_placement, wall
+
+DEFAULT_TRUTH_ENVS = ("builtin:studio", "builtin:sunset", "builtin:window", "builtin:uniform")
+AMBIENT_ENV = "builtin:room"
+#: One-light truth images: name -> direction (camera space, toward the light).
+OLAT_DIRECTIONS = {
+    "front": (0.0, 0.0, 1.0),
+    "left": (-0.8, 0.1, 0.6),
+    "right": (0.8, 0.1, 0.6),
+    "top": (0.0, 0.8, 0.6),
+    "below": (0.0, -0.5, 0.87),
+    "side": (1.0, 0.0, 0.05),
+}
+#: Grid (azimuth columns, polar rows) around the camera axis on which the truth integrates
+#: environments, plus their bright texels at full resolution. Each column is one image-plane
+#: direction, so the shader reads its visibility from a horizon table instead of marching.
+TRUTH_GRID = (128, 64)
+#: Texels brighter than this many times an environment's mean become lights of their own (a
+#: sun, a lamp: exact directions, shadows marched); at most this many per environment.
+TRUTH_PEAK_FACTOR = 50.0
+TRUTH_MAX_PEAKS = 256
+#: Lights per kernel launch in the truth pass (bounds one launch to about a second).
+LIGHT_BATCH = 256
+#: Outputs per shading pass (the kernel's MAX_OUT).
+OUTPUTS_PER_PASS = 16
+FLASH_STRENGTH = 1.0
+TRUTH_FORMAT_VERSION = 1
+MAX_SIZE = (3840, 2160)
+MIN_SIZE = (128, 72)
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """Settings of one synthetic capture (the ``relight synth`` flags)."""
+
+    width: int = 960
+    height: int = 540
+    fps: float = 30.0
+    flash_hz: float = 5.0
+    duration: float = 60.0
+    seed: int = 0
+    head_motion: float = 1.0
+    ambient: float = 1.0
+    noise: float = 1.0
+    camera_drift: bool = False
+    truth_envs: tuple[str, ...] = DEFAULT_TRUTH_ENVS
+    crf: int = 16
+
+    def validate(self) -> SynthConfig:
+        """Return self, or raise :class:`InputError` naming the setting to change."""
+        w, h = self.width, self.height
+        if not (MIN_SIZE[0] <= w <= MAX_SIZE[0] and MIN_SIZE[1] <= h <= MAX_SIZE[1]) or w % 2 or h % 2:
+            raise InputError(f"--size {w}x{h}: use even numbers between {MIN_SIZE[0]}x{MIN_SIZE[1]} "
+                             f"and {MAX_SIZE[0]}x{MAX_SIZE[1]}")
+        if not (5.0 <= self.fps <= 240.0):
+            raise InputError(f"--fps {self.fps}: use 5 to 240 frames per second")
+        if not (0.5 <= self.flash_hz <= self.fps / 4):
+            raise InputError(f"--flash-hz {self.flash_hz}: use 0.5 Hz up to a quarter of the frame rate "
+                             f"({self.fps / 4:g} Hz) so dark frames exist between flashes")
+        if not (1.0 <= self.duration <= 600.0):
+            raise InputError(f"--duration {self.duration}: use 1 to 600 seconds")
+        for name in ("head_motion", "ambient", "noise"):
+            val = getattr(self, name)
+            if not (np.isfinite(val) and 0.0 <= val <= 20.0):
+                raise InputError(f"--{name.replace('_', '-')} {val}: use a number from 0 to 20")
+        if self.ambient <= 0:
+            raise InputError("--ambient must be > 0: the no-flash frames need some light to track the head")
+        if not self.truth_envs:
+            raise InputError("give at least one truth environment")
+        stems = [environment_stem(e) for e in self.truth_envs]
+        if len(set(stems)) != len(stems):
+            raise InputError(f"truth environments must have distinct names, got {stems}")
+        return self
+
+    @property
+    def frame_count(self) -> int:
+        return int(round(self.duration * self.fps))
+
+
+@dataclass
+class SynthResult:
+    """What :func:`synthesize` wrote and how long each part took (seconds)."""
+
+    out: Path
+    video: Path
+    truth: Path
+    frame_count: int
+    flash_frames: int
+    timings: dict = field(default_factory=dict)
+
+
+class Studio:
+    """One synthetic capture: the scene, the rig's schedule, and frame rendering."""
+
+    def __init__(self, config: SynthConfig, *, progress: bool = False):
+        self.config = config.validate()
+        self.progress = progress
+        c = self.config
+        seeds = np.random.SeedSequence([c.seed, 0x5EED]).spawn(5)
+        rng_rig, rng_motion, rng_drift, rng_scene, noise = seeds
+        self.noise_seed = int(noise.generate_state(1)[0])
+        self.n = c.frame_count
+        self.exposure_time = 0.9 / c.fps
+        t0 = time.perf_counter()
+        self.head: Head = build_head(c.width, c.height, c.seed)
+        self.timings = {"head": time.perf_counter() - t0}
+        self.surface = self.head.surface()
+        self.shader = LightShader(self.surface)
+
+        self.pulses = rig.make_pulses(np.random.default_rng(rng_rig), c.duration, c.flash_hz)
+        self.lit = rig.flash_fractions(self.pulses, self.n, c.fps, self.exposure_time)
+        self.fraction = np.array([sum(f for _, f in lst) for lst in self.lit])
+        dark = np.flatnonzero(self.fraction == 0.0)
+        self.reference_frame = int(dark[0]) if dark.size else int(np.argmin(self.fraction))
+        self.motion = rig.head_motion(np.random.default_rng(rng_motion), self.n, c.fps, c.height,
+                                      c.head_motion, self.reference_frame)
+        self.matrices = rig.motion_matrices(self.motion, self.head.center)
+        self.gain, self.white_balance = rig.camera_drift(np.random.default_rng(rng_drift), self.fraction,
+                                                         c.fps, c.camera_drift)
+        self.sensor = Sensor().scaled(c.noise)
+
+        cx, cy, r = sphere_placement(c.width, c.height)
+        self.sphere = MirrorSphere(cx, cy, r, glare_sigma=max(0.8, 1.2 * c.height / 540))
+        self.room = load_environment(AMBIENT_ENV) * np.float32(c.ambient)
+        self.wall_albedo = wall(c.width, c.height, np.random.default_rng(rng_scene))
+
+        # Pixels partly covered by the head but whose centre is off it take the colour of the
+        # nearest shaded pixel (so the anti-aliased silhouette has no dark fringe).
+        mask = self.head.mask
+        _, (iy, ix) = distance_transform_edt(~mask, return_indices=True)
+        flat_pos = -np.ones(mask.size, dtype=np.int64)
+        flat_pos[self.surface.pix] = np.arange(self.surface.pix.size)
+        edge = (self.head.alpha > 0) & ~mask
+        self._edge_dst = np.flatnonzero(edge)
+        self._edge_src = flat_pos[(iy * c.width + ix)[edge]]
+        # Frames move the head within this crop (its bounding box plus the largest motion).
+        reach = rig.MAX_SHIFT_PX_AT_540 * c.height / 540 * max(c.head_motion, 1.0)
+        x0, y0, x1, y1 = self.head.bbox(pad=int(np.ceil(reach + np.radians(rig.MAX_ROT_DEG * max(c.head_motion, 1.0))
+                                                        * max(c.width, c.height))) + 4)
+        self._crop = (x0, y0, x1, y1)
+        cw = x1 - x0
+
+        def to_crop(flat):
+            return (flat // c.width - y0) * cw + (flat % c.width - x0)
+
+        self._crop_pix = to_crop(self.surface.pix.astype(np.int64))
+        self._crop_edge = to_crop(self._edge_dst)
+        crop_alpha = self.head.alpha[y0:y1, x0:x1]
+        self._crop_rgba = np.zeros((y1 - y0, cw, 4), dtype=FLOAT)
+        self._crop_rgba[..., 3] = crop_alpha
+        self._ambient_head: np.ndarray | None = None
+        self._flash_layers: dict[int, np.ndarray] = {}
+
+    # ------------------------------------------------------------------ truth
+    def _truth_lights(self, env: np.ndarray) -> Lights:
+        return environment_to_lights(env, grid=TRUTH_GRID, pole="z", keep_grid=True,
+                                     peak_factor=TRUTH_PEAK_FACTOR, max_peaks=TRUTH_MAX_PEAKS)
+
+    def render_truth(self) -> dict[str, np.ndarray]:
+        """Truth at the reference pose: name -> (P, 3) radiance at the head's shaded pixels.
+
+        Names: each truth environment's stem, ``olat_<name>`` for :data:`OLAT_DIRECTIONS`,
+        and ``ambient`` (the room light of the no-flash frames, ambient strength applied).
+        """
+        c = self.config
+        outputs: list[tuple[str, Lights]] = []
+        for src in c.truth_envs:
+            outputs.append((environment_stem(src), self._truth_lights(load_environment(src))))
+        outputs.append(("ambient", self._truth_lights(self.room)))
+        for name, direction in OLAT_DIRECTIONS.items():
+            v = np.asarray(direction, dtype=np.float64)
+            outputs.append((f"olat_{name}", Lights(dirs=(v / np.linalg.norm(v))[None],
+                                                   power=np.full((1, 3), np.pi * FLASH_STRENGTH),
+                                                   column=np.array([-1]), n_grid=0)))
+        groups = [outputs[i:i + OUTPUTS_PER_PASS] for i in range(0, len(outputs), OUTPUTS_PER_PASS)]
+        passes = [_union([lights for _, lights in g]) for g in groups]
+        bar = tqdm(total=sum(d.shape[0] for d, _, _ in passes), desc="truth lights", unit="light",
+                   disable=not self.progress, leave=False)
+        self.shader.prepare_horizons(TRUTH_GRID[0])
+        results: dict[str, np.ndarray] = {}
+        for group, (dirs, power, column) in zip(groups, passes, strict=True):
+            acc = np.zeros((len(group), self.surface.pix.size, 3), dtype=np.float64)
+            for a in range(0, dirs.shape[0], LIGHT_BATCH):
+                sl = slice(a, a + LIGHT_BATCH)
+                acc += self.shader.shade(dirs[sl], power[sl], direction_index=column[sl])
+                bar.update(dirs[sl].shape[0])
+            for (name, _), img in zip(group, acc, strict=True):
+                results[name] = require_finite(f"truth {name}", img.astype(FLOAT))
+        bar.close()
+        self._ambient_head = results["ambient"]
+        return results
+
+    # ------------------------------------------------------------------ frames
+    def ambient_head(self) -> np.ndarray:
+        """(P, 3) head radiance under the room light at the reference pose."""
+        if self._ambient_head is None:
+            lights = self._truth_lights(self.room)
+            if self.shader.n_dir != TRUTH_GRID[0]:
+                self.shader.prepare_horizons(TRUTH_GRID[0])
+            acc = np.zeros((self.surface.pix.size, 3))
+            for a in range(0, lights.dirs.shape[0], LIGHT_BATCH):
+                sl = slice(a, a + LIGHT_BATCH)
+                acc += self.shader.shade(lights.dirs[sl], lights.power[sl], direction_index=lights.column[sl])[0]
+            self._ambient_head = acc.astype(FLOAT)
+        return self._ambient_head
+
+    def head_image(self, radiance: np.ndarray) -> np.ndarray:
+        """(P, 3) radiance at shaded pixels -> (H, W, 3) image, silhouette fringe filled, 0 elsewhere."""
+        c = self.config
+        img = np.zeros((c.height * c.width, 3), dtype=FLOAT)
+        img[self.surface.pix] = radiance
+        img[self._edge_dst] = radiance[self._edge_src]
+        return img.reshape(c.height, c.width, 3)
+
+    def flash_radiance(self, frame: int) -> np.ndarray:
+        """(P, 3) head radiance added by the flash(es) during ``frame`` (head-frame light directions)."""
+        lit = self.lit[frame]
+        if not lit:
+            return np.zeros((self.surface.pix.size, 3), dtype=FLOAT)
+        # The head is rolled by rot about +Z; in its own frame the light is rolled back.
+        to_head = rotation_matrix(roll=-self.motion[frame, 2])
+        dirs = np.array([to_head @ np.asarray(self.pulses[k].direction) for k, _ in lit])
+        power = np.array([[np.full(3, np.pi * FLASH_STRENGTH * f)] for _, f in lit])
+        return self.shader.shade(dirs, power)[0]
+
+    def _flash_layer(self, k: int) -> np.ndarray:
+        layer = self._flash_layers.get(k)
+        if layer is None:
+            layer = self.sphere.flash_layer(np.asarray(self.pulses[k].direction), FLASH_STRENGTH)
+            self._flash_layers[k] = layer
+        return layer
+
+    def _static_layers(self):
+        if not hasattr(self, "_layers"):
+            room = environment_to_lights(self.room, grid=(64, 32))
+            e_front = float((room.power.mean(axis=1) * np.clip(room.dirs[:, 2], 0, None)).sum())
+            wall_amb = (self.wall_albedo * (e_front / np.pi))[..., None] * np.ones(3, dtype=FLOAT)
+            s_rad, s_cov = self.sphere.ambient_layer(self.room)
+            self._layers = (wall_amb.astype(FLOAT), s_rad, s_cov)
+        return self._layers
+
+    def render_frame(self, frame: int, *, flash: np.ndarray | None = None) -> np.ndarray:
+        """Linear frame ``frame`` as the scene presents it to the sensor (before gain, noise, sRGB).
+
+        (H, W, 3) float32, linear Rec.709. ``flash`` overrides the head's flash radiance
+        (P, 3) - the truth test re-renders frames from the recorded light directions.
+        """
+        c = self.config
+        wall_amb, s_rad, s_cov = self._static_layers()
+        lit = self.lit[frame]
+        head = self.ambient_head() + (self.flash_radiance(frame) if flash is None else flash)
+        # Background: the wall (ambient + its share of the flash), then the sphere over it.
+        wall_flash = sum(f * max(self.pulses[k].direction[2], 0.0) for k, f in lit) * WALL_FLASH * FLASH_STRENGTH
+        out = wall_amb.copy() if wall_flash == 0 else wall_amb + (self.wall_albedo * np.float32(wall_flash))[..., None]
+        x0, y0, x1, y1 = self.sphere.bbox
+        region = out[y0:y1, x0:x1]
+        region[:] = s_rad + (1.0 - s_cov[..., None]) * region
+        for k, f in lit:
+            region += np.float32(f) * self._flash_layer(k)
+        # The head: premultiplied by coverage, moved by this frame's rigid motion.
+        hx0, hy0, hx1, hy1 = self._crop
+        rgba = self._crop_rgba.copy()
+        flat = rgba.reshape(-1, 4)
+        flat[self._crop_pix, :3] = head
+        flat[self._crop_edge, :3] = head[self._edge_src]
+        rgba[..., :3] *= rgba[..., 3:]
+        m = self.matrices[frame].copy()
+        m[:, 2] += m[:, :2] @ np.array([hx0, hy0]) - np.array([hx0, hy0])
+        moved = cv2.warpAffine(rgba, m, (hx1 - hx0, hy1 - hy0), flags=cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        dst = out[hy0:hy1, hx0:hx1]
+        dst[:] = moved[..., :3] + (1.0 - moved[..., 3:]) * dst
+        return out
+
+    def camera_frame(self, frame: int, *, noisy: bool = True, flash: np.ndarray | None = None) -> np.ndarray:
+        """(H, W, 3) uint8 sRGB frame as the phone records it (``flash``: see :meth:`render_frame`)."""
+        key = (self.noise_seed, frame) if noisy else None
+        return self.sensor.expose(self.render_frame(frame, flash=flash), self.gain[frame],
+                                  self.white_balance[frame], key)
+
+    # ------------------------------------------------------------------ metadata
+    def meta(self) -> dict:
+        """The truth's ``meta.json`` content."""
+        c = self.config
+        flash_frames = [i for i in range(self.n) if self.fraction[i] > 0.5]
+        light_dirs = {}
+        for i in flash_frames:
+            k = max(self.lit[i], key=lambda kf: kf[1])[0]
+            light_dirs[str(i)] = [round(x, 7) for x in self.pulses[k].direction]
+        cx, cy, r = self.sphere.cx, self.sphere.cy, self.sphere.r
+        cfg = asdict(c)
+        cfg["truth_envs"] = list(c.truth_envs)
+        return {
+            "format": "relight-synth-truth",
+            "version": TRUTH_FORMAT_VERSION,
+            "config": cfg,
+            "fps": c.fps,
+            "size": [c.width, c.height],
+            "frame_count": self.n,
+            "flash_hz": c.flash_hz,
+            "exposure_time": self.exposure_time,
+            "flash_frames": flash_frames,
+            "light_dirs": light_dirs,
+            "flash_fraction": [round(float(f), 5) for f in self.fraction],
+            "pulses": [{"start": round(p.start, 6), "end": round(p.end, 6),
+                        "direction": [round(x, 7) for x in p.direction]} for p in self.pulses],
+            "sphere": [cx, cy, r],
+            "head_center": list(self.head.center),
+            "head_scale": self.head.scale,
+            "head_motion": [[round(float(x), 6) for x in row] for row in self.motion],
+            "reference_frame": self.reference_frame,
+            "exposure_gain": [round(float(g), 6) for g in self.gain],
+            "white_balance": [[round(float(x), 6) for x in row] for row in self.white_balance],
+            "sensor": {"read_noise": self.sensor.read_noise, "shot_gain": self.sensor.shot_gain},
+            "flash_strength": FLASH_STRENGTH,
+            "conventions": {
+                "camera": "+X right in the image, +Y up, +Z toward the camera; light_dirs point from the face "
+                          "toward the light",
+                "head_motion": "[tx, ty, rot_deg] per frame: reference pixel p moves to R(rot)(p - c) + c + t, "
+                               "c = head_center, rot counter-clockwise on screen (cv2.getRotationMatrix2D sign)",
+                "flash_frames": "frames lit by the flash for more than half of their exposure",
+                "radiometry": "linear Rec.709; the flash is a directional light of power pi (a white Lambertian "
+                              "surface facing it reads 1); relit_*/olat_* at the reference pose, gain 1, no noise, "
+                              "ambient off; frame = sRGB(clip(gain * white_balance * scene + noise))",
+                "depth": "height toward the camera in pixels (orthographic camera), 0 off the mask",
+                "mesh": "head.ply vertices are (column, -row, height) in pixels",
+            },
+        }
+
+
+def _union(group: list[Lights]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lights of several outputs as one list: the shared grid cells first, then each output's own.
+
+    Returns dirs (L, 3), power (L, E, 3) and grid column (L,) (-1: march this light); lights
+    with no power in any output are dropped.
+    """
+    n_out = len(group)
+    grid = TRUTH_GRID[0] * TRUTH_GRID[1]
+    base = next((lights for lights in group if lights.n_grid), None)
+    dirs_parts, pow_parts, col_parts = [], [], []
+    if base is not None:
+        base_pow = np.zeros((grid, n_out, 3))
+        for e, lights in enumerate(group):
+            if lights.n_grid:
+                base_pow[:, e] = lights.power[:grid]
+        dirs_parts.append(base.dirs[:grid])
+        pow_parts.append(base_pow)
+        col_parts.append(base.column[:grid])
+    for e, lights in enumerate(group):
+        own = slice(lights.n_grid, None)
+        pe = np.zeros((lights.dirs[own].shape[0], n_out, 3))
+        pe[:, e] = lights.power[own]
+        dirs_parts.append(lights.dirs[own])
+        pow_parts.append(pe)
+        col_parts.append(lights.column[own])
+    dirs = np.concatenate(dirs_parts)
+    power = np.concatenate(pow_parts)
+    column = np.concatenate(col_parts)
+    keep = power.sum(axis=(1, 2)) > 0
+    return dirs[keep], power[keep], column[keep]
+
+
+def _height_field_mesh(head: Head):
+    import trimesh
+
+    mask = head.mask
+    h, w = mask.shape
+    idx = -np.ones((h, w), dtype=np.int64)
+    ys, xs = np.nonzero(mask)
+    idx[ys, xs] = np.arange(ys.size)
+    verts = np.stack([xs, -ys, head.height[ys, xs]], axis=1).astype(np.float64)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    quad = (a >= 0) & (b >= 0) & (c >= 0) & (d >= 0)
+    # Wound counter-clockwise as seen from the camera (+Z), so normals face it.
+    f1 = np.stack([a[quad], c[quad], b[quad]], axis=1)
+    f2 = np.stack([b[quad], c[quad], d[quad]], axis=1)
+    return trimesh.Trimesh(vertices=verts, faces=np.concatenate([f1, f2]), process=False)
+
+
+def synthesize(out: str | Path, config: SynthConfig = SynthConfig(), *, progress: bool = True) -> SynthResult:
+    """Simulate a capture: write ``out/capture.mp4`` and the truth in ``out/truth/``."""
+    t_all = time.perf_counter()
+    out = Path(out)
+    truth = out / "truth"
+    truth.mkdir(parents=True, exist_ok=True)
+    studio = Studio(config, progress=progress)
+    c = studio.config
+    timings = dict(studio.timings)
+
+    t0 = time.perf_counter()
+    renders = studio.render_truth()
+    timings["truth_render"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    head = studio.head
+    for name, rad in renders.items():
+        if name == "ambient":
+            continue
+        fname = f"{name}.exr" if name.startswith("olat_") else f"relit_{name}.exr"
+        write_image(truth / fname, studio.head_image(rad) * head.mask[..., None])
+    write_image(truth / "ambient.exr", studio.render_frame(studio.reference_frame, flash=np.zeros_like(renders["ambient"])))
+    write_image(truth / "mask.png", head.mask.astype(np.uint8) * 255)
+    write_image(truth / "normals.exr", head.normal)
+    write_image(truth / "depth.exr", np.where(head.mask, head.height, 0.0).astype(FLOAT))
+    write_image(truth / "albedo.exr", head.albedo)
+    with atomic_path(truth / "head.ply") as tmp:
+        _height_field_mesh(head).export(str(tmp), file_type="ply")
+    timings["truth_write"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    video = out / "capture.mp4"
+    t_render = 0.0
+    with VideoWriter(video, c.fps, (c.width, c.height), crf=c.crf) as writer:
+        for i in tqdm(range(studio.n), desc="frames", unit="frame", disable=not progress, leave=False):
+            t1 = time.perf_counter()
+            rgb = studio.camera_frame(i)
+            t_render += time.perf_counter() - t1
+            writer.write(rgb)
+    timings["frames_render"] = t_render
+    timings["frames_total"] = time.perf_counter() - t0
+
+    meta = studio.meta()
+    meta["files"] = {"video": "capture.mp4", "mask": "truth/mask.png", "normals": "truth/normals.exr",
+                     "depth": "truth/depth.exr", "albedo": "truth/albedo.exr", "ambient": "truth/ambient.exr",
+                     "mesh": "truth/head.ply",
+                     "relit": {environment_stem(e): f"truth/relit_{environment_stem(e)}.exr" for e in c.truth_envs},
+                     "olat": {f"olat_{k}": f"truth/olat_{k}.exr" for k in OLAT_DIRECTIONS}}
+    meta["envs"] = {environment_stem(e): e for e in c.truth_envs}
+    meta["olat_dirs"] = {f"olat_{k}": [float(x) for x in np.asarray(v) / np.linalg.norm(v)]
+                         for k, v in OLAT_DIRECTIONS.items()}
+    with atomic_path(truth / "meta.json") as tmp:
+        tmp.write_text(json.dumps(meta, indent=1))
+    timings["total"] = time.perf_counter() - t_all
+    return SynthResult(out=out, video=video, truth=truth, frame_count=studio.n,
+                       flash_frames=len(meta["flash_frames"]), timings=timings)

@@ -1,0 +1,17 @@
+"""relight: real-time relighting of a human face in video on a CPU.
+
+Public API (stable names)::
+
+    relight.load_environment(path_or_builtin)   # (H, 2H, 3) float32 linear radiance
+
+Architecture: ``relight.pipeline`` (offline capture -> reflectance bundle, and the synthetic
+capture studio), ``relight.kernels`` (OpenCL C kernels on PoCL + host wrappers),
+``relight.service`` (online relighting). Conventions are in :mod:`relight.directions`.
+"""
+
+from .envmap import load_environment
+from .errors import InputError, NumericalError, RelightError
+
+__version__ = "0.1.0"
+
+__all__ = ["InputError", "NumericalError", "RelightError", "__version__", "load_environment"]

@@ -1,0 +1,189 @@
+"""Reading and writing images safely (OpenImageIO underneath).
+
+Every read is bounded: the file size and the header's dimensions are checked before any
+pixel is decoded, and decoding errors (truncated or corrupt files) become
+:class:`~relight.errors.InputError` with a message that says what to change. Every write
+is atomic: a temporary file in the destination folder is renamed over the target, so an
+interrupted write never leaves a half-written file where a good one was.
+
+Colour: float formats (EXR, HDR, float TIFF) are linear; integer formats (PNG, JPEG, 8/16-bit
+TIFF) are sRGB-encoded and decoded to linear here, unless ``linearize=False``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .colour import linear_to_srgb, srgb_to_linear
+from .errors import InputError
+from .numerics import FLOAT, require_finite
+
+#: Default limits for images read from users (a 16K x 8K environment map still fits).
+MAX_IMAGE_DIM = 16384
+MAX_IMAGE_PIXELS = 16384 * 8192
+MAX_FILE_BYTES = 2 << 30
+
+LINEAR_EXTENSIONS = {".exr", ".hdr", ".pfm"}
+LDR_EXTENSIONS = {".png", ".jpg", ".jpeg"}
+#: A fixed timestamp keeps written files byte-identical for identical data.
+_FIXED_DATETIME = "2000:01:01 00:00:00"
+
+
+@dataclass(frozen=True)
+class ImageInfo:
+    """What the header of an image file says."""
+
+    width: int
+    height: int
+    channels: int
+    format: str  # OIIO base type name, e.g. "uint8", "half", "float"
+    linear: bool  # True when the pixel values are linear light (float formats)
+
+
+def _oiio():
+    import OpenImageIO as oiio  # deferred: keeps `import relight` light
+
+    return oiio
+
+
+def probe_image(path: str | os.PathLike, *, max_dim: int = MAX_IMAGE_DIM,
+                max_pixels: int = MAX_IMAGE_PIXELS, max_bytes: int = MAX_FILE_BYTES) -> ImageInfo:
+    """Read and validate an image header without decoding pixels."""
+    oiio = _oiio()
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file; check the path")
+    size = path.stat().st_size
+    if size == 0:
+        raise InputError(f"{path}: the file is empty; re-export it")
+    if size > max_bytes:
+        raise InputError(f"{path}: {size} bytes is more than the {max_bytes}-byte limit; use a smaller image")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InputError(f"{path}: not a readable image ({oiio.geterror() or 'unknown format'}); "
+                         "use EXR, HDR, PNG or JPEG")
+    try:
+        spec = inp.spec()
+        w, h, c, d = spec.width, spec.height, spec.nchannels, spec.depth
+        fmt = str(spec.format)
+    finally:
+        inp.close()
+    if w <= 0 or h <= 0 or c <= 0 or d != 1:
+        raise InputError(f"{path}: header says {w}x{h}x{d} with {c} channel(s); the file is corrupt")
+    if w > max_dim or h > max_dim or w * h > max_pixels:
+        raise InputError(f"{path}: header says {w}x{h} pixels, more than the limit of {max_dim} per side and "
+                         f"{max_pixels} in all; downscale the image")
+    if c > 4:
+        raise InputError(f"{path}: {c} channels; expected 1 (grey), 3 (RGB) or 4 (RGBA)")
+    linear = fmt in ("half", "float", "double")
+    return ImageInfo(width=w, height=h, channels=c, format=fmt, linear=linear)
+
+
+def read_image(path: str | os.PathLike, *, linearize: bool = True, **limits) -> np.ndarray:
+    """Read an image as float32 RGB (H, W, 3).
+
+    Grey images are replicated to three channels, alpha is dropped. With ``linearize``
+    (default) integer-format images are decoded from sRGB to linear; float formats are
+    returned as stored (linear). Raises :class:`InputError` for missing, oversized, truncated,
+    corrupt or non-finite files.
+    """
+    oiio = _oiio()
+    info = probe_image(path, **limits)
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:  # pragma: no cover - probe_image opened it a moment ago
+        raise InputError(f"{path}: could not be reopened ({oiio.geterror()})")
+    try:
+        pixels = inp.read_image(0, 0, 0, info.channels, "float")
+        err = inp.geterror()
+    finally:
+        inp.close()
+    if pixels is None or err:
+        raise InputError(f"{path}: the pixel data could not be decoded ({err or 'unknown error'}); "
+                         "the file is truncated or corrupt, re-export it")
+    pixels = np.asarray(pixels, dtype=FLOAT).reshape(info.height, info.width, info.channels)
+    if info.channels in (1, 2):
+        pixels = np.repeat(pixels[..., :1], 3, axis=2)
+    else:
+        pixels = pixels[..., :3]
+    require_finite(str(path), pixels, user_input=True)
+    if linearize and not info.linear:
+        pixels = srgb_to_linear(pixels)
+    return np.ascontiguousarray(pixels, dtype=FLOAT)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike):
+    """Yield a temporary path beside ``path``; rename it over ``path`` on success.
+
+    The temporary name keeps the extension (image writers pick the format from it). On any
+    exception the temporary file is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray, *, encode_srgb: bool | None = None) -> Path:
+    """Write an image atomically; the format follows the extension.
+
+    image : (H, W) or (H, W, C) array. For ``.exr``/``.hdr`` it is written as float32 linear
+    values (EXR: zip-compressed). For ``.png``/``.jpg``: uint8 arrays are written as they
+    are (already encoded); float arrays are linear values, clipped to 0-1, sRGB-encoded
+    (``encode_srgb=False`` writes them as already-encoded 0-1 values) and quantised to 8 bits.
+    """
+    oiio = _oiio()
+    path = Path(path)
+    ext = path.suffix.lower()
+    arr = np.asarray(image)
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    if arr.ndim != 3 or arr.shape[2] not in (1, 2, 3, 4):
+        raise InputError(f"write_image({path}): expected (H, W) or (H, W, 1-4) array, got {arr.shape}")
+    h, w, c = arr.shape
+    if ext in LINEAR_EXTENSIONS:
+        data = require_finite(f"image for {path}", arr.astype(np.float32))
+        fmt = "float"
+    elif ext in LDR_EXTENSIONS:
+        if arr.dtype == np.uint8:
+            data = arr
+        else:
+            f = arr.astype(FLOAT)
+            require_finite(f"image for {path}", f)
+            if encode_srgb is None or encode_srgb:
+                f = linear_to_srgb(f)
+            data = np.round(np.clip(f, 0.0, 1.0) * 255.0).astype(np.uint8)
+        fmt = "uint8"
+    else:
+        raise InputError(f"{path}: unsupported extension {ext!r}; use .exr, .hdr, .png or .jpg")
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    if c == 1:
+        spec.channelnames = ("Y",)
+    spec.attribute("DateTime", _FIXED_DATETIME)
+    if ext == ".exr":
+        spec.attribute("compression", "zip")
+    if ext in (".jpg", ".jpeg"):
+        spec.attribute("Compression", "jpeg:95")
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:  # pragma: no cover - format plugins ship with the wheel
+            raise InputError(f"{path}: no writer for {ext} ({oiio.geterror()})")
+        ok = out.open(str(tmp), spec) and out.write_image(np.ascontiguousarray(data))
+        err = out.geterror()
+        out.close()
+        if not ok:
+            raise OSError(f"{path}: write failed ({err})")
+    return path

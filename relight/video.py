@@ -1,0 +1,137 @@
+"""Video in and out through PyAV (FFmpeg).
+
+Frames cross this boundary as (H, W, 3) uint8 sRGB arrays; convert with
+:func:`relight.colour.decode_srgb8` / :func:`relight.colour.encode_srgb8`.
+Writes are atomic (temporary file + rename); reads are bounded and validated.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .imageio import atomic_path
+
+#: Largest frame a reader accepts (8K UHD) and the longest video, in frames.
+MAX_VIDEO_DIM = 7680
+MAX_VIDEO_FRAMES = 200_000
+
+
+class VideoWriter:
+    """Encode RGB frames to H.264 (yuv420p) in an MP4, atomically.
+
+    Use as a context manager; the file appears at ``path`` only when the block completes.
+    """
+
+    def __init__(self, path: str | os.PathLike, fps: float, size: tuple[int, int], *, crf: int = 16,
+                 preset: str = "veryfast", codec: str = "libx264"):
+        w, h = size
+        if w % 2 or h % 2:
+            raise InputError(f"video size {w}x{h}: H.264 (yuv420p) needs even width and height")
+        self.path = Path(path)
+        self.fps = Fraction(fps).limit_denominator(1001)
+        self.size = (int(w), int(h))
+        self.crf = crf
+        self.preset = preset
+        self.codec = codec
+        self.frames = 0
+
+    def __enter__(self) -> VideoWriter:
+        import av
+
+        self._atomic = atomic_path(self.path)
+        tmp = self._atomic.__enter__()
+        self._container = av.open(str(tmp), mode="w")
+        stream = self._container.add_stream(self.codec, rate=self.fps)
+        stream.width, stream.height = self.size
+        stream.pix_fmt = "yuv420p"
+        stream.codec_context.time_base = 1 / self.fps
+        stream.options = {"crf": str(self.crf), "preset": self.preset}
+        self._stream = stream
+        return self
+
+    def write(self, rgb: np.ndarray) -> None:
+        """Append one (H, W, 3) uint8 sRGB frame."""
+        import av
+
+        if rgb.shape != (self.size[1], self.size[0], 3) or rgb.dtype != np.uint8:
+            raise InputError(f"frame must be ({self.size[1]}, {self.size[0]}, 3) uint8, got {rgb.shape} {rgb.dtype}")
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")
+        frame.pts = self.frames
+        frame.time_base = 1 / self.fps
+        for packet in self._stream.encode(frame):
+            self._container.mux(packet)
+        self.frames += 1
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                for packet in self._stream.encode():
+                    self._container.mux(packet)
+        finally:
+            self._container.close()
+            self._atomic.__exit__(exc_type, exc, tb)
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """What a video's container says about its first video stream."""
+
+    width: int
+    height: int
+    fps: float
+    frame_count: int  # from the container; 0 when it does not say
+
+
+def probe_video(path: str | os.PathLike) -> VideoInfo:
+    """Open a video and validate its first video stream without decoding it."""
+    import av
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such video file; check the path")
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                raise InputError(f"{path}: the file has no video stream")
+            s = container.streams.video[0]
+            w, h = s.codec_context.width, s.codec_context.height
+            rate = s.average_rate or s.guessed_rate or 0
+            n = s.frames or 0
+    except av.error.FFmpegError as exc:
+        raise InputError(f"{path}: not a readable video ({exc}); use MP4/MOV/MKV/WebM") from None
+    if not (0 < w <= MAX_VIDEO_DIM and 0 < h <= MAX_VIDEO_DIM):
+        raise InputError(f"{path}: frame size {w}x{h} is outside 1..{MAX_VIDEO_DIM}; downscale the video")
+    return VideoInfo(width=w, height=h, fps=float(rate), frame_count=int(n))
+
+
+def read_frames(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) -> Iterator[np.ndarray]:
+    """Decode the first video stream as (H, W, 3) uint8 sRGB frames, in order.
+
+    Raises :class:`InputError` for an unreadable file, a corrupt stream, or more than
+    ``max_frames`` frames.
+    """
+    import av
+
+    info = probe_video(path)
+    count = 0
+    try:
+        with av.open(str(path)) as container:
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"
+            for frame in container.decode(stream):
+                if frame.width != info.width or frame.height != info.height:
+                    raise InputError(f"{path}: frame {count} is {frame.width}x{frame.height}, the stream said "
+                                     f"{info.width}x{info.height}; variable-size streams are not supported")
+                count += 1
+                if count > max_frames:
+                    raise InputError(f"{path}: more than {max_frames} frames; trim the video")
+                yield frame.to_ndarray(format="rgb24")
+    except av.error.FFmpegError as exc:
+        raise InputError(f"{path}: decoding failed after {count} frame(s) ({exc}); the file is corrupt") from None

@@ -1,0 +1,1 @@
+"""Online side: relighting incoming frames with a loaded reflectance bundle."""
