@@ -176,7 +176,8 @@ def skin_brdf_cos_numpy(n: np.ndarray, l: np.ndarray, albedo: np.ndarray, specul
     vh = max(hv[2], 0.0)
     a = roughness**2
     a2 = a * a
-    d = nh * nh * (a2 - 1.0) + 1.0
+    nxh = np.cross(n, hv)
+    d = np.sum(nxh * nxh, axis=1) + nh * nh * a2
     D = a2 / (np.pi * d * d)
     k = 0.5 * a
     ok = (c > 0) & (nv > 0) & (specular > 0)

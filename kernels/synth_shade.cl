@@ -106,7 +106,10 @@ inline float3 skin_brdf_cos(float3 n, float3 l, float4 alb, float4 mat)
         float vh = fmax(hv.z, 0.0f);
         float a = mat.x * mat.x;
         float a2 = a * a;
-        float d = nh * nh * (a2 - 1.0f) + 1.0f;
+        /* 1 + nh^2 (a2 - 1) cancels badly near the peak of a sharp lobe; |n x h|^2 = 1 - nh^2
+           keeps float32 accurate there. */
+        float3 nxh = cross(n, hv);
+        float d = dot(nxh, nxh) + nh * nh * a2;
         float D = a2 / (PI_F * d * d);
         float k = 0.5f * a;
         float G = (c / (c * (1.0f - k) + k)) * (nv / (nv * (1.0f - k) + k));

@@ -28,11 +28,16 @@ MAX_ROT_DEG = 0.35
 
 @dataclass(frozen=True)
 class Pulse:
-    """One flash: on from ``start`` to ``end`` (seconds), toward ``direction`` (camera space)."""
+    """One flash: on from ``start`` to ``end`` (seconds), toward ``direction`` (camera space).
+
+    ``strength`` is how much of the flash reaches the face (1 = aimed at it): a hand-held
+    phone's beam sometimes points away, and the paper drops such ill-positioned flashes.
+    """
 
     start: float
     end: float
     direction: tuple[float, float, float]
+    strength: float = 1.0
 
 
 def flash_pulses(rng: np.random.Generator, duration: float, flash_hz: float, *, duty: float = 0.5,
@@ -66,23 +71,36 @@ def hand_direction(t: np.ndarray, duration: float, rng_phase: np.ndarray) -> np.
     az = AZIMUTH_MAX * np.sin(0.5 * np.pi * tri)  # dwell less at the turning points than a sine
     el_t = 0.5 - 0.5 * np.cos(2.0 * np.pi * t / duration + rng_phase[1])
     el = ELEVATION_LOW + (ELEVATION_HIGH - ELEVATION_LOW) * el_t
-    wobble = 3.0 * np.sin(2 * np.pi * (0.31 * t + rng_phase[2])) + 2.0 * np.sin(2 * np.pi * (0.73 * t + rng_phase[3]))
+    wobble = (3.0 * np.sin(2 * np.pi * (0.31 * t + rng_phase[2]))
+              + 2.0 * np.sin(2 * np.pi * (0.73 * t + rng_phase[3])))
     az = az + wobble
     el = el + 0.7 * wobble
     az, el = np.radians(az), np.radians(el)
     return np.stack([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)], axis=-1)
 
 
+#: Share of flashes whose beam mostly misses the face, and their strength range.
+MISAIM_PROBABILITY = 0.15
+MISAIM_STRENGTH = (0.0, 0.35)
+#: Strength range of well-aimed flashes (the hand is not steady).
+AIM_STRENGTH = (0.85, 1.0)
+
+
 def make_pulses(rng: np.random.Generator, duration: float, flash_hz: float) -> list[Pulse]:
-    """Flash pulses with their directions (taken at each pulse's middle)."""
+    """Flash pulses with their directions (taken at each pulse's middle) and strengths."""
     intervals = flash_pulses(rng, duration, flash_hz)
     phase = rng.uniform(0.0, 1.0, size=4)
     mids = np.array([(a + b) / 2 for a, b in intervals])
     dirs = hand_direction(mids, duration, phase) if intervals else np.zeros((0, 3))
-    return [Pulse(a, b, tuple(float(x) for x in d)) for (a, b), d in zip(intervals, dirs, strict=True)]
+    misaimed = rng.uniform(size=len(intervals)) < MISAIM_PROBABILITY
+    strength = np.where(misaimed, rng.uniform(*MISAIM_STRENGTH, size=len(intervals)),
+                        rng.uniform(*AIM_STRENGTH, size=len(intervals)))
+    return [Pulse(a, b, tuple(float(x) for x in d), float(st))
+            for (a, b), d, st in zip(intervals, dirs, strength, strict=True)]
 
 
-def flash_fractions(pulses: list[Pulse], frame_count: int, fps: float, exposure: float) -> list[list[tuple[int, float]]]:
+def flash_fractions(pulses: list[Pulse], frame_count: int, fps: float,
+                    exposure: float) -> list[list[tuple[int, float]]]:
     """Per frame, the pulses lighting it and the fraction of the exposure each was on.
 
     Returns a list (one entry per frame) of ``(pulse index, fraction)`` pairs.
@@ -144,7 +162,8 @@ def motion_matrices(motion: np.ndarray, center: tuple[float, float]) -> np.ndarr
     return np.stack([rigid_matrix(tx, ty, r, center) for tx, ty, r in motion])
 
 
-def camera_drift(rng: np.random.Generator, flash: np.ndarray, fps: float, enabled: bool) -> tuple[np.ndarray, np.ndarray]:
+def camera_drift(rng: np.random.Generator, flash: np.ndarray, fps: float,
+                 enabled: bool) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame exposure gain (n,) and white-balance gains (n, 3) of a phone camera.
 
     Disabled: all ones. Enabled: auto-exposure that meters a running average of the scene

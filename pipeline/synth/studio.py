@@ -148,12 +148,13 @@ class Studio:
         self.pulses = rig.make_pulses(np.random.default_rng(rng_rig), c.duration, c.flash_hz)
         self.lit = rig.flash_fractions(self.pulses, self.n, c.fps, self.exposure_time)
         self.fraction = np.array([sum(f for _, f in lst) for lst in self.lit])
+        self.level = np.array([sum(f * self.pulses[k].strength for k, f in lst) for lst in self.lit])
         dark = np.flatnonzero(self.fraction == 0.0)
         self.reference_frame = int(dark[0]) if dark.size else int(np.argmin(self.fraction))
         self.motion = rig.head_motion(np.random.default_rng(rng_motion), self.n, c.fps, c.height,
                                       c.head_motion, self.reference_frame)
         self.matrices = rig.motion_matrices(self.motion, self.head.center)
-        self.gain, self.white_balance = rig.camera_drift(np.random.default_rng(rng_drift), self.fraction,
+        self.gain, self.white_balance = rig.camera_drift(np.random.default_rng(rng_drift), self.level,
                                                          c.fps, c.camera_drift)
         self.sensor = Sensor().scaled(c.noise)
 
@@ -258,13 +259,14 @@ class Studio:
         # The head is rolled by rot about +Z; in its own frame the light is rolled back.
         to_head = rotation_matrix(roll=-self.motion[frame, 2])
         dirs = np.array([to_head @ np.asarray(self.pulses[k].direction) for k, _ in lit])
-        power = np.array([[np.full(3, np.pi * FLASH_STRENGTH * f)] for _, f in lit])
+        power = np.array([[np.full(3, np.pi * FLASH_STRENGTH * f * self.pulses[k].strength)] for k, f in lit])
         return self.shader.shade(dirs, power)[0]
 
     def _flash_layer(self, k: int) -> np.ndarray:
         layer = self._flash_layers.get(k)
         if layer is None:
-            layer = self.sphere.flash_layer(np.asarray(self.pulses[k].direction), FLASH_STRENGTH)
+            p = self.pulses[k]
+            layer = self.sphere.flash_layer(np.asarray(p.direction), FLASH_STRENGTH * p.strength)
             self._flash_layers[k] = layer
         return layer
 
@@ -283,12 +285,12 @@ class Studio:
         (H, W, 3) float32, linear Rec.709. ``flash`` overrides the head's flash radiance
         (P, 3) - the truth test re-renders frames from the recorded light directions.
         """
-        c = self.config
         wall_amb, s_rad, s_cov = self._static_layers()
         lit = self.lit[frame]
         head = self.ambient_head() + (self.flash_radiance(frame) if flash is None else flash)
         # Background: the wall (ambient + its share of the flash), then the sphere over it.
-        wall_flash = sum(f * max(self.pulses[k].direction[2], 0.0) for k, f in lit) * WALL_FLASH * FLASH_STRENGTH
+        wall_flash = sum(f * self.pulses[k].strength * max(self.pulses[k].direction[2], 0.0)
+                         for k, f in lit) * WALL_FLASH * FLASH_STRENGTH
         out = wall_amb.copy() if wall_flash == 0 else wall_amb + (self.wall_albedo * np.float32(wall_flash))[..., None]
         x0, y0, x1, y1 = self.sphere.bbox
         region = out[y0:y1, x0:x1]
@@ -320,10 +322,10 @@ class Studio:
     def meta(self) -> dict:
         """The truth's ``meta.json`` content."""
         c = self.config
-        flash_frames = [i for i in range(self.n) if self.fraction[i] > 0.5]
+        flash_frames = [i for i in range(self.n) if self.level[i] > 0.5]
         light_dirs = {}
         for i in flash_frames:
-            k = max(self.lit[i], key=lambda kf: kf[1])[0]
+            k = max(self.lit[i], key=lambda kf: kf[1] * self.pulses[kf[0]].strength)[0]
             light_dirs[str(i)] = [round(x, 7) for x in self.pulses[k].direction]
         cx, cy, r = self.sphere.cx, self.sphere.cy, self.sphere.r
         cfg = asdict(c)
@@ -340,7 +342,8 @@ class Studio:
             "flash_frames": flash_frames,
             "light_dirs": light_dirs,
             "flash_fraction": [round(float(f), 5) for f in self.fraction],
-            "pulses": [{"start": round(p.start, 6), "end": round(p.end, 6),
+            "flash_level": [round(float(f), 5) for f in self.level],
+            "pulses": [{"start": round(p.start, 6), "end": round(p.end, 6), "strength": round(p.strength, 5),
                         "direction": [round(x, 7) for x in p.direction]} for p in self.pulses],
             "sphere": [cx, cy, r],
             "head_center": list(self.head.center),
@@ -356,7 +359,9 @@ class Studio:
                           "toward the light",
                 "head_motion": "[tx, ty, rot_deg] per frame: reference pixel p moves to R(rot)(p - c) + c + t, "
                                "c = head_center, rot counter-clockwise on screen (cv2.getRotationMatrix2D sign)",
-                "flash_frames": "frames lit by the flash for more than half of their exposure",
+                "flash_frames": "frames lit by the flash for more than half of their exposure (flash_level > 0.5: "
+                                "share of the exposure with the flash on, times the pulse's strength)",
+                "flash_fraction": "per frame, share of the exposure during which a flash was on",
                 "radiometry": "linear Rec.709; the flash is a directional light of power pi (a white Lambertian "
                               "surface facing it reads 1); relit_*/olat_* at the reference pose, gain 1, no noise, "
                               "ambient off; frame = sRGB(clip(gain * white_balance * scene + noise))",
@@ -436,7 +441,8 @@ def synthesize(out: str | Path, config: SynthConfig = SynthConfig(), *, progress
             continue
         fname = f"{name}.exr" if name.startswith("olat_") else f"relit_{name}.exr"
         write_image(truth / fname, studio.head_image(rad) * head.mask[..., None])
-    write_image(truth / "ambient.exr", studio.render_frame(studio.reference_frame, flash=np.zeros_like(renders["ambient"])))
+    no_flash = np.zeros_like(renders["ambient"])
+    write_image(truth / "ambient.exr", studio.render_frame(studio.reference_frame, flash=no_flash))
     write_image(truth / "mask.png", head.mask.astype(np.uint8) * 255)
     write_image(truth / "normals.exr", head.normal)
     write_image(truth / "depth.exr", np.where(head.mask, head.height, 0.0).astype(FLOAT))

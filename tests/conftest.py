@@ -1,0 +1,29 @@
+"""Shared fixtures: the real data folder and small synthetic captures (made once per session)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """../shared/data (real light probes and the RTI capture); skips when it is absent."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"real test data not found at {SHARED_DATA} (only in the project's workspace)")
+    return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def small_capture(tmp_path_factory):
+    """A 6-second 320x180 synthetic capture with a point environment among the truth envs."""
+    from relight.pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp("capture")
+    cfg = SynthConfig(width=320, height=180, duration=6.0, seed=3,
+                      truth_envs=DEFAULT_TRUTH_ENVS + ("builtin:point:0.8,0.1,0.6",))
+    return synthesize(out, cfg, progress=False), cfg

@@ -1,0 +1,121 @@
+"""Every OpenCL kernel against its NumPy twin (NumPy is the reference)."""
+
+import numpy as np
+import pytest
+
+from relight.kernels.sensor import SensorKernel, expose_numpy, frame_key, hash_normal
+from relight.kernels.shading import (
+    NO_SURFACE,
+    LightShader,
+    MarchSettings,
+    Surface,
+    grid_directions,
+    horizon_numpy,
+    shade_lights_numpy,
+    visibility_numpy,
+)
+
+from .tolerances import (
+    HORIZON_ABS,
+    SENSOR_CODE,
+    SENSOR_MISMATCH_FRACTION,
+    SHADE_ABS,
+    SHADE_FLIP_FRACTION,
+    SHADE_REL,
+)
+
+
+@pytest.fixture(scope="module")
+def bumpy():
+    """A 72x56 height field: a dome with a tall bump and a ridge that cast shadows, off-surface rim."""
+    h, w = 56, 72
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    r2 = ((x - 36) / 30) ** 2 + ((y - 28) / 24) ** 2
+    z = 20 * np.sqrt(np.clip(1 - r2, 0, None)) + 14 * np.exp(-((x - 30) ** 2 + (y - 24) ** 2) / 18.0)
+    z += 6 * np.exp(-((y - 38) ** 2) / 4.0) * (np.abs(x - 40) < 15)
+    inside = r2 < 1
+    height = np.where(inside, z, NO_SURFACE).astype(np.float32)
+    gy, gx = np.gradient(np.where(inside, z, 0.0))
+    n = np.stack([-gx, gy, np.ones_like(gx)], axis=-1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    pix = np.flatnonzero(inside).astype(np.int32)
+    rng = np.random.default_rng(0)
+    p = pix.size
+    return Surface(height=height, pix=pix, normal=n.reshape(-1, 3)[pix].astype(np.float32),
+                   albedo=rng.uniform(0.2, 0.8, (p, 3)).astype(np.float32),
+                   specular=rng.uniform(0.0, 1.0, p).astype(np.float32),
+                   roughness=rng.uniform(0.1, 0.6, p).astype(np.float32),
+                   wrap=rng.uniform(0.0, 0.4, (p, 3)).astype(np.float32))
+
+
+def _compare(a, b):
+    bad = (np.abs(a - b) > SHADE_ABS + SHADE_REL * np.abs(b)).any(axis=(0, 2))
+    assert bad.mean() <= SHADE_FLIP_FRACTION, f"{bad.sum()} pixels differ, largest {np.abs(a - b).max()}"
+
+
+def test_shade_lights_matches_numpy(bumpy):
+    rng = np.random.default_rng(1)
+    dirs = rng.normal(size=(24, 3))
+    dirs[:4] = [[1, 0, 0.05], [-1, 0.2, 0.1], [0, 0, 1], [0.3, -0.2, -0.5]]  # grazing, frontal, behind
+    power = rng.uniform(0, 3, (24, 3, 3))
+    shader = LightShader(bumpy)
+    out = shader.shade(dirs, power)
+    ref = shade_lights_numpy(bumpy, dirs, power)
+    assert out.shape == ref.shape == (3, bumpy.pix.size, 3) and out.dtype == np.float32
+    _compare(out, ref)
+    no_shadow = shader.shade(dirs, power, shadows=False)
+    _compare(no_shadow, shade_lights_numpy(bumpy, dirs, power, shadows=False))
+    # The test field casts real shadows: the shadow test changes many pixels.
+    assert (np.abs(no_shadow - out).max(axis=(0, 2)) > 1e-3).mean() > 0.05
+
+
+def test_shadows_exist_for_grazing_light(bumpy):
+    px = (bumpy.pix % 72).astype(np.float32)
+    py = (bumpy.pix // 72).astype(np.float32)
+    pz = bumpy.height.ravel()[bumpy.pix]
+    vis = visibility_numpy(bumpy.height, px, py, pz, np.array([1.0, 0.0, 0.15]), MarchSettings())
+    assert 0.05 < 1 - vis.mean() < 0.95
+
+
+def test_horizon_table_matches_the_march(bumpy):
+    n_dir = 16
+    shader = LightShader(bumpy)
+    shader.prepare_horizons(n_dir)
+    table = shader.horizons()
+    px = (bumpy.pix % 72).astype(np.float32)
+    py = (bumpy.pix // 72).astype(np.float32)
+    pz = bumpy.height.ravel()[bumpy.pix]
+    for k, d in enumerate(grid_directions(n_dir)):
+        np.testing.assert_allclose(table[:, k], horizon_numpy(bumpy.height, px, py, pz, d, MarchSettings()),
+                                   atol=HORIZON_ABS)
+    # Lights along the table's directions, at many elevations: reading the table equals marching.
+    beta = 2 * np.pi * (np.arange(n_dir) + 0.5) / n_dir
+    alpha = np.radians([20, 45, 70, 85, 89, 95, 110])
+    a, b = np.meshgrid(alpha, beta, indexing="ij")
+    dirs = np.stack([np.sin(a) * np.cos(b), np.sin(a) * np.sin(b), np.cos(a)], axis=-1).reshape(-1, 3)
+    col = np.tile(np.arange(n_dir), alpha.size)
+    power = np.ones((dirs.shape[0], 1, 3))
+    _compare(shader.shade(dirs, power, direction_index=col), shade_lights_numpy(bumpy, dirs, power))
+
+
+def test_hash_normal_is_a_unit_normal():
+    z = hash_normal(np.arange(400_000, dtype=np.uint32), frame_key(7, 3))
+    assert abs(z.mean()) < 0.01 and abs(z.std() - 1.0) < 0.01
+    assert abs(np.corrcoef(z[:-1], z[1:])[0, 1]) < 0.01
+    assert not np.array_equal(z[:100], hash_normal(np.arange(100, dtype=np.uint32), frame_key(7, 4)))
+
+
+def test_sensor_matches_numpy():
+    rng = np.random.default_rng(2)
+    scene = rng.uniform(-0.05, 1.3, (90, 160, 3)).astype(np.float32)
+    kern = SensorKernel((90, 160))
+    gains = np.array([1.1, 0.95, 1.02])
+    for key in (None, frame_key(1, 17)):
+        out = kern.expose(scene, gains, 0.004, 3e-4, key)
+        ref = expose_numpy(scene, gains, 0.004, 3e-4, key)
+        assert out.dtype == np.uint8 and out.shape == scene.shape
+        diff = np.abs(out.astype(int) - ref.astype(int))
+        assert diff.max() <= SENSOR_CODE and (diff > 0).mean() <= SENSOR_MISMATCH_FRACTION
+    # Saturation: values above full scale clip to 255, below zero to 0.
+    assert kern.expose(np.full((90, 160, 3), 5.0, np.float32), np.ones(3), 0.0, 0.0, None).min() == 255
+    assert kern.expose(np.full((90, 160, 3), -1.0, np.float32), np.ones(3), 0.0, 0.0, None).max() == 0
