@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import threading
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -61,6 +62,11 @@ def get_runtime() -> Runtime:
     import pyopencl as cl
 
     dev = _pick_device(cl)
+    if "portable computing language" in dev.platform.name.lower() and shutil.which("ld") is None:
+        # PoCL links each compiled kernel with the system linker and aborts the whole process
+        # (no exception) when it is missing: say so before that can happen.
+        raise RelightError("the OpenCL CPU driver (PoCL) needs the system linker `ld`, which is not on PATH; "
+                           "install binutils (e.g. `apt-get install binutils`)")
     ctx = cl.Context([dev])
     return Runtime(context=ctx, queue=cl.CommandQueue(ctx), device=dev)
 

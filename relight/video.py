@@ -8,6 +8,8 @@ Writes are atomic (temporary file + rename); reads are bounded and validated.
 from __future__ import annotations
 
 import os
+import queue
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from fractions import Fraction
@@ -95,27 +97,58 @@ class VideoWriter:
         cc.colorspace, cc.color_range, cc.color_primaries = 1, 1, 1  # BT.709, limited range
         cc.color_trc = 13  # IEC 61966-2-1: the frames carry the sRGB transfer curve
         self._stream = stream
+
+        # Colour conversion and encoding run on a worker thread (FFmpeg releases the GIL), so
+        # the caller renders the next frame meanwhile; the short queue bounds memory.
+        self._queue: queue.Queue = queue.Queue(maxsize=4)
+        self._error: BaseException | None = None
+        self._worker = threading.Thread(target=self._encode_loop, name="relight-video-writer", daemon=True)
+        self._worker.start()
         return self
 
+    def _encode_loop(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if self._error is not None:
+                continue  # drain after a failure; the caller sees the error
+            try:
+                index, rgb = item
+                frame = _to_yuv(rgb)
+                frame.pts = index
+                frame.time_base = 1 / self.fps
+                for packet in self._stream.encode(frame):
+                    self._container.mux(packet)
+            except BaseException as exc:  # re-raised in the caller's thread
+                self._error = exc
+
+    def _raise_worker_error(self) -> None:
+        if self._error is not None:
+            raise OSError(f"{self.path}: encoding failed ({self._error})") from self._error
+
     def write(self, rgb: np.ndarray) -> None:
-        """Append one (H, W, 3) uint8 sRGB frame."""
+        """Append one (H, W, 3) uint8 sRGB frame (do not modify the array afterwards)."""
         if rgb.shape != (self.size[1], self.size[0], 3) or rgb.dtype != np.uint8:
             raise InputError(f"frame must be ({self.size[1]}, {self.size[0]}, 3) uint8, got {rgb.shape} {rgb.dtype}")
-        frame = _to_yuv(rgb)
-        frame.pts = self.frames
-        frame.time_base = 1 / self.fps
-        for packet in self._stream.encode(frame):
-            self._container.mux(packet)
+        self._raise_worker_error()
+        self._queue.put((self.frames, rgb))
         self.frames += 1
 
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
+            self._queue.put(None)
+            self._worker.join()
             if exc_type is None:
+                self._raise_worker_error()
                 for packet in self._stream.encode():
                     self._container.mux(packet)
-        finally:
+        except BaseException as err:
             self._container.close()
-            self._atomic.__exit__(exc_type, exc, tb)
+            self._atomic.__exit__(type(err), err, err.__traceback__)
+            raise
+        self._container.close()
+        self._atomic.__exit__(exc_type, exc, tb)
 
 
 @dataclass(frozen=True)

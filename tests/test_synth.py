@@ -115,6 +115,14 @@ def _rerender(studio, meta, i, direction):
     return studio.camera_frame(i, noisy=False, flash=flash)
 
 
+def _tilted(d, degrees):
+    """``d`` turned by ``degrees`` toward or away from the camera axis (a clearly wrong light)."""
+    axis = np.cross(d, [0.0, 0.0, 1.0])
+    axis = axis / np.linalg.norm(axis) if np.linalg.norm(axis) > 1e-6 else np.array([1.0, 0.0, 0.0])
+    a = np.radians(degrees)
+    return d * np.cos(a) + np.cross(axis, d) * np.sin(a) + axis * (axis @ d) * (1 - np.cos(a))
+
+
 def test_rerendering_a_flash_frame_reproduces_it(capture):
     res, cfg, meta, frames = capture
     studio = Studio(cfg)
@@ -126,7 +134,7 @@ def test_rerendering_a_flash_frame_reproduces_it(capture):
         diff = (_rerender(studio, meta, i, d).astype(float) - frames[i])[head]
         assert np.abs(diff).mean() < FRAME_REPRO_MEAN_CODES, (i, np.abs(diff).mean())
         assert abs(diff.mean()) < FRAME_REPRO_BIAS_CODES, (i, diff.mean())
-        wrong = _rerender(studio, meta, i, [-d[0], d[1], d[2]] if abs(d[0]) > 0.3 else [d[0], -d[1], d[2]])
+        wrong = _rerender(studio, meta, i, _tilted(np.asarray(d), 35.0))
         assert np.abs(wrong.astype(float) - frames[i])[head].mean() > FRAME_WRONG_LIGHT_MEAN_CODES
 
 

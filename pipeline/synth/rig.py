@@ -60,16 +60,19 @@ def flash_pulses(rng: np.random.Generator, duration: float, flash_hz: float, *, 
 def hand_direction(t: np.ndarray, duration: float, rng_phase: np.ndarray) -> np.ndarray:
     """Direction of the hand-held flash at times ``t``: a zig-zag over the frontal hemisphere.
 
-    Azimuth sweeps back and forth about 6.5 times per capture while the elevation rises from
-    low to high and back once, with a slow hand wobble; as in the paper's Fig. 12 the samples
-    cover the front and thin out toward the sides.
+    Azimuth sweeps back and forth about 9 times per capture while the elevation climbs from
+    low to high and back down once (the passes down fall between those up), with a slow hand
+    wobble; as in the paper's Fig. 12 the samples cover the front in zig-zag rows.
     """
     t = np.asarray(t, dtype=np.float64)
-    sweeps = 6.5
-    phase = t / duration * sweeps + rng_phase[0]
-    tri = 2.0 * np.abs(2.0 * (phase - np.floor(phase + 0.5))) - 1.0  # triangle wave in [-1, 1]
-    az = AZIMUTH_MAX * np.sin(0.5 * np.pi * tri)  # dwell less at the turning points than a sine
-    el_t = 0.5 - 0.5 * np.cos(2.0 * np.pi * t / duration + rng_phase[1])
+    sweeps = 9.0
+
+    def triangle(x):  # period 1, values in [-1, 1]
+        return 2.0 * np.abs(2.0 * (x - np.floor(x + 0.5))) - 1.0
+
+    # A hand slows down to turn: sin() of the triangle wave dwells at the ends of each row.
+    az = AZIMUTH_MAX * np.sin(0.5 * np.pi * triangle(t / duration * sweeps + rng_phase[0]))
+    el_t = 0.5 - 0.5 * triangle(t / duration + 0.5 + 0.1 * rng_phase[1])
     el = ELEVATION_LOW + (ELEVATION_HIGH - ELEVATION_LOW) * el_t
     wobble = (3.0 * np.sin(2 * np.pi * (0.31 * t + rng_phase[2]))
               + 2.0 * np.sin(2 * np.pi * (0.73 * t + rng_phase[3])))
