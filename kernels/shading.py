@@ -26,6 +26,8 @@ from .runtime import build_program, get_runtime
 TILE = 8
 #: Height of pixels without surface (never occludes); matches NO_SURFACE in common.h.
 NO_SURFACE = -1.0e30
+#: Pixels per horizon-table launch (progress is reported per launch).
+HORIZON_CHUNK = 8192
 #: Most outputs one pass accumulates (MAX_OUT in the kernel).
 MAX_OUT = 16
 SKIN_F0 = 0.028
@@ -282,8 +284,11 @@ class LightShader:
         return (b["height"], np.int32(self.w), np.int32(self.h), b["tiles"], np.int32(self.tw),
                 np.int32(self.th), b["pix"], np.int32(self.n_pix))
 
-    def prepare_horizons(self, n_dir: int) -> None:
-        """Tabulate horizon slopes along the ``n_dir`` directions of :func:`grid_directions`."""
+    def prepare_horizons(self, n_dir: int, *, progress=None) -> None:
+        """Tabulate horizon slopes along the ``n_dir`` directions of :func:`grid_directions`.
+
+        progress : optional object with ``update(n_pixels)`` (a tqdm bar), called per chunk.
+        """
         import pyopencl as cl
 
         ctx, queue = self.rt.context, self.rt.queue
@@ -292,10 +297,14 @@ class LightShader:
         dbuf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dirs)
         hbuf = cl.Buffer(ctx, mf.READ_WRITE, max(self.n_pix * n_dir * 4, 4))
         m = self.march
-        self._horizon(queue, (self.n_pix,), None, *self._geometry(), dbuf, np.int32(n_dir),
-                      np.float32(m.start), np.float32(m.step), np.float32(m.growth), np.float32(m.bias),
-                      self.hmax, hbuf)
-        queue.finish()
+        for start in range(0, self.n_pix, HORIZON_CHUNK):
+            count = min(HORIZON_CHUNK, self.n_pix - start)
+            self._horizon(queue, (count,), None, *self._geometry(), dbuf, np.int32(n_dir),
+                          np.float32(m.start), np.float32(m.step), np.float32(m.growth), np.float32(m.bias),
+                          self.hmax, hbuf, global_offset=(start,))
+            queue.finish()
+            if progress is not None:
+                progress.update(count)
         self._horizons = hbuf
         self.n_dir = n_dir
 

@@ -25,6 +25,7 @@ from .directions import (
     direction_to_equirect_uv,
     equirect_directions,
     equirect_solid_angles,
+    equirect_uv_to_direction,
 )
 from .errors import InputError
 from .imageio import read_image
@@ -236,6 +237,32 @@ def validate_environment(env: np.ndarray, *, name: str = "environment") -> np.nd
     return env
 
 
+def sample_environment(env: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a lat-long map (H, W, 3) toward directions (..., 3) -> (..., 3) float32.
+
+    Wraps around in azimuth and clamps at the poles.
+    """
+    import cv2
+
+    h, w = env.shape[:2]
+    u, v = direction_to_equirect_uv(dirs)
+    # Pad one column each side (wrap) and one row each side (replicate) so bilinear taps at
+    # the seam and the poles read the right neighbours.
+    padded = np.concatenate([env[:, -1:], env, env[:, :1]], axis=1)
+    padded = np.concatenate([padded[:1], padded, padded[-1:]], axis=0).astype(np.float32)
+    # cv2.remap wants maps under 32767 per side: lay the lookups out as rows of 1024.
+    n = u.size
+    cols = 1024
+    rows = -(-n // cols)
+    mx = np.zeros(rows * cols, dtype=np.float32)
+    my = np.zeros(rows * cols, dtype=np.float32)
+    mx[:n] = u.ravel() * w + 0.5
+    my[:n] = v.ravel() * h + 0.5
+    out = cv2.remap(padded, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1, 3)[:n].reshape(*np.shape(dirs)[:-1], 3)
+
+
 def rotate_environment(env: np.ndarray, rotation: np.ndarray, *, supersample: int = 2) -> np.ndarray:
     """Rotate an environment map: what was seen toward ``d`` is seen toward ``rotation @ d``.
 
@@ -243,8 +270,6 @@ def rotate_environment(env: np.ndarray, rotation: np.ndarray, *, supersample: in
     prefilter), so a small sun is neither lost nor aliased; a pure yaw by a multiple of 90
     degrees is an exact column shift.
     """
-    import cv2
-
     r = np.asarray(rotation, dtype=ACCUM)
     h, w = env.shape[:2]
     yaw_quarter = _quarter_yaw(r)
@@ -253,17 +278,7 @@ def rotate_environment(env: np.ndarray, rotation: np.ndarray, *, supersample: in
     s = max(1, int(supersample))
     u = (np.arange(w * s, dtype=ACCUM) + 0.5) / (w * s)
     v = (np.arange(h * s, dtype=ACCUM) + 0.5) / (h * s)
-    from .directions import equirect_uv_to_direction
-
-    d = equirect_uv_to_direction(u[None, :], v[:, None]) @ r  # rows: R^T d
-    su, sv = direction_to_equirect_uv(d)
-    # Pad one column each side (wrap) and one row each side (replicate) so bilinear taps at
-    # the seams and poles read the right neighbours.
-    padded = np.concatenate([env[:, -1:], env, env[:, :1]], axis=1)
-    padded = np.concatenate([padded[:1], padded, padded[-1:]], axis=0)
-    mapx = (su * w + 0.5).astype(np.float32)
-    mapy = (sv * h + 0.5).astype(np.float32)
-    out = cv2.remap(padded.astype(np.float32), mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = sample_environment(env, equirect_uv_to_direction(u[None, :], v[:, None]) @ r)  # rows: R^T d
     if s > 1:
         out = out.reshape(h, s, w, s, 3).mean(axis=(1, 3))
     return np.ascontiguousarray(out, dtype=FLOAT)

@@ -164,8 +164,15 @@ def build_head(width: int, height: int, seed: int = 0) -> Head:
     """Sample the procedural head on a ``width x height`` grid (skin tone and texture vary with ``seed``)."""
     (cx, cy), s = head_placement(width, height)
     rng = np.random.default_rng([seed, 0x4EAD])
-    xs = np.arange(width, dtype=np.float64)
-    ys = np.arange(height, dtype=np.float64)
+    # Work on the window the head can reach (ears at |u| < 0.84, crown at v = 1; the neck runs
+    # to the bottom edge) and embed it in the frame at the end.
+    full_w, full_h = width, height
+    wx0 = max(int(np.floor(cx - 0.9 * s)) - 2, 0)
+    wx1 = min(int(np.ceil(cx + 0.9 * s)) + 3, full_w)
+    wy0 = max(int(np.floor(cy - 1.02 * s)) - 2, 0)
+    width, height = wx1 - wx0, full_h - wy0
+    xs = np.arange(wx0, wx1, dtype=np.float64)
+    ys = np.arange(wy0, full_h, dtype=np.float64)
     u = (xs[None, :] - cx) / s
     v = (cy - ys[:, None]) / s
     u, v = np.broadcast_arrays(u, v)
@@ -271,15 +278,20 @@ def build_head(width: int, height: int, seed: int = 0) -> Head:
     paint(0.4 * _smoothstep(-0.95, -1.2, v), skin * 0.85)
 
     off = ~mask
-    height_px = np.where(mask, hz, NO_SURFACE).astype(np.float32)
     nrm[off] = 0.0
     albedo[off] = 0.0
+
+    def frame(a, fill=0.0):
+        out = np.full((full_h, full_w, *a.shape[2:]), fill, dtype=np.float32 if a.dtype != bool else bool)
+        out[wy0:, wx0:wx1] = a
+        return out
+
     regions = {"eyes": eyes & mask, "hair": (hair_w > 0.5) & mask, "brows": (brows > 0.5) & mask,
                "lips": (lips > 0.5) & mask}
     return Head(
-        height=height_px, alpha=alpha, mask=mask, normal=nrm.astype(np.float32),
-        albedo=np.clip(albedo, 0.0, 1.0).astype(np.float32),
-        specular=np.where(mask, spec, 0.0).astype(np.float32),
-        roughness=np.clip(rough, 0.05, 1.0).astype(np.float32),
-        wrap=wrap.astype(np.float32), center=(float(cx), float(cy)), scale=float(s), regions=regions,
+        height=frame(np.where(mask, hz, NO_SURFACE), NO_SURFACE), alpha=frame(alpha), mask=frame(mask),
+        normal=frame(nrm), albedo=frame(np.clip(albedo, 0.0, 1.0)),
+        specular=frame(np.where(mask, spec, 0.0)), roughness=frame(np.clip(rough, 0.05, 1.0), 1.0),
+        wrap=frame(wrap), center=(float(cx), float(cy)), scale=float(s),
+        regions={k: frame(v) for k, v in regions.items()},
     )

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from relight.directions import direction_to_equirect_uv
+from relight.envmap import sample_environment
 from relight.numerics import FLOAT
 
 #: Angular radius of the flash as seen from the face (degrees) and the sphere's reflectance.
@@ -29,25 +29,6 @@ WALL_ALBEDO = 0.45
 def sphere_placement(width: int, height: int) -> tuple[float, float, float]:
     """(cx, cy, r) of the mirror sphere in pixels: right of the head, radius 1/10 of the height."""
     return 0.80 * width, 0.64 * height, 0.10 * height
-
-
-def sample_environment(env: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of a lat-long map (H, W, 3) at directions (..., 3) -> (..., 3) float32."""
-    h, w = env.shape[:2]
-    u, v = direction_to_equirect_uv(dirs)
-    padded = np.concatenate([env[:, -1:], env, env[:, :1]], axis=1)
-    padded = np.concatenate([padded[:1], padded, padded[-1:]], axis=0).astype(np.float32)
-    # cv2.remap wants maps under 32767 per side: lay the lookups out as rows of 1024.
-    n = u.size
-    cols = 1024
-    rows = -(-n // cols)
-    mx = np.zeros(rows * cols, dtype=np.float32)
-    my = np.zeros(rows * cols, dtype=np.float32)
-    mx[:n] = (u.ravel() * w + 0.5)
-    my[:n] = (v.ravel() * h + 0.5)
-    out = cv2.remap(padded, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1, 3)[:n].reshape(*np.shape(dirs)[:-1], 3)
 
 
 @dataclass(frozen=True)

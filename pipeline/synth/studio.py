@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -55,7 +56,7 @@ OLAT_DIRECTIONS = {
 TRUTH_GRID = (128, 64)
 #: Texels brighter than this many times an environment's mean become lights of their own (a
 #: sun, a lamp: exact directions, shadows marched); at most this many per environment.
-TRUTH_PEAK_FACTOR = 50.0
+TRUTH_PEAK_FACTOR = 500.0
 TRUTH_MAX_PEAKS = 256
 #: Lights per kernel launch in the truth pass (bounds one launch to about a second).
 LIGHT_BATCH = 256
@@ -213,9 +214,11 @@ class Studio:
                                                    column=np.array([-1]), n_grid=0)))
         groups = [outputs[i:i + OUTPUTS_PER_PASS] for i in range(0, len(outputs), OUTPUTS_PER_PASS)]
         passes = [_union([lights for _, lights in g]) for g in groups]
+        with tqdm(total=self.surface.pix.size, desc="shadow horizons", unit="px", disable=not self.progress,
+                  leave=False) as hbar:
+            self.shader.prepare_horizons(TRUTH_GRID[0], progress=hbar)
         bar = tqdm(total=sum(d.shape[0] for d, _, _ in passes), desc="truth lights", unit="light",
                    disable=not self.progress, leave=False)
-        self.shader.prepare_horizons(TRUTH_GRID[0])
         results: dict[str, np.ndarray] = {}
         for group, (dirs, power, column) in zip(groups, passes, strict=True):
             acc = np.zeros((len(group), self.surface.pix.size, 3), dtype=np.float64)
@@ -270,14 +273,14 @@ class Studio:
             self._flash_layers[k] = layer
         return layer
 
-    def _static_layers(self):
-        if not hasattr(self, "_layers"):
-            room = environment_to_lights(self.room, grid=(64, 32))
-            e_front = float((room.power.mean(axis=1) * np.clip(room.dirs[:, 2], 0, None)).sum())
-            wall_amb = (self.wall_albedo * (e_front / np.pi))[..., None] * np.ones(3, dtype=FLOAT)
-            s_rad, s_cov = self.sphere.ambient_layer(self.room)
-            self._layers = (wall_amb.astype(FLOAT), s_rad, s_cov)
-        return self._layers
+    @cached_property
+    def _static_layers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The wall under the room light (H, W, 3), the sphere's reflection of the room and its coverage."""
+        room = environment_to_lights(self.room, grid=(64, 32))
+        e_front = float((room.power.mean(axis=1) * np.clip(room.dirs[:, 2], 0, None)).sum())
+        wall_amb = (self.wall_albedo * (e_front / np.pi))[..., None] * np.ones(3, dtype=FLOAT)
+        s_rad, s_cov = self.sphere.ambient_layer(self.room)
+        return wall_amb.astype(FLOAT), s_rad, s_cov
 
     def render_frame(self, frame: int, *, flash: np.ndarray | None = None) -> np.ndarray:
         """Linear frame ``frame`` as the scene presents it to the sensor (before gain, noise, sRGB).
@@ -285,7 +288,7 @@ class Studio:
         (H, W, 3) float32, linear Rec.709. ``flash`` overrides the head's flash radiance
         (P, 3) - the truth test re-renders frames from the recorded light directions.
         """
-        wall_amb, s_rad, s_cov = self._static_layers()
+        wall_amb, s_rad, s_cov = self._static_layers
         lit = self.lit[frame]
         head = self.ambient_head() + (self.flash_radiance(frame) if flash is None else flash)
         # Background: the wall (ambient + its share of the flash), then the sphere over it.
