@@ -83,7 +83,7 @@ def hand_direction(t: np.ndarray, duration: float, rng_phase: np.ndarray) -> np.
 
 
 #: Share of flashes whose beam mostly misses the face, and their strength range.
-MISAIM_PROBABILITY = 0.15
+MISAIM_PROBABILITY = 0.2
 MISAIM_STRENGTH = (0.0, 0.35)
 #: Strength range of well-aimed flashes (the hand is not steady).
 AIM_STRENGTH = (0.85, 1.0)
