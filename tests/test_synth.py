@@ -224,3 +224,19 @@ def test_bad_settings_say_what_to_change():
         SynthConfig(truth_envs=("builtin:studio", "builtin:studio")).validate()
     with pytest.raises(InputError, match="--ambient"):
         SynthConfig(ambient=0).validate()
+
+
+def test_camera_drift_moves_exposure_and_white_balance(tmp_path):
+    cfg = SynthConfig(width=192, height=108, duration=4.0, seed=5, camera_drift=True, truth_envs=("builtin:uniform",))
+    res = synthesize(tmp_path / "drift", cfg, progress=False)
+    meta = json.loads((res.truth / "meta.json").read_text())
+    gain = np.array(meta["exposure_gain"])
+    wb = np.array(meta["white_balance"])
+    assert 0.05 < gain.max() - gain.min() < 0.6 and (wb[:, 1] == 1).all() and wb[:, 0].std() > 0.002
+    # The recorded gains are what the frames show: no-flash frames' wall brightness follows them.
+    frames = list(read_frames(res.video))
+    dark = [i for i, f in enumerate(meta["flash_fraction"]) if f == 0]
+    wall = np.array([decode_srgb8(frames[i][:20, :40]).mean() for i in dark])
+    assert np.corrcoef(wall, gain[dark] * wb[dark].mean(axis=1))[0, 1] > 0.8
+    still = Studio(SynthConfig(width=192, height=108, duration=2.0))
+    assert (still.gain == 1).all() and (still.white_balance == 1).all()
