@@ -82,9 +82,10 @@ def hand_direction(t: np.ndarray, duration: float, rng_phase: np.ndarray) -> np.
     return np.stack([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)], axis=-1)
 
 
-#: Share of flashes whose beam mostly misses the face, and their strength range.
+#: Share of flashes that miss the face (the hand or the head blocks the beam, or it points away),
+#: and the little light they still bring.
 MISAIM_PROBABILITY = 0.2
-MISAIM_STRENGTH = (0.0, 0.35)
+MISAIM_STRENGTH = (0.0, 0.003)
 #: Strength range of well-aimed flashes (the hand is not steady).
 AIM_STRENGTH = (0.85, 1.0)
 

@@ -1,0 +1,207 @@
+"""Stage 1: separate flash frames from no-flash frames (paper section 3.1).
+
+Input is a brightness trace: the mean linear luminance (0-1) of each frame over the face
+region (or the whole frame before the face is known). With ``s = fps / (2 * flash_hz)``
+frames between a flash and the next dark frame:
+
+1. local maxima of the trace in a window of +-s frames are flash candidates, local minima are
+   dark (no-flash) frames;
+2. a candidate whose brightness exceeds the dark level around it (the mean of the neighbouring
+   minima) by less than ``threshold`` is dropped (the flash did not reach the face);
+3. a candidate whose spacing to both neighbouring candidates deviates from ``2 s`` (or a whole
+   multiple of it: a dropped flash in between doubles the gap) by more than ``s / 2`` is dropped
+   as a spurious extremum; a single lag of the flash app only disturbs one side.
+
+Beyond the paper, each kept flash is extended to every frame around its peak that the flash lit
+for most of its exposure (brightness above the dark level by at least half the peak's
+contrast): a flash lights two to three frames at 5 Hz and 30 fps, and each is a sample of the
+same light direction. ``level`` is that share per frame (1 at the peak). Frames around a dark
+minimum whose own flash share is tiny join the no-flash frames, so registration sees more.
+
+The flash rate is estimated from the trace (its dominant period) when not given.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
+from relight.errors import InputError
+
+#: Default minimum flash contrast over the dark level (linear luminance, 0-1), as in the paper.
+DEFAULT_THRESHOLD = 0.002
+DEFAULT_FLASH_HZ = 5.0
+#: A frame belongs to a flash when it shows at least this share of the flash's peak contrast.
+LIT_SHARE = 0.5
+#: A frame next to a dark minimum is a no-flash frame too when it shows less than this share.
+DARK_SHARE = 0.03
+
+
+@dataclass
+class FlashFrames:
+    """Result of the separation; every index refers to the video's frame order.
+
+    peaks : (F,) the brightest frame of each kept flash.
+    flash_frames : sorted frames lit by a kept flash for most of their exposure.
+    pulse_of : frame -> index into ``peaks`` of the flash that lit it.
+    level : (N,) per frame, the share of its flash's peak contrast (0 for dark frames).
+    dark : sorted no-flash frames (local minima and near-dark neighbours).
+    flash_hz : the flash rate used (given or estimated). estimated : True when estimated.
+    rejected : reason -> count of dropped flash candidates.
+    """
+
+    peaks: np.ndarray
+    flash_frames: np.ndarray
+    pulse_of: dict
+    level: np.ndarray
+    dark: np.ndarray
+    flash_hz: float
+    estimated: bool
+    rejected: dict = field(default_factory=dict)
+
+
+def estimate_flash_hz(trace: np.ndarray, fps: float) -> float | None:
+    """The dominant blink rate of a brightness trace (Hz), or None if there is no clear one.
+
+    Looks for the strongest spectral peak between 0.5 Hz and fps / 4 and refines it by
+    parabolic interpolation; "clear" means at least 4 times the median spectral power.
+    """
+    x = np.asarray(trace, dtype=np.float64)
+    n = x.size
+    if n < 16:
+        return None
+    x = x - x.mean()
+    window = np.hanning(n)
+    pad = 1 << int(np.ceil(np.log2(n * 4)))
+    power = np.abs(np.fft.rfft(x * window, pad)) ** 2
+    freqs = np.fft.rfftfreq(pad, 1.0 / fps)
+    band = (freqs >= 0.5) & (freqs <= fps / 4.0)
+    if not band.any():
+        return None
+    idx = np.flatnonzero(band)
+    k = idx[np.argmax(power[idx])]
+    if power[k] < 4.0 * np.median(power[idx]) or power[k] <= 0:
+        return None
+    if 0 < k < power.size - 1:
+        a, b, c = np.log(power[k - 1:k + 2] + 1e-300)
+        denom = a - 2 * b + c
+        offset = 0.5 * (a - c) / denom if abs(denom) > 1e-12 else 0.0
+        return float((k + np.clip(offset, -0.5, 0.5)) * fps / pad)
+    return float(freqs[k])
+
+
+def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
+             threshold: float = DEFAULT_THRESHOLD) -> FlashFrames:
+    """Classify frames from a brightness trace (N,) of linear mean luminance.
+
+    Raises :class:`InputError` when the trace is too short or not finite, or when no flash
+    survives the filters (the message says which filter removed them).
+    """
+    trace = np.asarray(trace, dtype=np.float64)
+    n = trace.size
+    if n < 8:
+        raise InputError(f"the video has {n} frames; a capture needs at least a few seconds of video")
+    if not np.isfinite(trace).all():
+        raise InputError("the brightness trace holds non-finite values; the video is corrupt")
+    if fps <= 0 or not np.isfinite(fps):
+        raise InputError(f"frame rate {fps}: the video must state a positive frame rate")
+    estimated = flash_hz is None
+    if estimated:
+        flash_hz = estimate_flash_hz(trace, fps) or DEFAULT_FLASH_HZ
+    if not (0 < flash_hz <= fps / 2):
+        raise InputError(f"--flash-hz {flash_hz}: must be above 0 and at most half the frame rate ({fps / 2:g})")
+    s = fps / (2.0 * flash_hz)
+    half = max(int(np.floor(s)), 1)
+    size = 2 * half + 1
+    is_max = (trace == maximum_filter1d(trace, size, mode="nearest"))
+    is_min = (trace == minimum_filter1d(trace, size, mode="nearest"))
+    # Plateaus (equal neighbours) count once: keep the first frame of a run.
+    is_max &= np.r_[True, trace[1:] != trace[:-1]] | ~np.r_[False, is_max[:-1]]
+    is_min &= np.r_[True, trace[1:] != trace[:-1]] | ~np.r_[False, is_min[:-1]]
+    maxima = np.flatnonzero(is_max & ~is_min)
+    minima = np.flatnonzero(is_min & ~is_max)
+    rejected = {"low_contrast": 0, "period": 0, "no_dark_neighbour": 0}
+    if minima.size == 0:
+        raise InputError("no dark (no-flash) frames found: the flash must blink slower than the camera "
+                         "films (check --flash-hz) and the room must be dark between flashes")
+
+    # Dark level around each candidate: mean of the nearest minimum before and after.
+    pos = np.searchsorted(minima, maxima)
+    before = np.where(pos > 0, minima[np.maximum(pos - 1, 0)], -1)
+    after = np.where(pos < minima.size, minima[np.minimum(pos, minima.size - 1)], -1)
+    dark_level = np.full(maxima.size, np.nan)
+    both = (before >= 0) & (after >= 0)
+    dark_level[both] = 0.5 * (trace[before[both]] + trace[after[both]])
+    only_b = (before >= 0) & (after < 0)
+    only_a = (after >= 0) & (before < 0)
+    dark_level[only_b] = trace[before[only_b]]
+    dark_level[only_a] = trace[after[only_a]]
+    ok = np.isfinite(dark_level)
+    rejected["no_dark_neighbour"] = int((~ok).sum())
+    contrast = np.where(ok, trace[maxima] - np.nan_to_num(dark_level), 0.0)
+    low = ok & (contrast < threshold)
+    rejected["low_contrast"] = int(low.sum())
+    keep = ok & ~low
+    cand = maxima[keep]
+    cand_dark = dark_level[keep]
+    cand_contrast = contrast[keep]
+
+    # Period filter: both gaps far from a whole number of periods (2 s) -> a spurious extremum.
+    # Whole multiples, because a dropped flash between two good ones doubles their gap.
+    if cand.size >= 3:
+        gaps = np.diff(cand).astype(np.float64)
+        periods = np.maximum(np.round(gaps / (2 * s)), 1.0)
+        off = np.abs(gaps - periods * 2 * s) > s / 2
+        prev_bad = np.r_[True, off]
+        next_bad = np.r_[off, True]
+        bad = prev_bad & next_bad
+        rejected["period"] = int(bad.sum())
+        cand, cand_dark, cand_contrast = cand[~bad], cand_dark[~bad], cand_contrast[~bad]
+    if cand.size == 0:
+        reasons = ", ".join(f"{k}: {v}" for k, v in rejected.items() if v)
+        raise InputError(f"no usable flash found ({reasons or 'no bright frames'}); check that the flash "
+                         "lights the face, or lower --flash-threshold")
+
+    level = np.zeros(n)
+    pulse_of: dict[int, int] = {}
+    for k, (peak, dark, con) in enumerate(zip(cand, cand_dark, cand_contrast, strict=True)):
+        lo, hi = max(peak - half, 0), min(peak + half, n - 1)
+        for j in range(lo, hi + 1):
+            share = (trace[j] - dark) / con
+            if share >= LIT_SHARE and (j == peak or j not in pulse_of or share > level[j]):
+                if not _between_minima(j, peak, minima):
+                    continue
+                pulse_of[j] = k
+                level[j] = min(share, 1.0) if j != peak else 1.0
+    flash_frames = np.array(sorted(pulse_of), dtype=np.int64)
+
+    # Dark frames: the minima plus neighbours with almost no flash light.
+    dark_set = set(int(m) for m in minima)
+    for m in minima:
+        k = int(np.searchsorted(cand, m))
+        neigh = [c for c in (k - 1, k) if 0 <= c < cand.size]
+        if not neigh:
+            continue
+        con = max(cand_contrast[c] for c in neigh)
+        for j in (m - 1, m + 1):
+            if 0 <= j < n and j not in pulse_of and trace[j] - trace[m] < DARK_SHARE * con:
+                dark_set.add(j)
+    dark = np.array(sorted(dark_set - set(pulse_of)), dtype=np.int64)
+    return FlashFrames(peaks=cand.astype(np.int64), flash_frames=flash_frames, pulse_of=pulse_of, level=level,
+                       dark=dark, flash_hz=float(flash_hz), estimated=estimated, rejected=rejected)
+
+
+def _between_minima(j: int, peak: int, minima: np.ndarray) -> bool:
+    """True when no dark minimum lies between frame j and its flash's peak."""
+    lo, hi = (j, peak) if j < peak else (peak, j)
+    i = np.searchsorted(minima, lo, side="right")
+    return not (i < minima.size and minima[i] < hi)
+
+
+def precision_recall(found: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """Precision and recall of a set of frame indices against the truth's."""
+    f, t = set(int(x) for x in found), set(int(x) for x in truth)
+    tp = len(f & t)
+    return (tp / len(f) if f else 0.0), (tp / len(t) if t else 0.0)

@@ -1,0 +1,231 @@
+"""From an ingested video to light samples: flash separation, registration, light directions,
+and the flash-only image of every flash, on the reference frame's grid.
+
+Stages 1-3 of the paper plus what it leaves open: the ambient (no-flash) light is subtracted
+from each flash frame (with the camera's exposure and white-balance drift measured on the
+no-flash frames and interpolated), and the two or three frames a flash lights are averaged,
+weighted by how much of their exposure it lit, into one sample per flash.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from relight.colour import decode_srgb8, luminance
+from relight.errors import InputError
+
+from . import flash as flash_stage
+from . import registration, sphere
+from .ingest import Ingested
+
+#: Frames a flash lit for at least this share of its peak are averaged into its sample.
+SAMPLE_LEVEL = 0.85
+#: Pixels at or above this sRGB code count as clipped (the sample is flagged there).
+CLIP_CODE = 250
+
+
+@dataclass
+class SampleOptions:
+    """Switches and parameters of stages 1-3 (each switchable so its effect can be measured)."""
+
+    flash_hz: float | None = None
+    flash_threshold: float = flash_stage.DEFAULT_THRESHOLD
+    sphere: tuple[float, float, float] | None = None
+    focal: float | None = None
+    highlight: str = "blob"
+    register: bool = True
+    subtract_ambient: bool = True
+    refine_sphere: bool = True
+
+
+@dataclass
+class Samples:
+    """Light samples on the reference grid (the stored crop of the reference frame).
+
+    images : (K, h, w, 3) float32 linear flash-only images, one per flash (K flashes kept).
+    dirs : (K, 3) unit light directions (camera space). clipped : (K, h, w) bool.
+    ambient : (h, w, 3) float32 linear no-flash average (registered). reference : (h, w, 3)
+    uint8 sRGB reference frame crop. origin : (x, y) of the crop in the frame.
+    """
+
+    images: np.ndarray
+    dirs: np.ndarray
+    clipped: np.ndarray
+    ambient: np.ndarray
+    reference: np.ndarray
+    origin: tuple[int, int]
+    frame_size: tuple[int, int]
+    reference_frame: int
+    flash: flash_stage.FlashFrames
+    motions: dict
+    motion_center: tuple[float, float]
+    circle: tuple[float, float, float] | None
+    light_dirs: dict
+    pulse_frames: list
+    rejected: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    track_quality: dict = field(default_factory=dict)
+
+
+def _grey(rgb: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+
+
+def _face_region(ing: Ingested) -> np.ndarray:
+    """Boolean mask (crop coordinates) where registration features are taken: the face box,
+    or the whole crop outside the sphere when there is no face."""
+    h, w = ing.crops[0].shape[:2]
+    region = np.zeros((h, w), dtype=bool)
+    if ing.face_box is not None:
+        x, y, fw, fh = ing.face_box
+        x0, y0 = x - ing.crop[0], y - ing.crop[1]
+        cv2.ellipse(region.view(np.uint8), (int(x0 + fw / 2), int(y0 + fh / 2)), (int(fw * 0.45), int(fh * 0.55)),
+                    0, 0, 360, 1, -1)
+    else:
+        region[:] = True
+        if ing.sphere_guess is not None:
+            cx, cy, r = ing.sphere_guess
+            cv2.circle(region.view(np.uint8), (int(cx - ing.crop[0]), int(cy - ing.crop[1])), int(r * 1.5), 0, -1)
+    return region
+
+
+def collect_samples(ing: Ingested, opts: SampleOptions = SampleOptions(), *,
+                    progress: Callable[[str, int, int], None] | None = None) -> Samples:
+    """Stages 1-3 on an ingested capture (see the module docstring)."""
+    timings: dict[str, float] = {}
+    rejected: dict[str, int] = {}
+    t0 = time.perf_counter()
+    fl = flash_stage.separate(ing.face_trace(), ing.fps, opts.flash_hz, opts.flash_threshold)
+    rejected.update({f"flash_{k}": v for k, v in fl.rejected.items() if v})
+    timings["flash"] = time.perf_counter() - t0
+
+    # ---- registration on the no-flash frames
+    t0 = time.perf_counter()
+    ref = int(fl.dark[0])
+    x0, y0 = ing.crop[:2]
+    if ing.face_box is not None:
+        fx, fy, fw, fh = ing.face_box
+        center = (fx + fw / 2.0, fy + fh / 2.0)
+    else:
+        center = (x0 + ing.crop[2] / 2.0, y0 + ing.crop[3] / 2.0)
+    center_crop = (center[0] - x0, center[1] - y0)
+    motions: dict[int, tuple[float, float, float]] = {ref: (0.0, 0.0, 0.0)}
+    quality = {}
+    if opts.register:
+        try:
+            tracker = registration.Tracker(_grey(ing.crops[ref]), _face_region(ing))
+        except ValueError as exc:
+            raise InputError(f"registration failed: {exc}; give --face x,y,w,h around the face") from None
+        for i, d in enumerate(fl.dark[1:]):
+            res = tracker.track(_grey(ing.crops[int(d)]))
+            if np.isfinite(res.residual):
+                motions[int(d)] = registration.matrix_to_motion(res.matrix, center_crop)
+                quality[int(d)] = (res.inliers, res.residual)
+            else:
+                rejected["track_lost"] = rejected.get("track_lost", 0) + 1
+            if progress:
+                progress("register", i + 1, len(fl.dark) - 1)
+    all_motions = registration.interpolate_motions(motions, range(ing.frame_count))
+    timings["registration"] = time.perf_counter() - t0
+
+    # ---- ambient: registered no-flash average and each no-flash frame's exposure/white balance
+    t0 = time.perf_counter()
+    lut = decode_srgb8(np.arange(256, dtype=np.uint8))
+    h, w = ing.crops[0].shape[:2]
+    amb_sum = np.zeros((h, w, 3), dtype=np.float64)
+    dark_used = [int(d) for d in fl.dark if int(d) in motions]
+    dark_lin = {}
+    for d in dark_used:
+        img = lut[ing.crops[d]]
+        if opts.register:
+            img = registration.warp_to_reference(img, all_motions[d], center_crop, interpolation=cv2.INTER_LINEAR)
+        dark_lin[d] = img
+        amb_sum += img
+    ambient = (amb_sum / len(dark_used)).astype(np.float32)
+    region = _face_region(ing)
+    core = region & (luminance(ambient) > 0.01)
+    if not core.any():
+        core = luminance(ambient) > 0.005
+    amb_mean = ambient[core].mean(axis=0) + 1e-6
+    gains = {d: dark_lin[d][core].mean(axis=0) / amb_mean for d in dark_used}
+    del dark_lin
+    gidx = np.array(sorted(gains), dtype=np.float64)
+    gval = np.array([gains[int(i)] for i in gidx])
+
+    def gain_at(f):
+        return np.array([np.interp(f, gidx, gval[:, c]) for c in range(3)], dtype=np.float32)
+
+    timings["ambient"] = time.perf_counter() - t0
+
+    # ---- sphere: outline, highlights -> light directions per flash frame
+    t0 = time.perf_counter()
+    circle = opts.sphere or ing.sphere_guess
+    light_dirs: dict[int, np.ndarray] = {}
+    if circle is None or ing.sphere_crops is None:
+        raise InputError("no mirror sphere found; give --sphere cx,cy,r (centre and radius in pixels)")
+    sx0, sy0 = ing.sphere_box[:2]
+    dark_sphere = np.mean([luminance(lut[ing.sphere_crops[d]]) for d in dark_used], axis=0)
+    local = (circle[0] - sx0, circle[1] - sy0, circle[2])
+    if opts.refine_sphere:
+        local = sphere.refine_circle(dark_sphere, local)
+    circle = (local[0] + sx0, local[1] + sy0, local[2])
+    for f in fl.flash_frames:
+        f = int(f)
+        if fl.level[f] < SAMPLE_LEVEL:
+            continue
+        lum = luminance(lut[ing.sphere_crops[f]]) / float(gain_at(f).mean())
+        hl = sphere.find_highlight(lum, dark_sphere, local, method=opts.highlight)
+        if hl.xy is None:
+            rejected[f"highlight_{hl.reason}"] = rejected.get(f"highlight_{hl.reason}", 0) + 1
+            continue
+        xy = (hl.xy[0] + sx0, hl.xy[1] + sy0)
+        light_dirs[f] = sphere.light_direction(xy, circle, focal=opts.focal, image_size=ing.size)
+    timings["sphere"] = time.perf_counter() - t0
+
+    # ---- one sample per flash: its well-lit frames, registered, ambient removed, level-weighted
+    t0 = time.perf_counter()
+    by_pulse: dict[int, list[int]] = {}
+    for f, k in fl.pulse_of.items():
+        if fl.level[f] >= SAMPLE_LEVEL and f in light_dirs:
+            by_pulse.setdefault(k, []).append(int(f))
+    images, dirs, clipped, pulse_frames = [], [], [], []
+    for n_done, (k, frames) in enumerate(sorted(by_pulse.items())):
+        acc = np.zeros((h, w, 3), dtype=np.float32)
+        clip = np.zeros((h, w), dtype=bool)
+        wsum = 0.0
+        dsum = np.zeros(3)
+        for f in frames:
+            raw = ing.crops[f]
+            img = lut[raw] / gain_at(f)
+            sat = raw.max(axis=2) >= CLIP_CODE
+            if opts.register:
+                img = registration.warp_to_reference(img, all_motions[f], center_crop)
+                sat = registration.warp_to_reference(sat.astype(np.uint8), all_motions[f], center_crop,
+                                                     interpolation=cv2.INTER_NEAREST) > 0
+            if opts.subtract_ambient:
+                img = img - ambient
+            lev = float(fl.level[f])
+            acc += img
+            wsum += lev
+            clip |= sat
+            dsum += light_dirs[f]
+        images.append((acc / max(wsum, 1e-6)).astype(np.float32))
+        clipped.append(clip)
+        dirs.append(dsum / np.linalg.norm(dsum))
+        pulse_frames.append(frames)
+        if progress:
+            progress("samples", n_done + 1, len(by_pulse))
+    if len(images) < 4:
+        raise InputError(f"only {len(images)} usable flash samples (need at least 4); see the rejected counts: "
+                         + ", ".join(f"{k} {v}" for k, v in rejected.items()))
+    timings["samples"] = time.perf_counter() - t0
+    return Samples(images=np.stack(images), dirs=np.stack(dirs), clipped=np.stack(clipped), ambient=ambient,
+                   reference=ing.crops[ref], origin=(x0, y0), frame_size=ing.size, reference_frame=ref,
+                   flash=fl, motions=all_motions, motion_center=center, circle=circle,
+                   light_dirs={int(f): d for f, d in light_dirs.items()}, pulse_frames=pulse_frames,
+                   rejected=rejected, timings=timings, track_quality=quality)
