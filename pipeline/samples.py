@@ -94,9 +94,10 @@ def _face_region(ing: Ingested) -> np.ndarray:
     return region
 
 
-def collect_samples(ing: Ingested, opts: SampleOptions = SampleOptions(), *,
+def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
                     progress: Callable[[str, int, int], None] | None = None) -> Samples:
     """Stages 1-3 on an ingested capture (see the module docstring)."""
+    opts = opts or SampleOptions()
     timings: dict[str, float] = {}
     rejected: dict[str, int] = {}
     t0 = time.perf_counter()
@@ -194,7 +195,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions = SampleOptions(), *,
         if fl.level[f] >= SAMPLE_LEVEL and f in light_dirs:
             by_pulse.setdefault(k, []).append(int(f))
     images, dirs, clipped, pulse_frames = [], [], [], []
-    for n_done, (k, frames) in enumerate(sorted(by_pulse.items())):
+    for n_done, (_, frames) in enumerate(sorted(by_pulse.items())):
         acc = np.zeros((h, w, 3), dtype=np.float32)
         clip = np.zeros((h, w), dtype=bool)
         wsum = 0.0
