@@ -6,91 +6,19 @@
  * light ray. power[l, e] weights light l into output e, so several environments and
  * one-light images accumulate in one pass (in double precision).
  *
- * Shadow test: march the ray over the height field at t = start, then t += max(step, growth*t)
- * (image-plane pixels); occluded iff some sample has h(q) > z + t*dz + bias. Two exact forms:
- *  - visible(): march one light;
- *  - horizon(): for an image-plane direction, the largest slope (h(q) - z - bias) / t over the
- *    same samples; any light along that direction is visible iff its dz >= that slope.
- * Lights on a camera-axis grid share a few image-plane directions, so their visibility costs
- * one table lookup. Both skip empty space with dilated tile maxima, which only skips samples
- * that cannot occlude, so results equal the plain march (NumPy twin:
- * relight.kernels.shading.shade_lights_numpy).
+ * Cast shadows (heightfield.h): lights tagged with a horizon-table column read their
+ * visibility from the table (lights on a camera-axis grid share a few image-plane directions),
+ * the others march their ray. NumPy twin: relight.kernels.shading.shade_lights_numpy.
  */
 #include "common.h"
+#include "heightfield.h"
 
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 
 #ifndef MAX_OUT
 #define MAX_OUT 16
 #endif
-#define TILE 8
 #define SKIN_F0 0.028f
-#define NO_SLOPE (-1.0e30f)
-
-inline float next_t(float t, float step, float growth) { return t + fmax(step, growth * t); }
-
-inline int outside(float px, float py, int w, int h)
-{
-    return px < 0.0f || py < 0.0f || px > (float)(w - 1) || py > (float)(h - 1);
-}
-
-inline float tile_max(__global const float *tilemax, int tw, int th, float px, float py)
-{
-    int ti = min((int)(px * (1.0f / TILE)), tw - 1), tj = min((int)(py * (1.0f / TILE)), th - 1);
-    return tilemax[tj * tw + ti];
-}
-
-/* 1 if the ray from (x, y, z) along image direction (dx, dy) rising dz per pixel is unblocked. */
-inline int visible(__global const float *height, int w, int h,
-                   __global const float *tilemax, int tw, int th,
-                   float x, float y, float z, float dx, float dy, float dz,
-                   float start, float step, float growth, float bias, float hmax)
-{
-    float tend = 2.0f * (float)(w + h);
-    float t = start;
-    while (t < tend) {
-        float px = x + t * dx, py = y + t * dy, pz = z + t * dz;
-        if (pz > hmax || outside(px, py, w, h))
-            return 1;
-        /* tilemax covers everything within TILE pixels of here: skip samples that cannot hit. */
-        if (pz + fmin(0.0f, (float)TILE * dz) > tile_max(tilemax, tw, th, px, py) + bias) {
-            float t1 = t + (float)TILE;
-            while (t < t1)
-                t = next_t(t, step, growth);
-            continue;
-        }
-        if (sample_height(height, w, h, px, py) > pz + bias)
-            return 0;
-        t = next_t(t, step, growth);
-    }
-    return 1;
-}
-
-/* Largest (h(q) - z - bias) / t over the samples along image direction (dx, dy). */
-inline float horizon_slope(__global const float *height, int w, int h,
-                           __global const float *tilemax, int tw, int th,
-                           float x, float y, float z, float dx, float dy,
-                           float start, float step, float growth, float bias, float hmax)
-{
-    float m = NO_SLOPE;
-    float tend = 2.0f * (float)(w + h);
-    float t = start;
-    while (t < tend) {
-        float px = x + t * dx, py = y + t * dy;
-        if (outside(px, py, w, h) || fmax(hmax - z - bias, 0.0f) / t <= m)
-            break; /* nothing further can raise the slope */
-        float num = tile_max(tilemax, tw, th, px, py) - z - bias;
-        float t1 = t + (float)TILE;
-        if (fmax(num / t, num / t1) <= m) {
-            while (t < t1)
-                t = next_t(t, step, growth);
-            continue;
-        }
-        m = fmax(m, (sample_height(height, w, h, px, py) - z - bias) / t);
-        t = next_t(t, step, growth);
-    }
-    return m;
-}
 
 /* Reflected radiance per unit irradiance, already multiplied by the cosine (f * cos). */
 inline float3 skin_brdf_cos(float3 n, float3 l, float4 alb, float4 mat)
@@ -117,27 +45,6 @@ inline float3 skin_brdf_cos(float3 n, float3 l, float4 alb, float4 mat)
         spec = alb.w * D * G * F / (4.0f * nv);
     }
     return diffuse + (float3)(spec);
-}
-
-/* Horizon slopes: out[i * n_dir + k] for pixel i and image-plane direction k. */
-__kernel void horizon(
-    __global const float *height, int w, int h,
-    __global const float *tilemax, int tw, int th,
-    __global const int *pix, int n_pix,
-    __global const float2 *dirs, int n_dir,            /* unit image-plane directions (x right, y down) */
-    float start, float step, float growth, float bias, float hmax,
-    __global float *out)
-{
-    int i = get_global_id(0);
-    if (i >= n_pix)
-        return;
-    int p = pix[i];
-    float x = (float)(p % w), y = (float)(p / w), z = height[p];
-    for (int k = 0; k < n_dir; ++k) {
-        float2 d = dirs[k];
-        out[(size_t)i * n_dir + k] = horizon_slope(height, w, h, tilemax, tw, th, x, y, z, d.x, d.y,
-                                                   start, step, growth, bias, hmax);
-    }
 }
 
 __kernel void shade_lights(

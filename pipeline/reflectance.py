@@ -1,0 +1,312 @@
+"""Stage 5: per-pixel reflectance maps from sparse light samples (paper section 3.2).
+
+A reflectance map (64x32 lat-long by default, the layout of :mod:`relight.directions`) holds,
+per light direction, what the pixel shows under a flash-strength light from there. The samples
+fill it in four steps:
+
+1. **Triangulation**: the convex hull of the sample directions is their spherical Delaunay
+   triangulation; virtual black lights are added wherever no sample is near, so light fades out
+   beyond the captured hull; each texel is interpolated with spherical barycentric weights
+   (the planar weights of its ray through the triangle, normalised).
+2. **Visibility**: from the height field, each pixel's horizon tells which directions it can
+   see (soft over about a texel, then a 3x3 box filter as in the paper); inside a triangle
+   whose vertices disagree, texels that are shadowed take the shadowed vertices' colours and
+   lit ones the lit vertices', blended with plain interpolation by the vertices' spread.
+3. **Light adaptation**: the cosine factor is divided out before interpolation and multiplied
+   back at the texel, with the paper's three cases (Eq. 1-3) when vertices face away and only
+   carry indirect light.
+4. **Normalisation** for relighting is the texel's solid angle (stored beside the maps, applied
+   to the environment when relighting): sin(latitude) weighting made exact.
+
+The NumPy implementation here is the reference; it works in chunks of pixels and texels so its
+memory stays bounded.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import ConvexHull
+
+from relight.directions import direction_to_equirect_uv, equirect_directions, equirect_solid_angles
+from relight.errors import InputError
+
+DEFAULT_MAP_SIZE = (64, 32)
+#: Samples closer than this (degrees) are merged into one (the hand paused).
+MERGE_DEG = 0.75
+#: Virtual black lights sit where the nearest sample is farther than this many times the
+#: samples' typical spacing (and at least BLACK_MIN_DEG).
+BLACK_SPACING = 1.6
+BLACK_MIN_DEG = 10.0
+BLACK_CANDIDATES = 600
+#: Cosines below this count as facing away (no direct light): the guard of every division.
+MIN_COS = 0.1
+#: Soft width of the visibility step, in texels of elevation.
+VIS_SOFT_TEXELS = 1.0
+#: Pixels and texels per chunk of the NumPy reference (memory bound).
+PIXEL_CHUNK = 4096
+TEXEL_CHUNK = 256
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """(n, 3) nearly uniform unit directions."""
+    i = np.arange(n) + 0.5
+    phi = np.arccos(1 - 2 * i / n)
+    theta = np.pi * (1 + 5**0.5) * i
+    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], axis=1)
+
+
+def merge_close(dirs: np.ndarray, values: np.ndarray | None = None, *, deg: float = MERGE_DEG):
+    """Merge directions closer than ``deg`` (their values averaged). Returns (dirs, values, groups)."""
+    dirs = np.asarray(dirs, dtype=np.float64)
+    n = len(dirs)
+    cos_t = np.cos(np.radians(deg))
+    group = -np.ones(n, dtype=np.int64)
+    g = 0
+    for i in range(n):
+        if group[i] >= 0:
+            continue
+        close = (dirs @ dirs[i] > cos_t) & (group < 0)
+        group[close] = g
+        g += 1
+    out_dirs = np.stack([dirs[group == k].mean(axis=0) for k in range(g)])
+    out_dirs /= np.linalg.norm(out_dirs, axis=1, keepdims=True)
+    out_vals = None
+    if values is not None:
+        out_vals = np.stack([values[group == k].mean(axis=0) for k in range(g)])
+    return out_dirs, out_vals, group
+
+
+@dataclass
+class Triangulation:
+    """Sample directions, virtual black lights, the hull and each texel's triangle.
+
+    vertices : (K + B, 3) unit directions, the K samples first. faces : (F, 3) vertex ids.
+    texel_vertices : (T, 3) the vertices of each texel's triangle; texel_weights : (T, 3) its
+    spherical barycentric weights (sum 1). active : (T,) texels touching a sample (the others
+    are black). map_size : (width, height).
+    """
+
+    vertices: np.ndarray
+    n_samples: int
+    faces: np.ndarray
+    texel_vertices: np.ndarray
+    texel_weights: np.ndarray
+    active: np.ndarray
+    map_size: tuple[int, int]
+
+    @property
+    def texel_dirs(self) -> np.ndarray:
+        w, h = self.map_size
+        return equirect_directions(w, h).reshape(-1, 3)
+
+    @property
+    def solid_angle(self) -> np.ndarray:
+        """(T,) exact solid angle of each texel (sr)."""
+        w, h = self.map_size
+        return np.repeat(equirect_solid_angles(w, h), w)
+
+
+def triangulate(dirs: np.ndarray, map_size: tuple[int, int] = DEFAULT_MAP_SIZE) -> Triangulation:
+    """Spherical Delaunay triangulation of the sample directions plus virtual black lights.
+
+    Raises :class:`InputError` for fewer than 3 distinct directions or non-finite input.
+    """
+    dirs = np.asarray(dirs, dtype=np.float64)
+    if dirs.ndim != 2 or dirs.shape[1] != 3 or not np.isfinite(dirs).all():
+        raise InputError("light directions must be finite (K, 3) vectors")
+    norm = np.linalg.norm(dirs, axis=1, keepdims=True)
+    if (norm < 1e-9).any():
+        raise InputError("a light direction has zero length")
+    dirs = dirs / norm
+    k = len(dirs)
+    if k < 3:
+        raise InputError(f"{k} light direction(s): at least 3 distinct directions are needed")
+    # Typical spacing: median angle to the nearest other sample.
+    cosm = dirs @ dirs.T
+    np.fill_diagonal(cosm, -1.0)
+    spacing = np.degrees(np.arccos(np.clip(cosm.max(axis=1), -1, 1)))
+    gap = max(BLACK_SPACING * float(np.median(spacing)), BLACK_MIN_DEG)
+    cand = fibonacci_sphere(BLACK_CANDIDATES)
+    far = (cand @ dirs.T).max(axis=1) < np.cos(np.radians(gap))
+    black = cand[far]
+    verts = np.concatenate([dirs, black])
+    if len(verts) < 4:
+        raise InputError("the light directions cover the whole sphere too densely to triangulate; "
+                         "this should not happen - report it")
+    hull = ConvexHull(verts, qhull_options="Qt QJ")
+    faces = hull.simplices.astype(np.int64)
+    w, h = map_size
+    tdirs = equirect_directions(w, h).reshape(-1, 3)
+    m = verts[faces]  # (F, 3 vertices, 3 coords)
+    inv = np.linalg.inv(np.transpose(m, (0, 2, 1)))  # columns are vertices
+    bary = np.einsum("fij,tj->tfi", inv, tdirs)  # (T, F, 3)
+    score = bary.min(axis=2)
+    score[bary.sum(axis=2) <= 0] = -np.inf  # the ray must hit the face in front
+    best = np.argmax(score, axis=1)
+    wts = bary[np.arange(len(tdirs)), best]
+    wts = np.clip(wts, 0.0, None)
+    wts /= np.maximum(wts.sum(axis=1, keepdims=True), 1e-12)
+    tv = faces[best]
+    active = (tv < k).any(axis=1)
+    return Triangulation(vertices=verts, n_samples=k, faces=faces, texel_vertices=tv, texel_weights=wts,
+                         active=active, map_size=(w, h))
+
+
+def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *, smooth: bool = True) -> np.ndarray:
+    """(P, h, w) float32 soft visibility of each map texel for each pixel.
+
+    horizon : (P, n_az) largest slope (rise per pixel of image-plane travel) toward each of
+    ``n_az`` image-plane directions (see :func:`relight.kernels.shading.grid_directions`).
+    """
+    w, h = map_size
+    tdirs = equirect_directions(w, h).reshape(-1, 3)
+    s = np.hypot(tdirs[:, 0], tdirs[:, 1])
+    beta = np.mod(np.arctan2(tdirs[:, 1], tdirs[:, 0]), 2 * np.pi)
+    pos = beta / (2 * np.pi) * n_az - 0.5
+    i0 = np.floor(pos).astype(np.int64) % n_az
+    i1 = (i0 + 1) % n_az
+    f = (pos - np.floor(pos)).astype(np.float32)
+    hz = horizon[:, i0] * (1 - f) + horizon[:, i1] * f  # (P, T)
+    elev_h = np.arctan(hz)
+    elev = np.arctan2(tdirs[:, 2], np.maximum(s, 1e-9))
+    soft = VIS_SOFT_TEXELS * np.pi / h
+    vis = np.clip(0.5 + (elev[None, :] - elev_h) / soft, 0.0, 1.0).astype(np.float32)
+    vis[:, s < 1e-6] = 1.0  # straight toward the camera: a height field cannot block it
+    vis = vis.reshape(-1, h, w)
+    if smooth:
+        vis = box3(vis)
+    return vis
+
+
+def box3(maps: np.ndarray) -> np.ndarray:
+    """3x3 box filter over (..., h, w) lat-long maps: wraps around in azimuth, clamps at the poles."""
+    p = np.concatenate([maps[..., -1:], maps, maps[..., :1]], axis=-1)
+    p = np.concatenate([p[..., :1, :], p, p[..., -1:, :]], axis=-2)
+    acc = np.zeros_like(maps)
+    h, w = maps.shape[-2:]
+    for dy in range(3):
+        for dx in range(3):
+            acc += p[..., dy:dy + h, dx:dx + w]
+    return acc / 9.0
+
+
+def _adapt(c, wv, dv, dp, use):
+    """Light-adapted interpolation over the vertices flagged ``use`` (paper Eq. 1-3).
+
+    c : (..., 3 vertices, 3 rgb) colours; wv : (..., 3) weights; dv : (..., 3) cosines at the
+    vertices; dp : (...) cosine at the texel; use : (..., 3) bool. Returns (..., 3 rgb).
+    """
+    w = np.where(use, wv, 0.0)
+    wsum = w.sum(axis=-1, keepdims=True)
+    w = w / np.maximum(wsum, 1e-12)
+    lit = use & (dv > MIN_COS)
+    unlit = use & ~lit
+    dvs = np.maximum(dv, MIN_COS)
+    dps = np.maximum(dp, 0.0)[..., None]
+    n_lit = lit.sum(axis=-1)
+    wl = np.where(lit, w, 0.0)
+    wu = np.where(unlit, w, 0.0)
+    w_ind = wu.sum(axis=-1, keepdims=True)
+    c_ind = np.einsum("...v,...vc->...c", wu, c) / np.maximum(w_ind, 1e-12)  # indirect estimate
+    plain = np.einsum("...v,...vc->...c", w, c)
+    # All lit: divide out the cosines, interpolate, multiply back.
+    all_lit = np.einsum("...v,...vc->...c", wl / dvs, c) * dps
+    # Some lit (Eq. 1-3 in one form): remove the unlit vertices' weighted indirect light from each
+    # lit vertex, cosine-adapt the rest, add the indirect light back.
+    sub = c - (w_ind * c_ind)[..., None, :]
+    w_lit = wl.sum(axis=-1, keepdims=True)
+    c_dir = np.einsum("...v,...vc->...c", wl / dvs, sub) * dps / np.maximum(w_lit, 1e-12) + w_ind * c_ind
+    mixed = w_lit * c_dir + w_ind * c_ind
+    out = np.where((n_lit == 0)[..., None], plain, np.where((n_lit == use.sum(axis=-1))[..., None], all_lit, mixed))
+    return out
+
+
+def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
+               visibility: np.ndarray | None = None, adaptation: bool = True) -> np.ndarray:
+    """Reflectance maps of P pixels: (T_active, P, 3) float32 over ``tri.active`` texels.
+
+    samples : (K, P, 3) linear colours under each of the K sample lights (flash units).
+    normals : (P, 3) unit normals (used by light adaptation). visibility : (P, h, w) smoothed
+    visibility maps, or None to interpolate without them.
+    """
+    k, p = samples.shape[:2]
+    if k != tri.n_samples:
+        raise InputError(f"{k} sample images for {tri.n_samples} light directions")
+    act = np.flatnonzero(tri.active)
+    out = np.zeros((act.size, p, 3), dtype=np.float32)
+    verts = tri.vertices
+    tdirs = tri.texel_dirs
+    w_map = tri.map_size[0]
+    # Texel of each vertex direction (for its smoothed visibility value).
+    u, v = direction_to_equirect_uv(verts)
+    vtex = (np.minimum((v * tri.map_size[1]).astype(int), tri.map_size[1] - 1) * w_map
+            + np.minimum((u * w_map).astype(int), w_map - 1))
+    padded = np.concatenate([samples, np.zeros((1, p, 3), dtype=samples.dtype)])  # black lights -> row k
+    for p0 in range(0, p, PIXEL_CHUNK):
+        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
+        n = normals[ps].astype(np.float64)
+        vis = None if visibility is None else visibility[ps].reshape(ps.stop - p0, -1)
+        for t0 in range(0, act.size, TEXEL_CHUNK):
+            ts = act[t0:t0 + TEXEL_CHUNK]
+            tv = tri.texel_vertices[ts]  # (t, 3)
+            wv = np.broadcast_to(tri.texel_weights[ts][None], (n.shape[0], len(ts), 3))
+            cv = padded[np.minimum(tv, k)][:, :, ps].transpose(2, 0, 1, 3).astype(np.float64)  # (p, t, 3v, 3c)
+            if adaptation:
+                dv = np.einsum("pc,tvc->ptv", n, verts[tv])
+                dp = n @ tdirs[ts].T
+            else:
+                dv = np.ones(wv.shape)
+                dp = np.ones(wv.shape[:2])
+            every = np.ones(wv.shape, dtype=bool)
+            regular = _adapt(cv, wv, dv, dp, every) if adaptation else np.einsum("ptv,ptvc->ptc", wv, cv)
+            if vis is not None:
+                vv = vis[:, vtex[tv]]  # (p, t, 3)
+                vp = vis[:, ts]  # (p, t)
+                vmin, vmax = vv.min(axis=-1), vv.max(axis=-1)
+                spread = vmax - vmin
+                # Vertices nearer the brightest are lit, the others shadowed; the texel's own
+                # visibility chooses between the two interpolations.
+                is_lit = (vv - vmin[..., None]) >= 0.5 * spread[..., None]
+                t_lit = np.clip((vp - vmin) / np.maximum(spread, 1e-6), 0.0, 1.0)[..., None]
+                if adaptation:
+                    c_l = _adapt(cv, wv, dv, dp, is_lit)
+                    c_s = _adapt(cv, wv, dv, dp, ~is_lit)
+                else:
+                    c_l = _subset(cv, wv, is_lit)
+                    c_s = _subset(cv, wv, ~is_lit)
+                aware = t_lit * c_l + (1 - t_lit) * c_s
+                regular = (1 - spread[..., None]) * regular + spread[..., None] * aware
+            out[t0:t0 + len(ts), ps] = np.clip(regular, 0.0, None).transpose(1, 0, 2)
+    if not np.isfinite(out).all():  # pragma: no cover - guarded above
+        raise ArithmeticError("non-finite reflectance")
+    return out
+
+
+def _subset(c, wv, use):
+    w = np.where(use, wv, 0.0)
+    w = w / np.maximum(w.sum(axis=-1, keepdims=True), 1e-12)
+    return np.einsum("...v,...vc->...c", w, c)
+
+
+def sample_map(maps: np.ndarray, tri_active: np.ndarray, map_size: tuple[int, int], direction) -> np.ndarray:
+    """Bilinear lookup of reflectance maps (T_active, P, 3) toward one direction: (P, 3)."""
+    w, h = map_size
+    u, v = direction_to_equirect_uv(np.asarray(direction, dtype=np.float64))
+    x = float(u) * w - 0.5
+    y = min(max(float(v) * h - 0.5, 0.0), h - 1.0)
+    x0 = int(np.floor(x))
+    y0 = int(np.floor(y))
+    fx, fy = x - x0, y - y0
+    lut = -np.ones(w * h, dtype=np.int64)
+    lut[np.flatnonzero(tri_active)] = np.arange(int(tri_active.sum()))
+    out = np.zeros(maps.shape[1:], dtype=np.float64)
+    for dy, wy in ((0, 1 - fy), (1, fy)):
+        for dx, wx in ((0, 1 - fx), (1, fx)):
+            yy = min(y0 + dy, h - 1)
+            xx = (x0 + dx) % w
+            t = lut[yy * w + xx]
+            if t >= 0 and wx * wy > 0:
+                out += wx * wy * maps[t]
+    return out.astype(np.float32)
