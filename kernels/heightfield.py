@@ -45,17 +45,6 @@ def tile_maxima(height: np.ndarray) -> np.ndarray:
     return maximum_filter(tiles, size=3, mode="constant", cval=NO_SURFACE).astype(np.float32)
 
 
-def tile_maxima(height: np.ndarray) -> np.ndarray:
-    """(ceil(H/TILE), ceil(W/TILE)) max height over each tile, its 1-pixel rim and the 8 tiles around it."""
-    h, w = height.shape
-    grown = maximum_filter(height, size=3, mode="constant", cval=NO_SURFACE)
-    th, tw = -(-h // TILE), -(-w // TILE)
-    padded = np.full((th * TILE, tw * TILE), NO_SURFACE, dtype=np.float32)
-    padded[:h, :w] = grown
-    tiles = padded.reshape(th, TILE, tw, TILE).max(axis=(1, 3))
-    return maximum_filter(tiles, size=3, mode="constant", cval=NO_SURFACE).astype(np.float32)
-
-
 def _sample_height(height: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     h, w = height.shape
     inside = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
@@ -143,9 +132,10 @@ class HorizonTable:
     """
 
     def __init__(self, height: np.ndarray, pix: np.ndarray, n_dir: int, *,
-                 march: MarchSettings = MarchSettings(), progress=None):
+                 march: MarchSettings | None = None, progress=None):
         import pyopencl as cl
 
+        march = march or MarchSettings()
         self.rt = get_runtime()
         ctx, queue = self.rt.context, self.rt.queue
         mf = cl.mem_flags

@@ -102,8 +102,9 @@ def skin_brdf_cos_numpy(n: np.ndarray, l: np.ndarray, albedo: np.ndarray, specul
 
 
 def shade_lights_numpy(surface: Surface, dirs: np.ndarray, power: np.ndarray, *,
-                       march: MarchSettings = MarchSettings(), shadows: bool = True) -> np.ndarray:
+                       march: MarchSettings | None = None, shadows: bool = True) -> np.ndarray:
     """NumPy twin of :meth:`LightShader.shade`: (E, P, 3) float32 outputs."""
+    march = march or MarchSettings()
     dirs, power = _check(surface, dirs, power)
     hgt = surface.height.astype(np.float32)
     w = hgt.shape[1]
@@ -139,9 +140,10 @@ class LightShader:
     directions, after which lights tagged with a direction index cost no ray march.
     """
 
-    def __init__(self, surface: Surface, *, march: MarchSettings = MarchSettings()):
+    def __init__(self, surface: Surface, *, march: MarchSettings | None = None):
         import pyopencl as cl
 
+        march = march or MarchSettings()
         self.rt = get_runtime()
         self.surface = surface
         self.march = march

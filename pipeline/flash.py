@@ -7,7 +7,9 @@ frames between a flash and the next dark frame:
 1. local maxima of the trace in a window of +-s frames are flash candidates, local minima are
    dark (no-flash) frames;
 2. a candidate whose brightness exceeds the dark level around it (the mean of the neighbouring
-   minima) by less than ``threshold`` is dropped (the flash did not reach the face);
+   minima) by less than ``threshold`` is dropped (the flash did not reach the face); beyond the
+   paper, so is one below ``min_share`` of the median flash's contrast (a phone's exposure
+   wander alone can lift a dark frame by more than 0.002);
 3. a candidate whose spacing to both neighbouring candidates deviates from ``2 s`` (or a whole
    multiple of it: a dropped flash in between doubles the gap) by more than ``s / 2`` is dropped
    as a spurious extremum; a single lag of the flash app only disturbs one side.
@@ -30,8 +32,10 @@ from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from relight.errors import InputError
 
-#: Default minimum flash contrast over the dark level (linear luminance, 0-1), as in the paper.
+#: Default minimum flash contrast over the dark level (linear luminance, 0-1), as in the paper,
+#: and the least share of the median flash's contrast a flash must reach (beyond the paper).
 DEFAULT_THRESHOLD = 0.002
+DEFAULT_MIN_SHARE = 0.1
 DEFAULT_FLASH_HZ = 5.0
 #: A frame belongs to a flash when it shows at least this share of the flash's peak contrast.
 LIT_SHARE = 0.5
@@ -93,7 +97,7 @@ def estimate_flash_hz(trace: np.ndarray, fps: float) -> float | None:
 
 
 def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
-             threshold: float = DEFAULT_THRESHOLD) -> FlashFrames:
+             threshold: float = DEFAULT_THRESHOLD, min_share: float = DEFAULT_MIN_SHARE) -> FlashFrames:
     """Classify frames from a brightness trace (N,) of linear mean luminance.
 
     Raises :class:`InputError` when the trace is too short or not finite, or when no flash
@@ -141,7 +145,10 @@ def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
     ok = np.isfinite(dark_level)
     rejected["no_dark_neighbour"] = int((~ok).sum())
     contrast = np.where(ok, trace[maxima] - np.nan_to_num(dark_level), 0.0)
-    low = ok & (contrast < threshold)
+    # The paper's absolute threshold, and (beyond it) a share of the typical flash's contrast:
+    # a phone's exposure wander alone can lift a dark frame by more than 0.002.
+    typical = float(np.median(contrast[ok & (contrast >= threshold)])) if (ok & (contrast >= threshold)).any() else 0.0
+    low = ok & (contrast < max(threshold, min_share * typical))
     rejected["low_contrast"] = int(low.sum())
     keep = ok & ~low
     cand = maxima[keep]

@@ -5,8 +5,8 @@ per light direction, what the pixel shows under a flash-strength light from ther
 fill it in four steps:
 
 1. **Triangulation**: the convex hull of the sample directions is their spherical Delaunay
-   triangulation; virtual black lights are added wherever no sample is near, so light fades out
-   beyond the captured hull; each texel is interpolated with spherical barycentric weights
+   triangulation; virtual black lights are added outside the captured hull wherever no sample
+   is near, so light fades out beyond it (holes inside the hull are interpolated, not darkened); each texel is interpolated with spherical barycentric weights
    (the planar weights of its ray through the triangle, normalised).
 2. **Visibility**: from the height field, each pixel's horizon tells which directions it can
    see (soft over about a texel, then a 3x3 box filter as in the paper); inside a triangle
@@ -102,10 +102,39 @@ class Triangulation:
         return equirect_directions(w, h).reshape(-1, 3)
 
     @property
+    def vertex_texel(self) -> np.ndarray:
+        """(V,) the map texel holding each vertex direction (where its visibility is read)."""
+        w, h = self.map_size
+        u, v = direction_to_equirect_uv(self.vertices)
+        return (np.minimum((v * h).astype(np.int64), h - 1) * w + np.minimum((u * w).astype(np.int64), w - 1))
+
+    @property
     def solid_angle(self) -> np.ndarray:
         """(T,) exact solid angle of each texel (sr)."""
         w, h = self.map_size
         return np.repeat(equirect_solid_angles(w, h), w)
+
+
+def inside_hull(dirs: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """(Q,) bool: which query directions lie inside the spherical convex hull of ``dirs``.
+
+    That hull is the convex cone of the sample directions: the faces of the 3D hull of the
+    samples and the origin that meet at the origin bound it. When the origin is inside that
+    hull (samples all around), every direction is inside; a degenerate set (all on one great
+    circle) has no inside.
+    """
+    from scipy.spatial import QhullError
+
+    pts = np.vstack([np.zeros(3), dirs])
+    try:
+        hull = ConvexHull(pts)
+    except QhullError:
+        return np.zeros(len(query), dtype=bool)
+    at_origin = np.any(hull.simplices == 0, axis=1)
+    if not at_origin.any():
+        return np.ones(len(query), dtype=bool)
+    planes = hull.equations[at_origin]  # outward normal n, offset ~0: inside where n . x <= 0
+    return (query @ planes[:, :3].T + planes[:, 3] <= 1e-9).all(axis=1)
 
 
 def triangulate(dirs: np.ndarray, map_size: tuple[int, int] = DEFAULT_MAP_SIZE) -> Triangulation:
@@ -130,7 +159,7 @@ def triangulate(dirs: np.ndarray, map_size: tuple[int, int] = DEFAULT_MAP_SIZE) 
     gap = max(BLACK_SPACING * float(np.median(spacing)), BLACK_MIN_DEG)
     cand = fibonacci_sphere(BLACK_CANDIDATES)
     far = (cand @ dirs.T).max(axis=1) < np.cos(np.radians(gap))
-    black = cand[far]
+    black = cand[far & ~inside_hull(dirs, cand)]
     verts = np.concatenate([dirs, black])
     if len(verts) < 4:
         raise InputError("the light directions cover the whole sphere too densely to triangulate; "
@@ -193,16 +222,18 @@ def box3(maps: np.ndarray) -> np.ndarray:
 
 
 def _adapt(c, wv, dv, dp, use):
-    """Light-adapted interpolation over the vertices flagged ``use`` (paper Eq. 1-3).
+    """Light-adapted interpolation with vertex weights ``wv * use`` (paper Eq. 1-3).
 
     c : (..., 3 vertices, 3 rgb) colours; wv : (..., 3) weights; dv : (..., 3) cosines at the
-    vertices; dp : (...) cosine at the texel; use : (..., 3) bool. Returns (..., 3 rgb).
+    vertices; dp : (...) cosine at the texel; use : (..., 3) share (0-1) of each vertex in this
+    interpolation. Returns (..., 3 rgb).
     """
-    w = np.where(use, wv, 0.0)
+    w = wv * use
     wsum = w.sum(axis=-1, keepdims=True)
     w = w / np.maximum(wsum, 1e-12)
-    lit = use & (dv > MIN_COS)
-    unlit = use & ~lit
+    inc = w > 0
+    lit = inc & (dv > MIN_COS)
+    unlit = inc & ~lit
     dvs = np.maximum(dv, MIN_COS)
     dps = np.maximum(dp, 0.0)[..., None]
     n_lit = lit.sum(axis=-1)
@@ -219,7 +250,7 @@ def _adapt(c, wv, dv, dp, use):
     w_lit = wl.sum(axis=-1, keepdims=True)
     c_dir = np.einsum("...v,...vc->...c", wl / dvs, sub) * dps / np.maximum(w_lit, 1e-12) + w_ind * c_ind
     mixed = w_lit * c_dir + w_ind * c_ind
-    out = np.where((n_lit == 0)[..., None], plain, np.where((n_lit == use.sum(axis=-1))[..., None], all_lit, mixed))
+    out = np.where((n_lit == 0)[..., None], plain, np.where((n_lit == inc.sum(axis=-1))[..., None], all_lit, mixed))
     return out
 
 
@@ -238,11 +269,7 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
     out = np.zeros((act.size, p, 3), dtype=np.float32)
     verts = tri.vertices
     tdirs = tri.texel_dirs
-    w_map = tri.map_size[0]
-    # Texel of each vertex direction (for its smoothed visibility value).
-    u, v = direction_to_equirect_uv(verts)
-    vtex = (np.minimum((v * tri.map_size[1]).astype(int), tri.map_size[1] - 1) * w_map
-            + np.minimum((u * w_map).astype(int), w_map - 1))
+    vtex = tri.vertex_texel
     padded = np.concatenate([samples, np.zeros((1, p, 3), dtype=samples.dtype)])  # black lights -> row k
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
@@ -259,23 +286,24 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
             else:
                 dv = np.ones(wv.shape)
                 dp = np.ones(wv.shape[:2])
-            every = np.ones(wv.shape, dtype=bool)
+            every = np.ones(wv.shape)
             regular = _adapt(cv, wv, dv, dp, every) if adaptation else np.einsum("ptv,ptvc->ptc", wv, cv)
             if vis is not None:
                 vv = vis[:, vtex[tv]]  # (p, t, 3)
                 vp = vis[:, ts]  # (p, t)
                 vmin, vmax = vv.min(axis=-1), vv.max(axis=-1)
                 spread = vmax - vmin
-                # Vertices nearer the brightest are lit, the others shadowed; the texel's own
-                # visibility chooses between the two interpolations.
-                is_lit = (vv - vmin[..., None]) >= 0.5 * spread[..., None]
+                # The vertex with the least visibility is shadowed, the one with the most lit, the
+                # third in between by its value (a soft share, so tiny changes never flip a
+                # vertex); the texel's own visibility chooses between the two interpolations.
+                lit_share = np.clip((vv - vmin[..., None]) / np.maximum(spread, 1e-6)[..., None], 0.0, 1.0)
                 t_lit = np.clip((vp - vmin) / np.maximum(spread, 1e-6), 0.0, 1.0)[..., None]
                 if adaptation:
-                    c_l = _adapt(cv, wv, dv, dp, is_lit)
-                    c_s = _adapt(cv, wv, dv, dp, ~is_lit)
+                    c_l = _adapt(cv, wv, dv, dp, lit_share)
+                    c_s = _adapt(cv, wv, dv, dp, 1.0 - lit_share)
                 else:
-                    c_l = _subset(cv, wv, is_lit)
-                    c_s = _subset(cv, wv, ~is_lit)
+                    c_l = _subset(cv, wv, lit_share)
+                    c_s = _subset(cv, wv, 1.0 - lit_share)
                 aware = t_lit * c_l + (1 - t_lit) * c_s
                 regular = (1 - spread[..., None]) * regular + spread[..., None] * aware
             out[t0:t0 + len(ts), ps] = np.clip(regular, 0.0, None).transpose(1, 0, 2)
@@ -285,7 +313,7 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
 
 
 def _subset(c, wv, use):
-    w = np.where(use, wv, 0.0)
+    w = wv * use
     w = w / np.maximum(w.sum(axis=-1, keepdims=True), 1e-12)
     return np.einsum("...v,...vc->...c", w, c)
 
@@ -310,3 +338,24 @@ def sample_map(maps: np.ndarray, tri_active: np.ndarray, map_size: tuple[int, in
             if t >= 0 and wx * wy > 0:
                 out += wx * wy * maps[t]
     return out.astype(np.float32)
+
+
+def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *, horizon: np.ndarray | None,
+                 n_az: int, adaptation: bool = True, backend: str = "opencl", progress=None) -> np.ndarray:
+    """Reflectance maps (T_active, P, 3) float32 of P pixels: OpenCL, or the NumPy reference.
+
+    horizon : (P, n_az) horizon slopes for visibility, or None for none.
+    """
+    if backend == "numpy":
+        vis = None if horizon is None else visibility_maps(horizon, n_az, tri.map_size)
+        return build_maps(samples, normals, tri, visibility=vis, adaptation=adaptation)
+    if backend != "opencl":
+        raise InputError(f"backend {backend!r}: use 'opencl' or 'numpy'")
+    from relight.kernels.maps import build_maps_cl
+
+    return build_maps_cl(np.ascontiguousarray(samples, dtype=np.float32), normals, vertices=tri.vertices,
+                         vertex_texel=tri.vertex_texel, texel_vertices=tri.texel_vertices,
+                         texel_weights=tri.texel_weights, texel_dirs=tri.texel_dirs, active=tri.active,
+                         map_size=tri.map_size, horizon=horizon, n_az=n_az,
+                         vis_soft=VIS_SOFT_TEXELS * np.pi / tri.map_size[1], adaptation=adaptation,
+                         progress=progress)

@@ -27,6 +27,8 @@ from .ingest import Ingested
 SAMPLE_LEVEL = 0.85
 #: Pixels at or above this sRGB code count as clipped (the sample is flagged there).
 CLIP_CODE = 250
+#: A flash sample adding less than this share of the median sample's light to the face is dropped.
+WEAK_SHARE = 0.1
 
 
 @dataclass
@@ -35,6 +37,7 @@ class SampleOptions:
 
     flash_hz: float | None = None
     flash_threshold: float = flash_stage.DEFAULT_THRESHOLD
+    flash_min_share: float = flash_stage.DEFAULT_MIN_SHARE
     sphere: tuple[float, float, float] | None = None
     focal: float | None = None
     highlight: str = "blob"
@@ -101,7 +104,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     timings: dict[str, float] = {}
     rejected: dict[str, int] = {}
     t0 = time.perf_counter()
-    fl = flash_stage.separate(ing.face_trace(), ing.fps, opts.flash_hz, opts.flash_threshold)
+    fl = flash_stage.separate(ing.face_trace(), ing.fps, opts.flash_hz, opts.flash_threshold, opts.flash_min_share)
     rejected.update({f"flash_{k}": v for k, v in fl.rejected.items() if v})
     timings["flash"] = time.perf_counter() - t0
 
@@ -221,6 +224,18 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
         pulse_frames.append(frames)
         if progress:
             progress("samples", n_done + 1, len(by_pulse))
+    # A flash whose light barely reached the face (ill-aimed) would paint a dark patch into the
+    # maps: drop samples adding under WEAK_SHARE of the median sample's light on the face.
+    if images:
+        face_light = np.array([luminance(im[region]).mean() for im in images])
+        weak = face_light < WEAK_SHARE * float(np.median(face_light))
+        if weak.any():
+            rejected["weak_flash"] = int(weak.sum())
+            keep = np.flatnonzero(~weak)
+            images = [images[i] for i in keep]
+            dirs = [dirs[i] for i in keep]
+            clipped = [clipped[i] for i in keep]
+            pulse_frames = [pulse_frames[i] for i in keep]
     if len(images) < 4:
         raise InputError(f"only {len(images)} usable flash samples (need at least 4); see the rejected counts: "
                          + ", ".join(f"{k} {v}" for k, v in rejected.items()))

@@ -1,0 +1,92 @@
+"""Host wrapper of ``reflectance.cl``: reflectance maps for many pixels on the OpenCL device.
+
+NumPy twins: :func:`relight.pipeline.reflectance.visibility_maps` and
+:func:`relight.pipeline.reflectance.build_maps` (same arguments, same maths).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .runtime import build_program, get_runtime
+
+#: Pixels per launch (bounds the visibility scratch: PIXEL_CHUNK x texels floats, twice).
+PIXEL_CHUNK = 8192
+
+
+def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndarray, vertex_texel: np.ndarray,
+                  texel_vertices: np.ndarray, texel_weights: np.ndarray, texel_dirs: np.ndarray,
+                  active: np.ndarray, map_size: tuple[int, int], horizon: np.ndarray | None, n_az: int,
+                  vis_soft: float, adaptation: bool = True, progress=None) -> np.ndarray:
+    """(T_active, P, 3) float32 reflectance maps.
+
+    samples : (K, P, 3) float32 linear sample colours. normals : (P, 3). vertices : (V, 3)
+    directions (the K samples first, then black lights); vertex_texel : (V,) texel of each
+    vertex (for its visibility). texel_vertices / texel_weights : (T, 3) each texel's triangle.
+    texel_dirs : (T, 3). active : (T,) bool texels to compute. horizon : (P, n_az) slopes, or None
+    to skip visibility. vis_soft : width (radians of elevation) of the visibility step.
+    """
+    import pyopencl as cl
+
+    rt = get_runtime()
+    ctx, queue = rt.context, rt.queue
+    mf = cl.mem_flags
+    prg = build_program("reflectance")
+    k_vis = cl.Kernel(prg, "soft_visibility")
+    k_box = cl.Kernel(prg, "box3")
+    k_maps = cl.Kernel(prg, "build_maps")
+    k, p = samples.shape[:2]
+    w, h = map_size
+    n_tex = w * h
+    act = np.flatnonzero(active).astype(np.int32)
+
+    def buf(a, dtype):
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a, dtype=dtype))
+
+    def f4(a):
+        out = np.zeros((len(a), 4), dtype=np.float32)
+        out[:, :3] = a
+        return out
+
+    def i4(a):
+        out = np.zeros((len(a), 4), dtype=np.int32)
+        out[:, :3] = a
+        return out
+
+    b_samples = buf(samples, np.float32)
+    b_normal = buf(f4(normals), np.float32)
+    b_vdir = buf(f4(vertices), np.float32)
+    b_vtex = buf(vertex_texel, np.int32)
+    b_tv = buf(i4(texel_vertices[act]), np.int32)
+    b_tw = buf(f4(texel_weights[act]), np.float32)
+    b_tdir_act = buf(f4(texel_dirs[act]), np.float32)
+    b_tidx = buf(act, np.int32)
+    # Per texel: the two horizon columns around its azimuth, their blend, its elevation.
+    s_xy = np.hypot(texel_dirs[:, 0], texel_dirs[:, 1])
+    beta = np.mod(np.arctan2(texel_dirs[:, 1], texel_dirs[:, 0]), 2 * np.pi)
+    pos = beta / (2 * np.pi) * n_az - 0.5
+    i0 = np.floor(pos).astype(np.int64) % n_az
+    taz = np.stack([i0, (i0 + 1) % n_az, pos - np.floor(pos),
+                    np.where(s_xy < 1e-6, 8.0, np.arctan2(texel_dirs[:, 2], np.maximum(s_xy, 1e-9)))], axis=1)
+    b_taz = buf(taz, np.float32)
+    use_vis = horizon is not None
+    chunk = min(PIXEL_CHUNK, p)
+    raw = cl.Buffer(ctx, mf.READ_WRITE, max(chunk * n_tex * 4, 4))
+    smooth = cl.Buffer(ctx, mf.READ_WRITE, max(chunk * n_tex * 4, 4))
+    b_hz = buf(horizon if use_vis else np.zeros(1), np.float32)
+    out = np.empty((act.size, p, 3), dtype=np.float32)
+    b_out = cl.Buffer(ctx, mf.WRITE_ONLY, max(out.nbytes, 4))
+    for p0 in range(0, p, chunk):
+        n = min(chunk, p - p0)
+        if use_vis:
+            k_vis(queue, (n, n_tex), None, b_hz, np.int32(n_az), b_taz, np.int32(n_tex), np.float32(1.0 / vis_soft),
+                  np.int32(p0), np.int32(n), raw)
+            k_box(queue, (n, n_tex), None, raw, np.int32(w), np.int32(h), np.int32(n), smooth)
+        k_maps(queue, (n,), None, b_samples, np.int32(k), np.int32(p), b_normal, b_vdir, b_vtex, b_tv, b_tw,
+               b_tdir_act, b_tidx, np.int32(act.size), smooth, np.int32(n_tex), np.int32(use_vis),
+               np.int32(adaptation), np.int32(p0), np.int32(n), b_out)
+        queue.finish()
+        if progress is not None:
+            progress(n)
+    cl.enqueue_copy(queue, out, b_out)
+    return out

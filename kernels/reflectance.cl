@@ -1,0 +1,178 @@
+/* Reflectance maps from light samples (relight.kernels.maps; NumPy twin:
+ * relight.pipeline.reflectance.visibility_maps / build_maps).
+ *
+ * soft_visibility: per (pixel, texel), whether the texel's direction clears the pixel's horizon
+ *   (soft over VIS_SOFT of elevation), from a horizon table over image-plane directions.
+ * box3: the paper's 3x3 box filter of those maps (wrapping in azimuth, clamped at the poles).
+ * build_maps: per pixel, every active texel interpolated from its triangle's vertices with
+ *   visibility-aware blending and light adaptation (paper Eq. 1-3).
+ */
+#include "common.h"
+
+#define MIN_COS 0.1f
+
+/* atan() is a slow library call in PoCL 3.0; this odd rational approximation is within
+ * 1e-5 rad, far below the visibility step's softness (a texel, ~5 degrees). */
+inline float fast_atan(float x)
+{
+    float ax = fabs(x);
+    int inv = ax > 1.0f;
+    float z = inv ? 1.0f / ax : ax;
+    float z2 = z * z;
+    float r = z * (0.99997726f + z2 * (-0.33262347f + z2 * (0.19354346f + z2 * (-0.11643287f
+              + z2 * (0.05265332f - z2 * 0.01172120f)))));
+    r = inv ? 0.5f * PI_F - r : r;
+    return copysign(r, x);
+}
+
+__kernel void soft_visibility(
+    __global const float *horizon, int n_az,          /* (P, n_az) horizon slopes */
+    __global const float4 *texel_az, int n_tex,       /* (T,) x, y = azimuth columns, z = blend, w = elevation */
+    float inv_soft, int p0, int n_pix,                /* pixel range [p0, p0 + n_pix) */
+    __global float *out)                              /* (n_pix, T) */
+{
+    int i = get_global_id(0);
+    int t = get_global_id(1);
+    if (i >= n_pix || t >= n_tex)
+        return;
+    float4 ta = texel_az[t];
+    float v = 1.0f;
+    if (ta.w < 4.0f) { /* elevation 4 marks "straight at the camera": always visible */
+        __global const float *hz = horizon + (size_t)(p0 + i) * n_az;
+        float slope = mix(hz[(int)ta.x], hz[(int)ta.y], ta.z);
+        v = clamp(0.5f + (ta.w - fast_atan(slope)) * inv_soft, 0.0f, 1.0f);
+    }
+    out[(size_t)i * n_tex + t] = v;
+}
+
+__kernel void box3(__global const float *in, int w, int h, int n_pix, __global float *out)
+{
+    int i = get_global_id(0);
+    int t = get_global_id(1);
+    if (i >= n_pix || t >= w * h)
+        return;
+    int y = t / w, x = t % w;
+    __global const float *m = in + (size_t)i * w * h;
+    float acc = 0.0f;
+    for (int dy = -1; dy <= 1; ++dy) {
+        int yy = clamp(y + dy, 0, h - 1);
+        for (int dx = -1; dx <= 1; ++dx) {
+            int xx = (x + dx + w) % w;
+            acc += m[yy * w + xx];
+        }
+    }
+    out[(size_t)i * w * h + t] = acc * (1.0f / 9.0f);
+}
+
+/* Light-adapted interpolation with vertex weights wv * use (paper Eq. 1-3). */
+inline float3 adapt(const float3 *c, const float *wv, const float *dv, float dp, const float *use, int adaptation)
+{
+    float w[3], wsum = 0.0f;
+    for (int v = 0; v < 3; ++v) {
+        w[v] = wv[v] * use[v];
+        wsum += w[v];
+    }
+    float inv = 1.0f / fmax(wsum, 1e-12f);
+    float3 plain = (float3)(0.0f);
+    for (int v = 0; v < 3; ++v) {
+        w[v] *= inv;
+        plain += w[v] * c[v];
+    }
+    if (!adaptation)
+        return plain;
+    int n_use = 0, n_lit = 0;
+    float w_lit = 0.0f, w_ind = 0.0f;
+    float3 c_ind = (float3)(0.0f);
+    int lit[3];
+    for (int v = 0; v < 3; ++v) {
+        int inc = w[v] > 0.0f;
+        lit[v] = inc && dv[v] > MIN_COS;
+        n_use += inc;
+        n_lit += lit[v];
+        if (lit[v])
+            w_lit += w[v];
+        else if (inc) {
+            w_ind += w[v];
+            c_ind += w[v] * c[v];
+        }
+    }
+    if (n_lit == 0)
+        return plain;
+    float dps = fmax(dp, 0.0f);
+    if (n_lit == n_use) {
+        float3 acc = (float3)(0.0f);
+        for (int v = 0; v < 3; ++v)
+            if (lit[v])
+                acc += (w[v] / fmax(dv[v], MIN_COS)) * c[v];
+        return acc * dps;
+    }
+    /* c_ind above is already the weighted sum w_ind * (normalised indirect estimate). */
+    float3 acc = (float3)(0.0f);
+    for (int v = 0; v < 3; ++v)
+        if (lit[v])
+            acc += (w[v] / fmax(dv[v], MIN_COS)) * (c[v] - c_ind);
+    float3 c_dir = acc * dps / fmax(w_lit, 1e-12f) + c_ind;
+    return w_lit * c_dir + c_ind;
+}
+
+__kernel void build_maps(
+    __global const float *samples, int n_samples, int n_pix_all,   /* (K, P_all, 3) */
+    __global const float4 *normal,                                 /* (P_all,) */
+    __global const float4 *vertex_dir, __global const int *vertex_texel,
+    __global const int4 *tex_vertices, __global const float4 *tex_weights,
+    __global const float4 *tex_dir, __global const int *tex_index, int n_active,
+    __global const float *vis, int n_tex, int use_vis, int adaptation,  /* (n_pix, T) smoothed */
+    int p0, int n_pix,
+    __global float *out)                                           /* (n_active, P_all, 3) */
+{
+    int i = get_global_id(0);
+    if (i >= n_pix)
+        return;
+    int p = p0 + i;
+    float3 n = normal[p].xyz;
+    __global const float *pv = vis + (size_t)i * n_tex;
+    for (int a = 0; a < n_active; ++a) {
+        int4 tv = tex_vertices[a];
+        float4 tw = tex_weights[a];
+        int ids[3] = {tv.x, tv.y, tv.z};
+        float wv[3] = {tw.x, tw.y, tw.z};
+        float3 c[3];
+        float dv[3], vv[3];
+        for (int v = 0; v < 3; ++v) {
+            int id = ids[v];
+            if (id < n_samples) {
+                __global const float *s = samples + ((size_t)id * n_pix_all + p) * 3;
+                c[v] = (float3)(s[0], s[1], s[2]);
+            } else {
+                c[v] = (float3)(0.0f);
+            }
+            dv[v] = adaptation ? dot(n, vertex_dir[id].xyz) : 1.0f;
+            vv[v] = use_vis ? pv[vertex_texel[id]] : 1.0f;
+        }
+        float dp = adaptation ? dot(n, tex_dir[a].xyz) : 1.0f;
+        float every[3] = {1.0f, 1.0f, 1.0f};
+        float3 res = adapt(c, wv, dv, dp, every, adaptation);
+        if (use_vis) {
+            float vmin = fmin(vv[0], fmin(vv[1], vv[2]));
+            float vmax = fmax(vv[0], fmax(vv[1], vv[2]));
+            float spread = vmax - vmin;
+            if (spread > 0.0f) {
+                float is_lit[3], is_sh[3];
+                for (int v = 0; v < 3; ++v) {
+                    is_lit[v] = clamp((vv[v] - vmin) / fmax(spread, 1e-6f), 0.0f, 1.0f);
+                    is_sh[v] = 1.0f - is_lit[v];
+                }
+                float vp = pv[tex_index[a]];
+                float tl = clamp((vp - vmin) / fmax(spread, 1e-6f), 0.0f, 1.0f);
+                float3 cl = adapt(c, wv, dv, dp, is_lit, adaptation);
+                float3 cs = adapt(c, wv, dv, dp, is_sh, adaptation);
+                res = (1.0f - spread) * res + spread * (tl * cl + (1.0f - tl) * cs);
+            }
+        }
+        res = fmax(res, 0.0f);
+        __global float *o = out + ((size_t)a * n_pix_all + p) * 3;
+        o[0] = res.x;
+        o[1] = res.y;
+        o[2] = res.z;
+    }
+}
