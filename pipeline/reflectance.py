@@ -6,8 +6,9 @@ fill it in four steps:
 
 1. **Triangulation**: the convex hull of the sample directions is their spherical Delaunay
    triangulation; virtual black lights are added outside the captured hull wherever no sample
-   is near, so light fades out beyond it (holes inside the hull are interpolated, not darkened); each texel is interpolated with spherical barycentric weights
-   (the planar weights of its ray through the triangle, normalised).
+   is near, so light fades out beyond it (holes inside the hull are interpolated, not
+   darkened); each texel is interpolated with spherical barycentric weights (the planar
+   weights of its ray through the triangle, normalised).
 2. **Visibility**: from the height field, each pixel's horizon tells which directions it can
    see (soft over about a texel, then a 3x3 box filter as in the paper); inside a triangle
    whose vertices disagree, texels that are shadowed take the shadowed vertices' colours and

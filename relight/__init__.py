@@ -3,6 +3,7 @@
 Public API (stable names)::
 
     relight.load_environment(path_or_builtin)   # (H, 2H, 3) float32 linear radiance
+    relight.load_bundle(path)                   # a reflectance bundle from `relight capture`
 
 Architecture: ``relight.pipeline`` (offline capture -> reflectance bundle, and the synthetic
 capture studio), ``relight.kernels`` (OpenCL C kernels on PoCL + host wrappers),
@@ -12,6 +13,13 @@ capture studio), ``relight.kernels`` (OpenCL C kernels on PoCL + host wrappers),
 from .envmap import load_environment
 from .errors import InputError, NumericalError, RelightError
 
+
+def load_bundle(path, *, verify: bool = True):
+    """Open a reflectance bundle written by ``relight capture`` (see :mod:`relight.pipeline.bundle`)."""
+    from .pipeline.bundle import load_bundle as _load
+
+    return _load(path, verify=verify)
+
 __version__ = "0.1.0"
 
-__all__ = ["InputError", "NumericalError", "RelightError", "__version__", "load_environment"]
+__all__ = ["InputError", "NumericalError", "RelightError", "__version__", "load_bundle", "load_environment"]

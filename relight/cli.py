@@ -70,6 +70,93 @@ def _run_synth(args) -> int:
     return 0
 
 
+def _box(text: str) -> tuple[int, int, int, int]:
+    try:
+        vals = tuple(int(round(float(v))) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: write the box as x,y,w,h in pixels") from None
+    if len(vals) != 4 or vals[2] <= 0 or vals[3] <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: write the box as x,y,w,h with positive w and h")
+    return vals
+
+
+def _circle(text: str) -> tuple[float, float, float]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: write the sphere as cx,cy,r in pixels") from None
+    if len(vals) != 3 or vals[2] <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: write the sphere as cx,cy,r with r > 0")
+    return vals
+
+
+def _add_capture(sub) -> None:
+    from .pipeline.methods import METHODS
+
+    p = sub.add_parser(
+        "capture", help="turn a capture video (or an RTI image set) into a reflectance bundle",
+        description="Build a reflectance bundle from a phone video of a face lit by a blinking, hand-waved "
+                    "flash with a mirror sphere beside it (or from an RTI image set with --images): flash "
+                    "separation, registration, light directions, photometric-stereo geometry, per-pixel "
+                    "reflectance maps.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("video", nargs="?", type=Path, help="capture video (any container FFmpeg reads)")
+    p.add_argument("--images", type=Path, metavar="DIR",
+                   help="an RTI image set instead of a video: images plus dirs.lp (and optional mask.png)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="bundle file to write")
+    p.add_argument("--method", default="full", choices=METHODS,
+                   help="how samples become maps: the paper's triangulation (full = with visibility and light "
+                        "adaptation, barycentric = without) or a fitted baseline")
+    p.add_argument("--no-visibility", action="store_true", help="leave out visibility-aware interpolation")
+    p.add_argument("--no-adaptation", action="store_true", help="leave out light adaptation (cosine factors)")
+    p.add_argument("--map-size", type=_size, default=(64, 32), metavar="WxH", help="reflectance map size (2:1)")
+    p.add_argument("--sphere", type=_circle, metavar="cx,cy,r", help="mirror sphere centre and radius (pixels) "
+                   "instead of finding it")
+    p.add_argument("--face", type=_box, metavar="x,y,w,h", help="face box (pixels) instead of detecting it")
+    p.add_argument("--flash-hz", type=float, help="flash rate in Hz (estimated from the video when not given)")
+    p.add_argument("--flash-threshold", type=float, default=0.002,
+                   help="least brightness (linear, 0-1) a flash must add to the face over the dark frames")
+    p.add_argument("--focal", type=float, help="camera focal length in pixels for a perspective sphere "
+                   "(orthographic when not given)")
+    p.add_argument("--highlight", default="blob", choices=("blob", "paper"),
+                   help="highlight position: whole blob (default) or the paper's 0.85 threshold")
+    p.add_argument("--no-registration", action="store_true", help="leave out head-motion registration")
+    p.add_argument("--no-ambient-subtraction", action="store_true",
+                   help="keep the room light in the flash samples (the paper's choice)")
+    p.add_argument("--mesh", type=Path, help="a mesh (any format trimesh reads) aligned to the reference camera, "
+                   "vertices (column, -row, height) in pixels, instead of photometric-stereo geometry")
+    p.add_argument("--export-mesh", type=Path, metavar="FILE", help="write the estimated head as a mesh (.ply, .obj)")
+    p.add_argument("--report", type=Path, metavar="DIR", help="write report.json and PNG plots here")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_run_capture)
+
+
+def _run_capture(args) -> int:
+    from .errors import InputError
+    from .pipeline.capture import CaptureOptions, capture
+    from .pipeline.samples import SampleOptions
+
+    if (args.video is None) == (args.images is None):
+        raise InputError("give either a capture video or --images DIR (not both)")
+    opts = CaptureOptions(
+        method=args.method, visibility=not args.no_visibility, adaptation=not args.no_adaptation,
+        map_size=args.map_size, face=args.face, mesh=str(args.mesh) if args.mesh else None,
+        export_mesh=str(args.export_mesh) if args.export_mesh else None,
+        samples=SampleOptions(flash_hz=args.flash_hz, flash_threshold=args.flash_threshold, sphere=args.sphere,
+                              focal=args.focal, highlight=args.highlight, register=not args.no_registration,
+                              subtract_ambient=not args.no_ambient_subtraction))
+    res = capture(args.images or args.video, args.out, opts, images=args.images is not None,
+                  report_dir=args.report, progress=not args.quiet)
+    rej = ", ".join(f"{k} {v}" for k, v in res.report.get("rejected", {}).items()) or "none"
+    print(f"wrote {res.bundle} ({res.arrays['light_dirs'].shape[0]} light samples, "
+          f"{res.arrays['pixels'].size} pixels, {res.bundle.stat().st_size / 1e6:.0f} MB)")
+    print(f"dropped: {rej}")
+    for note in res.report.get("notes", []):
+        print(f"note: {note}")
+    print("timings: " + ", ".join(f"{k} {v:.1f}s" for k, v in res.timings.items()))
+    return 0
+
+
 def _add_demo(sub) -> None:
     p = sub.add_parser("demo", help="synthesise a short capture and write a contact sheet (what `make demo` runs)",
                        description="Synthesise a short capture with the built-in defaults (no download) and "
@@ -104,6 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"relight {__version__}")
     sub = parser.add_subparsers(title="commands", metavar="COMMAND", required=True)
     _add_synth(sub)
+    _add_capture(sub)
     _add_demo(sub)
     return parser
 

@@ -1,0 +1,244 @@
+"""Stage 6: the reflectance bundle - one file with everything the online side needs.
+
+Format (version 1), little-endian::
+
+    offset 0   8 bytes   magic b"RLBUNDLE"
+    offset 8   u32       format version (1)
+    offset 12  u32       CRC-32 of the header bytes
+    offset 16  u64       header length H
+    offset 24  H bytes   header: UTF-8 JSON {"format", "version", "meta", "arrays"}
+    then       arrays, each starting on a 64-byte boundary
+
+``arrays`` maps a field name to ``{"dtype", "shape", "offset", "nbytes", "crc32"}`` (dtype in
+NumPy's string form, offset absolute). Arrays are raw C-order data, so loading memory-maps
+them (read-only); every array's CRC-32 is checked on load (about 3 GB/s). No pickle anywhere.
+Writes go to a temporary file in the same folder that is renamed over the target, so a killed
+writer leaves any previous bundle intact.
+
+Fields (P = head pixels, K = light samples, T = active map texels; crop = the stored region
+of the reference frame, ``crop_origin`` its top-left pixel in the frame):
+
+======================  ===========================  ========================================
+field                   shape, dtype                 meaning
+======================  ===========================  ========================================
+pixels                  (P,) int32                   flat row-major indices of the head pixels in the crop
+mask_crop               (h, w) bool                  head pixels in the crop
+ambient                 (h, w, 3) float32            registered no-flash average, linear
+background              (H, W, 3) uint8              a full no-flash frame, sRGB
+normal                  (P, 3) float32               camera-space unit normals
+albedo                  (P, 3) float32               Lambertian albedo, linear, flash units
+depth                   (h, w) float32               height toward the camera, pixels
+landmarks               (N, 2) float32               trackable points of the reference (frame px)
+light_dirs              (K, 3) float32               sample light directions (camera space)
+samples                 (K, P, 3) float16            flash-only colour of each pixel per sample
+maps                    (T, P, 3) float16            reflectance per active texel, flash units
+map_texels              (T,) int32                   texel index (row-major in the map) of each map row
+tri_vertices            (V, 3) float32               triangulation vertices (samples, then black lights)
+tri_faces               (F, 3) int32                 triangulation faces
+======================  ===========================  ========================================
+
+Units: linear Rec.709; "flash units" means a pixel's value under a light as strong as the
+capture flash (a white Lambertian surface facing it reads 1). Relighting under an environment
+of radiance L is ``sum_t maps[t] * L(t) * solid_angle(t) / pi`` (the solid angle is the exact
+form of the paper's sin-latitude normalisation).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from relight.directions import equirect_solid_angles
+from relight.errors import InputError
+from relight.imageio import atomic_path
+
+MAGIC = b"RLBUNDLE"
+VERSION = 1
+ALIGN = 64
+_PREFIX = struct.Struct("<8sIIQ")
+#: Largest header accepted (a corrupt length must not make us allocate gigabytes).
+MAX_HEADER = 64 << 20
+REQUIRED = ("pixels", "mask_crop", "ambient", "background", "normal", "albedo", "depth", "light_dirs", "maps",
+            "map_texels")
+_ALLOWED_DTYPES = {"|b1", "|u1", "<i4", "<i8", "<f2", "<f4", "<f8"}
+
+
+@dataclass
+class Bundle:
+    """A loaded reflectance bundle: ``meta`` (dict) and the arrays (read-only, memory-mapped).
+
+    See the module docstring for the fields; each is also an attribute (``bundle.maps``).
+    """
+
+    path: Path | None
+    meta: dict
+    arrays: dict = field(repr=False)
+
+    def __getattr__(self, name):
+        arrays = self.__dict__.get("arrays", {})
+        if name in arrays:
+            return arrays[name]
+        raise AttributeError(name)
+
+    @property
+    def frame_size(self) -> tuple[int, int]:
+        """(W, H) of the reference frame."""
+        w, h = self.meta["frame_size"]
+        return int(w), int(h)
+
+    @property
+    def crop_origin(self) -> tuple[int, int]:
+        x, y = self.meta["crop_origin"]
+        return int(x), int(y)
+
+    @property
+    def map_size(self) -> tuple[int, int]:
+        w, h = self.meta["map_size"]
+        return int(w), int(h)
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) bool: the relit (head) pixels in the reference frame."""
+        w, h = self.frame_size
+        out = np.zeros((h, w), dtype=bool)
+        x, y = self.crop_origin
+        m = np.asarray(self.arrays["mask_crop"])
+        out[y:y + m.shape[0], x:x + m.shape[1]] = m
+        return out
+
+    @property
+    def solid_angle(self) -> np.ndarray:
+        """(T,) solid angle (sr) of each stored map texel."""
+        w, h = self.map_size
+        rows = np.asarray(self.arrays["map_texels"]) // w
+        return equirect_solid_angles(w, h)[rows]
+
+    @property
+    def texel_dirs(self) -> np.ndarray:
+        """(T, 3) directions of the stored map texels."""
+        from relight.directions import equirect_directions
+
+        w, h = self.map_size
+        return equirect_directions(w, h).reshape(-1, 3)[np.asarray(self.arrays["map_texels"])]
+
+    def full_map(self, pixel: int) -> np.ndarray:
+        """(H_map, W_map, 3) float32 reflectance map of one head pixel (index into ``pixels``)."""
+        w, h = self.map_size
+        out = np.zeros((h * w, 3), dtype=np.float32)
+        out[np.asarray(self.arrays["map_texels"])] = np.asarray(self.arrays["maps"][:, pixel], dtype=np.float32)
+        return out.reshape(h, w, 3)
+
+
+def _dtype_str(a: np.ndarray) -> str:
+    return np.dtype(a.dtype).newbyteorder("<").str if a.dtype.byteorder not in ("|",) else a.dtype.str
+
+
+def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray]) -> Path:
+    """Write a bundle atomically. ``arrays`` values are converted to little-endian C order."""
+    missing = [k for k in REQUIRED if k not in arrays]
+    if missing:
+        raise ValueError(f"bundle is missing required field(s): {', '.join(missing)}")
+    prepared = {}
+    for name, a in arrays.items():
+        a = np.asarray(a)
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
+            raise ArithmeticError(f"bundle field {name!r} holds non-finite values")
+        a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<") if a.dtype.byteorder == ">" else a.dtype)
+        prepared[name] = a
+    directory = {}
+    # Offsets depend on the header length, which depends on the offsets' digits: iterate.
+    header_len = 4096
+    for _ in range(8):
+        offset = _align(_PREFIX.size + header_len)
+        directory = {}
+        for name, a in prepared.items():
+            directory[name] = {"dtype": _dtype_str(a), "shape": list(a.shape), "offset": offset,
+                               "nbytes": int(a.nbytes), "crc32": zlib.crc32(memoryview(a).cast("B"))}
+            offset = _align(offset + a.nbytes)
+        header = json.dumps({"format": "relight-bundle", "version": VERSION, "meta": meta, "arrays": directory},
+                            sort_keys=True, allow_nan=False).encode("utf-8")
+        if len(header) <= header_len:
+            header = header + b" " * (header_len - len(header))
+            break
+        header_len = _align(len(header) + 1024)
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        f.write(_PREFIX.pack(MAGIC, VERSION, zlib.crc32(header), len(header)))
+        f.write(header)
+        for name, a in prepared.items():
+            pos = directory[name]["offset"]
+            f.write(b"\0" * (pos - f.tell()))
+            f.write(memoryview(a).cast("B"))
+        f.flush()
+        os.fsync(f.fileno())
+    return path
+
+
+def _align(n: int) -> int:
+    return (n + ALIGN - 1) // ALIGN * ALIGN
+
+
+def load_bundle(path: str | os.PathLike, *, verify: bool = True) -> Bundle:
+    """Open a bundle: header validated, every array checked (CRC-32) and memory-mapped read-only.
+
+    Raises :class:`InputError` naming the problem and the field for a missing, truncated,
+    corrupted, foreign or wrong-version file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such bundle file; check the path")
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        prefix = f.read(_PREFIX.size)
+        if len(prefix) < _PREFIX.size:
+            raise InputError(f"{path}: too short to be a bundle ({size} bytes); it is truncated")
+        magic, version, crc, hlen = _PREFIX.unpack(prefix)
+        if magic != MAGIC:
+            raise InputError(f"{path}: not a relight bundle (bad magic); make one with `relight capture`")
+        if version != VERSION:
+            raise InputError(f"{path}: bundle format version {version}, this relight reads version {VERSION}; "
+                             "re-run `relight capture` with this version")
+        if hlen > MAX_HEADER or _PREFIX.size + hlen > size:
+            raise InputError(f"{path}: header length {hlen} does not fit the {size}-byte file; it is truncated "
+                             "or corrupt")
+        header = f.read(hlen)
+    if zlib.crc32(header) != crc:
+        raise InputError(f"{path}: header checksum mismatch; the file is corrupt")
+    try:
+        doc = json.loads(header.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: header is not valid JSON ({exc}); the file is corrupt") from None
+    if not isinstance(doc, dict) or doc.get("format") != "relight-bundle" or not isinstance(doc.get("arrays"), dict):
+        raise InputError(f"{path}: header does not describe a relight bundle")
+    arrays = {}
+    for name in REQUIRED:
+        if name not in doc["arrays"]:
+            raise InputError(f"{path}: field {name!r} is missing; the bundle is incomplete")
+    for name, spec in doc["arrays"].items():
+        try:
+            dtype = np.dtype(spec["dtype"])
+            shape = tuple(int(s) for s in spec["shape"])
+            offset, nbytes = int(spec["offset"]), int(spec["nbytes"])
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"{path}: field {name!r} has a malformed description") from None
+        if spec["dtype"] not in _ALLOWED_DTYPES or any(s < 0 for s in shape):
+            raise InputError(f"{path}: field {name!r} has an unsupported type {spec['dtype']!r}")
+        if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize != nbytes:
+            raise InputError(f"{path}: field {name!r}: shape {shape} does not match its {nbytes} bytes")
+        if offset < _PREFIX.size + hlen or offset + nbytes > size:
+            raise InputError(f"{path}: field {name!r} runs past the end of the file; the bundle is truncated")
+        if nbytes == 0:
+            arrays[name] = np.zeros(shape, dtype=dtype)
+            continue
+        mm = np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape)
+        if verify and zlib.crc32(memoryview(mm.reshape(-1).view(np.uint8))) != int(spec.get("crc32", -1)):
+            raise InputError(f"{path}: field {name!r} fails its checksum; the bundle is corrupt, re-run capture")
+        arrays[name] = mm
+    meta = doc.get("meta") if isinstance(doc.get("meta"), dict) else {}
+    return Bundle(path=path, meta=meta, arrays=arrays)

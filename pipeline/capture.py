@@ -1,0 +1,373 @@
+"""``relight capture``: a phone video (or an RTI image set) -> reflectance bundle.
+
+Video: :mod:`ingest` (one decoding pass) -> :mod:`samples` (flash separation, registration,
+light directions, ambient-free samples) -> :mod:`geometry` -> :mod:`reflectance` (or a fitted
+baseline from :mod:`methods`) -> :mod:`bundle`. An RTI image set (``dirs.lp``) enters at the
+samples. Every stage is timed; what was dropped and why is counted.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from relight import __version__
+from relight.colour import decode_srgb8
+from relight.errors import InputError
+from relight.imageio import read_image
+
+from . import geometry, methods, reflectance
+from .bundle import write_bundle
+from .ingest import ingest
+from .samples import SampleOptions, collect_samples
+
+#: Image-plane directions of the horizon table used for visibility.
+HORIZON_DIRS = 64
+#: Largest image set accepted (files) and the most landmarks stored.
+MAX_IMAGES = 2000
+MAX_LANDMARKS = 300
+
+
+@dataclass
+class CaptureOptions:
+    """Everything ``relight capture`` can be told (each stage switchable)."""
+
+    method: str = "full"
+    visibility: bool = True
+    adaptation: bool = True
+    map_size: tuple[int, int] = reflectance.DEFAULT_MAP_SIZE
+    samples: SampleOptions = field(default_factory=SampleOptions)
+    face: tuple[int, int, int, int] | None = None
+    mesh: str | None = None
+    export_mesh: str | None = None
+    backend: str = "opencl"
+
+    def validate(self) -> CaptureOptions:
+        methods.validate_method(self.method)
+        w, h = self.map_size
+        if w != 2 * h or not (8 <= h <= 256):
+            raise InputError(f"--map-size {w}x{h}: use a 2:1 size between 16x8 and 512x256, e.g. 64x32")
+        return self
+
+
+@dataclass
+class Prepared:
+    """What the back half of the pipeline starts from (video and image sets alike)."""
+
+    images: np.ndarray          # (K, h, w, 3) linear flash-only samples
+    dirs: np.ndarray            # (K, 3)
+    clipped: np.ndarray         # (K, h, w) bool
+    ambient: np.ndarray         # (h, w, 3) linear
+    background: np.ndarray      # (H, W, 3) uint8 sRGB full frame
+    origin: tuple[int, int]
+    frame_size: tuple[int, int]
+    face_local: tuple[int, int, int, int] | None
+    mask: np.ndarray | None     # given mask (crop coordinates) or None to estimate
+    meta: dict = field(default_factory=dict)
+    report: dict = field(default_factory=dict)
+
+
+@dataclass
+class CaptureResult:
+    """What ``capture`` produced: the bundle path, report content, per-stage timings (s)."""
+
+    bundle: Path
+    report: dict
+    timings: dict
+    arrays: dict = field(repr=False, default_factory=dict)
+    prepared: Prepared | None = field(repr=False, default=None)
+
+
+class _Progress:
+    """One tqdm bar per stage (or none)."""
+
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+        self.bar = None
+        self.name = None
+
+    def __call__(self, name: str, done: int, total: int):
+        if not self.enabled:
+            return
+        if self.name != name:
+            self.close()
+            self.bar = tqdm(total=total, desc=name, leave=False)
+            self.name = name
+        self.bar.n = done
+        self.bar.refresh()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+            self.name = None
+
+
+def prepare_video(path, opts: CaptureOptions, progress: _Progress, timings: dict) -> Prepared:
+    """Stages 1-3 on a capture video."""
+    t0 = time.perf_counter()
+    total = [0]
+
+    def frame_cb(n):
+        total[0] += n
+        progress("decode", total[0], max(total[0], 1))
+
+    ing = ingest(path, face=opts.face, sphere_hint=opts.samples.sphere, progress=frame_cb)
+    timings["ingest"] = time.perf_counter() - t0
+    smp = collect_samples(ing, opts.samples, progress=progress)
+    timings.update({f"samples_{k}": v for k, v in smp.timings.items()})
+    x0, y0 = smp.origin
+    face_local = None
+    if ing.face_box is not None:
+        fx, fy, fw, fh = ing.face_box
+        face_local = (fx - x0, fy - y0, fw, fh)
+    report = {
+        "flash_frames": [int(f) for f in smp.flash.flash_frames],
+        "flash_peaks": [int(f) for f in smp.flash.peaks],
+        "dark_frames": [int(f) for f in smp.flash.dark],
+        "flash_hz": smp.flash.flash_hz,
+        "flash_hz_estimated": smp.flash.estimated,
+        "light_dirs": {str(f): [round(float(x), 6) for x in d] for f, d in smp.light_dirs.items()},
+        "transforms": {str(f): [round(float(x), 5) for x in m] for f, m in smp.motions.items()},
+        "transform_center": list(smp.motion_center),
+        "reference_frame": smp.reference_frame,
+        "rejected": dict(smp.rejected),
+        "sphere": list(smp.circle) if smp.circle else None,
+        "sphere_source": ing.sphere_source,
+        "face_box": list(ing.face_box) if ing.face_box else None,
+        "face_source": ing.face_source,
+        "notes": list(ing.notes),
+        "pulse_frames": smp.pulse_frames,
+        "_trace": ing.face_trace().tolist(),
+        "_level": smp.flash.level.tolist(),
+        "_track_quality": {str(k): list(v) for k, v in smp.track_quality.items()},
+        "fps": ing.fps,
+    }
+    background = ing.still
+    return Prepared(images=smp.images, dirs=smp.dirs, clipped=smp.clipped, ambient=smp.ambient,
+                    background=background, origin=smp.origin, frame_size=ing.size, face_local=face_local,
+                    mask=None, meta={"source": str(path), "kind": "video", "fps": ing.fps}, report=report)
+
+
+def read_lp(path: Path) -> list[tuple[str, np.ndarray]]:
+    """Parse an RTI ``.lp`` file: first line N, then ``filename x y z`` per line."""
+    try:
+        text = path.read_text(encoding="utf-8", errors="strict")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the light-position file ({exc})") from None
+    if len(text) > 1 << 20:
+        raise InputError(f"{path}: {len(text)} bytes is far too long for a light-position file")
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise InputError(f"{path}: empty light-position file")
+    try:
+        n = int(lines[0].split()[0])
+    except ValueError:
+        raise InputError(f"{path}: the first line must be the number of images") from None
+    if not (1 <= n <= MAX_IMAGES) or len(lines) - 1 < n:
+        raise InputError(f"{path}: says {n} images but lists {len(lines) - 1}; fix the count (at most {MAX_IMAGES})")
+    out = []
+    for i, ln in enumerate(lines[1:n + 1], start=2):
+        parts = ln.split()
+        if len(parts) < 4:
+            raise InputError(f"{path}:{i}: expected 'filename x y z', got {ln!r}")
+        name = parts[0]
+        if "/" in name or "\\" in name or name.startswith(".."):
+            raise InputError(f"{path}:{i}: image names must be plain file names in the same folder, got {name!r}")
+        try:
+            d = np.array([float(v) for v in parts[1:4]])
+        except ValueError:
+            raise InputError(f"{path}:{i}: x y z must be numbers, got {parts[1:4]}") from None
+        if not np.isfinite(d).all() or np.linalg.norm(d) < 1e-9:
+            raise InputError(f"{path}:{i}: light direction {parts[1:4]} is not a finite non-zero vector")
+        out.append((name, d / np.linalg.norm(d)))
+    return out
+
+
+def prepare_images(folder, opts: CaptureOptions, progress: _Progress, timings: dict) -> Prepared:
+    """An RTI image set: images + ``dirs.lp`` (+ optional ``mask.png``) skip stages 1-3."""
+    t0 = time.perf_counter()
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder; --images takes a folder with images and dirs.lp")
+    lps = sorted(folder.glob("*.lp"))
+    if not lps:
+        raise InputError(f"{folder}: no .lp light-position file (e.g. dirs.lp) found")
+    entries = read_lp(lps[0])
+    images, clipped, size = [], [], None
+    for i, (name, _) in enumerate(entries):
+        f = folder / name
+        if f.suffix.lower() in (".exr", ".hdr"):
+            img = read_image(f)
+            clip = np.zeros(img.shape[:2], dtype=bool)
+        else:
+            raw = read_image(f, linearize=False)
+            clip = (raw.max(axis=2) >= 250 / 255.0)
+            img = decode_srgb8(np.round(raw * 255).astype(np.uint8)) if raw.max() <= 1.0 else raw
+        if size is None:
+            size = img.shape[:2]
+        elif img.shape[:2] != size:
+            raise InputError(f"{f}: {img.shape[1]}x{img.shape[0]}, the others are {size[1]}x{size[0]}; "
+                             "all images of a set must have one size")
+        images.append(img.astype(np.float32))
+        clipped.append(clip)
+        progress("images", i + 1, len(entries))
+    h, w = size
+    mask = None
+    mpath = folder / "mask.png"
+    if mpath.exists():
+        m = cv2.imread(str(mpath), cv2.IMREAD_UNCHANGED)
+        if m is None or m.shape[:2] != (h, w):
+            raise InputError(f"{mpath}: must be a {w}x{h} image (white = object)")
+        if m.ndim == 3:
+            m = m[..., 3] if m.shape[2] == 4 and m[..., 3].min() < 255 else m[..., :3].max(axis=2)
+        mask = m > 127
+    else:
+        mask = np.ones((h, w), dtype=bool)
+    timings["read_images"] = time.perf_counter() - t0
+    dirs = np.array([d for _, d in entries])
+    stack = np.stack(images)
+    ambient = np.zeros((h, w, 3), dtype=np.float32)
+    background = np.round(np.clip(np.median(stack, axis=0), 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)
+    report = {"light_dirs": {name: [round(float(x), 6) for x in d] for name, d in entries},
+              "rejected": {}, "notes": [], "images": len(entries)}
+    return Prepared(images=stack, dirs=dirs, clipped=np.stack(clipped), ambient=ambient, background=background,
+                    origin=(0, 0), frame_size=(w, h), face_local=None, mask=mask,
+                    meta={"source": str(folder), "kind": "images", "lp": lps[0].name}, report=report)
+
+
+def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: dict):
+    """Geometry, maps and bundle arrays from prepared samples: (arrays, meta, geometry, triangulation)."""
+    t0 = time.perf_counter()
+    k, h, w = prep.images.shape[:3]
+    if opts.mesh is not None:
+        import trimesh
+
+        try:
+            mesh = trimesh.load(opts.mesh, force="mesh", process=False)
+        except Exception as exc:  # trimesh raises many kinds for a bad file
+            raise InputError(f"{opts.mesh}: not a mesh trimesh can read ({exc})") from None
+        depth, normal, cover = geometry.rasterize_mesh(mesh, (h, w), prep.origin)
+        mask = cover if prep.mask is None else (cover & prep.mask)
+        if mask.sum() < 16:
+            raise InputError(f"{opts.mesh}: the mesh covers {int(mask.sum())} pixels of the reference frame; "
+                             "it must be aligned to the reference camera (vertices: column, -row, height)")
+        _, albedo, resid = geometry.photometric_stereo(prep.images, prep.dirs, mask, prep.clipped)
+        geo = geometry.Geometry(normal=normal, albedo=albedo, depth=np.where(mask, depth, 0).astype(np.float32),
+                                mask=mask, fit_residual=resid)
+    elif prep.mask is not None:
+        normal, albedo, resid = geometry.photometric_stereo(prep.images, prep.dirs, prep.mask, prep.clipped)
+        geo = geometry.Geometry(normal=normal, albedo=albedo, depth=geometry.integrate_normals(normal, prep.mask),
+                                mask=prep.mask, fit_residual=resid)
+    else:
+        geo = geometry.estimate_geometry(prep.images, prep.dirs, prep.ambient, prep.clipped, prep.face_local)
+    if opts.export_mesh:
+        from relight.imageio import atomic_path
+
+        out = Path(opts.export_mesh)
+        with atomic_path(out) as tmp:
+            geometry.height_field_mesh(geo.depth, geo.mask, prep.origin).export(str(tmp), file_type=out.suffix[1:]
+                                                                               or "ply")
+    timings["geometry"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    pix = np.flatnonzero(geo.mask)
+    samples = np.ascontiguousarray(prep.images.reshape(k, -1, 3)[:, pix])
+    normals = geo.normal.reshape(-1, 3)[pix]
+    tri = reflectance.triangulate(prep.dirs, opts.map_size)
+    if opts.method in methods.FITTED:
+        front = tri.texel_dirs[:, 2] > 0.0
+        maps = methods.fit_and_evaluate(opts.method, tri.vertices[:tri.n_samples], samples, tri.texel_dirs[front])
+        texels = np.flatnonzero(front)
+    else:
+        use_vis = opts.visibility and opts.method == "full"
+        adapt = opts.adaptation and opts.method == "full"
+        horizon = None
+        if use_vis:
+            from relight.kernels.heightfield import NO_SURFACE, horizon_table
+
+            hgt = np.where(geo.mask, geo.depth, NO_SURFACE).astype(np.float32)
+            horizon = horizon_table(hgt, pix.astype(np.int32), HORIZON_DIRS)
+        timings["horizon"] = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        done = [0]
+
+        def cb(n):
+            done[0] += n
+            progress("maps", done[0], pix.size)
+
+        maps = reflectance.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS,
+                                        adaptation=adapt, backend=opts.backend, progress=cb)
+        texels = np.flatnonzero(tri.active)
+        timings["maps"] = time.perf_counter() - t1
+    if not np.isfinite(maps).all():
+        raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
+    landmarks = _landmarks(prep, geo.mask)
+    arrays = {
+        "pixels": pix.astype(np.int32), "mask_crop": geo.mask, "ambient": prep.ambient.astype(np.float32),
+        "background": prep.background, "normal": normals.astype(np.float32),
+        "albedo": geo.albedo.reshape(-1, 3)[pix].astype(np.float32), "depth": geo.depth.astype(np.float32),
+        "landmarks": landmarks, "light_dirs": prep.dirs.astype(np.float32),
+        "samples": samples.astype(np.float16), "maps": maps.astype(np.float16),
+        "map_texels": texels.astype(np.int32), "tri_vertices": tri.vertices.astype(np.float32),
+        "tri_faces": tri.faces.astype(np.int32),
+    }
+    meta = dict(prep.meta)
+    meta.update({
+        "relight_version": __version__, "frame_size": list(prep.frame_size), "crop_origin": list(prep.origin),
+        "crop_size": [w, h], "map_size": list(opts.map_size), "method": opts.method,
+        "visibility": bool(opts.visibility and opts.method == "full"),
+        "adaptation": bool(opts.adaptation and opts.method == "full"), "n_samples": int(k), "n_pixels": int(pix.size),
+        "n_black_lights": int(len(tri.vertices) - tri.n_samples), "units": "linear Rec.709, flash units",
+        "conventions": "camera space +X right, +Y up, +Z toward the camera; maps are lat-long (OpenEXR)",
+        "geometry": "mesh" if opts.mesh else "photometric stereo",
+    })
+    timings["assemble"] = time.perf_counter() - t0
+    return arrays, meta, geo, tri
+
+
+def _landmarks(prep: Prepared, mask: np.ndarray) -> np.ndarray:
+    """Shi-Tomasi corners of the reference inside the head (frame pixels), for tracking later."""
+    from relight.colour import encode_srgb8
+
+    ref = encode_srgb8(prep.ambient / max(float(prep.ambient.max()), 1e-6)) if prep.ambient.max() > 0 else \
+        prep.background[prep.origin[1]:prep.origin[1] + mask.shape[0], prep.origin[0]:prep.origin[0] + mask.shape[1]]
+    grey = cv2.cvtColor(np.ascontiguousarray(ref), cv2.COLOR_RGB2GRAY)
+    pts = cv2.goodFeaturesToTrack(grey, maxCorners=MAX_LANDMARKS, qualityLevel=0.01, minDistance=5,
+                                  mask=mask.astype(np.uint8) * 255)
+    if pts is None:
+        return np.zeros((0, 2), dtype=np.float32)
+    return (pts.reshape(-1, 2) + np.asarray(prep.origin, dtype=np.float32)).astype(np.float32)
+
+
+def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = False, report_dir=None,
+            progress: bool = True) -> CaptureResult:
+    """Run the whole capture; write the bundle to ``out`` (and a report to ``report_dir``)."""
+    opts = (opts or CaptureOptions()).validate()
+    timings: dict[str, float] = {}
+    bar = _Progress(progress)
+    t_all = time.perf_counter()
+    try:
+        prep = prepare_images(source, opts, bar, timings) if images else prepare_video(source, opts, bar, timings)
+        arrays, meta, geo, tri = finish(prep, opts, bar, timings)
+        t0 = time.perf_counter()
+        meta["timings"] = {k: round(v, 3) for k, v in timings.items()}
+        meta["rejected"] = prep.report.get("rejected", {})
+        path = write_bundle(out, meta, arrays)
+        timings["write"] = time.perf_counter() - t0
+    finally:
+        bar.close()
+    timings["total"] = time.perf_counter() - t_all
+    report = {k: v for k, v in prep.report.items()}
+    report["timings"] = {k: round(v, 3) for k, v in timings.items()}
+    result = CaptureResult(bundle=path, report=report, timings=timings, arrays=arrays, prepared=prep)
+    if report_dir is not None:
+        from .report import write_report
+
+        write_report(report_dir, result, geo, tri)
+    return result
