@@ -77,6 +77,8 @@ def estimate_flash_hz(trace: np.ndarray, fps: float) -> float | None:
     if n < 16:
         return None
     x = x - x.mean()
+    if x.std() < 1e-7:  # a flat trace: nothing blinks
+        return None
     window = np.hanning(n)
     pad = 1 << int(np.ceil(np.log2(n * 4)))
     power = np.abs(np.fft.rfft(x * window, pad)) ** 2

@@ -165,23 +165,53 @@ def triangulate(dirs: np.ndarray, map_size: tuple[int, int] = DEFAULT_MAP_SIZE) 
     if len(verts) < 4:
         raise InputError("the light directions cover the whole sphere too densely to triangulate; "
                          "this should not happen - report it")
-    hull = ConvexHull(verts, qhull_options="Qt QJ")
-    faces = hull.simplices.astype(np.int64)
+    faces = ConvexHull(verts, qhull_options="Qt QJ").simplices.astype(np.int64)
     w, h = map_size
     tdirs = equirect_directions(w, h).reshape(-1, 3)
-    m = verts[faces]  # (F, 3 vertices, 3 coords)
-    inv = np.linalg.inv(np.transpose(m, (0, 2, 1)))  # columns are vertices
-    bary = np.einsum("fij,tj->tfi", inv, tdirs)  # (T, F, 3)
-    score = bary.min(axis=2)
-    score[bary.sum(axis=2) <= 0] = -np.inf  # the ray must hit the face in front
-    best = np.argmax(score, axis=1)
-    wts = bary[np.arange(len(tdirs)), best]
-    wts = np.clip(wts, 0.0, None)
-    wts /= np.maximum(wts.sum(axis=1, keepdims=True), 1e-12)
-    tv = faces[best]
+    tv, wts = _locate(verts, faces, tdirs)
+    # Inside the samples' own hull, interpolate from samples only: the triangulation with the
+    # black lights is Delaunay, not constrained to the hull's edges, so near them a black light
+    # could otherwise reach in and darken a direction that was captured.
+    cap = _cap_faces(dirs)
+    if cap is not None:
+        inside = inside_hull(dirs, tdirs)
+        if inside.any():
+            tv_in, w_in = _locate(dirs, cap, tdirs[inside])
+            tv[inside], wts[inside] = tv_in, w_in
+            faces = np.concatenate([faces, cap])
     active = (tv < k).any(axis=1)
     return Triangulation(vertices=verts, n_samples=k, faces=faces, texel_vertices=tv, texel_weights=wts,
                          active=active, map_size=(w, h))
+
+
+def _cap_faces(dirs: np.ndarray) -> np.ndarray | None:
+    """Spherical Delaunay faces of the samples alone (their cap), or None when they have no inside."""
+    from scipy.spatial import QhullError
+
+    try:
+        hull = ConvexHull(np.vstack([np.zeros(3), dirs]), qhull_options="Qt QJ")
+    except QhullError:
+        return None
+    keep = ~np.any(hull.simplices == 0, axis=1)
+    if keep.all():  # the origin is inside: samples all around, no black lights were added
+        return None
+    return hull.simplices[keep].astype(np.int64) - 1
+
+
+def _locate(verts: np.ndarray, faces: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each query direction, the face its ray crosses and the normalised barycentric weights."""
+    m = np.transpose(verts[faces], (0, 2, 1))  # (F, 3 coords, 3 vertices): columns are vertices
+    det = np.linalg.det(m)
+    ok = np.abs(det) > 1e-12  # joggled duplicates leave faces of no area: never pick them
+    inv = np.zeros_like(m)
+    inv[ok] = np.linalg.inv(m[ok])
+    bary = np.einsum("fij,tj->tfi", inv, query)  # (T, F, 3)
+    score = bary.min(axis=2)
+    score[(bary.sum(axis=2) <= 0) | ~ok[None, :]] = -np.inf  # the ray must hit a real face in front
+    best = np.argmax(score, axis=1)
+    wts = np.clip(bary[np.arange(len(query)), best], 0.0, None)
+    wts /= np.maximum(wts.sum(axis=1, keepdims=True), 1e-12)
+    return faces[best], wts
 
 
 def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *, smooth: bool = True) -> np.ndarray:

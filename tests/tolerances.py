@@ -30,3 +30,6 @@ HAAR_MIN_HIT_RATE = 0.9
 POINT_VS_OLAT_REL = 0.02
 #: sRGB encode/decode round trip (linear units).
 SRGB_ROUNDTRIP = 1e-6
+#: Reflectance maps, OpenCL vs NumPy: largest difference relative to the largest value (float32
+#: kernel with a fast arctangent vs float64 twin).
+MAPS_TWIN_REL = 1e-4

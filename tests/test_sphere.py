@@ -1,0 +1,67 @@
+"""Stage 3: the mirror sphere - outline, highlights, directions."""
+
+import numpy as np
+import pytest
+
+from relight.directions import angle_between_deg, sphere_point_for_light
+from relight.pipeline.sphere import find_highlight, light_direction, refine_circle
+from relight.pipeline.synth.scene import MirrorSphere
+
+
+def _disc(shape, cx, cy, r, inside=0.1, outside=0.4, ss=8):
+    h, w = shape
+    y, x = np.mgrid[0:h * ss, 0:w * ss]
+    x = (x + 0.5) / ss - 0.5
+    y = (y + 0.5) / ss - 0.5
+    img = np.where((x - cx) ** 2 + (y - cy) ** 2 < r * r, inside, outside)
+    return img.reshape(h, ss, w, ss).mean(axis=(1, 3)).astype(np.float32)
+
+
+def test_outline_refinement_is_subpixel():
+    rng = np.random.default_rng(0)
+    img = _disc((120, 120), 60.37, 58.81, 31.6) + 0.01 * rng.standard_normal((120, 120)).astype(np.float32)
+    cx, cy, r = refine_circle(img, (61.5, 57.5, 30.0))
+    assert abs(cx - 60.37) < 0.05 and abs(cy - 58.81) < 0.05 and abs(r - 31.6) < 0.05
+
+
+def test_highlight_position_follows_the_mirror_law():
+    sphere = MirrorSphere(70.0, 65.0, 40.0, glare_sigma=1.0)
+    x0, y0, x1, y1 = sphere.bbox
+    dark = np.full((y1 - y0, x1 - x0), 0.05, dtype=np.float32)
+    local = (sphere.cx - x0, sphere.cy - y0, sphere.r)
+    errs = []
+    for d in ([0.1, 0.2, 1.0], [0.7, -0.3, 0.6], [-0.5, 0.6, 0.62], [0.9, 0.1, 0.3]):
+        d = np.asarray(d) / np.linalg.norm(d)
+        flash = np.clip(dark + sphere.flash_layer(d)[..., 0], 0, 1)
+        hl = find_highlight(flash, dark, local)
+        assert hl.xy is not None
+        got = light_direction(hl.xy, local)
+        errs.append(float(angle_between_deg(got, d)))
+    assert max(errs) < 0.3
+
+
+def test_no_highlight_and_ambiguous():
+    dark = np.full((80, 80), 0.05, dtype=np.float32)
+    hl = find_highlight(dark + 0.01, dark, (40, 40, 30))
+    assert hl.xy is None and hl.reason == "no_highlight"
+    two = dark.copy()
+    two[30:33, 30:33] = 1.0
+    two[50:53, 45:48] = 1.0
+    assert find_highlight(two, dark, (40, 40, 30)).reason == "ambiguous"
+
+
+def test_perspective_tends_to_orthographic():
+    circle = (300.0, 200.0, 40.0)
+    d = np.array([0.4, 0.3, 0.866])
+    xy = sphere_point_for_light(d / np.linalg.norm(d), circle)
+    ortho = light_direction(xy, circle)
+    persp = light_direction(xy, circle, focal=1e6, image_size=(600, 400))
+    assert float(angle_between_deg(ortho, persp)) < 0.01
+    near = light_direction(xy, circle, focal=500.0, image_size=(600, 400))
+    assert 0.5 < float(angle_between_deg(ortho, near)) < 20  # a real, bounded difference
+    assert np.isfinite(near).all()
+
+
+@pytest.mark.parametrize("xy", [(300.0, 160.0), (339.9, 200.0), (300.0, 241.0)])
+def test_rim_points_give_finite_directions(xy):
+    assert np.isfinite(light_direction(xy, (300.0, 200.0, 40.0))).all()
