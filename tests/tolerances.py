@@ -33,3 +33,14 @@ SRGB_ROUNDTRIP = 1e-6
 #: Reflectance maps, OpenCL vs NumPy: largest difference relative to the largest value (float32
 #: kernel with a fast arctangent vs float64 twin).
 MAPS_TWIN_REL = 1e-4
+#: Capture accuracy goals (issue: capture pipeline), checked on small synthetic captures.
+FLASH_PRECISION = 0.98
+FLASH_RECALL = 0.85
+REGISTRATION_RMS_PX = 0.25
+LIGHT_DIR_MEAN_DEG = 1.0
+LIGHT_DIR_P95_DEG = 2.5
+NORMAL_MEDIAN_DEG = 10.0
+#: Held-out relighting on the real Dome/Test set: PSNR floor (dB, sRGB, inside the mask) and the
+#: least margin of `full` over PTM.
+DOME_FULL_PSNR = 22.0
+DOME_MARGIN_OVER_PTM = 1.0

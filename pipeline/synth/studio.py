@@ -325,7 +325,9 @@ class Studio:
     def meta(self) -> dict:
         """The truth's ``meta.json`` content."""
         c = self.config
-        flash_frames = [i for i in range(self.n) if self.level[i] > 0.5]
+        # Frames an aimed flash (one that reaches the face) lit for most of their exposure.
+        aimed = [sum(f for k, f in self.lit[i] if self.pulses[k].strength >= 0.5) for i in range(self.n)]
+        flash_frames = [i for i in range(self.n) if aimed[i] > 0.5]
         light_dirs = {}
         for i in flash_frames:
             k = max(self.lit[i], key=lambda kf: kf[1] * self.pulses[kf[0]].strength)[0]
@@ -362,8 +364,9 @@ class Studio:
                           "toward the light",
                 "head_motion": "[tx, ty, rot_deg] per frame: reference pixel p moves to R(rot)(p - c) + c + t, "
                                "c = head_center, rot counter-clockwise on screen (cv2.getRotationMatrix2D sign)",
-                "flash_frames": "frames lit by the flash for more than half of their exposure (flash_level > 0.5: "
-                                "share of the exposure with the flash on, times the pulse's strength)",
+                "flash_frames": "frames an aimed flash (strength >= 0.5: it reached the face) lit for more than "
+                                "half of their exposure",
+                "flash_level": "per frame, share of the exposure with the flash on times the pulse's strength",
                 "flash_fraction": "per frame, share of the exposure during which a flash was on",
                 "radiometry": "linear Rec.709; the flash is a directional light of power pi (a white Lambertian "
                               "surface facing it reads 1); relit_*/olat_* at the reference pose, gain 1, no noise, "

@@ -1,0 +1,102 @@
+"""Stage 6: the bundle file - round trip, memory mapping, hostile and broken files."""
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from relight import load_bundle
+from relight.errors import InputError
+from relight.pipeline.bundle import VERSION, write_bundle
+
+
+def _arrays(p=50, t=20, k=6):
+    rng = np.random.default_rng(0)
+    h, w = 10, 12
+    mask = np.zeros((h, w), dtype=bool)
+    mask.flat[:p] = True
+    return {
+        "pixels": np.flatnonzero(mask).astype(np.int32), "mask_crop": mask,
+        "ambient": rng.uniform(0, 1, (h, w, 3)).astype(np.float32),
+        "background": rng.integers(0, 255, (30, 40, 3), dtype=np.uint8),
+        "normal": rng.normal(size=(p, 3)).astype(np.float32), "albedo": rng.uniform(0, 1, (p, 3)).astype(np.float32),
+        "depth": rng.uniform(0, 5, (h, w)).astype(np.float32), "light_dirs": rng.normal(size=(k, 3)).astype(np.float32),
+        "maps": rng.uniform(0, 2, (t, p, 3)).astype(np.float16), "map_texels": np.arange(t, dtype=np.int32) * 7,
+        "samples": rng.uniform(0, 1, (k, p, 3)).astype(np.float16),
+    }
+
+
+META = {"frame_size": [40, 30], "crop_origin": [5, 6], "map_size": [64, 32], "note": "ünïcode ok"}
+
+
+def test_round_trip_and_memory_mapping(tmp_path):
+    arrays = _arrays()
+    path = write_bundle(tmp_path / "f.bundle", META, arrays)
+    b = load_bundle(path)
+    assert b.meta == META
+    for name, a in arrays.items():
+        np.testing.assert_array_equal(np.asarray(getattr(b, name)), a)
+        assert getattr(b, name).dtype == a.dtype
+    assert isinstance(b.maps, np.memmap) and not b.maps.flags.writeable
+    assert b.mask.shape == (30, 40) and b.mask.sum() == 50 and b.mask[6, 5]
+    assert b.full_map(3).shape == (32, 64, 3)
+    assert b.solid_angle.shape == (20,) and (b.solid_angle > 0).all()
+
+
+def test_truncated_file_names_the_field(tmp_path):
+    path = write_bundle(tmp_path / "f.bundle", META, _arrays())
+    data = path.read_bytes()
+    (tmp_path / "cut.bundle").write_bytes(data[:-100])
+    with pytest.raises(InputError, match="'samples'.*truncated|truncated"):
+        load_bundle(tmp_path / "cut.bundle")
+    (tmp_path / "tiny.bundle").write_bytes(data[:10])
+    with pytest.raises(InputError, match="truncated"):
+        load_bundle(tmp_path / "tiny.bundle")
+
+
+def test_corruption_is_caught_by_the_checksum(tmp_path):
+    path = write_bundle(tmp_path / "f.bundle", META, _arrays())
+    header_len = struct.unpack_from("<Q", path.read_bytes(), 16)[0]
+    doc = json.loads(path.read_bytes()[24:24 + header_len])
+    off = doc["arrays"]["maps"]["offset"] + 10
+    data = bytearray(path.read_bytes())
+    data[off] ^= 0xFF
+    (tmp_path / "bad.bundle").write_bytes(bytes(data))
+    with pytest.raises(InputError, match="'maps'.*checksum"):
+        load_bundle(tmp_path / "bad.bundle")
+    data = bytearray(path.read_bytes())
+    data[30] ^= 0x01  # inside the header
+    (tmp_path / "badh.bundle").write_bytes(bytes(data))
+    with pytest.raises(InputError, match="header"):
+        load_bundle(tmp_path / "badh.bundle")
+
+
+def test_foreign_and_wrong_version_files(tmp_path):
+    path = write_bundle(tmp_path / "f.bundle", META, _arrays())
+    data = bytearray(path.read_bytes())
+    struct.pack_into("<I", data, 8, VERSION + 1)
+    (tmp_path / "v.bundle").write_bytes(bytes(data))
+    with pytest.raises(InputError, match="version"):
+        load_bundle(tmp_path / "v.bundle")
+    (tmp_path / "x.bundle").write_bytes(b"PK\x03\x04" + b"\0" * 100)
+    with pytest.raises(InputError, match="not a relight bundle"):
+        load_bundle(tmp_path / "x.bundle")
+    with pytest.raises(InputError, match="no such"):
+        load_bundle(tmp_path / "missing.bundle")
+
+
+def test_writes_are_atomic_and_checked(tmp_path):
+    target = write_bundle(tmp_path / "f.bundle", META, _arrays())
+    before = target.read_bytes()
+    broken = _arrays()
+    broken["maps"] = broken["maps"].astype(np.float32)
+    broken["maps"][0, 0, 0] = np.nan
+    with pytest.raises(ArithmeticError, match="maps"):
+        write_bundle(target, META, broken)
+    missing = _arrays()
+    del missing["normal"]
+    with pytest.raises(ValueError, match="normal"):
+        write_bundle(target, META, missing)
+    assert target.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["f.bundle"]

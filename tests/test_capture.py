@@ -1,0 +1,150 @@
+"""`relight capture` end to end: a synthetic video against its truth, the real RTI set against
+its held-out photos, and broken inputs."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from relight import load_bundle
+from relight.cli import main
+from relight.colour import linear_to_srgb
+from relight.errors import InputError
+from relight.pipeline import reflectance
+from relight.pipeline.capture import CaptureOptions, capture, read_lp
+from relight.pipeline.evaluate import evaluate_capture
+from relight.video import VideoWriter
+
+from .tolerances import (
+    DOME_FULL_PSNR,
+    DOME_MARGIN_OVER_PTM,
+    FLASH_PRECISION,
+    FLASH_RECALL,
+    LIGHT_DIR_MEAN_DEG,
+    LIGHT_DIR_P95_DEG,
+    NORMAL_MEDIAN_DEG,
+    REGISTRATION_RMS_PX,
+)
+
+
+@pytest.fixture(scope="module")
+def synth_capture(tmp_path_factory):
+    from relight.pipeline.synth.studio import SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp("cap")
+    res = synthesize(out / "synth", SynthConfig(width=480, height=270, duration=8.0, seed=4,
+                                                truth_envs=("builtin:studio",)), progress=False)
+    return res
+
+
+def test_video_capture_meets_the_accuracy_goals(synth_capture, tmp_path):
+    report_dir = tmp_path / "report"
+    assert main(["capture", str(synth_capture.video), "-o", str(tmp_path / "f.bundle"), "--report",
+                 str(report_dir), "--quiet"]) == 0
+    report = json.loads((report_dir / "report.json").read_text())
+    for key in ("flash_frames", "light_dirs", "transforms", "reference_frame", "rejected", "timings"):
+        assert key in report
+    for png in ("brightness", "registration", "directions", "normals", "maps", "visibility"):
+        assert (report_dir / f"{png}.png").stat().st_size > 1000
+    bundle = load_bundle(tmp_path / "f.bundle")
+    m = evaluate_capture(report, bundle, synth_capture.truth)
+    assert m["flash_precision"] >= FLASH_PRECISION and m["flash_recall"] >= FLASH_RECALL, m
+    assert m["registration_rms_px"] <= REGISTRATION_RMS_PX, m
+    assert m["light_dir_mean_deg"] <= LIGHT_DIR_MEAN_DEG and m["light_dir_p95_deg"] <= LIGHT_DIR_P95_DEG, m
+    assert m["normal_median_deg"] <= NORMAL_MEDIAN_DEG, m
+    assert m["mask_iou"] > 0.85, m
+    assert np.isfinite(np.asarray(bundle.maps, dtype=np.float32)).all()
+    assert bundle.maps.shape[1] == bundle.pixels.size == bundle.normal.shape[0]
+    assert bundle.landmarks.shape[0] > 20
+
+
+def test_stages_can_be_switched_off(synth_capture, tmp_path):
+    from relight.pipeline.samples import SampleOptions
+
+    opts = CaptureOptions(method="barycentric", map_size=(32, 16),
+                          samples=SampleOptions(register=False, subtract_ambient=False, flash_hz=5.0))
+    res = capture(synth_capture.video, tmp_path / "b.bundle", opts, progress=False)
+    b = load_bundle(res.bundle)
+    assert b.meta["method"] == "barycentric" and not b.meta["visibility"] and b.map_size == (32, 16)
+    assert all(v == [0, 0, 0] for v in res.report["transforms"].values())
+
+
+def _psnr_on_test(bundle, test_dir):
+    pix = np.asarray(bundle.pixels)
+    maps = np.asarray(bundle.maps, dtype=np.float32)
+    active = np.zeros(bundle.map_size[0] * bundle.map_size[1], dtype=bool)
+    active[np.asarray(bundle.map_texels)] = True
+    out = []
+    for name, d in read_lp(test_dir / "dirs.lp"):
+        truth = cv2.imread(str(test_dir / name))[..., ::-1].reshape(-1, 3)[pix] / 255.0
+        pred = linear_to_srgb(reflectance.sample_map(maps, active, bundle.map_size, d))
+        out.append(10 * np.log10(1.0 / np.mean((truth - pred) ** 2)))
+    return float(np.mean(out))
+
+
+def test_real_rti_set_predicts_held_out_photos(shared_data, tmp_path):
+    dome, test = shared_data / "rti-dome" / "Dome", shared_data / "rti-dome" / "Test"
+    psnr = {}
+    for method in ("full", "ptm"):
+        res = capture(dome, tmp_path / f"{method}.bundle", CaptureOptions(method=method), images=True, progress=False)
+        psnr[method] = _psnr_on_test(load_bundle(res.bundle), test)
+    assert psnr["full"] >= DOME_FULL_PSNR, psnr
+    assert psnr["full"] >= psnr["ptm"] + DOME_MARGIN_OVER_PTM, psnr
+
+
+def _video(path, frames, fps=30):
+    with VideoWriter(path, fps, (frames[0].shape[1], frames[0].shape[0])) as w:
+        for f in frames:
+            w.write(f)
+
+
+def test_a_video_without_flashes_says_so(tmp_path):
+    rng = np.random.default_rng(0)
+    frames = [np.clip(80 + rng.normal(0, 2, (144, 256, 3)), 0, 255).astype(np.uint8) for _ in range(90)]
+    _video(tmp_path / "flat.mp4", frames)
+    with pytest.raises(InputError, match="no usable flash|no mirror sphere|no dark"):
+        capture(tmp_path / "flat.mp4", tmp_path / "x.bundle", progress=False)
+    assert not (tmp_path / "x.bundle").exists()
+
+
+def test_no_sphere_where_told_gives_a_clear_error(synth_capture, tmp_path, capsys):
+    # A "sphere" placed on the empty wall: no highlight ever appears there.
+    code = main(["capture", str(synth_capture.video), "-o", str(tmp_path / "x.bundle"), "--sphere", "40,40,20",
+                 "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "usable flash samples" in err and "Traceback" not in err
+
+
+def test_cli_needs_exactly_one_source(tmp_path, capsys):
+    assert main(["capture", "-o", str(tmp_path / "x.bundle"), "--quiet"]) == 2
+    assert "either a capture video or --images" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("text", "msg"), [
+    ("", "empty"), ("abc\n", "number of images"), ("2\na.jpg 0 0 1\n", "lists 1"),
+    ("1\na.jpg 0 0\n", "filename x y z"), ("1\na.jpg 0 0 nan\n", "finite"), ("1\n../a.jpg 0 0 1\n", "plain file"),
+])
+def test_bad_lp_files(tmp_path, text, msg):
+    (tmp_path / "dirs.lp").write_text(text)
+    with pytest.raises(InputError, match=msg):
+        read_lp(tmp_path / "dirs.lp")
+
+
+def test_image_set_with_nan_is_refused(tmp_path):
+    from relight.imageio import write_image
+
+    for i in range(4):
+        write_image(tmp_path / f"i{i}.png", np.full((16, 16, 3), 100, np.uint8))
+    import OpenImageIO as oiio
+
+    bad = np.ones((16, 16, 3), np.float32)
+    bad[3, 3] = np.nan
+    o = oiio.ImageOutput.create(str(tmp_path / "i4.exr"))
+    o.open(str(tmp_path / "i4.exr"), oiio.ImageSpec(16, 16, 3, "float"))
+    o.write_image(bad)
+    o.close()
+    lines = "".join(f"i{i}.png 0.{i} 0.2 1\n" for i in range(4))
+    (tmp_path / "dirs.lp").write_text("5\n" + lines + "i4.exr 0 -0.3 1\n")
+    with pytest.raises(InputError, match="non-finite"):
+        capture(tmp_path, tmp_path / "x.bundle", images=True, progress=False)
