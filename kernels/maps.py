@@ -17,8 +17,8 @@ PIXEL_CHUNK = 8192
 def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndarray, vertex_texel: np.ndarray,
                   texel_vertices: np.ndarray, texel_weights: np.ndarray, texel_dirs: np.ndarray,
                   active: np.ndarray, map_size: tuple[int, int], horizon: np.ndarray | None, n_az: int,
-                  vis_soft: float, adaptation: bool = True, progress=None) -> np.ndarray:
-    """(T_active, P, 3) float32 reflectance maps.
+                  vis_soft: float, adaptation: bool = True, half: bool = False, progress=None) -> np.ndarray:
+    """(T_active, P, 3) reflectance maps: float32, or float16 with ``half`` (stored that way).
 
     samples : (K, P, 3) float32 linear sample colours. normals : (P, 3). vertices : (V, 3)
     directions (the K samples first, then black lights); vertex_texel : (V,) texel of each
@@ -31,7 +31,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     rt = get_runtime()
     ctx, queue = rt.context, rt.queue
     mf = cl.mem_flags
-    prg = build_program("reflectance")
+    prg = build_program("reflectance", ("-DOUT_HALF",) if half else ())
     k_vis = cl.Kernel(prg, "soft_visibility")
     k_box = cl.Kernel(prg, "box3")
     k_maps = cl.Kernel(prg, "build_maps")
@@ -74,14 +74,14 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     raw = cl.Buffer(ctx, mf.READ_WRITE, max(chunk * n_tex * 4, 4))
     smooth = cl.Buffer(ctx, mf.READ_WRITE, max(chunk * n_tex * 4, 4))
     b_hz = buf(horizon if use_vis else np.zeros(1), np.float32)
-    out = np.empty((act.size, p, 3), dtype=np.float32)
+    out = np.empty((act.size, p, 3), dtype=np.float16 if half else np.float32)
     b_out = cl.Buffer(ctx, mf.WRITE_ONLY, max(out.nbytes, 4))
     for p0 in range(0, p, chunk):
         n = min(chunk, p - p0)
         if use_vis:
-            k_vis(queue, (n, n_tex), None, b_hz, np.int32(n_az), b_taz, np.int32(n_tex), np.float32(1.0 / vis_soft),
+            k_vis(queue, (n_tex, n), None, b_hz, np.int32(n_az), b_taz, np.int32(n_tex), np.float32(1.0 / vis_soft),
                   np.int32(p0), np.int32(n), raw)
-            k_box(queue, (n, n_tex), None, raw, np.int32(w), np.int32(h), np.int32(n), smooth)
+            k_box(queue, (w, h, n), None, raw, np.int32(w), np.int32(h), np.int32(n), smooth)
         k_maps(queue, (n,), None, b_samples, np.int32(k), np.int32(p), b_normal, b_vdir, b_vtex, b_tv, b_tw,
                b_tdir_act, b_tidx, np.int32(act.size), smooth, np.int32(n_tex), np.int32(use_vis),
                np.int32(adaptation), np.int32(p0), np.int32(n), b_out)

@@ -31,8 +31,8 @@ __kernel void soft_visibility(
     float inv_soft, int p0, int n_pix,                /* pixel range [p0, p0 + n_pix) */
     __global float *out)                              /* (n_pix, T) */
 {
-    int i = get_global_id(0);
-    int t = get_global_id(1);
+    int t = get_global_id(0); /* texels fastest: neighbouring work items share a pixel's row */
+    int i = get_global_id(1);
     if (i >= n_pix || t >= n_tex)
         return;
     float4 ta = texel_az[t];
@@ -47,21 +47,19 @@ __kernel void soft_visibility(
 
 __kernel void box3(__global const float *in, int w, int h, int n_pix, __global float *out)
 {
-    int i = get_global_id(0);
-    int t = get_global_id(1);
-    if (i >= n_pix || t >= w * h)
+    int x = get_global_id(0); /* texel column fastest */
+    int y = get_global_id(1);
+    int i = get_global_id(2);
+    if (i >= n_pix || x >= w || y >= h)
         return;
-    int y = t / w, x = t % w;
     __global const float *m = in + (size_t)i * w * h;
+    int xl = x == 0 ? w - 1 : x - 1, xr = x == w - 1 ? 0 : x + 1;
     float acc = 0.0f;
     for (int dy = -1; dy <= 1; ++dy) {
-        int yy = clamp(y + dy, 0, h - 1);
-        for (int dx = -1; dx <= 1; ++dx) {
-            int xx = (x + dx + w) % w;
-            acc += m[yy * w + xx];
-        }
+        __global const float *row = m + clamp(y + dy, 0, h - 1) * w;
+        acc += row[xl] + row[x] + row[xr];
     }
-    out[(size_t)i * w * h + t] = acc * (1.0f / 9.0f);
+    out[(size_t)i * w * h + y * w + x] = acc * (1.0f / 9.0f);
 }
 
 /* Light-adapted interpolation with vertex weights wv * use (paper Eq. 1-3). */
@@ -123,7 +121,11 @@ __kernel void build_maps(
     __global const float4 *tex_dir, __global const int *tex_index, int n_active,
     __global const float *vis, int n_tex, int use_vis, int adaptation,  /* (n_pix, T) smoothed */
     int p0, int n_pix,
+#ifdef OUT_HALF
+    __global half *out)                                            /* (n_active, P_all, 3) */
+#else
     __global float *out)                                           /* (n_active, P_all, 3) */
+#endif
 {
     int i = get_global_id(0);
     if (i >= n_pix)
@@ -170,9 +172,16 @@ __kernel void build_maps(
             }
         }
         res = fmax(res, 0.0f);
-        __global float *o = out + ((size_t)a * n_pix_all + p) * 3;
-        o[0] = res.x;
-        o[1] = res.y;
-        o[2] = res.z;
+        size_t o = ((size_t)a * n_pix_all + p) * 3;
+#ifdef OUT_HALF
+        /* Storage as half (what the bundle keeps): no float32 copy of maps that can be huge. */
+        vstore_half_rte(res.x, o, out);
+        vstore_half_rte(res.y, o + 1, out);
+        vstore_half_rte(res.z, o + 2, out);
+#else
+        out[o] = res.x;
+        out[o + 1] = res.y;
+        out[o + 2] = res.z;
+#endif
     }
 }

@@ -84,6 +84,10 @@ def head_mask(images: np.ndarray, ambient: np.ndarray, face_box_local=None) -> n
     return ndimage.binary_fill_holes(labels == keep)
 
 
+#: Pixels per chunk of the photometric-stereo solve (bounds its temporaries).
+PS_CHUNK = 16384
+
+
 def photometric_stereo(images: np.ndarray, dirs: np.ndarray, mask: np.ndarray,
                        clipped: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Robust Lambertian normals and albedo inside ``mask``.
@@ -95,11 +99,26 @@ def photometric_stereo(images: np.ndarray, dirs: np.ndarray, mask: np.ndarray,
     k, h, w = images.shape[:3]
     if k < 3:
         raise InputError(f"photometric stereo needs at least 3 flash samples, got {k}")
-    idx = np.flatnonzero(mask)
-    lum = luminance(images).reshape(k, -1)[:, idx].T.astype(np.float64)  # (P, K)
+    idx_all = np.flatnonzero(mask)
+    normal = np.zeros((h * w, 3), dtype=np.float32)
+    alb = np.zeros((h * w, 3), dtype=np.float32)
+    resid = np.zeros(h * w, dtype=np.float32)
+    flat = images.reshape(k, -1, 3)
+    cflat = None if clipped is None else clipped.reshape(k, -1)
+    for c0 in range(0, idx_all.size, PS_CHUNK):
+        idx = idx_all[c0:c0 + PS_CHUNK]
+        n, albedo, rel = _ps_chunk(flat[:, idx], dirs, None if cflat is None else cflat[:, idx])
+        normal[idx], alb[idx], resid[idx] = n, np.clip(albedo, 0.0, None), rel
+    return normal.reshape(h, w, 3), alb.reshape(h, w, 3), resid.reshape(h, w)
+
+
+def _ps_chunk(col: np.ndarray, dirs: np.ndarray, clipped: np.ndarray | None):
+    """Photometric stereo of the pixels in ``col`` (K, P, 3): normals, albedo, residual (P, ...)."""
+    k = col.shape[0]
+    lum = luminance(col).T.astype(np.float64)  # (P, K)
     valid = np.isfinite(lum)
     if clipped is not None:
-        valid &= ~clipped.reshape(k, -1)[:, idx].T
+        valid &= ~clipped.T
     # Per-pixel rank thresholds among the valid samples (a sort is far faster than nanpercentile).
     srt = np.sort(np.where(valid, lum, np.inf), axis=1)
     nvalid = valid.sum(axis=1)
@@ -127,20 +146,12 @@ def photometric_stereo(images: np.ndarray, dirs: np.ndarray, mask: np.ndarray,
     n[bad] = (0.0, 0.0, 1.0)
     n[n[:, 2] < 0] *= -1.0  # a visible surface faces the camera
     cos = np.clip(n @ L.T, 0.0, None)
-    col = images.reshape(k, -1, 3)[:, idx].transpose(1, 0, 2).astype(np.float64)  # (P, K, 3)
-    col = np.nan_to_num(col)
-    num = np.einsum("pk,pk,pkc->pc", wgt2, cos, col)
+    num = np.einsum("pk,pk,kpc->pc", wgt2, cos, np.nan_to_num(col).astype(np.float64))
     den = np.einsum("pk,pk->p", wgt2, cos * cos)[:, None]
     albedo = np.where(den > 1e-9, num / np.maximum(den, 1e-9), 0.0)
     pred = rho[:, None] * cos
     rel = np.sqrt(np.sum(wgt2 * (val - pred) ** 2, axis=1) / np.maximum(wgt2.sum(axis=1), 1)) / np.maximum(rho, 1e-6)
-    normal = np.zeros((h * w, 3), dtype=np.float32)
-    alb = np.zeros((h * w, 3), dtype=np.float32)
-    resid = np.zeros(h * w, dtype=np.float32)
-    normal[idx] = n
-    alb[idx] = np.clip(albedo, 0.0, None)
-    resid[idx] = rel
-    return normal.reshape(h, w, 3), alb.reshape(h, w, 3), resid.reshape(h, w)
+    return n, albedo, rel
 
 
 def _weighted_lstsq(L: np.ndarray, val: np.ndarray, wgt: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ import numpy as np
 
 from relight.colour import decode_srgb8
 from relight.errors import InputError
-from relight.video import frame_to_rgb, probe_video, read_frames_raw, yuv_crop_to_rgb
+from relight.video import crop_frame, frame_to_rgb, probe_video, read_frames_raw, yuv_crop_to_rgb
 
 from . import registration, sphere
 
@@ -32,7 +32,8 @@ class Ingested:
     """A capture video reduced to what the pipeline uses.
 
     frame_mean : (N,) mean linear luminance of each whole frame (0-1).
-    crop : (x, y, w, h) of the stored face region; crops[i] its (h, w, 3) uint8 sRGB pixels.
+    crop : (x, y, w, h) of the stored face region; crops[i] its pixels as a
+    :class:`relight.video.FrameCrop` (native YUV planes; ``.rgb()`` / ``.luma()`` convert).
     sphere_box / sphere_crops : the same for the mirror sphere (None without a sphere).
     face_box : the face in frame coordinates; face_source: 'haar', 'given' or 'none'.
     sphere_guess : (cx, cy, r) from the first seconds (refined later), sphere_source likewise.
@@ -53,22 +54,20 @@ class Ingested:
     sphere_source: str
     still: np.ndarray
     still_index: int
+    trace: np.ndarray
     notes: list = field(default_factory=list)
 
     @property
     def frame_count(self) -> int:
         return len(self.crops)
 
+    @property
+    def crop_shape(self) -> tuple[int, int]:
+        return self.crop[3], self.crop[2]
+
     def face_trace(self) -> np.ndarray:
-        """(N,) mean linear luminance over the face (the middle of the stored region without a face)."""
-        x, y, w, h = self.face_box or self.crop
-        cx, cy = x - self.crop[0], y - self.crop[1]
-        lut = decode_srgb8(np.arange(256, dtype=np.uint8)).astype(np.float64)
-        out = np.empty(len(self.crops))
-        for i, c in enumerate(self.crops):
-            region = c[max(cy, 0):cy + h, max(cx, 0):cx + w]
-            out[i] = lut[region].mean()
-        return out
+        """(N,) mean linear luminance over the face (the whole stored region without a face)."""
+        return self.trace
 
 
 def _clip_box(box, size):
@@ -149,9 +148,16 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
         pad = max(0.35 * r, 6)
         sbox = _clip_box((cx - r - pad, cy - r - pad, 2 * (r + pad), 2 * (r + pad)), size)
 
-    crops, scrops, fmean = [], [] if sbox else None, []
+    # The face's brightness trace is read from the luma as frames pass (decoded as if grey:
+    # monotone in the brightness and exact on grey, which is all a trace needs).
+    fx, fy, fw, fh = face or crop
+    fx, fy = fx - crop[0], fy - crop[1]
+    face_rows, face_cols = slice(max(fy, 0), fy + fh), slice(max(fx, 0), fx + fw)
+    crops, scrops, fmean, trace = [], [] if sbox else None, [], []
     for f in _chain(head_raw, frames):
-        crops.append(yuv_crop_to_rgb(f, crop))
+        c = crop_frame(f, crop)
+        crops.append(c)
+        trace.append(float(lut[c.luma()[face_rows, face_cols]].mean()))
         if sbox is not None:
             scrops.append(yuv_crop_to_rgb(f, sbox))
         fmean.append(_frame_mean(f, lut))
@@ -160,7 +166,7 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
     return Ingested(path=str(path), fps=info.fps, size=size, frame_mean=np.asarray(fmean), crop=crop,
                     crops=crops, sphere_box=sbox, sphere_crops=scrops, face_box=face, face_source=face_source,
                     sphere_guess=sphere_hint, sphere_source=sphere_source, still=still, still_index=still_index,
-                    notes=notes)
+                    trace=np.asarray(trace), notes=notes)
 
 
 def _chain(first, rest):

@@ -372,10 +372,12 @@ def sample_map(maps: np.ndarray, tri_active: np.ndarray, map_size: tuple[int, in
 
 
 def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *, horizon: np.ndarray | None,
-                 n_az: int, adaptation: bool = True, backend: str = "opencl", progress=None) -> np.ndarray:
-    """Reflectance maps (T_active, P, 3) float32 of P pixels: OpenCL, or the NumPy reference.
+                 n_az: int, adaptation: bool = True, backend: str = "opencl", half: bool = False,
+                 progress=None) -> np.ndarray:
+    """Reflectance maps (T_active, P, 3) of P pixels: OpenCL, or the NumPy reference (float32).
 
-    horizon : (P, n_az) horizon slopes for visibility, or None for none.
+    horizon : (P, n_az) horizon slopes for visibility, or None for none. half : OpenCL output
+    in float16 (the bundle's storage; halves the peak memory of large captures).
     """
     if backend == "numpy":
         vis = None if horizon is None else visibility_maps(horizon, n_az, tri.map_size)
@@ -389,4 +391,4 @@ def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *
                          texel_weights=tri.texel_weights, texel_dirs=tri.texel_dirs, active=tri.active,
                          map_size=tri.map_size, horizon=horizon, n_az=n_az,
                          vis_soft=VIS_SOFT_TEXELS * np.pi / tri.map_size[1], adaptation=adaptation,
-                         progress=progress)
+                         half=half, progress=progress)

@@ -29,6 +29,9 @@ SAMPLE_LEVEL = 0.85
 CLIP_CODE = 250
 #: A flash sample adding less than this share of the median sample's light to the face is dropped.
 WEAK_SHARE = 0.1
+#: No-flash frames averaged into the room light, and the pixel step of the exposure measurement.
+AMBIENT_FRAMES = 120
+GAIN_STEP = 4
 
 
 @dataclass
@@ -75,14 +78,10 @@ class Samples:
     track_quality: dict = field(default_factory=dict)
 
 
-def _grey(rgb: np.ndarray) -> np.ndarray:
-    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-
-
 def _face_region(ing: Ingested) -> np.ndarray:
     """Boolean mask (crop coordinates) where registration features are taken: the face box,
     or the whole crop outside the sphere when there is no face."""
-    h, w = ing.crops[0].shape[:2]
+    h, w = ing.crop_shape
     region = np.zeros((h, w), dtype=bool)
     if ing.face_box is not None:
         x, y, fw, fh = ing.face_box
@@ -95,6 +94,20 @@ def _face_region(ing: Ingested) -> np.ndarray:
             cx, cy, r = ing.sphere_guess
             cv2.circle(region.view(np.uint8), (int(cx - ing.crop[0]), int(cy - ing.crop[1])), int(r * 1.5), 0, -1)
     return region
+
+
+def _one_per_run(frames) -> list[int]:
+    """The middle frame of each run of consecutive frame numbers."""
+    frames = [int(f) for f in frames]
+    out, run = [], []
+    for f in frames:
+        if run and f != run[-1] + 1:
+            out.append(run[len(run) // 2])
+            run = []
+        run.append(f)
+    if run:
+        out.append(run[len(run) // 2])
+    return out
 
 
 def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
@@ -122,42 +135,45 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     quality = {}
     if opts.register:
         try:
-            tracker = registration.Tracker(_grey(ing.crops[ref]), _face_region(ing))
+            tracker = registration.Tracker(ing.crops[ref].luma(native=True), _face_region(ing))
         except ValueError as exc:
             raise InputError(f"registration failed: {exc}; give --face x,y,w,h around the face") from None
-        for i, d in enumerate(fl.dark[1:]):
-            res = tracker.track(_grey(ing.crops[int(d)]))
+        tracked = _one_per_run(fl.dark[1:])
+        for i, d in enumerate(tracked):
+            res = tracker.track(ing.crops[int(d)].luma(native=True))
             if np.isfinite(res.residual):
                 motions[int(d)] = registration.matrix_to_motion(res.matrix, center_crop)
                 quality[int(d)] = (res.inliers, res.residual)
             else:
                 rejected["track_lost"] = rejected.get("track_lost", 0) + 1
             if progress:
-                progress("register", i + 1, len(fl.dark) - 1)
+                progress("register", i + 1, len(tracked))
     all_motions = registration.interpolate_motions(motions, range(ing.frame_count))
     timings["registration"] = time.perf_counter() - t0
 
     # ---- ambient: registered no-flash average and each no-flash frame's exposure/white balance
     t0 = time.perf_counter()
     lut = decode_srgb8(np.arange(256, dtype=np.uint8))
-    h, w = ing.crops[0].shape[:2]
+    h, w = ing.crop_shape
     amb_sum = np.zeros((h, w, 3), dtype=np.float64)
     dark_used = [int(d) for d in fl.dark if int(d) in motions]
-    dark_lin = {}
-    for d in dark_used:
-        img = lut[ing.crops[d]]
+    # The room light's average needs no more than AMBIENT_FRAMES frames (sensor noise falls as
+    # 1/sqrt(n)); each frame's exposure and white balance are measured on all of them, sparsely.
+    pick = dark_used if len(dark_used) <= AMBIENT_FRAMES else \
+        [dark_used[int(i)] for i in np.linspace(0, len(dark_used) - 1, AMBIENT_FRAMES)]
+    for d in pick:
+        img = decode_srgb8(ing.crops[d].rgb())
         if opts.register:
             img = registration.warp_to_reference(img, all_motions[d], center_crop, interpolation=cv2.INTER_LINEAR)
-        dark_lin[d] = img
         amb_sum += img
-    ambient = (amb_sum / len(dark_used)).astype(np.float32)
+    ambient = (amb_sum / len(pick)).astype(np.float32)
     region = _face_region(ing)
     core = region & (luminance(ambient) > 0.01)
     if not core.any():
         core = luminance(ambient) > 0.005
-    amb_mean = ambient[core].mean(axis=0) + 1e-6
-    gains = {d: dark_lin[d][core].mean(axis=0) / amb_mean for d in dark_used}
-    del dark_lin
+    core_s = core[::GAIN_STEP, ::GAIN_STEP]
+    amb_mean = ambient[::GAIN_STEP, ::GAIN_STEP][core_s].mean(axis=0) + 1e-6
+    gains = {d: lut[ing.crops[d].rgb_sparse(GAIN_STEP)][core_s].mean(axis=0) / amb_mean for d in dark_used}
     gidx = np.array(sorted(gains), dtype=np.float64)
     gval = np.array([gains[int(i)] for i in gidx])
 
@@ -197,51 +213,57 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     for f, k in fl.pulse_of.items():
         if fl.level[f] >= SAMPLE_LEVEL and f in light_dirs:
             by_pulse.setdefault(k, []).append(int(f))
-    images, dirs, clipped, pulse_frames = [], [], [], []
+    # Filled in place: a list of images then a stacked copy would need twice the memory.
+    images = np.empty((len(by_pulse), h, w, 3), dtype=np.float32)
+    clipped = np.empty((len(by_pulse), h, w), dtype=bool)
+    dirs, pulse_frames = [], []
     for n_done, (_, frames) in enumerate(sorted(by_pulse.items())):
+        # The frames of one flash are a few milliseconds apart: the head moved by hundredths of
+        # a pixel between them, so they are summed first and warped once, with their mean motion
+        # and exposure.
         acc = np.zeros((h, w, 3), dtype=np.float32)
         clip = np.zeros((h, w), dtype=bool)
         wsum = 0.0
         dsum = np.zeros(3)
         for f in frames:
-            raw = ing.crops[f]
-            img = lut[raw] / gain_at(f)
-            sat = raw.max(axis=2) >= CLIP_CODE
-            if opts.register:
-                img = registration.warp_to_reference(img, all_motions[f], center_crop)
-                sat = registration.warp_to_reference(sat.astype(np.uint8), all_motions[f], center_crop,
-                                                     interpolation=cv2.INTER_NEAREST) > 0
-            if opts.subtract_ambient:
-                img = img - ambient
-            lev = float(fl.level[f])
-            acc += img
-            wsum += lev
-            clip |= sat
+            raw = ing.crops[f].rgb()
+            acc += decode_srgb8(raw)
+            wsum += float(fl.level[f])
+            clip |= np.maximum(np.maximum(raw[..., 0], raw[..., 1]), raw[..., 2]) >= CLIP_CODE
             dsum += light_dirs[f]
-        images.append((acc / max(wsum, 1e-6)).astype(np.float32))
-        clipped.append(clip)
+        gain = np.mean([gain_at(f) for f in frames], axis=0)
+        img = acc / (gain * len(frames))  # mean frame at the reference exposure
+        if opts.register:
+            mot = tuple(np.mean([all_motions[f] for f in frames], axis=0))
+            img = registration.warp_to_reference(img, mot, center_crop)
+            clip = registration.warp_to_reference(clip.astype(np.uint8), mot, center_crop,
+                                                  interpolation=cv2.INTER_NEAREST) > 0
+        if opts.subtract_ambient:
+            img = img - ambient
+        # Each frame showed its share `level` of the flash: scale the mean to a full flash.
+        np.multiply(img, len(frames) / max(wsum, 1e-6), out=images[n_done])
+        clipped[n_done] = clip
         dirs.append(dsum / np.linalg.norm(dsum))
         pulse_frames.append(frames)
         if progress:
             progress("samples", n_done + 1, len(by_pulse))
     # A flash whose light barely reached the face (ill-aimed) would paint a dark patch into the
     # maps: drop samples adding under WEAK_SHARE of the median sample's light on the face.
-    if images:
+    if len(images):
         face_light = np.array([luminance(im[region]).mean() for im in images])
         weak = face_light < WEAK_SHARE * float(np.median(face_light))
         if weak.any():
             rejected["weak_flash"] = int(weak.sum())
             keep = np.flatnonzero(~weak)
-            images = [images[i] for i in keep]
+            images, clipped = images[keep], clipped[keep]
             dirs = [dirs[i] for i in keep]
-            clipped = [clipped[i] for i in keep]
             pulse_frames = [pulse_frames[i] for i in keep]
     if len(images) < 4:
         raise InputError(f"only {len(images)} usable flash samples (need at least 4); see the rejected counts: "
                          + ", ".join(f"{k} {v}" for k, v in rejected.items()))
     timings["samples"] = time.perf_counter() - t0
-    return Samples(images=np.stack(images), dirs=np.stack(dirs), clipped=np.stack(clipped), ambient=ambient,
-                   reference=ing.crops[ref], origin=(x0, y0), frame_size=ing.size, reference_frame=ref,
+    return Samples(images=images, dirs=np.stack(dirs), clipped=clipped, ambient=ambient,
+                   reference=ing.crops[ref].rgb(), origin=(x0, y0), frame_size=ing.size, reference_frame=ref,
                    flash=fl, motions=all_motions, motion_center=center, circle=circle,
                    light_dirs={int(f): d for f, d in light_dirs.items()}, pulse_frames=pulse_frames,
                    rejected=rejected, timings=timings, track_quality=quality)

@@ -50,7 +50,13 @@ def _encode_lut() -> tuple[np.ndarray, int]:
 
 def decode_srgb8(image: np.ndarray) -> np.ndarray:
     """uint8 sRGB image -> float32 linear (0-1), exact per code value."""
-    return _decode_lut8()[np.asarray(image, dtype=np.uint8)]
+    image = np.asarray(image, dtype=np.uint8)
+    if image.ndim in (2, 3) and image.size and (image.ndim == 2 or image.shape[2] <= 4):
+        import cv2
+
+        # OpenCV's table lookup is several times faster than NumPy's fancy indexing.
+        return cv2.LUT(image, _decode_lut8().reshape(1, 256))
+    return _decode_lut8()[image]
 
 
 def encode_srgb8(linear: np.ndarray) -> np.ndarray:

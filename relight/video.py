@@ -202,54 +202,122 @@ def _matrix_name(frame) -> str:
     return "bt709" if frame.height >= 720 else "bt601"
 
 
+@dataclass
+class FrameCrop:
+    """A region of a decoded frame kept in its native planes (YUV: 1.5 bytes a pixel for 4:2:0).
+
+    Convert with :meth:`rgb` only when colour is needed; :meth:`luma` is free.
+    """
+
+    y: np.ndarray                  # (h, w) uint8 luma (or None for an RGB crop)
+    u: np.ndarray | None = None    # chroma planes covering the crop
+    v: np.ndarray | None = None
+    offset: tuple[int, int] = (0, 0)  # where the crop starts in the 2x-upsampled chroma block
+    shift: int = 0                 # 2: 4:2:0, 1: 4:2:2, 0: 4:4:4
+    matrix: str = "bt709"
+    full_range: bool = False
+    rgb_data: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.y.shape if self.rgb_data is None else self.rgb_data.shape[:2]
+
+    def luma(self, *, native: bool = False) -> np.ndarray:
+        """(h, w) uint8 luma (sRGB-encoded grey): full range, or as stored with ``native``
+        (no re-quantisation: best for tracking, which only needs relative brightness)."""
+        import cv2
+
+        if self.rgb_data is not None:
+            return cv2.cvtColor(self.rgb_data, cv2.COLOR_RGB2GRAY)
+        if self.full_range or native:
+            return self.y
+        return _LIMITED_TO_FULL[self.y]
+
+    def rgb_sparse(self, step: int) -> np.ndarray:
+        """RGB uint8 of every ``step``-th pixel each way (nearest chroma): cheap statistics."""
+        if self.rgb_data is not None:
+            return self.rgb_data[::step, ::step]
+        h, w = self.y.shape
+        rows, cols = np.arange(0, h, step), np.arange(0, w, step)
+        if self.shift:
+            ox, oy = self.offset
+            cr = (rows + oy) // (2 if self.shift == 2 else 1)
+            cc = (cols + ox) // 2
+        else:
+            cr, cc = rows, cols
+        sub = FrameCrop(y=self.y[np.ix_(rows, cols)], u=self.u[np.ix_(cr, cc)], v=self.v[np.ix_(cr, cc)],
+                        shift=0, matrix=self.matrix, full_range=self.full_range)
+        return sub.rgb()
+
+    def rgb(self) -> np.ndarray:
+        """(h, w, 3) uint8 sRGB, with the frame's matrix and range, chroma upsampled bilinearly."""
+        import cv2
+
+        if self.rgb_data is not None:
+            return self.rgb_data
+        h, w = self.y.shape
+        planes = []
+        for c in (self.u, self.v):
+            c = c.astype(np.float32)
+            if self.shift:
+                c = cv2.resize(c, (c.shape[1] * 2, c.shape[0] * (2 if self.shift == 2 else 1)),
+                               interpolation=cv2.INTER_LINEAR)
+                ox, oy = self.offset
+                c = c[oy:oy + h, ox:ox + w]
+            planes.append(c)
+        import cv2
+
+        kr, kb = _KRKB[self.matrix]
+        kg = 1.0 - kr - kb
+        if self.full_range:
+            ys, cs, y0 = 1.0, 1.0, 0.0
+        else:
+            ys, cs, y0 = 255.0 / 219.0, 255.0 / 224.0, 16.0
+        crk, cbk = 2.0 * (1.0 - kr) * cs, 2.0 * (1.0 - kb) * cs
+        # One affine colour transform of [Y, Cb, Cr, 1] (OpenCV: SIMD, threaded).
+        m = np.array([[ys, 0.0, crk], [ys, -kb / kg * cbk, -kr / kg * crk], [ys, cbk, 0.0]])
+        off = -m @ np.array([y0, 128.0, 128.0])
+        ycc = cv2.merge([self.y.astype(np.float32), planes[0], planes[1]])
+        rgb = cv2.transform(ycc, np.hstack([m, off[:, None]]).astype(np.float32))
+        np.maximum(rgb, 0.0, out=rgb)
+        return cv2.convertScaleAbs(rgb)  # rounds and saturates at 255
+
+
+_LIMITED_TO_FULL = np.clip(np.round((np.arange(256) - 16) * 255.0 / 219.0), 0, 255).astype(np.uint8)
+
+
+def crop_frame(frame, box: tuple[int, int, int, int]) -> FrameCrop:
+    """Keep the region ``box`` (x, y, w, h) of a decoded frame in its native planes."""
+    x, y, w, h = box
+    name = frame.format.name
+    if name not in _YUV_FORMATS:
+        return FrameCrop(y=None, rgb_data=np.ascontiguousarray(_to_rgb(frame)[y:y + h, x:x + w]))
+    shift = _YUV_FORMATS[name]
+    ys = frame.planes[0]
+    yp = np.frombuffer(ys, dtype=np.uint8).reshape(frame.height, ys.line_size)[y:y + h, x:x + w].copy()
+    if shift == 0:
+        cx0, cx1, cy0, cy1 = x, x + w, y, y + h
+    else:
+        cx0, cx1 = x >> 1, (x + w + 1) >> 1
+        cy0, cy1 = ((y >> 1), ((y + h + 1) >> 1)) if shift == 2 else (y, y + h)
+    chroma = []
+    rows = frame.height >> 1 if shift == 2 else frame.height
+    for k in (1, 2):
+        pl = frame.planes[k]
+        chroma.append(np.frombuffer(pl, dtype=np.uint8).reshape(rows, pl.line_size)[cy0:cy1, cx0:cx1].copy())
+    off = (x - 2 * cx0, (y - 2 * cy0) if shift == 2 else 0) if shift else (0, 0)
+    return FrameCrop(y=yp, u=chroma[0], v=chroma[1], offset=off, shift=shift, matrix=_matrix_name(frame),
+                     full_range=name.startswith("yuvj") or int(frame.color_range) == 2)
+
+
 def yuv_crop_to_rgb(frame, box: tuple[int, int, int, int]) -> np.ndarray:
     """RGB uint8 of the region ``box`` (x, y, w, h) of a decoded frame, converting only that region.
 
     Planar YUV frames are converted in NumPy with the frame's matrix and range (untagged: BT.709
     for HD, else BT.601; limited range), chroma upsampled bilinearly; other formats go through
-    the full-frame conversion of :func:`read_frames`. Far cheaper than converting whole frames
-    when only a face and a sphere are needed.
+    the full-frame conversion of :func:`read_frames`.
     """
-    import cv2
-
-    x, y, w, h = box
-    name = frame.format.name
-    if name not in _YUV_FORMATS:
-        return np.ascontiguousarray(_to_rgb(frame)[y:y + h, x:x + w])
-    shift = _YUV_FORMATS[name]
-    ys = frame.planes[0]
-    yp = np.frombuffer(ys, dtype=np.uint8).reshape(frame.height, ys.line_size)[y:y + h, x:x + w]
-    cx0, cy0 = x >> 1, (y >> 1) if shift == 2 else y
-    cx1 = (x + w + 1) >> 1
-    cy1 = ((y + h + 1) >> 1) if shift == 2 else y + h
-    if shift == 0:
-        cx0, cx1 = x, x + w
-    planes = []
-    for k in (1, 2):
-        pl = frame.planes[k]
-        rows = frame.height >> 1 if shift == 2 else frame.height
-        c = np.frombuffer(pl, dtype=np.uint8).reshape(rows, pl.line_size)[cy0:cy1, cx0:cx1].astype(np.float32)
-        if shift:
-            # Chroma sample centres: between luma pairs (MPEG-1/JPEG siting), so a plain 2x
-            # bilinear resize of the covering block, then the sub-block the crop needs.
-            up = cv2.resize(c, (c.shape[1] * 2, c.shape[0] * (2 if shift == 2 else 1)),
-                            interpolation=cv2.INTER_LINEAR)
-            ox, oy = x - 2 * cx0, (y - 2 * cy0) if shift == 2 else 0
-            c = up[oy:oy + h, ox:ox + w]
-        planes.append(c)
-    kr, kb = _KRKB[_matrix_name(frame)]
-    full = name.startswith("yuvj") or int(frame.color_range) == 2
-    yf = yp.astype(np.float32)
-    if full:
-        yl, cb, cr = yf / 255.0, (planes[0] - 128.0) / 255.0, (planes[1] - 128.0) / 255.0
-    else:
-        yl, cb, cr = (yf - 16.0) / 219.0, (planes[0] - 128.0) / 224.0, (planes[1] - 128.0) / 224.0
-    kg = 1.0 - kr - kb
-    r = yl + 2.0 * (1.0 - kr) * cr
-    b = yl + 2.0 * (1.0 - kb) * cb
-    g = (yl - kr * r - kb * b) / kg
-    rgb = np.stack([r, g, b], axis=-1) * 255.0 + 0.5
-    return np.clip(rgb, 0, 255).astype(np.uint8)
+    return crop_frame(frame, box).rgb()
 
 
 def read_frames_raw(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) -> Iterator:
