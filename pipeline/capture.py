@@ -287,6 +287,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         front = tri.texel_dirs[:, 2] > 0.0
         maps = methods.fit_and_evaluate(opts.method, tri.vertices[:tri.n_samples], samples, tri.texel_dirs[front])
         texels = np.flatnonzero(front)
+        timings["maps"] = time.perf_counter() - t0
     else:
         use_vis = opts.visibility and opts.method == "full"
         adapt = opts.adaptation and opts.method == "full"
@@ -305,6 +306,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         timings["maps"] = time.perf_counter() - t1
     if not np.isfinite(maps).all():
         raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
+    t1 = time.perf_counter()
     landmarks = _landmarks(prep, geo.mask)
     arrays = {
         "pixels": pix.astype(np.int32), "mask_crop": geo.mask, "ambient": prep.ambient.astype(np.float32),
@@ -325,7 +327,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "conventions": "camera space +X right, +Y up, +Z toward the camera; maps are lat-long (OpenEXR)",
         "geometry": "mesh" if opts.mesh else "photometric stereo",
     })
-    timings["assemble"] = time.perf_counter() - t0
+    timings["landmarks"] = time.perf_counter() - t1
     return arrays, meta, geo, tri
 
 

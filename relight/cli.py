@@ -157,6 +157,31 @@ def _run_capture(args) -> int:
     return 0
 
 
+def _add_bench(sub) -> None:
+    p = sub.add_parser("bench", help="benchmarks that print measured figures",
+                       description="Benchmarks: speed, memory and accuracy, measured here and printed.")
+    bsub = p.add_subparsers(title="benchmarks", metavar="NAME", required=True)
+    c = bsub.add_parser("capture", help="capture pipeline: time per stage, peak memory, accuracy vs truth",
+                        description="Synthesise captures (cached) and run `relight capture` on each in a fresh "
+                                    "process: total and per-stage time, peak memory, and accuracy against the "
+                                    "truth (flash frames, registration, light directions, normals). Writes "
+                                    "bench.json and capture_timings.png.",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    c.add_argument("-o", "--out", type=Path, default=Path("out/bench-capture"), help="output and cache folder")
+    c.add_argument("--quick", action="store_true", help="one short capture (10 s at 480x270) instead of the set")
+    c.add_argument("--quiet", action="store_true", help="no progress output")
+    c.set_defaults(func=_run_bench_capture)
+
+
+def _run_bench_capture(args) -> int:
+    from .pipeline import benchmark
+
+    doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet)
+    print(benchmark.table(doc))
+    print(f"wrote {args.out / 'bench.json'} and {args.out / 'capture_timings.png'}")
+    return 0
+
+
 def _add_demo(sub) -> None:
     p = sub.add_parser("demo", help="synthesise a short capture and write a contact sheet (what `make demo` runs)",
                        description="Synthesise a short capture with the built-in defaults (no download) and "
@@ -192,6 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(title="commands", metavar="COMMAND", required=True)
     _add_synth(sub)
     _add_capture(sub)
+    _add_bench(sub)
     _add_demo(sub)
     return parser
 
