@@ -148,3 +148,59 @@ def test_image_set_with_nan_is_refused(tmp_path):
     (tmp_path / "dirs.lp").write_text("5\n" + lines + "i4.exr 0 -0.3 1\n")
     with pytest.raises(InputError, match="non-finite"):
         capture(tmp_path, tmp_path / "x.bundle", images=True, progress=False)
+
+
+def test_no_face_falls_back_to_the_whole_frame(synth_capture, tmp_path, monkeypatch):
+    from relight.pipeline import registration
+
+    monkeypatch.setattr(registration, "detect_face", lambda rgb: None)  # as if the cascade saw no face
+    res = capture(synth_capture.video, tmp_path / "f.bundle", CaptureOptions(method="barycentric"), progress=False)
+    assert any("no face detected" in n for n in res.report["notes"])
+    assert res.report["face_source"] == "none"
+    b = load_bundle(res.bundle)
+    assert b.pixels.size > 1000 and np.isfinite(np.asarray(b.maps, dtype=np.float32)).all()
+
+
+def test_user_mesh_and_mesh_export(synth_capture, tmp_path):
+    from relight.directions import angle_between_deg
+    from relight.imageio import read_image
+
+    opts = CaptureOptions(method="barycentric", mesh=str(synth_capture.truth / "head.ply"),
+                          export_mesh=str(tmp_path / "est.ply"))
+    res = capture(synth_capture.video, tmp_path / "m.bundle", opts, progress=False)
+    b = load_bundle(res.bundle)
+    assert b.meta["geometry"] == "mesh"
+    x0, y0 = b.crop_origin
+    h, w = b.mask_crop.shape
+    truth_n = read_image(synth_capture.truth / "normals.exr")[y0:y0 + h, x0:x0 + w].reshape(-1, 3)
+    pix = np.asarray(b.pixels)
+    assert np.median(angle_between_deg(np.asarray(b.normal), truth_n[pix])) < 3.0  # the truth's own mesh
+    import trimesh
+
+    est = trimesh.load(tmp_path / "est.ply", process=False)
+    assert len(est.vertices) == pix.size and len(est.faces) > pix.size
+    with pytest.raises(InputError, match="mesh"):
+        capture(synth_capture.video, tmp_path / "x.bundle", CaptureOptions(mesh=str(tmp_path / "est.txt")),
+                progress=False)
+
+
+def test_saturated_and_black_images_stay_finite(tmp_path):
+    from relight.imageio import write_image
+
+    rng = np.random.default_rng(0)
+    lines = []
+    for i in range(12):
+        a = 2 * np.pi * i / 12
+        img = np.clip(rng.normal(120, 30, (32, 32, 3)), 0, 255).astype(np.uint8)
+        if i % 4 == 0:
+            img[:] = 255  # a saturated frame
+        if i % 4 == 1:
+            img[:] = 0  # a black one
+        write_image(tmp_path / f"i{i}.png", img)
+        lines.append(f"i{i}.png {0.6 * np.cos(a):.4f} {0.6 * np.sin(a):.4f} 0.8\n")
+    (tmp_path / "dirs.lp").write_text(f"{len(lines)}\n" + "".join(lines))
+    res = capture(tmp_path, tmp_path / "s.bundle", images=True, progress=False)
+    b = load_bundle(res.bundle)
+    maps = np.asarray(b.maps, dtype=np.float32)
+    assert np.isfinite(maps).all() and maps.max() <= 10.0
+    assert np.isfinite(np.asarray(b.normal)).all() and np.isfinite(np.asarray(b.depth)).all()

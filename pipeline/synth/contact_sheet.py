@@ -48,8 +48,12 @@ def _tonemap(linear: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return encode_srgb8(linear * scale)
 
 
-def contact_sheet(capture: str | Path, out: str | Path) -> Path:
-    """Write the contact sheet of the capture folder ``capture`` (from ``relight synth``) to ``out``."""
+def contact_sheet(capture: str | Path, out: str | Path, bundle=None) -> Path:
+    """Write the contact sheet of the capture folder ``capture`` (from ``relight synth``) to ``out``.
+
+    With a ``bundle`` made from that capture, a last row compares it with the truth: estimated
+    normals, a reflectance map, and a one-light image predicted from the bundle beside the truth's.
+    """
     capture = Path(capture)
     meta = json.loads((capture / "truth" / "meta.json").read_text())
     ref = meta["reference_frame"]
@@ -103,6 +107,8 @@ def contact_sheet(capture: str | Path, out: str | Path) -> Path:
         _label(_directions_plot(meta), f"{len(meta['light_dirs'])} flash directions (lat-long)"),
     ]
     rows.append(row4)
+    if bundle is not None:
+        rows.append(_bundle_row(bundle, meta, capture, mask, bb))
     width = max(len(r_) for r_ in rows)
     blank = np.zeros((TILE[1], TILE[0], 3), dtype=np.uint8)
     sheet = np.concatenate([np.concatenate(r_ + [blank] * (width - len(r_)), axis=1) for r_ in rows], axis=0)
@@ -121,3 +127,41 @@ def _directions_plot(meta: dict) -> np.ndarray:
     for text, frac in (("-X", 0.75), ("+Z", 0.5), ("+X", 0.25)):
         cv2.putText(img, text, (int(frac * w) + 3, h - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (200, 200, 200), 1)
     return _fit(img)
+
+
+def _bundle_row(bundle, meta, capture, mask, bb) -> list:
+    """Estimated normals, a reflectance map, and a predicted one-light image next to the truth's."""
+    from relight.pipeline.reflectance import sample_map
+
+    h, w = mask.shape
+    x0, y0 = bundle.crop_origin
+    crop = np.asarray(bundle.mask_crop)
+    ch, cw = crop.shape
+    pix = np.asarray(bundle.pixels)
+    normals = np.zeros((ch * cw, 3), dtype=np.float32)
+    normals[pix] = np.asarray(bundle.normal)
+    full_n = np.zeros((h, w, 3), dtype=np.float32)
+    full_n[y0:y0 + ch, x0:x0 + cw] = normals.reshape(ch, cw, 3)
+    has = np.zeros((h, w), dtype=bool)
+    has[y0:y0 + ch, x0:x0 + cw] = crop
+    name = "olat_left" if "olat_left" in meta["files"]["olat"] else next(iter(meta["files"]["olat"]))
+    truth = read_image(capture / meta["files"]["olat"][name])
+    active = np.zeros(bundle.map_size[0] * bundle.map_size[1], dtype=bool)
+    active[np.asarray(bundle.map_texels)] = True
+    pred_p = sample_map(np.asarray(bundle.maps, dtype=np.float32), active, bundle.map_size, meta["olat_dirs"][name])
+    pred = np.zeros((h, w, 3), dtype=np.float32)
+    pc = np.zeros((ch * cw, 3), dtype=np.float32)
+    pc[pix] = pred_p
+    pred[y0:y0 + ch, x0:x0 + cw] = pc.reshape(ch, cw, 3)
+    scale = 0.8 / max(float(np.percentile(truth[mask].max(axis=1), 98)), 1e-6)
+    cheek = int(np.argmin(np.abs(pix - (ch // 2 * cw + cw // 3))))
+    rmap = bundle.full_map(cheek)
+    rmap_img = encode_srgb8(rmap / max(float(rmap.max()), 1e-6))
+    return [
+        _label(_fit(np.round(np.clip(full_n * 0.5 + 0.5, 0, 1) * 255 * has[..., None]).astype(np.uint8)[bb]),
+               "captured normals (photometric stereo)"),
+        _label(_fit(cv2.resize(rmap_img, (TILE[0], TILE[0] // 2), interpolation=cv2.INTER_NEAREST)),
+               "captured reflectance map of one pixel"),
+        _label(_fit(encode_srgb8(pred * scale)[bb]), f"{name} predicted from the bundle"),
+        _label(_fit(encode_srgb8(truth * scale)[bb]), f"{name} truth"),
+    ]
