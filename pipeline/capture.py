@@ -112,12 +112,15 @@ class _Progress:
 
 def prepare_video(path, opts: CaptureOptions, progress: _Progress, timings: dict) -> Prepared:
     """Stages 1-3 on a capture video."""
+    from relight.video import probe_video
+
     t0 = time.perf_counter()
+    expected = probe_video(path).frame_count
     total = [0]
 
     def frame_cb(n):
         total[0] += n
-        progress("decode", total[0], max(total[0], 1))
+        progress("decode", total[0], max(expected, total[0]))
 
     ing = ingest(path, face=opts.face, sphere_hint=opts.samples.sphere, progress=frame_cb)
     timings["ingest"] = time.perf_counter() - t0
@@ -267,7 +270,8 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         geo = geometry.Geometry(normal=normal, albedo=albedo, depth=geometry.integrate_normals(normal, prep.mask),
                                 mask=prep.mask, fit_residual=resid)
     else:
-        geo = geometry.estimate_geometry(prep.images, prep.dirs, prep.ambient, prep.clipped, prep.face_local)
+        geo = geometry.estimate_geometry(prep.images, prep.dirs, prep.ambient, prep.clipped, prep.face_local,
+                                         progress=progress)
     if opts.export_mesh:
         from relight.imageio import atomic_path
 

@@ -89,7 +89,7 @@ PS_CHUNK = 16384
 
 
 def photometric_stereo(images: np.ndarray, dirs: np.ndarray, mask: np.ndarray,
-                       clipped: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       clipped: np.ndarray | None = None, progress=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Robust Lambertian normals and albedo inside ``mask``.
 
     images : (K, h, w, 3) linear flash-only samples (flash units). dirs : (K, 3) unit light
@@ -109,6 +109,8 @@ def photometric_stereo(images: np.ndarray, dirs: np.ndarray, mask: np.ndarray,
         idx = idx_all[c0:c0 + PS_CHUNK]
         n, albedo, rel = _ps_chunk(flat[:, idx], dirs, None if cflat is None else cflat[:, idx])
         normal[idx], alb[idx], resid[idx] = n, np.clip(albedo, 0.0, None), rel
+        if progress is not None:
+            progress("geometry", min(c0 + PS_CHUNK, idx_all.size), idx_all.size)
     return normal.reshape(h, w, 3), alb.reshape(h, w, 3), resid.reshape(h, w)
 
 
@@ -206,10 +208,10 @@ def integrate_normals(normal: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return depth
 
 
-def estimate_geometry(images, dirs, ambient, clipped=None, face_box_local=None) -> Geometry:
+def estimate_geometry(images, dirs, ambient, clipped=None, face_box_local=None, progress=None) -> Geometry:
     """Mask, photometric-stereo normals and albedo, and the integrated depth."""
     mask = head_mask(images, ambient, face_box_local)
-    normal, albedo, resid = photometric_stereo(images, dirs, mask, clipped)
+    normal, albedo, resid = photometric_stereo(images, dirs, mask, clipped, progress)
     depth = integrate_normals(normal, mask)
     return Geometry(normal=normal, albedo=albedo, depth=depth, mask=mask, fit_residual=resid)
 
