@@ -12,13 +12,21 @@ from .runtime import build_program, get_runtime
 
 #: Pixels per launch (bounds the visibility scratch: PIXEL_CHUNK x texels floats, twice).
 PIXEL_CHUNK = 8192
+#: Stored texel counts are padded to a multiple of this (the relighting kernels read 16 at once).
+TEXEL_ALIGN = 16
+
+
+def padded_texels(n: int) -> int:
+    """``n`` rounded up to a multiple of TEXEL_ALIGN (at least TEXEL_ALIGN)."""
+    return max((n + TEXEL_ALIGN - 1) // TEXEL_ALIGN * TEXEL_ALIGN, TEXEL_ALIGN)
 
 
 def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndarray, vertex_texel: np.ndarray,
                   texel_vertices: np.ndarray, texel_weights: np.ndarray, texel_dirs: np.ndarray,
                   active: np.ndarray, map_size: tuple[int, int], horizon: np.ndarray | None, n_az: int,
                   vis_soft: float, adaptation: bool = True, half: bool = False, progress=None) -> np.ndarray:
-    """(T_active, P, 3) reflectance maps: float32, or float16 with ``half`` (stored that way).
+    """(P, 3, T_pad) reflectance maps, pixel-major (T_pad: active texels rounded up to 16, zero
+    padded): float32, or float16 with ``half`` (stored that way).
 
     samples : (K, P, 3) float32 linear sample colours. normals : (P, 3). vertices : (V, 3)
     directions (the K samples first, then black lights); vertex_texel : (V,) texel of each
@@ -74,7 +82,8 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     raw = cl.Buffer(ctx, mf.READ_WRITE, max(chunk * n_tex * 4, 4))
     smooth = cl.Buffer(ctx, mf.READ_WRITE, max(chunk * n_tex * 4, 4))
     b_hz = buf(horizon if use_vis else np.zeros(1), np.float32)
-    out = np.empty((act.size, p, 3), dtype=np.float16 if half else np.float32)
+    t_pad = padded_texels(act.size)
+    out = np.empty((p, 3, t_pad), dtype=np.float16 if half else np.float32)
     b_out = cl.Buffer(ctx, mf.WRITE_ONLY, max(out.nbytes, 4))
     for p0 in range(0, p, chunk):
         n = min(chunk, p - p0)
@@ -84,7 +93,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
             k_box(queue, (w, h, n), None, raw, np.int32(w), np.int32(h), np.int32(n), smooth)
         k_maps(queue, (n,), None, b_samples, np.int32(k), np.int32(p), b_normal, b_vdir, b_vtex, b_tv, b_tw,
                b_tdir_act, b_tidx, np.int32(act.size), smooth, np.int32(n_tex), np.int32(use_vis),
-               np.int32(adaptation), np.int32(p0), np.int32(n), b_out)
+               np.int32(adaptation), np.int32(p0), np.int32(n), np.int32(t_pad), b_out)
         queue.finish()
         if progress is not None:
             progress(n)

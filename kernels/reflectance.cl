@@ -5,7 +5,8 @@
  *   (soft over VIS_SOFT of elevation), from a horizon table over image-plane directions.
  * box3: the paper's 3x3 box filter of those maps (wrapping in azimuth, clamped at the poles).
  * build_maps: per pixel, every active texel interpolated from its triangle's vertices with
- *   visibility-aware blending and light adaptation (paper Eq. 1-3).
+ *   visibility-aware blending and light adaptation (paper Eq. 1-3); written pixel-major
+ *   (P, 3, T padded to 16), the layout relighting reads fastest.
  */
 #include "common.h"
 
@@ -120,11 +121,11 @@ __kernel void build_maps(
     __global const int4 *tex_vertices, __global const float4 *tex_weights,
     __global const float4 *tex_dir, __global const int *tex_index, int n_active,
     __global const float *vis, int n_tex, int use_vis, int adaptation,  /* (n_pix, T) smoothed */
-    int p0, int n_pix,
+    int p0, int n_pix, int t_pad,
 #ifdef OUT_HALF
-    __global half *out)                                            /* (n_active, P_all, 3) */
+    __global half *out)                                            /* (P_all, 3, t_pad): pixel-major */
 #else
-    __global float *out)                                           /* (n_active, P_all, 3) */
+    __global float *out)                                           /* (P_all, 3, t_pad): pixel-major */
 #endif
 {
     int i = get_global_id(0);
@@ -172,16 +173,28 @@ __kernel void build_maps(
             }
         }
         res = fmax(res, 0.0f);
-        size_t o = ((size_t)a * n_pix_all + p) * 3;
+        size_t o = (size_t)p * 3 * t_pad + a;
 #ifdef OUT_HALF
         /* Storage as half (what the bundle keeps): no float32 copy of maps that can be huge. */
         vstore_half_rte(res.x, o, out);
-        vstore_half_rte(res.y, o + 1, out);
-        vstore_half_rte(res.z, o + 2, out);
+        vstore_half_rte(res.y, o + t_pad, out);
+        vstore_half_rte(res.z, o + 2 * t_pad, out);
 #else
         out[o] = res.x;
-        out[o + 1] = res.y;
-        out[o + 2] = res.z;
+        out[o + t_pad] = res.y;
+        out[o + 2 * t_pad] = res.z;
+#endif
+    }
+    for (int a = n_active; a < t_pad; ++a) { /* zero padding */
+        size_t o = (size_t)p * 3 * t_pad + a;
+#ifdef OUT_HALF
+        vstore_half(0.0f, o, out);
+        vstore_half(0.0f, o + t_pad, out);
+        vstore_half(0.0f, o + 2 * t_pad, out);
+#else
+        out[o] = 0.0f;
+        out[o + t_pad] = 0.0f;
+        out[o + 2 * t_pad] = 0.0f;
 #endif
     }
 }

@@ -31,16 +31,22 @@ depth                   (h, w) float32               height toward the camera, p
 landmarks               (N, 2) float32               trackable points of the reference (frame px)
 light_dirs              (K, 3) float32               sample light directions (camera space)
 samples                 (K, P, 3) float16            flash-only colour of each pixel per sample
-maps                    (T, P, 3) float16            reflectance per active texel, flash units
-map_texels              (T,) int32                   texel index (row-major in the map) of each map row
+maps                    (P, 3, Tp) float16           reflectance maps, pixel-major: per pixel and channel
+                                                     the T active texels, zero padded to Tp (multiple of 16)
+maps_rows               (T, 3, P) float16            the same, texel-major (single texels: point lights, suns)
+map_texels              (T,) int32                   map texel (row-major in the lat-long map) of each column
+transport_u             (T, K) float32               compact transport: orthonormal texel basis
+transport_v             (P, 3, Kp) float16           maps projected on it, pixel-major, zero padded to 16
+transport_errors        (K,) float32                 largest validation error (relative L2) at each rank
+transport_sigma         (K,) float32                 singular values
 tri_vertices            (V, 3) float32               triangulation vertices (samples, then black lights)
 tri_faces               (F, 3) int32                 triangulation faces
 ======================  ===========================  ========================================
 
 Units: linear Rec.709; "flash units" means a pixel's value under a light as strong as the
 capture flash (a white Lambertian surface facing it reads 1). Relighting under an environment
-of radiance L is ``sum_t maps[t] * L(t) * solid_angle(t) / pi`` (the solid angle is the exact
-form of the paper's sin-latitude normalisation).
+of radiance L is ``sum_t maps[p, :, t] * L(t) * solid_angle(t) / pi`` (the solid angle is the
+exact form of the paper's sin-latitude normalisation); see :mod:`relight.kernels.transport`.
 """
 
 from __future__ import annotations
@@ -65,7 +71,7 @@ _PREFIX = struct.Struct("<8sIIQ")
 #: Largest header accepted (a corrupt length must not make us allocate gigabytes).
 MAX_HEADER = 64 << 20
 REQUIRED = ("pixels", "mask_crop", "ambient", "background", "normal", "albedo", "depth", "light_dirs", "maps",
-            "map_texels")
+            "maps_rows", "map_texels")
 _ALLOWED_DTYPES = {"|b1", "|u1", "<i4", "<i8", "<f2", "<f4", "<f8"}
 
 
@@ -130,8 +136,9 @@ class Bundle:
     def full_map(self, pixel: int) -> np.ndarray:
         """(H_map, W_map, 3) float32 reflectance map of one head pixel (index into ``pixels``)."""
         w, h = self.map_size
+        tex = np.asarray(self.arrays["map_texels"])
         out = np.zeros((h * w, 3), dtype=np.float32)
-        out[np.asarray(self.arrays["map_texels"])] = np.asarray(self.arrays["maps"][:, pixel], dtype=np.float32)
+        out[tex] = np.asarray(self.arrays["maps"][pixel, :, :tex.size], dtype=np.float32).T
         return out.reshape(h, w, 3)
 
 

@@ -311,6 +311,11 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
     if not np.isfinite(maps).all():
         raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
     t1 = time.perf_counter()
+    from relight.kernels import transport
+
+    compact = transport.factorize(maps, opts.map_size, texels)
+    timings["transport"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
     landmarks = _landmarks(prep, geo.mask)
     arrays = {
         "pixels": pix.astype(np.int32), "mask_crop": geo.mask, "ambient": prep.ambient.astype(np.float32),
@@ -318,8 +323,11 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "albedo": geo.albedo.reshape(-1, 3)[pix].astype(np.float32), "depth": geo.depth.astype(np.float32),
         "landmarks": landmarks, "light_dirs": prep.dirs.astype(np.float32),
         "samples": samples.astype(np.float16), "maps": maps.astype(np.float16, copy=False),
+        "maps_rows": texel_major(maps, texels.size),
         "map_texels": texels.astype(np.int32), "tri_vertices": tri.vertices.astype(np.float32),
         "tri_faces": tri.faces.astype(np.int32),
+        "transport_u": compact.u, "transport_v": compact.v, "transport_errors": compact.rank_errors,
+        "transport_sigma": compact.sigma,
     }
     meta = dict(prep.meta)
     meta.update({
@@ -330,9 +338,21 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "n_black_lights": int(len(tri.vertices) - tri.n_samples), "units": "linear Rec.709, flash units",
         "conventions": "camera space +X right, +Y up, +Z toward the camera; maps are lat-long (OpenEXR)",
         "geometry": "mesh" if opts.mesh else "photometric stereo",
+        "transport_direct": compact.direct,
+        "transport_rank_1pct": compact.rank_for(0.01),
     })
     timings["landmarks"] = time.perf_counter() - t1
     return arrays, meta, geo, tri
+
+
+def texel_major(maps: np.ndarray, n_texels: int, chunk: int = 64) -> np.ndarray:
+    """(T, 3, P) float16 copy of pixel-major maps (P, 3, T_pad), transposed in texel blocks."""
+    p = maps.shape[0]
+    out = np.empty((n_texels, 3, p), dtype=np.float16)
+    for t0 in range(0, n_texels, chunk):
+        t1 = min(t0 + chunk, n_texels)
+        out[t0:t1] = np.asarray(maps[:, :, t0:t1], dtype=np.float16).transpose(2, 1, 0)
+    return out
 
 
 def horizon_for(depth: np.ndarray, mask: np.ndarray) -> np.ndarray:

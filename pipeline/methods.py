@@ -78,7 +78,11 @@ def _rbf_kernel(a: np.ndarray, b: np.ndarray, width: float) -> np.ndarray:
 
 
 def fit_and_evaluate(method: str, dirs: np.ndarray, samples: np.ndarray, texel_dirs: np.ndarray) -> np.ndarray:
-    """Fit ``method`` to samples (K, P, 3) at ``dirs`` (K, 3); evaluate at texel_dirs (T, 3): (T, P, 3)."""
+    """Fit ``method`` to samples (K, P, 3) at ``dirs`` (K, 3); evaluate at texel_dirs (T, 3).
+
+    Returns pixel-major maps (P, 3, T_pad) float32 (the layout of
+    :func:`relight.pipeline.reflectance.compute_maps`).
+    """
     dirs = np.asarray(dirs, dtype=np.float64)
     k = len(dirs)
     flat = samples.reshape(k, -1).astype(np.float64)
@@ -93,11 +97,21 @@ def fit_and_evaluate(method: str, dirs: np.ndarray, samples: np.ndarray, texel_d
         # Ridge-regularised interpolation: the weights solve (K + ridge I) w = samples.
         coef = np.linalg.solve(kk + RBF_RIDGE * np.eye(k) * np.trace(kk) / k, flat)
         out = _rbf_kernel(texel_dirs, dirs, width) @ coef
-        return np.clip(out, 0.0, None).reshape(len(texel_dirs), *samples.shape[1:]).astype(np.float32)
+        return _pixel_major(np.clip(out, 0.0, None).reshape(len(texel_dirs), *samples.shape[1:]))
     else:
         raise InputError(f"method {method!r} is not a fitted method")
     if a.shape[1] > k:
         raise InputError(f"{method} needs at least {a.shape[1]} light samples, got {k}")
     coef, *_ = np.linalg.lstsq(a, flat, rcond=None)
     out = e @ coef
-    return np.clip(out, 0.0, None).reshape(len(texel_dirs), *samples.shape[1:]).astype(np.float32)
+    return _pixel_major(np.clip(out, 0.0, None).reshape(len(texel_dirs), *samples.shape[1:]))
+
+
+def _pixel_major(maps: np.ndarray) -> np.ndarray:
+    """(T, P, 3) -> (P, 3, T_pad) float32, zero padded."""
+    from relight.kernels.maps import padded_texels
+
+    t, p = maps.shape[:2]
+    out = np.zeros((p, 3, padded_texels(t)), dtype=np.float32)
+    out[:, :, :t] = maps.transpose(1, 2, 0)
+    return out

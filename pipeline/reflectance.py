@@ -287,7 +287,8 @@ def _adapt(c, wv, dv, dp, use):
 
 def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
                visibility: np.ndarray | None = None, adaptation: bool = True) -> np.ndarray:
-    """Reflectance maps of P pixels: (T_active, P, 3) float32 over ``tri.active`` texels.
+    """Reflectance maps of P pixels, pixel-major: (P, 3, T_pad) float32 over ``tri.active`` texels
+    (T_pad: their count rounded up to 16, zero padded).
 
     samples : (K, P, 3) linear colours under each of the K sample lights (flash units).
     normals : (P, 3) unit normals (used by light adaptation). visibility : (P, h, w) smoothed
@@ -340,7 +341,11 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
             out[t0:t0 + len(ts), ps] = np.clip(regular, 0.0, None).transpose(1, 0, 2)
     if not np.isfinite(out).all():  # pragma: no cover - guarded above
         raise ArithmeticError("non-finite reflectance")
-    return out
+    from relight.kernels.maps import padded_texels
+
+    pm = np.zeros((p, 3, padded_texels(act.size)), dtype=np.float32)
+    pm[:, :, :act.size] = out.transpose(1, 2, 0)
+    return pm
 
 
 def _subset(c, wv, use):
@@ -350,7 +355,7 @@ def _subset(c, wv, use):
 
 
 def sample_map(maps: np.ndarray, tri_active: np.ndarray, map_size: tuple[int, int], direction) -> np.ndarray:
-    """Bilinear lookup of reflectance maps (T_active, P, 3) toward one direction: (P, 3)."""
+    """Bilinear lookup of pixel-major reflectance maps (P, 3, T_pad) toward one direction: (P, 3)."""
     w, h = map_size
     u, v = direction_to_equirect_uv(np.asarray(direction, dtype=np.float64))
     x = float(u) * w - 0.5
@@ -360,21 +365,21 @@ def sample_map(maps: np.ndarray, tri_active: np.ndarray, map_size: tuple[int, in
     fx, fy = x - x0, y - y0
     lut = -np.ones(w * h, dtype=np.int64)
     lut[np.flatnonzero(tri_active)] = np.arange(int(tri_active.sum()))
-    out = np.zeros(maps.shape[1:], dtype=np.float64)
+    out = np.zeros(maps.shape[:2], dtype=np.float64)
     for dy, wy in ((0, 1 - fy), (1, fy)):
         for dx, wx in ((0, 1 - fx), (1, fx)):
             yy = min(y0 + dy, h - 1)
             xx = (x0 + dx) % w
             t = lut[yy * w + xx]
             if t >= 0 and wx * wy > 0:
-                out += wx * wy * maps[t]
+                out += wx * wy * np.asarray(maps[:, :, t], dtype=np.float64)
     return out.astype(np.float32)
 
 
 def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *, horizon: np.ndarray | None,
                  n_az: int, adaptation: bool = True, backend: str = "opencl", half: bool = False,
                  progress=None) -> np.ndarray:
-    """Reflectance maps (T_active, P, 3) of P pixels: OpenCL, or the NumPy reference (float32).
+    """Reflectance maps (P, 3, T_pad) of P pixels, pixel-major: OpenCL, or the NumPy reference (float32).
 
     horizon : (P, n_az) horizon slopes for visibility, or None for none. half : OpenCL output
     in float16 (the bundle's storage; halves the peak memory of large captures).

@@ -1,0 +1,216 @@
+"""Light transport in direction space: environments as texel powers, and the compact transport.
+
+Relighting a pixel is ``sum_t maps[p, :, t] * Lp[t]`` over the reflectance maps' texels, where
+``Lp[t]`` is the power the environment sends from texel t's solid angle, over pi (maps are in
+flash units: a flash has power pi). This module does the small, direction-space side:
+
+* An environment becomes directional lights once (its lat-long grid cells plus its bright
+  texels at full resolution, power conserved exactly); a head rotation only turns those
+  lights, which are then splatted bilinearly into the map's texels - no resampling of the map,
+  so a 2-degree sun moves smoothly and keeps its power, and a yaw by a multiple of 90 degrees
+  equals rolling the map. Texels outside the captured hull are left out (their maps are black).
+* The compact transport: the maps' texel-space Gram matrix gives an orthonormal basis U
+  (texels x rank) and ``V = U^T maps``; a relight is then ``V^T (U^T Lp)`` plus, exactly, the
+  few brightest texels of the environment (a sun): a low-rank basis is poor at deltas, the
+  maps' own rows are exact. The rank is chosen at capture time from measured errors on a
+  validation set of environments (sky, studio, window, uniform, room, rotated, and small
+  suns all over the hull).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from relight.colour import luminance
+from relight.directions import rotation_matrix
+from relight.envmap import environment_to_lights, load_environment, validate_environment
+
+#: Lat-long grid (columns, rows) on which environments become lights; their bright texels
+#: (over PEAK_FACTOR times the mean, at most MAX_PEAKS) stay lights of their own.
+LIGHT_GRID = (128, 64)
+PEAK_FACTOR = 20.0
+MAX_PEAKS = 1024
+#: Brightest texels of an environment relit exactly, outside the low-rank part.
+DIRECT_TEXELS = 8
+#: Pixels per block of the compact transport's layout (one work item each).
+PIXEL_BLOCK = 16
+#: Largest rank considered, and the validation error at which storing more ranks stops.
+MAX_RANK = 256
+KEEP_ERROR = 0.001
+
+
+@dataclass(frozen=True)
+class EnvLights:
+    """An environment as directional lights: dirs (N, 3) unit, power (N, 3) = radiance x solid angle."""
+
+    dirs: np.ndarray
+    power: np.ndarray
+
+
+def environment_lights(env: np.ndarray) -> EnvLights:
+    """Validate an environment map and turn it into lights (done once per environment)."""
+    env = validate_environment(env)
+    lights = environment_to_lights(env, grid=LIGHT_GRID, pole="y", peak_factor=PEAK_FACTOR, max_peaks=MAX_PEAKS)
+    return EnvLights(dirs=lights.dirs, power=lights.power)
+
+
+def splat(dirs: np.ndarray, power: np.ndarray, map_size: tuple[int, int]) -> np.ndarray:
+    """(H_map * W_map, 3) power of lights spread bilinearly over a lat-long map's texel centres.
+
+    Wraps around in azimuth, clamps at the poles; the total power is kept exactly.
+    """
+    w, h = map_size
+    # Unit directions in, so no normalisation: the lat-long coordinates straight from the
+    # convention of relight.directions (theta from +Y, phi = atan2(x, -z)).
+    u = np.arctan2(dirs[:, 0], -dirs[:, 2]) * (0.5 / np.pi)
+    u += u < 0
+    v = np.arccos(np.clip(dirs[:, 1], -1.0, 1.0)) * (1.0 / np.pi)
+    x = u * w - 0.5
+    y = np.clip(v * h - 0.5, 0.0, h - 1.0)
+    x0 = np.floor(x)
+    y0 = np.minimum(np.floor(y), h - 2) if h > 1 else np.zeros_like(y)
+    fx, fy = x - x0, y - y0
+    x0 = x0.astype(np.int64) % w
+    x1 = (x0 + 1) % w
+    y0 = y0.astype(np.int64)
+    y1 = np.minimum(y0 + 1, h - 1)
+    idx = np.concatenate([y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1])
+    wt = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+    out = np.empty((h * w, 3))
+    for c in range(3):
+        out[:, c] = np.bincount(idx, wt * np.tile(power[:, c], 4), minlength=h * w)
+    return out
+
+
+def texel_light(lights: EnvLights, rotation: np.ndarray | None, map_size, texels: np.ndarray,
+                exposure: float = 1.0) -> np.ndarray:
+    """(T, 3) float64 ``Lp`` for the stored texels: the environment as the (static) face sees it
+    when the head is turned by ``rotation`` (camera-from-head, 3x3), times ``exposure``.
+
+    A head turned by R sees the camera-space light from d at R^T d.
+    """
+    dirs = lights.dirs if rotation is None else lights.dirs @ np.asarray(rotation, dtype=np.float64)
+    return splat(dirs, lights.power, map_size)[texels] * (exposure / np.pi)
+
+
+def point_light(direction, map_size, texels: np.ndarray) -> np.ndarray:
+    """(T, 3) ``Lp`` of one directional light as strong as a capture flash (``render --light``)."""
+    d = np.asarray(direction, dtype=np.float64).reshape(1, 3)
+    d = d / np.linalg.norm(d)
+    return splat(d, np.full((1, 3), np.pi), map_size)[texels] / np.pi
+
+
+def split_direct(lp: np.ndarray, n: int = DIRECT_TEXELS) -> tuple[np.ndarray, np.ndarray]:
+    """(indices of the n brightest texels of Lp, Lp with them removed)."""
+    if n <= 0 or not lp.size:
+        return np.zeros(0, dtype=np.int64), lp
+    lum = luminance(lp.astype(np.float32))
+    n = min(n, lp.shape[0])
+    top = np.argpartition(lum, -n)[-n:]
+    top = top[lum[top] > 0]
+    rest = lp.copy()
+    rest[top] = 0.0
+    return top.astype(np.int64), rest
+
+
+def validation_environments(map_size, texels: np.ndarray, seed: int = 0) -> list[tuple[str, np.ndarray]]:
+    """(name, Lp) of the environments a rank must relight within tolerance.
+
+    The built-ins (studio, sunset, window, uniform, room) as they are and turned by a few head
+    rotations, and small lights at many directions across the captured texels.
+    """
+    rng = np.random.default_rng(seed)
+    out = []
+    for name in ("studio", "sunset", "window", "uniform", "room"):
+        lights = environment_lights(load_environment(f"builtin:{name}", width=256))
+        out.append((name, texel_light(lights, None, map_size, texels)))
+        for k in range(2):
+            r = rotation_matrix(*rng.uniform([-40, -20, -15], [40, 20, 15]))
+            out.append((f"{name}_rot{k}", texel_light(lights, r, map_size, texels)))
+    # Small lights: at captured texel directions and between them.
+    from relight.directions import equirect_directions
+
+    w, h = map_size
+    tdirs = equirect_directions(w, h).reshape(-1, 3)[texels]
+    pick = rng.choice(len(tdirs), size=min(24, len(tdirs)), replace=False)
+    for i, t in enumerate(pick):
+        d = tdirs[t] + rng.normal(0, 0.03, 3)
+        out.append((f"light{i}", point_light(d, map_size, texels)))
+    return out
+
+
+def gram(maps: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """(Tp, Tp) float64 texel Gram matrix of pixel-major maps (P, 3, Tp), in float32 blocks."""
+    p, c, t = maps.shape
+    g = np.zeros((t, t))
+    for p0 in range(0, p, chunk):
+        blk = np.asarray(maps[p0:p0 + chunk], dtype=np.float32).reshape(-1, t)
+        g += blk.T @ blk
+    return g
+
+
+@dataclass
+class Transport:
+    """The compact light transport of a bundle.
+
+    u : (T, K) float32 orthonormal texel basis. v : (P / 16, 3, Kp, 16) float16, the maps
+    projected on it in blocks of 16 pixels (pixels and ranks zero padded to multiples of 16).
+    rank_errors : (K,) float32, the largest
+    relative L2 error over the validation environments at each rank (with ``direct`` exact
+    texels). sigma : (K,) singular values.
+    """
+
+    u: np.ndarray
+    v: np.ndarray
+    rank_errors: np.ndarray
+    sigma: np.ndarray
+    direct: int = DIRECT_TEXELS
+
+    def rank_for(self, tolerance: float) -> int | None:
+        """Smallest stored rank meeting ``tolerance`` on the validation set, or None."""
+        ok = np.flatnonzero(self.rank_errors <= tolerance)
+        return int(ok[0]) + 1 if ok.size else None
+
+
+def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int = MAX_RANK,
+              direct: int = DIRECT_TEXELS, keep_error: float = KEEP_ERROR) -> Transport:
+    """The compact transport of pixel-major maps (P, 3, Tp) over ``texels`` (T <= Tp).
+
+    Ranks are kept up to the first meeting ``keep_error`` on the validation set (at most
+    ``max_rank``): enough for any sensible tolerance, small enough to store.
+    """
+    from .maps import padded_texels
+
+    n_t = texels.size
+    g = gram(maps)[:n_t, :n_t]
+    w, vecs = np.linalg.eigh(g)
+    order = np.argsort(w)[::-1]
+    sig2 = np.clip(w[order], 0.0, None)
+    vecs = vecs[:, order]
+    k_all = min(max_rank, n_t)
+    errors = np.zeros(k_all)
+    for _, lp in validation_environments(map_size, texels):
+        total = np.sum(sig2[:, None] * (vecs.T @ lp) ** 2)
+        if total <= 0:
+            continue
+        _, rest = split_direct(lp, direct)
+        a2 = np.sum(sig2[:, None] * (vecs.T @ rest) ** 2, axis=1)  # energy per component
+        tail = np.cumsum(a2[::-1])[::-1]  # tail[k] = energy of components k..
+        err = np.sqrt(np.append(tail, 0.0)[1:k_all + 1] / total)  # error keeping k+1 components
+        errors = np.maximum(errors, err)
+    met = np.flatnonzero(errors <= keep_error)
+    k = int(met[0]) + 1 if met.size else k_all
+    u = vecs[:, :k].astype(np.float32)
+    kp = padded_texels(k)
+    p = maps.shape[0]
+    nb = -(-p // PIXEL_BLOCK)
+    v = np.zeros((nb * PIXEL_BLOCK, 3, kp), dtype=np.float16)
+    for p0 in range(0, p, 4096):
+        blk = np.asarray(maps[p0:p0 + 4096, :, :n_t], dtype=np.float32)
+        v[p0:p0 + blk.shape[0], :, :k] = (blk @ u).astype(np.float16)
+    # Blocked layout (P / 16, 3, Kp, 16): a work item relights 16 pixels with 16-wide loads.
+    v = np.ascontiguousarray(v.reshape(nb, PIXEL_BLOCK, 3, kp).transpose(0, 2, 3, 1))
+    return Transport(u=u, v=v, rank_errors=errors[:k].astype(np.float32), sigma=np.sqrt(sig2[:k]).astype(np.float32),
+                     direct=direct)
