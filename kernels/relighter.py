@@ -247,7 +247,8 @@ class Relighter:
         cl.enqueue_copy(q, self._lp, _as_blocks(lp, self.t_pad), is_blocking=False)
         cl.enqueue_copy(q, self._blocks, blocks.astype(np.int32) if blocks.size else np.zeros(1, np.int32),
                         is_blocking=False)
-        self._k_exact(q, (_round_up(self.n_pix, PIXEL_GROUP),), (PIXEL_GROUP,), self._maps_buf, np.int32(self.t_pad), np.int32(self.n_pix), self._lp,
+        grid = (_round_up(self.n_pix, PIXEL_GROUP),), (PIXEL_GROUP,)
+        self._k_exact(q, *grid, self._maps_buf, np.int32(self.t_pad), np.int32(self.n_pix), self._lp,
                       self._blocks, np.int32(blocks.size), self._fidx, self._frame_buf)
         self._finish()
 
@@ -263,7 +264,8 @@ class Relighter:
         q = self._queue
         cl.enqueue_copy(q, self._dtex, lit.astype(np.int32) if lit.size else np.zeros(1, np.int32), is_blocking=False)
         cl.enqueue_copy(q, self._dlp, l4, is_blocking=False)
-        self._k_rows(q, (_round_up(self.n_pix, PIXEL_GROUP),), (PIXEL_GROUP,), self._rows_buf, np.int32(self.n_pix), self._dtex, self._dlp,
+        grid = (_round_up(self.n_pix, PIXEL_GROUP),), (PIXEL_GROUP,)
+        self._k_rows(q, *grid, self._rows_buf, np.int32(self.n_pix), self._dtex, self._dlp,
                      np.int32(lit.size), self._fidx, self._frame_buf)
         self._finish()
 
