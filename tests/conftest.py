@@ -27,3 +27,15 @@ def small_capture(tmp_path_factory):
     cfg = SynthConfig(width=320, height=180, duration=6.0, seed=3,
                       truth_envs=DEFAULT_TRUTH_ENVS + ("builtin:point:0.8,0.1,0.6",))
     return synthesize(out, cfg, progress=False), cfg
+
+
+@pytest.fixture(scope="session")
+def small_bundle(small_capture, tmp_path_factory):
+    """A bundle captured from ``small_capture`` (the synthetic truth stays in small_capture)."""
+    from relight import load_bundle
+    from relight.pipeline.capture import capture
+
+    res, _ = small_capture
+    out = tmp_path_factory.mktemp("bundle") / "face.bundle"
+    capture(res.video, out, progress=False)
+    return load_bundle(out)

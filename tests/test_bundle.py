@@ -22,7 +22,8 @@ def _arrays(p=50, t=20, k=6):
         "background": rng.integers(0, 255, (30, 40, 3), dtype=np.uint8),
         "normal": rng.normal(size=(p, 3)).astype(np.float32), "albedo": rng.uniform(0, 1, (p, 3)).astype(np.float32),
         "depth": rng.uniform(0, 5, (h, w)).astype(np.float32), "light_dirs": rng.normal(size=(k, 3)).astype(np.float32),
-        "maps": rng.uniform(0, 2, (t, p, 3)).astype(np.float16), "map_texels": np.arange(t, dtype=np.int32) * 7,
+        "maps": rng.uniform(0, 2, (p, 3, 32)).astype(np.float16), "map_texels": np.arange(t, dtype=np.int32) * 7,
+        "maps_rows": rng.uniform(0, 2, (t, 3, p)).astype(np.float16),
         "samples": rng.uniform(0, 1, (k, p, 3)).astype(np.float16),
     }
 

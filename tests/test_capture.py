@@ -55,7 +55,8 @@ def test_video_capture_meets_the_accuracy_goals(synth_capture, tmp_path):
     assert m["normal_median_deg"] <= NORMAL_MEDIAN_DEG, m
     assert m["mask_iou"] > 0.85, m
     assert np.isfinite(np.asarray(bundle.maps, dtype=np.float32)).all()
-    assert bundle.maps.shape[1] == bundle.pixels.size == bundle.normal.shape[0]
+    assert bundle.maps.shape[0] == bundle.pixels.size == bundle.normal.shape[0] == bundle.maps_rows.shape[2]
+    np.testing.assert_array_equal(np.asarray(bundle.maps_rows[5]), np.asarray(bundle.maps[:, :, 5]).T)
     assert bundle.landmarks.shape[0] > 20
 
 

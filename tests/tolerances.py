@@ -44,3 +44,13 @@ NORMAL_MEDIAN_DEG = 10.0
 #: least margin of `full` over PTM.
 DOME_FULL_PSNR = 22.0
 DOME_MARGIN_OVER_PTM = 1.0
+#: Relighting kernels vs their NumPy twins: largest difference relative to the largest value.
+RELIGHT_TWIN_REL = 1e-5
+#: The compact path against the exact one may exceed the tolerance it was chosen for by this
+#: factor on the validation's own environments (float16 storage of the basis images).
+COMPACT_TOLERANCE_SLACK = 1.2
+#: Relighting is linear in the light: splitting an environment must add up to float precision.
+LINEARITY_REL = 1e-5
+#: Rotating the head vs rotating the environment map the other way (two resamplings of a
+#: smooth environment): relative L2.
+ROTATION_EQUIV_REL = 0.03

@@ -1,0 +1,145 @@
+"""The relighting engine: kernels vs NumPy twins, compact vs exact, rotations, HDR extremes, bad input."""
+
+import numpy as np
+import pytest
+
+from relight import Relighter, load_environment
+from relight.cli import main
+from relight.directions import rotation_matrix
+from relight.envmap import rotate_environment
+from relight.errors import InputError
+from relight.imageio import read_image
+
+from .tolerances import (
+    COMPACT_TOLERANCE_SLACK,
+    LINEARITY_REL,
+    RELIGHT_TWIN_REL,
+    ROTATION_EQUIV_REL,
+)
+
+
+def _rel(a, b, mask):
+    return float(np.linalg.norm(a[mask] - b[mask]) / max(np.linalg.norm(b[mask]), 1e-30))
+
+
+@pytest.fixture(scope="module")
+def relighters(small_bundle):
+    return Relighter(small_bundle), Relighter(small_bundle, exact=True)
+
+
+@pytest.mark.parametrize("name", ["studio", "sunset", "point:0.3,0.2,0.9"])
+def test_kernels_match_numpy_and_compact_meets_its_tolerance(relighters, small_bundle, name):
+    compact, exact = relighters
+    env = load_environment(f"builtin:{name}")
+    r = rotation_matrix(12, -5, 3)
+    for rl in (compact, exact):
+        got = np.array(rl.relight(env, r))
+        ref = rl.relight_numpy(env, r)
+        assert np.abs(got - ref).max() <= RELIGHT_TWIN_REL * max(np.abs(ref).max(), 1e-9)
+    m = small_bundle.mask
+    c = np.array(compact.relight(env, r))
+    e = np.array(exact.relight(env, r))
+    assert not compact.exact and compact.rank >= 1
+    assert _rel(c, e, m) <= COMPACT_TOLERANCE_SLACK * compact.tolerance
+    assert (c[~m] == 0).all() and (e[~m] == 0).all() and np.isfinite(c).all()
+
+
+def test_tighter_tolerance_means_higher_rank(small_bundle):
+    ranks = [Relighter(small_bundle, tolerance=t).rank for t in (0.05, 0.01, 0.003)]
+    assert ranks[0] <= ranks[1] <= ranks[2]
+    assert Relighter(small_bundle, tolerance=1e-9).exact  # no stored rank meets it: the exact path
+
+
+def test_quarter_turns_are_exact(relighters):
+    _, exact = relighters
+    env = load_environment("builtin:studio")
+    w = env.shape[1]
+    turned = np.array(exact.relight(env, rotation_matrix(yaw=90)))
+    # The head turned by +90 degrees sees the environment turned by -90: a roll of the columns.
+    rolled = np.array(exact.relight(np.roll(env, w // 4, axis=1)))
+    np.testing.assert_allclose(turned, rolled, rtol=1e-5, atol=1e-7)
+
+
+def test_turning_the_head_equals_turning_the_environment_back(relighters, small_bundle):
+    _, exact = relighters
+    env = load_environment("builtin:window")
+    r = rotation_matrix(20, 10, -5)
+    a = np.array(exact.relight(env, r))
+    b = np.array(exact.relight(rotate_environment(env, r.T, supersample=4)))
+    assert _rel(a, b, small_bundle.mask) < ROTATION_EQUIV_REL
+
+
+def test_hdr_extremes_stay_linear_and_finite(relighters, small_bundle):
+    _, exact = relighters
+    sky = load_environment("builtin:uniform") * np.float32(0.05)
+    sun = load_environment("builtin:point:0.4,0.3,0.85") * np.float32(5e3)  # sun / sky radiance ~ 1e7
+    both = np.array(exact.relight(sky + sun))
+    parts = np.array(exact.relight(sky)) + np.array(exact.relight(sun))
+    m = small_bundle.mask
+    assert np.isfinite(both).all() and _rel(both, parts, m) < LINEARITY_REL
+    base = np.array(exact.relight(sky))
+    for ev in (1e-3, 1e3):
+        scaled = np.array(exact.relight(sky, exposure=ev))
+        assert np.isfinite(scaled).all()
+        np.testing.assert_allclose(scaled[m], base[m] * ev, rtol=1e-5, atol=1e-30)
+
+
+def test_bad_environments_rotations_and_settings(relighters, small_bundle):
+    compact, _ = relighters
+    env = load_environment("builtin:studio")
+    bad = env.copy()
+    bad[3, 4, 0] = np.nan
+    with pytest.raises(InputError, match="non-finite"):
+        compact.relight(bad)
+    bad[3, 4, 0] = -1.0
+    with pytest.raises(InputError, match="negative"):
+        compact.relight(bad)
+    with pytest.raises(InputError, match="rotation"):
+        compact.relight(env, np.eye(3) * 2)
+    with pytest.raises(InputError, match="twice as wide"):
+        compact.relight(np.ones((10, 10, 3), np.float32))
+    with pytest.raises(InputError, match="exposure"):
+        compact.relight(env, exposure=float("inf"))
+    with pytest.raises(InputError, match="tolerance"):
+        Relighter(small_bundle, tolerance=0)
+    with pytest.raises(InputError, match="light direction"):
+        compact.relight_light((0, 0, 0))
+
+
+def test_nothing_is_recomputed_for_the_same_request(relighters, monkeypatch):
+    compact, _ = relighters
+    env = load_environment("builtin:sunset")
+    r = rotation_matrix(5, 0, 0)
+    first = compact.relight(env, r)
+    calls = []
+    monkeypatch.setattr(compact, "_run_compact", lambda lp: calls.append(1))
+    again = compact.relight(env, r)
+    assert calls == [] and again is not None and np.shares_memory(first, again)
+    compact.relight(env, rotation_matrix(6, 0, 0))
+    assert calls == [1]
+
+
+def test_one_light_reads_the_maps_directly(relighters, small_bundle, small_capture):
+    compact, exact = relighters
+    res, _ = small_capture
+    d = np.array([0.8, 0.1, 0.6])
+    direct = np.array(compact.relight_light(d))
+    point_env = np.array(exact.relight(load_environment("builtin:point:0.8,0.1,0.6", width=2048)))
+    m = small_bundle.mask
+    assert _rel(direct, point_env, m) < 0.05  # a 1-degree disc vs an ideal direction
+    truth = read_image(res.truth / "olat_right.exr")
+    both = m & (truth.max(axis=2) > 0)
+    gain = float((direct[both] * truth[both]).sum() / (direct[both] ** 2).sum())
+    assert 0.8 < gain < 1.3  # flash units: a light as strong as the capture flash
+
+
+def test_render_cli(small_bundle, tmp_path, capsys):
+    path = str(small_bundle.path)
+    assert main(["render", path, "--env", "builtin:studio", "-o", str(tmp_path / "a.exr"), "--rotate", "10,0,0"]) == 0
+    assert main(["render", path, "--light", "0,0,1", "-o", str(tmp_path / "b.png"), "--exact",
+                 "--background", "reference"]) == 0
+    a = read_image(tmp_path / "a.exr")
+    assert a.shape[:2] == small_bundle.mask.shape and a[small_bundle.mask].max() > 0
+    assert main(["render", path, "--env", "builtin:nope", "-o", str(tmp_path / "c.exr")]) == 2
+    assert main(["render", path, "--env", "builtin:studio", "-o", str(tmp_path / "c.tif")]) == 2
+    assert "write .exr" in capsys.readouterr().err
