@@ -118,8 +118,8 @@ def _scenario(out: Path, quick: bool, progress: bool):
 
 def _start_time(bundle: Path) -> dict:
     """Seconds to load the bundle and build the Relighter in a fresh process (twice: cold, warm)."""
-    code = ("import time; t=time.perf_counter(); import relight; b=relight.load_bundle(%r); "
-            "r=relight.Relighter(b); print(time.perf_counter()-t)" % str(bundle))
+    code = (f"import time; t=time.perf_counter(); import relight; b=relight.load_bundle({str(bundle)!r}); "
+            "r=relight.Relighter(b); print(time.perf_counter()-t)")
     out = []
     for _ in range(2):
         p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -153,64 +153,11 @@ def run(out: Path, quick: bool = False, progress: bool = True) -> dict:
         if stem in meta["files"]["relit"]:
             truth_of[name] = read_image(truth_dir.parent / meta["files"]["relit"][stem])
     rows = []
-
-    def psnr(pred, truth):
-        a, b = pred[mask], truth[mask]
-        g = float((a * b).sum() / max((a * a).sum(), 1e-30))
-        mse = float(((g * a - b) ** 2).mean())
-        return 10 * np.log10(float(b.max()) ** 2 / max(mse, 1e-30)), g
-
     for name, src in envs.items():
         if progress:
             print(f"timing {name} ...", flush=True)
-        env = relight.load_environment(src)
-        e_img = np.array(exact.relight(env))
-        row = {"env": name, "paths": []}
-        e_ms = _median_ms(lambda i: exact.relight(env, rots[i]))
-        lp = exact.texel_light(env, rots[3])
-        e_kernel = _median_ms(lambda i: exact._run_exact(lp))
-        padded = np.zeros((exact.t_pad, 3))
-        padded[:lp.shape[0]] = lp
-        lit_blocks = int((np.abs(padded).reshape(-1, 16, 3).sum(axis=(1, 2)) > 0).sum())
-        e_bytes = p * 3 * lit_blocks * 16 * 2 + p * 12
-        e_np = _median_ms(lambda i: exact.relight_numpy(env, rots[i], exact=True), n=3, warmup=1)
-        ent = {"path": "exact", "rank": None, "rel_l2_vs_exact": 0.0, "ms_call": e_ms, "ms_kernel": e_kernel,
-               "ms_call_per_100k": e_ms * per100k, "ms_kernel_per_100k": e_kernel * per100k, "ms_numpy_twin": e_np,
-               "bytes": e_bytes, "gbps": e_bytes / e_kernel / 1e6, "bw_fraction": e_bytes / e_kernel / 1e6 / read_bw}
-        if name in truth_of:
-            ent["psnr_vs_truth"], ent["gain"] = psnr(e_img, truth_of[name])
-        row["paths"].append(ent)
-        for tol, rl in compacts.items():
-            if rl.exact:
-                continue
-            c_img = np.array(rl.relight(env))
-            rel = float(np.linalg.norm(c_img[mask] - e_img[mask]) / np.linalg.norm(e_img[mask]))
-            r_img_c = np.array(rl.relight(env, rots[7]))
-            r_img_e = np.array(exact.relight(env, rots[7]))
-            rel_rot = float(np.linalg.norm(r_img_c[mask] - r_img_e[mask]) / np.linalg.norm(r_img_e[mask]))
-            ms = _median_ms(lambda i: rl.relight(env, rots[i]))
-            lp = rl.texel_light(env, rots[3])
-            ms_k = _median_ms(lambda i: rl._run_compact(lp))
-            ms_dir = _median_ms(lambda i: rl.texel_light(env, rots[i]))
-            kp = rl._v.shape[2]
-            nb = rl._v.shape[0]
-            c_bytes = nb * 16 * 3 * rl.rank * 2 + rl.transport.direct * 3 * p * 2 + p * 12
-            c_np = _median_ms(lambda i: rl.relight_numpy(env, rots[i]), n=3, warmup=1)
-            # What a user would write instead: the same rank-k product, float32, with BLAS.
-            k = rl.rank
-            v32 = np.ascontiguousarray(np.asarray(rl._v[:, :, :k], dtype=np.float32).transpose(1, 2, 0, 3)
-                                       .reshape(3, k, -1))
-            coef = np.random.default_rng(0).random((3, k)).astype(np.float32)
-            blas = _median_ms(lambda i: [coef[c] @ v32[c] for c in range(3)], n=20, warmup=3)
-            ent = {"path": f"compact tol {tol:g}", "tolerance": tol, "rank": k, "rel_l2_vs_exact": rel,
-                   "rel_l2_vs_exact_rotated": rel_rot, "ms_call": ms, "ms_kernel": ms_k, "ms_direction_stage": ms_dir,
-                   "ms_call_per_100k": ms * per100k, "ms_kernel_per_100k": ms_k * per100k, "ms_numpy_twin": c_np,
-                   "ms_numpy_blas_same_product": blas, "bytes": c_bytes, "gbps": c_bytes / ms_k / 1e6,
-                   "bw_fraction": c_bytes / ms_k / 1e6 / read_bw, "basis_padded": kp}
-            if name in truth_of:
-                ent["psnr_vs_truth"], ent["gain"] = psnr(c_img, truth_of[name])
-            row["paths"].append(ent)
-        rows.append(row)
+        rows.append(_bench_env(name, relight.load_environment(src), exact, compacts, rots, mask, truth_of.get(name),
+                               p, read_bw))
     # A single point light: the maps' own texels, no environment.
     light = np.array([0.5, 0.3, 0.8])
     pl_ms = _median_ms(lambda i: exact.relight_light(light + 0.01 * np.sin(i) * np.array([1, 0, 0])))
@@ -226,6 +173,67 @@ def run(out: Path, quick: bool = False, progress: bool = True) -> dict:
     (out / "bench.json").write_text(json.dumps(doc, indent=1))
     _plot(doc, out / "relight_error_vs_time.png")
     return doc
+
+
+def _psnr(pred, truth, mask):
+    """PSNR (dB, peak = the truth's maximum) after one exposure gain, and the gain."""
+    a, b = pred[mask], truth[mask]
+    g = float((a * b).sum() / max((a * a).sum(), 1e-30))
+    mse = float(((g * a - b) ** 2).mean())
+    return 10 * np.log10(float(b.max()) ** 2 / max(mse, 1e-30)), g
+
+
+def _bench_env(name, env, exact, compacts, rots, mask, truth, p, read_bw) -> dict:
+    """Every path on one environment."""
+    per100k = 1e5 / p
+    e_img = np.array(exact.relight(env))
+    row = {"env": name, "paths": []}
+    e_ms = _median_ms(lambda i: exact.relight(env, rots[i]))
+    lp = exact.texel_light(env, rots[3])
+    e_kernel = _median_ms(lambda i: exact._run_exact(lp))
+    padded = np.zeros((exact.t_pad, 3))
+    padded[:lp.shape[0]] = lp
+    lit_blocks = int((np.abs(padded).reshape(-1, 16, 3).sum(axis=(1, 2)) > 0).sum())
+    e_bytes = p * 3 * lit_blocks * 16 * 2 + p * 12
+    e_np = _median_ms(lambda i: exact.relight_numpy(env, rots[i], exact=True), n=3, warmup=1)
+    ent = {"path": "exact", "rank": None, "rel_l2_vs_exact": 0.0, "ms_call": e_ms, "ms_kernel": e_kernel,
+           "ms_call_per_100k": e_ms * per100k, "ms_kernel_per_100k": e_kernel * per100k, "ms_numpy_twin": e_np,
+           "bytes": e_bytes, "gbps": e_bytes / e_kernel / 1e6, "bw_fraction": e_bytes / e_kernel / 1e6 / read_bw}
+    if truth is not None:
+        ent["psnr_vs_truth"], ent["gain"] = _psnr(e_img, truth, mask)
+    row["paths"].append(ent)
+    for tol, rl in compacts.items():
+        if not rl.exact:
+            row["paths"].append(_bench_compact(tol, rl, env, exact, e_img, rots, mask, truth, p, read_bw))
+    return row
+
+
+def _bench_compact(tol, rl, env, exact, e_img, rots, mask, truth, p, read_bw) -> dict:
+    per100k = 1e5 / p
+    c_img = np.array(rl.relight(env))
+    rel = float(np.linalg.norm(c_img[mask] - e_img[mask]) / np.linalg.norm(e_img[mask]))
+    r_img_c = np.array(rl.relight(env, rots[7]))
+    r_img_e = np.array(exact.relight(env, rots[7]))
+    rel_rot = float(np.linalg.norm(r_img_c[mask] - r_img_e[mask]) / np.linalg.norm(r_img_e[mask]))
+    ms = _median_ms(lambda i: rl.relight(env, rots[i]))
+    lp = rl.texel_light(env, rots[3])
+    ms_k = _median_ms(lambda i: rl._run_compact(lp))
+    ms_dir = _median_ms(lambda i: rl.texel_light(env, rots[i]))
+    k = rl.rank
+    c_bytes = rl._v.shape[0] * 16 * 3 * k * 2 + rl.transport.direct * 3 * p * 2 + p * 12
+    c_np = _median_ms(lambda i: rl.relight_numpy(env, rots[i]), n=3, warmup=1)
+    # What a user would write instead: the same rank-k product, float32, with BLAS.
+    v32 = np.ascontiguousarray(np.asarray(rl._v[:, :, :k], dtype=np.float32).transpose(1, 2, 0, 3).reshape(3, k, -1))
+    coef = np.random.default_rng(0).random((3, k)).astype(np.float32)
+    blas = _median_ms(lambda i: [coef[c] @ v32[c] for c in range(3)], n=20, warmup=3)
+    ent = {"path": f"compact tol {tol:g}", "tolerance": tol, "rank": k, "rel_l2_vs_exact": rel,
+           "rel_l2_vs_exact_rotated": rel_rot, "ms_call": ms, "ms_kernel": ms_k, "ms_direction_stage": ms_dir,
+           "ms_call_per_100k": ms * per100k, "ms_kernel_per_100k": ms_k * per100k, "ms_numpy_twin": c_np,
+           "ms_numpy_blas_same_product": blas, "bytes": c_bytes, "gbps": c_bytes / ms_k / 1e6,
+           "bw_fraction": c_bytes / ms_k / 1e6 / read_bw, "basis_padded": int(rl._v.shape[2])}
+    if truth is not None:
+        ent["psnr_vs_truth"], ent["gain"] = _psnr(c_img, truth, mask)
+    return ent
 
 
 def table(doc: dict) -> str:
@@ -247,8 +255,8 @@ def table(doc: dict) -> str:
                          f"{ps} {e['ms_call']:8.2f} {e['ms_call_per_100k']:9.2f} {e['ms_kernel_per_100k']:11.2f} "
                          f"{e['ms_numpy_twin']:10.1f} {blas} {e['gbps']:6.1f} {e['bw_fraction']:6.2f}")
     pl = doc["point_light"]
-    lines.append(f"single point light (4 map texels): {pl['ms_call']:.2f} ms/call ({pl['ms_call_per_100k']:.2f} per 100k "
-                 f"px); through the full exact path: {pl['ms_via_full_exact_path']:.2f} ms")
+    lines.append(f"single point light (4 map texels): {pl['ms_call']:.2f} ms/call ({pl['ms_call_per_100k']:.2f} per "
+                 f"100k px); through the full exact path: {pl['ms_via_full_exact_path']:.2f} ms")
     return "\n".join(lines)
 
 
