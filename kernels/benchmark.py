@@ -23,9 +23,26 @@ from pathlib import Path
 
 import numpy as np
 
+from .transport import split_direct
+
 TOLERANCES = (0.05, 0.02, 0.01, 0.005, 0.002)
 REPEATS = 40
 WARMUP = 5
+
+
+def _interleaved_ms(fns: dict, n=REPEATS, warmup=WARMUP) -> dict:
+    """Median ms of several functions timed in turn (A B C A B C ...): on a shared machine whose
+    speed drifts, alternating keeps the comparison fair."""
+    for i in range(warmup):
+        for f in fns.values():
+            f(i)
+    ts = {k: [] for k in fns}
+    for i in range(n):
+        for k, f in fns.items():
+            t = time.perf_counter()
+            f(warmup + i)
+            ts[k].append(time.perf_counter() - t)
+    return {k: float(np.median(v) * 1000.0) for k, v in ts.items()}
 
 
 def _median_ms(fn, n=REPEATS, warmup=WARMUP) -> float:
@@ -50,10 +67,12 @@ def measure_bandwidth(mb: int = 512) -> dict:
     b = np.empty_like(a)
     copy_ms = _median_ms(lambda i: np.copyto(b, a), n=5, warmup=2)
     rt = get_runtime()
-    src = """__kernel void rd(__global const half *x, int n16, __global float *out) {
-        int g = get_global_id(0), ng = get_global_size(0);
+    # Each work item streams its own contiguous chunk with 16-wide loads (the exact path's pattern).
+    src = """__kernel void rd(__global const half *x, int per, __global float *out) {
+        int g = get_global_id(0);
+        __global const half *mine = x + (size_t)g * per * 16;
         float16 acc = (float16)(0.0f);
-        for (int i = g; i < n16; i += ng) acc += vload_half16(i, x);
+        for (int i = 0; i < per; ++i) acc += vload_half16(i, mine);
         out[g] = acc.s0 + acc.s5 + acc.sa + acc.sf; }"""
     prg = cl.Program(rt.context, src).build()
     k = cl.Kernel(prg, "rd")
@@ -64,10 +83,10 @@ def measure_bandwidth(mb: int = 512) -> dict:
     ob = cl.Buffer(rt.context, mf.WRITE_ONLY, groups * 4)
 
     def run(i):
-        k(rt.queue, (groups,), (64,), hb, np.int32(h.size // 16), ob)
+        k(rt.queue, (groups,), (64,), hb, np.int32(h.size // 16 // groups), ob)
         rt.queue.finish()
 
-    read_ms = _median_ms(run, n=5, warmup=2)
+    read_ms = _median_ms(run, n=9, warmup=2)
     return {"numpy_copy_gbps": 2 * a.nbytes / copy_ms / 1e6, "opencl_read_gbps": h.nbytes / read_ms / 1e6}
 
 
@@ -188,9 +207,10 @@ def _bench_env(name, env, exact, compacts, rots, mask, truth, p, read_bw) -> dic
     per100k = 1e5 / p
     e_img = np.array(exact.relight(env))
     row = {"env": name, "paths": []}
-    e_ms = _median_ms(lambda i: exact.relight(env, rots[i]))
     lp = exact.texel_light(env, rots[3])
-    e_kernel = _median_ms(lambda i: exact._run_exact(lp))
+    t = _interleaved_ms({"call": lambda i: exact.relight(env, rots[i]), "kernel": lambda i: exact._run_exact(lp)},
+                        n=REPEATS // 2)
+    e_ms, e_kernel = t["call"], t["kernel"]
     padded = np.zeros((exact.t_pad, 3))
     padded[:lp.shape[0]] = lp
     lit_blocks = int((np.abs(padded).reshape(-1, 16, 3).sum(axis=(1, 2)) > 0).sum())
@@ -215,17 +235,25 @@ def _bench_compact(tol, rl, env, exact, e_img, rots, mask, truth, p, read_bw) ->
     r_img_c = np.array(rl.relight(env, rots[7]))
     r_img_e = np.array(exact.relight(env, rots[7]))
     rel_rot = float(np.linalg.norm(r_img_c[mask] - r_img_e[mask]) / np.linalg.norm(r_img_e[mask]))
-    ms = _median_ms(lambda i: rl.relight(env, rots[i]))
     lp = rl.texel_light(env, rots[3])
-    ms_k = _median_ms(lambda i: rl._run_compact(lp))
-    ms_dir = _median_ms(lambda i: rl.texel_light(env, rots[i]))
     k = rl.rank
-    c_bytes = rl._v.shape[0] * 16 * 3 * k * 2 + rl.transport.direct * 3 * p * 2 + p * 12
-    c_np = _median_ms(lambda i: rl.relight_numpy(env, rots[i]), n=3, warmup=1)
-    # What a user would write instead: the same rank-k product, float32, with BLAS.
+    # What a user would write instead: the same rank-k product, float32, with BLAS, plus the
+    # brightest texels from the texel-major maps.
     v32 = np.ascontiguousarray(np.asarray(rl._v[:, :, :k], dtype=np.float32).transpose(1, 2, 0, 3).reshape(3, k, -1))
     coef = np.random.default_rng(0).random((3, k)).astype(np.float32)
-    blas = _median_ms(lambda i: [coef[c] @ v32[c] for c in range(3)], n=20, warmup=3)
+    direct, _ = split_direct(lp, rl.transport.direct)
+    rows32 = np.asarray(rl.rows[direct], dtype=np.float32)  # (n, 3, P)
+    dl = lp[direct].astype(np.float32)
+
+    def blas(i):
+        out = [coef[c] @ v32[c][:, :p] for c in range(3)]
+        return [out[c] + dl[:, c] @ rows32[:, c] for c in range(3)]
+
+    ms = _interleaved_ms({"call": lambda i: rl.relight(env, rots[i]), "kernel": lambda i: rl._run_compact(lp),
+                          "blas": blas, "direction": lambda i: rl.texel_light(env, rots[i])}, n=2 * REPEATS)
+    ms, ms_k, blas, ms_dir = ms["call"], ms["kernel"], ms["blas"], ms["direction"]
+    c_bytes = rl._v.shape[0] * 16 * 3 * k * 2 + rl.transport.direct * 3 * p * 2 + p * 12
+    c_np = _median_ms(lambda i: rl.relight_numpy(env, rots[i]), n=3, warmup=1)
     ent = {"path": f"compact tol {tol:g}", "tolerance": tol, "rank": k, "rel_l2_vs_exact": rel,
            "rel_l2_vs_exact_rotated": rel_rot, "ms_call": ms, "ms_kernel": ms_k, "ms_direction_stage": ms_dir,
            "ms_call_per_100k": ms * per100k, "ms_kernel_per_100k": ms_k * per100k, "ms_numpy_twin": c_np,

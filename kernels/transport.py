@@ -26,6 +26,7 @@ import numpy as np
 from relight.colour import luminance
 from relight.directions import rotation_matrix
 from relight.envmap import environment_to_lights, load_environment, validate_environment
+from relight.numerics import flush_subnormal_halves
 
 #: Lat-long grid (columns, rows) on which environments become lights; their bright texels
 #: (over PEAK_FACTOR times the mean, at most MAX_PEAKS) stay lights of their own.
@@ -210,7 +211,9 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     for p0 in range(0, p, 4096):
         blk = np.asarray(maps[p0:p0 + 4096, :, :n_t], dtype=np.float32)
         v[p0:p0 + blk.shape[0], :, :k] = (blk @ u).astype(np.float16)
-    # Blocked layout (P / 16, 3, Kp, 16): a work item relights 16 pixels with 16-wide loads.
+    flush_subnormal_halves(v)  # as the kernels read it (relight.numerics.HALF_TINY)
+    # Blocked layout (P / 16, 3, Kp, 16): 16 pixels of one basis image contiguous (the
+    # Relighter repacks the rank it uses into its kernel's 32-pixel blocks).
     v = np.ascontiguousarray(v.reshape(nb, PIXEL_BLOCK, 3, kp).transpose(0, 2, 3, 1))
     return Transport(u=u, v=v, rank_errors=errors[:k].astype(np.float32), sigma=np.sqrt(sig2[:k]).astype(np.float32),
                      direct=direct)

@@ -20,6 +20,7 @@ from relight import __version__
 from relight.colour import decode_srgb8
 from relight.errors import InputError
 from relight.imageio import read_image
+from relight.numerics import flush_subnormal_halves
 
 from . import geometry, methods, reflectance
 from .bundle import write_bundle
@@ -310,6 +311,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         timings["maps"] = time.perf_counter() - t1
     if not np.isfinite(maps).all():
         raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
+    maps = flush_subnormal_halves(maps.astype(np.float16, copy=False))
     t1 = time.perf_counter()
     from relight.kernels import transport
 

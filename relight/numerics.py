@@ -47,3 +47,30 @@ def safe_divide(num: np.ndarray, den: np.ndarray, fill: float = 0.0) -> np.ndarr
     ok = np.abs(den) > EPS
     np.divide(num, den, out=out, where=ok)
     return out
+
+
+#: Smallest normal float16 magnitude (2^-14). Stored halves below it are zero: the relighting
+#: kernels read halves with integer ops and run with denormals flushed (a subnormal costs a
+#: ~100-cycle microcode assist per vector on x86: measured 2.2x slower on real maps, where
+#: about 1 % of the values were subnormal).
+HALF_TINY = np.float16(2.0 ** -14)
+
+
+def flush_subnormal_halves(array: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """Set float16 values with magnitude below :data:`HALF_TINY` to zero, in place (in chunks
+    of ``chunk`` rows); returns ``array``. Other dtypes pass through."""
+    if array.dtype != np.float16 or array.size == 0:
+        return array
+    rows = array.reshape(1, -1) if array.ndim < 2 else array
+    for i in range(0, rows.shape[0], chunk):
+        part = rows[i:i + chunk]
+        part[np.abs(part) < HALF_TINY] = 0
+    return array
+
+
+def read_halves(array: np.ndarray) -> np.ndarray:
+    """float16 -> float32 as the relighting kernels read it: subnormals as zero."""
+    out = np.asarray(array, dtype=np.float32)
+    if np.asarray(array).dtype == np.float16:
+        out[np.abs(out) < np.float32(HALF_TINY)] = 0.0
+    return out

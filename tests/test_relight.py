@@ -100,6 +100,8 @@ def test_bad_environments_rotations_and_settings(relighters, small_bundle):
         compact.relight(np.ones((10, 10, 3), np.float32))
     with pytest.raises(InputError, match="exposure"):
         compact.relight(env, exposure=float("inf"))
+    with pytest.raises(InputError, match="too large"):  # would overflow float32
+        compact.relight(env, exposure=1e36)
     with pytest.raises(InputError, match="tolerance"):
         Relighter(small_bundle, tolerance=0)
     with pytest.raises(InputError, match="light direction"):
@@ -143,3 +145,39 @@ def test_render_cli(small_bundle, tmp_path, capsys):
     assert main(["render", path, "--env", "builtin:nope", "-o", str(tmp_path / "c.exr")]) == 2
     assert main(["render", path, "--env", "builtin:studio", "-o", str(tmp_path / "c.tif")]) == 2
     assert "write .exr" in capsys.readouterr().err
+
+
+def test_half_decode_matches_numpy_for_every_finite_half():
+    """The kernels' integer-op decode of packed half pairs: every finite float16 bit pattern,
+    subnormals read as zero (relight.numerics.HALF_TINY)."""
+    import pyopencl as cl
+
+    from relight.kernels.runtime import build_program, get_runtime
+    from relight.numerics import read_halves
+
+    bits = np.arange(1 << 16, dtype=np.uint16)
+    halves = bits.view(np.float16)
+    halves = halves[np.isfinite(halves)]
+    halves = np.concatenate([halves, np.zeros((-halves.size) % 32, np.float16)])
+    rt = get_runtime()
+    prg = build_program("relight", ("-cl-denorms-are-zero",))
+    mf = cl.mem_flags
+    n = halves.size // 32
+    src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=halves)
+    lo_b, hi_b = (cl.Buffer(rt.context, mf.WRITE_ONLY, n * 64) for _ in range(2))
+    cl.Kernel(prg, "decode_half_pairs")(rt.queue, (n,), None, src, lo_b, hi_b)
+    lo, hi = np.empty(n * 16, np.float32), np.empty(n * 16, np.float32)
+    cl.enqueue_copy(rt.queue, lo, lo_b)
+    cl.enqueue_copy(rt.queue, hi, hi_b)
+    want = read_halves(halves)
+    np.testing.assert_array_equal(lo, want[0::2])
+    np.testing.assert_array_equal(hi, want[1::2])
+
+
+def test_bundles_store_no_subnormal_halves(small_bundle):
+    from relight.numerics import HALF_TINY
+
+    for name in ("maps", "maps_rows", "transport_v"):
+        a = np.asarray(small_bundle.arrays[name])
+        assert a.dtype == np.float16
+        assert not ((a != 0) & (np.abs(a) < HALF_TINY)).any(), name
