@@ -266,7 +266,7 @@ def _bench_compact(tol, rl, env, e_img, rots, mask, truth, p, probe, quick) -> d
     k = rl.rank
     # What a user would write instead: the same rank-k product with NumPy/BLAS on float32 data
     # (basis images (3, k, P), the brightest texels' rows (n, 3, P)), written into a frame.
-    per_pixel = read_halves(rl._v[:, :, :k]).transpose(1, 2, 0, 3).reshape(3, k, -1)[:, :, :p]
+    per_pixel = read_halves(rl._v[:, :k]).transpose(2, 1, 0, 3).reshape(3, k, -1)[:, :, :p]
     v32 = np.ascontiguousarray(per_pixel)
     coef = np.random.default_rng(0).random((3, k)).astype(np.float32)
     direct, _ = split_direct(lp, rl.transport.direct)
@@ -293,7 +293,7 @@ def _bench_compact(tol, rl, env, e_img, rots, mask, truth, p, probe, quick) -> d
            "ms_direction_stage": ms["direction"], "ms_call_per_100k": ms["call"] * per100k,
            "ms_kernel_per_100k": ms["kernel"] * per100k, "ms_numpy_twin": c_np,
            "ms_numpy_blas_same_product": ms["blas"], "ms_numpy_blas_product_only": ms["blas_product"],
-           "bytes": c_bytes, "gbps": c_bytes / ms["kernel"] / 1e6, "basis_padded": int(rl._v.shape[2])}
+           "bytes": c_bytes, "gbps": c_bytes / ms["kernel"] / 1e6, "basis_padded": int(rl._v.shape[1])}
     if truth is not None:
         ent["psnr_vs_truth"], ent["gain"] = _psnr(c_img, truth, mask)
     return ent

@@ -50,7 +50,7 @@ inline uint16 load_tail(__global const ushort *x, int n)
 }
 
 __kernel void relight_compact(
-    __global const uint16 *v, int rank, int kp,          /* (P / 32, 3, kp, 32) halves: the first `rank` used */
+    __global const uint16 *v, int rank, int kp,          /* (P / 32, kp, 3, 32) halves: the first `rank` used */
     __constant float4 *coef,                             /* (rank,) rgb coefficients */
     __global const ushort *rows, int plane,              /* (T, 3, plane) halves: texel-major maps */
     __constant float4 *direct, int n_direct,             /* (n,) rgb light of texel (int)w */
@@ -65,13 +65,13 @@ __kernel void relight_compact(
     float16 re = 0.0f, ro = 0.0f, ge = 0.0f, go = 0.0f, be = 0.0f, bo = 0.0f;
     for (int j = 0; j < rank; ++j) {
         float4 c = coef[j];
-        uint16 w = blk[j];
+        uint16 w = blk[3 * j];
         re += half_lo(w) * c.x;
         ro += half_hi(w) * c.x;
-        w = blk[kp + j];
+        w = blk[3 * j + 1];
         ge += half_lo(w) * c.y;
         go += half_hi(w) * c.y;
-        w = blk[2 * kp + j];
+        w = blk[3 * j + 2];
         be += half_lo(w) * c.z;
         bo += half_hi(w) * c.z;
     }

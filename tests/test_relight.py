@@ -181,3 +181,37 @@ def test_bundles_store_no_subnormal_halves(small_bundle):
         a = np.asarray(small_bundle.arrays[name])
         assert a.dtype == np.float16
         assert not ((a != 0) & (np.abs(a) < HALF_TINY)).any(), name
+
+
+def test_splat_keeps_power_and_the_hull_cone_skips_only_dark_texels(small_bundle):
+    from relight.kernels import transport
+
+    rng = np.random.default_rng(3)
+    dirs = rng.normal(size=(4000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    power = rng.random((4000, 3))
+    splatted = transport.splat(dirs, power, small_bundle.map_size)
+    np.testing.assert_allclose(splatted.sum(axis=0), power.sum(axis=0), rtol=1e-12)
+    lights = transport.EnvLights(dirs=dirs, power=power)
+    texels = np.asarray(small_bundle.map_texels)
+    cone = transport.hull_cone(small_bundle.map_size, texels)
+    assert -1.0 < cone[1] < 1.0  # a frontal capture's hull: some lights are skipped
+    everything = (np.array([0.0, 0.0, 1.0]), -1.0)
+    for angles in [(0, 0, 0), (35, -10, 5), (-60, 20, -15), (170, 0, 0)]:
+        r = rotation_matrix(*angles)
+        np.testing.assert_allclose(transport.texel_light(lights, r, small_bundle.map_size, texels, cone=cone),
+                                   transport.texel_light(lights, r, small_bundle.map_size, texels, cone=everything),
+                                   rtol=1e-12, atol=1e-15)
+
+
+def test_pocl_worker_threads_are_pinned_unless_the_user_chose(monkeypatch):
+    import os
+
+    from relight.kernels.runtime import pin_pocl_threads
+
+    monkeypatch.setenv("POCL_AFFINITY", "0")
+    assert not pin_pocl_threads() and os.environ["POCL_AFFINITY"] == "0"
+    monkeypatch.delenv("POCL_AFFINITY")
+    full = os.sched_getaffinity(0) == set(range(os.cpu_count()))
+    assert pin_pocl_threads() == full
+    assert os.environ.get("POCL_AFFINITY") == ("1" if full else None)
