@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import subprocess
 import sys
 import time
@@ -338,15 +339,23 @@ def _plot(doc, path):
     for row in doc["envs"]:
         xs = [e["ms_call_per_100k"] for e in row["paths"]]
         ys = [max(e["rel_l2_vs_exact"], 1e-5) for e in row["paths"]]
-        ax.plot(xs[1:], ys[1:], "o-", label=row["env"])
+        line, = ax.plot(xs[1:], ys[1:], "o-", label=row["env"])
         ax.plot(xs[:1], ys[:1], "k*", ms=9)
+        if row is doc["envs"][0]:
+            for e, x, y in zip(row["paths"][1:], xs[1:], ys[1:], strict=True):
+                ax.annotate(f"k={e['rank']}", (x, y), textcoords="offset points", xytext=(4, 5), fontsize=7,
+                            color=line.get_color())
     ax.set_xscale("log")
     ax.set_yscale("log")
+    ticks = [t for t in (0.5, 1, 2, 3, 5, 10, 20, 30, 50, 100) if min(ax.get_xlim()) <= t <= max(ax.get_xlim())]
+    ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
+    ax.minorticks_off()
     ax.axhline(0.01, color="0.6", lw=0.8, ls="--")
     ax.axvline(3.0, color="0.6", lw=0.8, ls=":")
+    ax.text(3.0, 0.012, " goal: <= 1 % at <= 3 ms / 100k px", fontsize=7, color="0.4")
     ax.set_xlabel("ms per relight per 100k face pixels (median, head turning every call)")
     ax.set_ylabel("relative L2 error vs the exact path (exact: star at 1e-5)")
-    ax.set_title(f"relight: error against run time ({doc['pixels']} px, 2-core CPU, PoCL)")
+    ax.set_title(f"relight: error against run time ({doc['pixels']} px, {os.cpu_count()}-core CPU, PoCL)")
     ax.legend(fontsize=8)
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
