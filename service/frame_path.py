@@ -1,0 +1,257 @@
+"""The per-frame path shared by ``relight filter`` and the service: track -> pose -> relight ->
+warp -> composite.
+
+:class:`FramePath` is the one stateful object: it holds the bundle, the relighting engine, the
+tracker, the pose estimator and its filter, and the environment. ``process(rgb, t)`` takes an
+(H, W, 3) uint8 sRGB frame and its time in seconds and returns the relit frame (uint8 sRGB,
+same size; the input unchanged where no face is found) and a :class:`FrameInfo`.
+
+Frames of any size work: tracking finds the face wherever it is; the warp maps the bundle's
+reference into the frame. Only the face's box is converted to linear light and back.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from relight.colour import decode_srgb8, encode_srgb8
+from relight.errors import InputError
+
+from . import composite
+from .pose import OneEuroFilter, PoseEstimator, camera_matrix, lift_landmarks
+from .tracking import MAX_TRACKED, FaceTracker, thin_points
+from .warp import face_ring, inverse_map, points_box, warp
+
+_LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
+#: Feather of the face mask: erosion and Gaussian sigma, as shares of the face's size.
+FEATHER_ERODE = 0.015
+FEATHER_SIGMA = 0.02
+#: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
+ANGLE_MIN_CUTOFF = 1.5
+ANGLE_BETA = 0.02
+GAIN_MIN_CUTOFF = 0.5
+
+
+@dataclass
+class FrameInfo:
+    """What happened to one frame: ``face`` found, ``angles`` (yaw, pitch, roll) in degrees of
+    the smoothed head rotation (None without a face), ``points`` tracked, ``timings`` ms."""
+
+    face: bool = False
+    angles: tuple[float, float, float] | None = None
+    raw_angles: tuple[float, float, float] | None = None
+    points: int = 0
+    note: str = ""
+    timings: dict = field(default_factory=dict)
+
+
+def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    m = cv2.remap(img.astype(np.float32), xy[:, 0:1].astype(np.float32), xy[:, 1:2].astype(np.float32),
+                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return m.reshape(-1)
+
+
+def largest_component(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the mask's largest 8-connected component, the same with its holes filled): specks of
+    a capture's mask on the wall would otherwise be composited as dots."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        raise InputError("the bundle's face mask is empty: capture the bundle again")
+    keep = (labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
+    contours, _ = cv2.findContours(keep, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    filled = np.zeros_like(keep)
+    cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
+    return keep.astype(bool) & mask, filled.astype(bool)
+
+
+class FramePath:
+    """Relights faces in frames with one bundle (see the module docstring).
+
+    mode : 'transfer' or 'paste'. strength : 0-1. fixed_env : keep the environment still relative
+    to the face (no head-rotation compensation). focal : the frames' focal length in pixels
+    (None: from the frame size, see :mod:`relight.service.pose`). exposure : stops (EV).
+    """
+
+    def __init__(self, bundle, env: np.ndarray, *, mode: str = "transfer", strength: float = 1.0,
+                 fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
+                 tolerance: float = 0.01, relighter=None):
+        from relight.kernels.relighter import Relighter
+
+        self.bundle = bundle
+        self.relighter = relighter if relighter is not None else Relighter(bundle, tolerance=tolerance)
+        self.set_mode(mode)
+        self.set_strength(strength)
+        self.set_exposure(exposure)
+        self.fixed_env = bool(fixed_env)
+        self.focal = focal
+        self.env = None
+        self.set_environment(env)
+        ref_w, ref_h = bundle.frame_size
+        self.ref_size = (ref_w, ref_h)
+        self.origin = tuple(int(v) for v in bundle.crop_origin)
+        mask_crop, solid = largest_component(np.asarray(bundle.mask_crop, dtype=bool))
+        self.mask_crop = mask_crop
+        h, w = mask_crop.shape
+        x0, y0 = self.origin
+        # Reference grey (the no-flash reference frame) and the landmarks' 3D model.
+        background = np.asarray(bundle.background)
+        self.ref_grey = cv2.cvtColor(np.ascontiguousarray(background), cv2.COLOR_RGB2GRAY)
+        landmarks = thin_points(np.asarray(bundle.landmarks, dtype=np.float32).reshape(-1, 2), MAX_TRACKED)
+        ring = face_ring(mask_crop) + np.array([x0, y0], np.float32)
+        depth = np.asarray(bundle.depth, dtype=np.float32)
+        # Depth off the mask (the ring, landmarks on the edge) from the nearest mask pixel.
+        from scipy.ndimage import distance_transform_edt
+
+        _, (iy, ix) = distance_transform_edt(~mask_crop, return_indices=True)
+        depth_filled = depth[iy, ix]
+        k_ref = camera_matrix(self.ref_size, focal)
+        pts = np.concatenate([landmarks, ring])
+        crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
+        model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
+        self.n_landmarks = len(landmarks)
+        self.ring_index = np.arange(len(landmarks), len(pts))
+        self.control_ref = pts
+        self.model = model
+        full_mask = np.zeros((ref_h, ref_w), dtype=bool)
+        full_mask[y0:y0 + h, x0:x0 + w] = mask_crop
+        self.tracker = FaceTracker(self.ref_grey, landmarks, full_mask)
+        # Feathered face mask (reference crop).
+        size = max(h, w)
+        er = max(int(round(FEATHER_ERODE * size)), 1)
+        m = cv2.erode(solid.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * er + 1,) * 2))
+        self.alpha_crop = cv2.GaussianBlur(m.astype(np.float32), (0, 0), FEATHER_SIGMA * size)
+        # Where the feathered mask reaches past the face, layers take the nearest face pixel's
+        # value (no dark or bright halo from the background the maps never saw).
+        fringe = (self.alpha_crop > 1e-3) & ~mask_crop
+        self.fringe_dst = np.flatnonzero(fringe)
+        self.fringe_src = (iy * w + ix).ravel()[self.fringe_dst]
+        self.ambient_crop = np.asarray(bundle.ambient, dtype=np.float32)
+        amb_lum = (self.ambient_crop[mask_crop] @ _LUM) if mask_crop.any() else np.zeros(1, np.float32)
+        self.ratio_eps = np.float32(composite.RATIO_EPS * max(float(np.median(amb_lum)), composite.TINY))
+        self.inv_ambient = (1.0 / (self.ambient_crop + self.ratio_eps)).astype(np.float32)
+        # Every 7th face pixel: enough for the median of the lighting ratio.
+        self.median_sample = np.flatnonzero(mask_crop.ravel())[::7]
+        self._estimators: dict[tuple[int, int], PoseEstimator] = {}
+        self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
+        self.gain_filter = OneEuroFilter(GAIN_MIN_CUTOFF, 0.0)
+
+    # ------------------------------------------------------------------ settings
+    def set_environment(self, env: np.ndarray) -> None:
+        self.relighter.lights(env)  # validates and converts once
+        self.env = env
+
+    def set_mode(self, mode: str) -> None:
+        if mode not in composite.MODES:
+            raise InputError(f"mode {mode!r}: use one of {', '.join(composite.MODES)}")
+        self.mode = mode
+
+    def set_strength(self, strength: float) -> None:
+        if not (np.isfinite(strength) and 0.0 <= strength <= 1.0):
+            raise InputError(f"strength {strength}: use a number from 0 to 1")
+        self.strength = float(strength)
+
+    def set_exposure(self, ev: float) -> None:
+        if not (np.isfinite(ev) and abs(ev) <= 20):
+            raise InputError(f"exposure {ev}: use stops (EV) between -20 and 20")
+        self.exposure = float(2.0 ** ev)
+
+    def _estimator(self, size: tuple[int, int]) -> PoseEstimator:
+        est = self._estimators.get(size)
+        if est is None:
+            est = PoseEstimator(self.model, size, self.focal)
+            self._estimators = {size: est}
+        return est
+
+    def reset(self) -> None:
+        """Forget the track and the filters (a new, unrelated video follows)."""
+        self.tracker.drop()
+        self.tracker.prev = None
+        self.angle_filter.reset()
+        self.gain_filter.reset()
+        for est in self._estimators.values():
+            est.last = None
+
+    # ------------------------------------------------------------------ per frame
+    def process(self, rgb: np.ndarray, t: float) -> tuple[np.ndarray, FrameInfo]:
+        info = FrameInfo()
+        tm = info.timings
+        t0 = time.perf_counter()
+        rgb = np.asarray(rgb)
+        if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+            raise InputError(f"frame of shape {rgb.shape} and type {rgb.dtype}: expected (H, W, 3) uint8 RGB")
+        h, w = rgb.shape[:2]
+        size = (w, h)
+        est = self._estimator(size)
+        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        last = est.last
+        predict = (lambda idx: est.project(last, idx)) if last is not None else None
+        track = self.tracker.update(grey, predict)
+        tm["track"] = (time.perf_counter() - t0) * 1e3
+        t1 = time.perf_counter()
+        pose = est.solve(track.ref_index, track.xy) if track is not None else None
+        if pose is None:
+            if track is not None:
+                self.tracker.drop()
+            self.angle_filter.reset()
+            tm["pose"] = (time.perf_counter() - t1) * 1e3
+            info.note = "no face found" if track is None else "no consistent head pose"
+            tm["total"] = (time.perf_counter() - t0) * 1e3
+            return rgb, info
+        angles = self.angle_filter(pose.angles, t)
+        from relight.directions import rotation_matrix
+
+        rotation = rotation_matrix(*angles)
+        info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles
+        keep = pose.inliers
+        info.points = int(keep.size)
+        tm["pose"] = (time.perf_counter() - t1) * 1e3
+        t2 = time.perf_counter()
+        img = self.relighter.relight(self.env, None if self.fixed_env else rotation, exposure=self.exposure)
+        x0, y0 = self.origin
+        ch, cw = self.mask_crop.shape
+        relit = img[y0:y0 + ch, x0:x0 + cw]
+        tm["relight"] = (time.perf_counter() - t2) * 1e3
+        t3 = time.perf_counter()
+        ref_idx = track.ref_index[keep]
+        cur = np.concatenate([track.xy[keep], est.project(pose, self.ring_index)])
+        ref = np.concatenate([self.control_ref[ref_idx], self.control_ref[self.ring_index]])
+        box = points_box(cur, size)
+        mapping = inverse_map(cur, ref, box) if box is not None else None
+        if mapping is None:
+            info.face = False
+            info.note = "face outside the frame"
+            tm["warp"] = (time.perf_counter() - t3) * 1e3
+            tm["total"] = (time.perf_counter() - t0) * 1e3
+            return rgb, info
+        alpha = warp(self.alpha_crop, mapping, self.origin)
+        if self.mode == "transfer":
+            ratio = (relit + self.ratio_eps) * self.inv_ambient
+            lum = ratio.reshape(-1, 3)[self.median_sample] @ _LUM
+            med = float(np.median(lum)) if lum.size else 1.0
+        else:
+            ratio = np.array(relit)
+        flat = ratio.reshape(-1, 3)
+        flat[self.fringe_dst] = flat[self.fringe_src]
+        layer = warp(ratio, mapping, self.origin)
+        tm["warp"] = (time.perf_counter() - t3) * 1e3
+        t4 = time.perf_counter()
+        bx0, by0, bx1, by1 = box
+        frame_lin = decode_srgb8(rgb[by0:by1, bx0:bx1])
+        if self.mode == "transfer":
+            gain = 1.0 / med if med > composite.TINY else 1.0
+        else:
+            gain = composite.median_gain(frame_lin, layer, alpha)
+        gain = float(np.exp(self.gain_filter([np.log(max(gain, 1e-6))], t)[0]))
+        if self.mode == "transfer":
+            out_lin = composite.transfer(frame_lin, layer, alpha, gain * self.exposure, self.strength)
+        else:
+            out_lin = composite.paste(frame_lin, layer, alpha, gain * self.exposure, self.strength)
+        out = rgb.copy()
+        out[by0:by1, bx0:bx1] = encode_srgb8(out_lin)
+        tm["composite"] = (time.perf_counter() - t4) * 1e3
+        tm["total"] = (time.perf_counter() - t0) * 1e3
+        return out, info

@@ -1,0 +1,161 @@
+"""Head pose from tracked landmarks: PnP with RANSAC against the bundle's depth, One Euro smoothing.
+
+The model: each reference landmark lifted to 3D with the bundle's depth (pixels toward the
+camera), placed so that a pinhole camera of focal length ``f_ref`` at the reference frame's
+centre sees it exactly where the reference shows it (the reference pose is the identity). A
+frame's pose is ``cv2.solvePnPRansac`` against that model with the frame's own camera (focal
+length given, or ``DEFAULT_FOCAL`` x the frame's larger side: a phone or webcam of ~60-degree
+field of view); a very long focal length models the orthographic synthetic camera.
+
+Rotations handed out are in relight's camera space (+X right, +Y up, +Z toward the camera; see
+:mod:`relight.directions`): ``R`` turns the reference head into this frame's head, and
+``relight.directions.rotation_angles(R)`` gives (yaw, pitch, roll) in degrees. OpenCV's camera
+space (+Y down, +Z away) is converted at this boundary only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from relight.directions import rotation_angles, rotation_matrix
+
+#: Default focal length as a multiple of the frame's larger side.
+DEFAULT_FOCAL = 0.85
+#: RANSAC reprojection threshold (px at 540 rows) and iterations.
+RANSAC_PX_AT_540 = 2.5
+RANSAC_ITERATIONS = 60
+#: Fewest RANSAC inliers for a pose to be believed.
+MIN_INLIERS = 8
+#: relight camera space <-> OpenCV camera space (flip Y and Z).
+_FLIP = np.diag([1.0, -1.0, -1.0])
+
+
+def camera_matrix(size: tuple[int, int], focal: float | None = None) -> np.ndarray:
+    """3x3 pinhole intrinsics for a (width, height) frame: principal point at the centre."""
+    w, h = size
+    f = float(focal) if focal else DEFAULT_FOCAL * max(w, h)
+    if not (np.isfinite(f) and f > 0):
+        raise ValueError(f"focal length {focal}: use a positive number of pixels")
+    return np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
+
+
+def lift_landmarks(landmarks: np.ndarray, depth_at: np.ndarray, k_ref: np.ndarray) -> np.ndarray:
+    """(N, 3) float64 model points (OpenCV camera space of the reference) of reference pixels
+    ``landmarks`` (N, 2) with depths ``depth_at`` (N,) pixels toward the camera.
+
+    The head's reference distance is one focal length (a model unit is one reference pixel at
+    that distance), nearer by each point's depth."""
+    f, cx, cy = k_ref[0, 0], k_ref[0, 2], k_ref[1, 2]
+    z = f - np.asarray(depth_at, dtype=np.float64)
+    z = np.maximum(z, 0.05 * f)  # a depth beyond the camera would be a broken bundle: keep it in front
+    x = (landmarks[:, 0] - cx) * z / f
+    y = (landmarks[:, 1] - cy) * z / f
+    return np.stack([x, y, z], axis=1)
+
+
+@dataclass
+class Pose:
+    """A frame's head pose: R (3x3, relight camera space, reference -> frame), the OpenCV
+    rvec/tvec that project the model, and the RANSAC inliers (indices into the track)."""
+
+    rotation: np.ndarray
+    rvec: np.ndarray
+    tvec: np.ndarray
+    inliers: np.ndarray
+
+    @property
+    def angles(self) -> tuple[float, float, float]:
+        return rotation_angles(self.rotation)
+
+
+class PoseEstimator:
+    """PnP + RANSAC of tracked landmarks against the model, warm-started from the last pose."""
+
+    def __init__(self, model: np.ndarray, frame_size: tuple[int, int], focal: float | None = None):
+        self.model = np.asarray(model, dtype=np.float64)
+        self.k = camera_matrix(frame_size, focal)
+        self.frame_size = frame_size
+        self.last: Pose | None = None
+
+    def solve(self, ref_index: np.ndarray, xy: np.ndarray) -> Pose | None:
+        if len(ref_index) < MIN_INLIERS:
+            self.last = None
+            return None
+        obj = self.model[ref_index]
+        img = np.asarray(xy, dtype=np.float64).reshape(-1, 1, 2)
+        thr = RANSAC_PX_AT_540 * self.frame_size[1] / 540.0
+        guess = self.last is not None
+        rvec0 = self.last.rvec.copy() if guess else np.zeros((3, 1))
+        tvec0 = self.last.tvec.copy() if guess else np.zeros((3, 1))
+        try:
+            ok, rvec, tvec, inl = cv2.solvePnPRansac(obj.reshape(-1, 1, 3), img, self.k, None, rvec0, tvec0,
+                                                     useExtrinsicGuess=guess, iterationsCount=RANSAC_ITERATIONS,
+                                                     reprojectionError=thr, confidence=0.99,
+                                                     flags=cv2.SOLVEPNP_EPNP if not guess else cv2.SOLVEPNP_ITERATIVE)
+        except cv2.error:
+            ok = False
+        if not ok or inl is None or len(inl) < MIN_INLIERS:
+            self.last = None
+            return None
+        inl = inl.ravel()
+        # Refine on the inliers (Levenberg-Marquardt from the RANSAC pose).
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl].reshape(-1, 1, 3), img[inl], self.k, None, rvec, tvec)
+        r_cv, _ = cv2.Rodrigues(rvec)
+        # The model sits in the reference camera's space: a plausible pose keeps it in front.
+        if not (np.isfinite(rvec).all() and np.isfinite(tvec).all()) or \
+                ((obj[inl] @ r_cv.T)[:, 2] + tvec[2, 0]).min() <= 0:
+            self.last = None
+            return None
+        pose = Pose(rotation=_FLIP @ r_cv @ _FLIP, rvec=rvec, tvec=tvec, inliers=inl)
+        self.last = pose
+        return pose
+
+    def project(self, pose: Pose, ref_index: np.ndarray) -> np.ndarray:
+        """(M, 2) frame positions of model points ``ref_index`` under ``pose``."""
+        pts, _ = cv2.projectPoints(self.model[ref_index].reshape(-1, 1, 3), pose.rvec, pose.tvec, self.k, None)
+        return pts.reshape(-1, 2)
+
+
+class OneEuroFilter:
+    """The One Euro filter (Casiez et al. 2012) on a vector: smooth when still, no lag when moving.
+
+    ``min_cutoff`` (Hz) sets the smoothing at rest, ``beta`` how fast the cutoff rises with speed.
+    Timestamps in seconds (variable frame rate is fine); a non-increasing one resets the filter.
+    """
+
+    def __init__(self, min_cutoff: float = 1.0, beta: float = 0.05, d_cutoff: float = 1.0):
+        self.min_cutoff, self.beta, self.d_cutoff = float(min_cutoff), float(beta), float(d_cutoff)
+        self.x = None
+        self.dx = None
+        self.t = None
+
+    @staticmethod
+    def _alpha(cutoff: float, dt: float) -> float:
+        tau = 1.0 / (2.0 * np.pi * cutoff)
+        return 1.0 / (1.0 + tau / dt)
+
+    def reset(self) -> None:
+        self.x = self.dx = self.t = None
+
+    def __call__(self, x, t: float) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        if self.x is None or self.t is None or not (t > self.t):
+            self.x, self.dx, self.t = x.copy(), np.zeros_like(x), float(t)
+            return x.copy()
+        dt = float(t) - self.t
+        dx = (x - self.x) / dt
+        a_d = self._alpha(self.d_cutoff, dt)
+        self.dx = self.dx + a_d * (dx - self.dx)
+        cutoff = self.min_cutoff + self.beta * np.abs(self.dx)
+        a = 1.0 / (1.0 + 1.0 / (2.0 * np.pi * cutoff * dt))
+        self.x = self.x + a * (x - self.x)
+        self.t = float(t)
+        return self.x.copy()
+
+
+def smooth_rotation(filt: OneEuroFilter, rotation: np.ndarray, t: float) -> np.ndarray:
+    """Filter a rotation through its (yaw, pitch, roll) angles (fine within +-90 deg pitch)."""
+    return rotation_matrix(*filt(rotation_angles(rotation), t))

@@ -1,0 +1,195 @@
+"""Face tracking: the bundle's reference landmarks followed through a video.
+
+Every tracked point keeps the index of the reference landmark it came from, so it carries that
+landmark's 3D position (for the head pose) and its reference position (for the warp).
+
+* Acquire: OpenCV's Haar cascade finds the face in the frame (on a downscaled copy) and in the
+  reference; the box pair gives a similarity guess for every landmark; pyramidal Lucas-Kanade
+  from the reference (brightness matched inside the face box) refines it; forward-backward
+  checked. No face, or too few points survive: no track (the caller passes the frame through).
+* Track: pyramidal LK from the previous frame, forward-backward checked.
+* Re-anchor: every ``REANCHOR_EVERY`` frames, or when the points thin out, the landmarks are
+  searched again from the reference, starting where the current pose puts them (drift and lost
+  points come back); a track that cannot be re-anchored for long is dropped and re-detected.
+
+Images are (H, W) uint8 grey; points are (N, 2) float32 frame pixels (x right, y down).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from relight.pipeline.registration import _cascade
+
+#: Lucas-Kanade window (px, at 540 rows; scaled with the frame), pyramid levels, iterations.
+LK_WINDOW_AT_540 = 15
+LK_LEVELS = 3
+LK_ITERATIONS = 20
+#: Most landmarks followed (the bundle's, thinned evenly over the face).
+MAX_TRACKED = 120
+#: Largest forward-backward disagreement kept (px, at 540 rows).
+FB_MAX_AT_540 = 0.8
+#: Fewest points a track needs; below this the face counts as lost.
+MIN_POINTS = 8
+#: Re-anchor from the reference this often (frames), or when fewer than this share of the
+#: landmarks is left.
+REANCHOR_EVERY = 10
+REANCHOR_BELOW = 0.6
+#: Haar detection runs on a copy at most this many rows high.
+DETECT_ROWS = 360
+
+
+@dataclass
+class Track:
+    """Points of one frame: ``ref_index`` (M,) landmark indices, ``xy`` (M, 2) float32 positions."""
+
+    ref_index: np.ndarray
+    xy: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.ref_index.size)
+
+
+def detect_face_box(grey: np.ndarray) -> tuple[int, int, int, int] | None:
+    """The largest frontal face (x, y, w, h) in a grey frame, or None (detected on a small copy)."""
+    h, w = grey.shape
+    s = min(1.0, DETECT_ROWS / h)
+    small = cv2.resize(grey, (max(int(w * s), 1), max(int(h * s), 1)), interpolation=cv2.INTER_AREA) if s < 1 else grey
+    faces = _cascade().detectMultiScale(small, scaleFactor=1.1, minNeighbors=5,
+                                        minSize=(max(small.shape[0] // 12, 24),) * 2)
+    if len(faces) == 0:
+        return None
+    x, y, fw, fh = max(faces, key=lambda f: f[2] * f[3])
+    return int(x / s), int(y / s), int(fw / s), int(fh / s)
+
+
+def thin_points(points: np.ndarray, n: int) -> np.ndarray:
+    """At most ``n`` of ``points`` (N, 2), spread evenly (farthest-point order from the first)."""
+    if len(points) <= n:
+        return points
+    chosen = [0]
+    d = np.linalg.norm(points - points[0], axis=1)
+    for _ in range(n - 1):
+        k = int(np.argmax(d))
+        chosen.append(k)
+        d = np.minimum(d, np.linalg.norm(points - points[k], axis=1))
+    return points[np.sort(chosen)]
+
+
+class FaceTracker:
+    """Follows the reference landmarks (N, 2) of ``reference`` (grey uint8) through frames."""
+
+    def __init__(self, reference: np.ndarray, landmarks: np.ndarray, mask: np.ndarray):
+        self.reference = np.ascontiguousarray(reference)
+        self.landmarks = thin_points(np.asarray(landmarks, dtype=np.float32).reshape(-1, 2), MAX_TRACKED)
+        if len(self.landmarks) < MIN_POINTS:
+            raise ValueError(f"the bundle has {len(self.landmarks)} landmarks; tracking needs {MIN_POINTS}")
+        self.mask = mask
+        box = detect_face_box(self.reference)
+        if box is None:  # the reference face as the mask's bounding box
+            ys, xs = np.nonzero(mask)
+            box = (int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1)
+        self.ref_box = box
+        self.prev: np.ndarray | None = None
+        self.track: Track | None = None
+        self.age = 0
+
+    def _lk_params(self, rows: int) -> tuple[dict, float]:
+        s = rows / 540.0
+        win = int(max(9, round(LK_WINDOW_AT_540 * s)) | 1)
+        return (dict(winSize=(win, win), maxLevel=LK_LEVELS,
+                     criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, LK_ITERATIONS, 0.02)),
+                max(FB_MAX_AT_540 * s, 0.5))
+
+    def _flow(self, a: np.ndarray, b: np.ndarray, pts: np.ndarray, guess: np.ndarray | None = None):
+        """LK a -> b with a forward-backward check: (new points, ok mask). (OpenCV's Python
+        binding cannot take prebuilt pyramids, so each call builds its own.)"""
+        params, fb_max = self._lk_params(b.shape[0])
+        p0 = pts.reshape(-1, 1, 2).astype(np.float32)
+        if guess is not None:
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, guess.reshape(-1, 1, 2).astype(np.float32).copy(),
+                                                 flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)
+        else:
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **params)
+        back, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)
+        err = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
+        ok = (st.ravel() == 1) & (st2.ravel() == 1) & (err < fb_max)
+        h, w = b.shape
+        p1 = p1.reshape(-1, 2)
+        ok &= (p1[:, 0] >= 0) & (p1[:, 0] < w) & (p1[:, 1] >= 0) & (p1[:, 1] < h)
+        return p1, ok
+
+    def _matched_reference(self, grey: np.ndarray, box) -> np.ndarray:
+        """The reference with its face box's brightness and contrast matched to ``box`` of ``grey``."""
+        rx, ry, rw, rh = self.ref_box
+        x, y, w, h = box
+        a = self.reference[ry:ry + rh, rx:rx + rw].astype(np.float32)
+        b = grey[max(y, 0):y + h, max(x, 0):x + w].astype(np.float32)
+        if a.size < 16 or b.size < 16:
+            return self.reference
+        gain = float(b.std()) / max(float(a.std()), 1.0)
+        gain = float(np.clip(gain, 0.25, 4.0))
+        off = float(b.mean()) - gain * float(a.mean())
+        return cv2.convertScaleAbs(self.reference, alpha=gain, beta=off)
+
+    def from_reference(self, grey: np.ndarray, guess: np.ndarray, index: np.ndarray | None = None,
+                       box=None) -> Track | None:
+        """Landmarks (all, or ``index``) searched in ``grey`` from the reference, starting at ``guess``."""
+        idx = np.arange(len(self.landmarks)) if index is None else np.asarray(index)
+        if box is None:
+            xs, ys = guess[:, 0], guess[:, 1]
+            box = (int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1)
+        ref = self._matched_reference(grey, box)
+        pts, ok = self._flow(ref, grey, self.landmarks[idx], guess)
+        if ok.sum() < MIN_POINTS:
+            return None
+        return Track(ref_index=idx[ok], xy=pts[ok].astype(np.float32))
+
+    def acquire(self, grey: np.ndarray) -> Track | None:
+        """Find the face from scratch: Haar box -> similarity guess -> LK from the reference."""
+        box = detect_face_box(grey)
+        if box is None:
+            return None
+        rx, ry, rw, _ = self.ref_box
+        x, y, w, _ = box
+        s = w / max(rw, 1)
+        guess = (self.landmarks - np.array([rx, ry], np.float32)) * s + np.array([x, y], np.float32)
+        return self.from_reference(grey, guess, box=box)
+
+    def update(self, grey: np.ndarray, predict=None) -> Track | None:
+        """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
+        current pose puts landmarks (used to re-anchor); without it tracks are only followed."""
+        grey = np.ascontiguousarray(grey)
+        track = None
+        if self.track is not None and self.prev is not None and self.prev.shape == grey.shape:
+            pts, ok = self._flow(self.prev, grey, self.track.xy)
+            if ok.sum() >= MIN_POINTS:
+                track = Track(ref_index=self.track.ref_index[ok], xy=pts[ok].astype(np.float32))
+        self.age += 1
+        if track is not None and predict is not None and (
+                self.age >= REANCHOR_EVERY or len(track) < REANCHOR_BELOW * len(self.landmarks)):
+            idx = np.arange(len(self.landmarks))
+            guess = np.asarray(predict(idx), dtype=np.float32)
+            h, w = grey.shape
+            inside = (guess[:, 0] >= 0) & (guess[:, 0] < w) & (guess[:, 1] >= 0) & (guess[:, 1] < h)
+            fresh = self.from_reference(grey, guess[inside], idx[inside]) if inside.sum() >= MIN_POINTS else None
+            if fresh is not None:
+                # Keep the followed points and add (or correct) the ones found again.
+                merged = dict(zip(track.ref_index.tolist(), track.xy, strict=True))
+                merged.update(zip(fresh.ref_index.tolist(), fresh.xy, strict=True))
+                keys = np.fromiter(merged.keys(), dtype=np.int64)
+                track = Track(ref_index=keys, xy=np.array([merged[k] for k in keys], dtype=np.float32))
+                self.age = 0
+        if track is None:
+            track = self.acquire(grey)
+            self.age = 0
+        self.track = track
+        self.prev = grey
+        return track
+
+    def drop(self) -> None:
+        """Forget the current track (the next frame acquires the face again)."""
+        self.track = None

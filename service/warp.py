@@ -1,0 +1,92 @@
+"""Landmark-based warp from the reference into a frame: piecewise affine over a triangulation.
+
+The control points are the tracked landmarks (reference position -> frame position) plus a ring
+around the face whose frame positions come from the head pose (so the triangulation covers the
+whole face, its outline included). The inverse map (frame pixel -> reference position) is
+piecewise affine: exact at a coarse grid of ``GRID_STEP`` pixels, bilinear between (the
+triangles are far larger than the grid), then one ``cv2.remap`` per image.
+
+Coordinates: (x right, y down) pixels; ``box`` = (x0, y0, x1, y1), x1/y1 exclusive.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.spatial import Delaunay, QhullError
+
+#: Spacing (px) of the grid at which the piecewise-affine map is evaluated exactly.
+GRID_STEP = 8
+#: Reference position given to frame pixels outside the triangulation (remap reads zeros there).
+OUTSIDE = -1.0e4
+
+
+def face_ring(mask: np.ndarray, count: int = 32, margin: float = 0.06) -> np.ndarray:
+    """(count, 2) float32 points on a ring around the mask, ``margin`` x its size outside it."""
+    m = mask.astype(np.uint8)
+    ys, xs = np.nonzero(m)
+    size = max(float(np.ptp(xs)), float(np.ptp(ys)), 1.0)
+    r = max(int(round(margin * size)), 2)
+    grown = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    contours, _ = cv2.findContours(grown, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    c = max(contours, key=len).reshape(-1, 2).astype(np.float32)
+    step = len(c) / count
+    return c[(np.arange(count) * step).astype(int)]
+
+
+def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int],
+                step: int = GRID_STEP) -> np.ndarray | None:
+    """(H_box, W_box, 2) float32 reference positions of the frame pixels in ``box``.
+
+    cur, ref : (M, 2) control points in the frame and in the reference. None when the points
+    cannot be triangulated (fewer than 3, or all on a line).
+    """
+    x0, y0, x1, y1 = box
+    w, h = x1 - x0, y1 - y0
+    if w <= 0 or h <= 0 or len(cur) < 3:
+        return None
+    try:
+        tri = Delaunay(np.asarray(cur, dtype=np.float64))
+    except (QhullError, ValueError):
+        return None
+    gw, gh = -(-w // step), -(-h // step)
+    # Grid points sit where cv2.resize's bilinear upsampling puts its samples (pixel centres).
+    gx = x0 + (np.arange(gw) + 0.5) * step - 0.5
+    gy = y0 + (np.arange(gh) + 0.5) * step - 0.5
+    pts = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
+    s = tri.find_simplex(pts)
+    inside = s >= 0
+    t = tri.transform[s[inside]]
+    b = np.einsum("nij,nj->ni", t[:, :2], pts[inside] - t[:, 2])
+    bary = np.concatenate([b, 1.0 - b.sum(axis=1, keepdims=True)], axis=1)
+    verts = tri.simplices[s[inside]]
+    out = np.full((pts.shape[0], 2), OUTSIDE, dtype=np.float64)
+    out[inside] = np.einsum("nk,nkj->nj", bary, np.asarray(ref, dtype=np.float64)[verts])
+    coarse = out.reshape(gh, gw, 2).astype(np.float32)
+    if step == 1:
+        return coarse[:h, :w]
+    full = cv2.resize(coarse, (gw * step, gh * step), interpolation=cv2.INTER_LINEAR)[:h, :w]
+    # Pixels between a grid point inside the triangulation and one outside would interpolate
+    # toward OUTSIDE and land anywhere: they are outside too.
+    valid = cv2.resize(inside.reshape(gh, gw).astype(np.float32), (gw * step, gh * step),
+                       interpolation=cv2.INTER_LINEAR)[:h, :w]
+    full[valid < 0.999] = OUTSIDE
+    return full
+
+
+def warp(image: np.ndarray, mapping: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+    """``image`` (a reference crop whose top-left pixel is reference ``origin``) sampled at
+    ``mapping`` (reference positions): zeros outside the crop."""
+    mx = mapping[..., 0] - np.float32(origin[0])
+    my = mapping[..., 1] - np.float32(origin[1])
+    return cv2.remap(image, mx, my, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def points_box(points: np.ndarray, size: tuple[int, int], pad: int = 2) -> tuple[int, int, int, int] | None:
+    """Integer box around points, padded and clipped to a (width, height) frame; None if empty."""
+    w, h = size
+    x0 = max(int(np.floor(points[:, 0].min())) - pad, 0)
+    y0 = max(int(np.floor(points[:, 1].min())) - pad, 0)
+    x1 = min(int(np.ceil(points[:, 0].max())) + pad + 1, w)
+    y1 = min(int(np.ceil(points[:, 1].max())) + pad + 1, h)
+    return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
