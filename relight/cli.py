@@ -326,6 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_render(sub)
     _add_bench(sub)
     _add_demo(sub)
+    from .service.filter_cli import add_filter_parser
+
+    add_filter_parser(sub)
     return parser
 
 

@@ -1,0 +1,305 @@
+"""``relight filter``: a virtual-camera-style batch filter over a video or an image sequence.
+
+Decodes any container FFmpeg reads (PyAV), relights each frame with :class:`FramePath`, and
+writes the result: H.264 in .mp4/.mov/.mkv/.avi, VP9 in .webm, or PNG frames when OUT is a
+folder. The audio stream is copied packet for packet (re-encoded to AAC only when the output
+container cannot hold its codec) and every frame keeps its timestamp, so variable frame rate
+survives. OUT appears only complete (temporary file + rename). Frames where nothing can be done
+(no face) pass through unchanged and are counted.
+
+The per-frame timings cover the per-frame path only (track + pose + relight + warp +
+composite); decoding and encoding run beside it and are reported separately.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from relight.errors import InputError
+from relight.imageio import atomic_path
+
+#: Image files read as a sequence when IN is a folder.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", ".bmp")
+MAX_SEQUENCE = 100_000
+#: Output containers and their video codecs.
+VIDEO_CODECS = {".mp4": "libx264", ".mov": "libx264", ".mkv": "libx264", ".avi": "libx264", ".webm": "libvpx-vp9"}
+#: Audio codecs each container takes as they are (others are re-encoded).
+AUDIO_COPY = {".mp4": {"aac", "mp3", "alac", "opus"}, ".mov": {"aac", "mp3", "alac", "pcm_s16le"},
+              ".mkv": None, ".webm": {"opus", "vorbis"}, ".avi": {"mp3", "pcm_s16le", "aac"}}
+
+
+@dataclass
+class FilterResult:
+    out: Path
+    frames: int = 0
+    faces: int = 0
+    passed_through: int = 0
+    audio: str = "none"
+    head_rotation: dict = field(default_factory=dict)
+    timings_ms: dict = field(default_factory=dict)
+    wall_s: float = 0.0
+    start_s: float = 0.0
+    notes: list = field(default_factory=list)
+
+    def summary(self) -> str:
+        t = self.timings_ms.get("total", {})
+        return (f"{self.frames} frames ({self.faces} with a face, {self.passed_through} passed through), audio "
+                f"{self.audio}; per-frame path median {t.get('median', 0):.1f} ms, p99 {t.get('p99', 0):.1f} ms; "
+                f"{self.wall_s:.1f} s in all (start {self.start_s:.1f} s)")
+
+
+def _stats(values) -> dict:
+    v = np.asarray(values, dtype=np.float64)
+    if not v.size:
+        return {}
+    return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)), "p99": float(np.percentile(v, 99)),
+            "max": float(v.max()), "mean": float(v.mean())}
+
+
+def _sequence(folder: Path) -> list[Path]:
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+    if not files:
+        raise InputError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+    if len(files) > MAX_SEQUENCE:
+        raise InputError(f"{folder}: more than {MAX_SEQUENCE} images; split the sequence")
+    return files
+
+
+def _read_rgb8(path: Path) -> np.ndarray:
+    from relight.colour import encode_srgb8
+    from relight.imageio import read_image
+
+    img = read_image(path, linearize=path.suffix.lower() not in (".exr",))
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    return encode_srgb8(np.clip(img[..., :3], 0.0, 1.0))
+
+
+class _VirtualCamera:
+    """Frames to a virtual camera through pyvirtualcam (an optional extra)."""
+
+    def __init__(self, size, fps):
+        try:
+            import pyvirtualcam
+        except ImportError:
+            raise InputError("--virtual-camera needs pyvirtualcam: pip install 'relight[virtualcam]' "
+                             "(and a virtual camera driver such as v4l2loopback on Linux)") from None
+        try:
+            self.cam = pyvirtualcam.Camera(width=size[0], height=size[1], fps=fps)
+        except Exception as exc:  # the library raises RuntimeError and others when no device exists
+            raise InputError(f"no virtual camera device available ({exc}); on Linux load v4l2loopback") from None
+
+    def send(self, rgb):
+        self.cam.send(rgb)
+
+    def close(self):
+        self.cam.close()
+
+
+def run_filter(inp, out, bundle, env, *, mode: str = "transfer", fixed_env: bool = False, strength: float = 1.0,
+               exposure: float = 0.0, focal: float | None = None, fps: float = 30.0, crf: int = 18,
+               report_dir=None, virtual_camera: bool = False, progress: bool = True, frame_path=None,
+               start_time: float | None = None) -> FilterResult:
+    """Relight the faces of ``inp`` (a video file or a folder of images) into ``out``."""
+    from tqdm import tqdm
+
+    from .frame_path import FramePath
+
+    t_start = time.perf_counter() if start_time is None else start_time
+    inp, out = Path(inp), Path(out)
+    if inp.resolve() == out.resolve():
+        raise InputError(f"{out}: the output would overwrite the input; choose another name")
+    fp = frame_path or FramePath(bundle, env, mode=mode, strength=strength, fixed_env=fixed_env, focal=focal,
+                                 exposure=exposure)
+    res = FilterResult(out=out)
+    res.start_s = time.perf_counter() - t_start
+    stages: dict[str, list] = {k: [] for k in ("track", "pose", "relight", "warp", "composite", "total")}
+    cam = None
+
+    def handle(rgb, t, index):
+        nonlocal cam
+        frame_out, info = fp.process(rgb, t)
+        res.frames += 1
+        if info.face:
+            res.faces += 1
+            res.head_rotation[str(index)] = [round(a, 3) for a in info.angles]
+        else:
+            res.passed_through += 1
+        for k in stages:
+            stages[k].append(info.timings.get(k, 0.0))
+        if virtual_camera:
+            if cam is None:
+                cam = _VirtualCamera((rgb.shape[1], rgb.shape[0]), fps)
+            cam.send(frame_out)
+        return frame_out
+
+    try:
+        if inp.is_dir():
+            _filter_sequence(inp, out, handle, fps, crf, res, progress, tqdm)
+        else:
+            _filter_video(inp, out, handle, crf, res, progress, tqdm)
+    finally:
+        if cam is not None:
+            cam.close()
+    if res.frames == 0:
+        raise InputError(f"{inp}: no frames could be read")
+    res.timings_ms = {k: _stats(v) for k, v in stages.items()}
+    res.wall_s = time.perf_counter() - t_start
+    if res.faces == 0:
+        res.notes.append("no face was found in any frame: the output is the input, unchanged")
+    if report_dir is not None:
+        write_report(Path(report_dir), res, inp)
+    return res
+
+
+def write_report(folder: Path, res: FilterResult, inp: Path) -> Path:
+    """``report.json``: head_rotation {frame index: [yaw, pitch, roll] deg}, timings, counts."""
+    folder.mkdir(parents=True, exist_ok=True)
+    doc = {"input": str(inp), "output": str(res.out), "frames": res.frames, "faces": res.faces,
+           "passed_through": res.passed_through, "audio": res.audio,
+           "head_rotation": res.head_rotation,
+           "head_rotation_convention": "yaw, pitch, roll in degrees, R = Ry(yaw) Rx(pitch) Rz(roll) about camera "
+                                       "+Y, +X, +Z (relight camera space), relative to the bundle's reference pose",
+           "timings_ms": res.timings_ms, "wall_s": res.wall_s, "start_s": res.start_s, "notes": res.notes}
+    path = folder / "report.json"
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(doc, indent=1))
+    return path
+
+
+def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
+    from relight.imageio import write_image
+    from relight.video import VideoWriter
+
+    files = _sequence(folder)
+    first = _read_rgb8(files[0])
+    size = (first.shape[1], first.shape[0])
+    if out.suffix.lower() in VIDEO_CODECS:
+        if size[0] % 2 or size[1] % 2:
+            raise InputError(f"{folder}: images are {size[0]}x{size[1]}; H.264 needs even sizes (crop them)")
+        with VideoWriter(out, fps, size, crf=crf) as wr:
+            for i, f in enumerate(tqdm(files, desc="filter", unit="frame", disable=not progress)):
+                rgb = first if i == 0 else _read_rgb8(f)
+                if rgb.shape != first.shape:
+                    raise InputError(f"{f}: {rgb.shape[1]}x{rgb.shape[0]}, the sequence started at "
+                                     f"{size[0]}x{size[1]}; all images must have one size")
+                wr.write(handle(rgb, i / fps, i))
+        return
+    # A folder of PNG frames: written into a temporary folder, renamed when complete.
+    import shutil
+    import tempfile
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        for i, f in enumerate(tqdm(files, desc="filter", unit="frame", disable=not progress)):
+            rgb = first if i == 0 else _read_rgb8(f)
+            write_image(tmp / f"{i:06d}.png", handle(rgb, i / fps, i))
+        if out.exists():
+            if not out.is_dir() or any(out.iterdir()):
+                raise InputError(f"{out}: exists and is not an empty folder; choose another output")
+            out.rmdir()
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _filter_video(inp, out, handle, crf, res, progress, tqdm):
+    import av
+
+    from relight.video import MAX_VIDEO_FRAMES, _to_rgb, _to_yuv, probe_video
+
+    info = probe_video(inp)
+    suffix = out.suffix.lower()
+    if suffix not in VIDEO_CODECS:
+        raise InputError(f"{out}: write {', '.join(VIDEO_CODECS)} (or give a folder for PNG frames)")
+    if info.width % 2 or info.height % 2:
+        raise InputError(f"{inp}: {info.width}x{info.height}; the output codec needs even sizes (crop the video)")
+    with atomic_path(out) as tmp, av.open(str(inp)) as src, av.open(str(tmp), mode="w") as dst:
+        vin = src.streams.video[0]
+        vin.thread_type = "AUTO"
+        ain = src.streams.audio[0] if src.streams.audio else None
+        rate = vin.average_rate or vin.guessed_rate or Fraction(30)
+        vout = dst.add_stream(VIDEO_CODECS[suffix], rate=rate)
+        vout.width, vout.height = info.width, info.height
+        vout.pix_fmt = "yuv420p"
+        tb = vin.time_base or Fraction(1, 90000)
+        vout.time_base = tb
+        vout.codec_context.time_base = tb
+        vout.options = {"crf": str(crf), "preset": "veryfast"} if VIDEO_CODECS[suffix] == "libx264" else \
+            {"crf": str(crf + 12), "b": "0", "deadline": "realtime", "cpu-used": "8"}
+        cc = vout.codec_context
+        cc.colorspace, cc.color_range, cc.color_primaries, cc.color_trc = 1, 1, 1, 13
+        aout, resampler = None, None
+        if ain is not None:
+            allowed = AUDIO_COPY.get(suffix)
+            name = ain.codec_context.name
+            if allowed is None or name in allowed:
+                aout = dst.add_stream_from_template(ain)
+                res.audio = f"copied ({name})"
+            else:
+                codec = "libopus" if suffix == ".webm" else "aac"
+                aout = dst.add_stream(codec, rate=48000 if codec == "libopus" else (ain.rate or 48000))
+                aout.codec_context.layout = "stereo" if (ain.channels or 1) > 1 else "mono"
+                resampler = av.AudioResampler(format="fltp" if codec == "aac" else "s16",
+                                              layout=aout.codec_context.layout.name, rate=aout.rate)
+                res.audio = f"re-encoded ({name} -> {codec})"
+        bar = tqdm(total=info.frame_count or None, desc="filter", unit="frame", disable=not progress)
+        index = 0
+        last_pts = None
+        streams = [vin] + ([ain] if ain is not None else [])
+        try:
+            for packet in src.demux(*streams):
+                if packet.stream is ain:
+                    if packet.dts is None:
+                        continue
+                    if resampler is None:
+                        packet.stream = aout
+                        dst.mux(packet)
+                    else:
+                        for af in packet.decode():
+                            for rf in resampler.resample(af):
+                                rf.pts = None
+                                for p in aout.encode(rf):
+                                    dst.mux(p)
+                    continue
+                for frame in packet.decode():
+                    if index >= MAX_VIDEO_FRAMES:
+                        raise InputError(f"{inp}: more than {MAX_VIDEO_FRAMES} frames; trim the video")
+                    rgb = _to_rgb(frame)
+                    if rgb.shape[:2] != (info.height, info.width):
+                        raise InputError(f"{inp}: frame {index} is {rgb.shape[1]}x{rgb.shape[0]}, the stream said "
+                                         f"{info.width}x{info.height}; variable-size streams are not supported")
+                    pts = frame.pts if frame.pts is not None else (last_pts + 1 if last_pts is not None else 0)
+                    if last_pts is not None and pts <= last_pts:
+                        pts = last_pts + 1  # broken timestamps: keep them increasing
+                    last_pts = pts
+                    t = float(pts * tb)
+                    outf = _to_yuv(handle(rgb, t, index))
+                    outf.pts = pts
+                    outf.time_base = tb
+                    for p in vout.encode(outf):
+                        dst.mux(p)
+                    index += 1
+                    bar.update(1)
+        except av.error.FFmpegError as exc:
+            if index == 0:
+                raise InputError(f"{inp}: not a readable video ({exc})") from None
+            res.notes.append(f"the input ended early at frame {index} ({exc}); the frames before it were written")
+        finally:
+            bar.close()
+        if index == 0:
+            raise InputError(f"{inp}: the video has no frames")
+        for p in vout.encode(None):
+            dst.mux(p)
+        if resampler is not None:
+            for p in aout.encode(None):
+                dst.mux(p)
