@@ -27,6 +27,8 @@ from .tracking import MAX_TRACKED, FaceTracker, thin_points
 from .warp import face_ring, inverse_map, points_box, warp
 
 _LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
+#: Rows of the frames the tracker sees (larger frames are scaled down for tracking only).
+TRACK_ROWS = 360
 #: Feather of the face mask: erosion and Gaussian sigma, as shares of the face's size.
 FEATHER_ERODE = 0.015
 FEATHER_SIGMA = 0.02
@@ -118,7 +120,14 @@ class FramePath:
         self.model = model
         full_mask = np.zeros((ref_h, ref_w), dtype=bool)
         full_mask[y0:y0 + h, x0:x0 + w] = mask_crop
-        self.tracker = FaceTracker(self.ref_grey, landmarks, full_mask)
+        # Tracking runs on frames scaled to at most TRACK_ROWS rows (LK's cost is its pyramids
+        # and windows; a third of a pixel at 1080 rows is still far below the pose's noise).
+        self.ref_track_scale = min(1.0, TRACK_ROWS / ref_h)
+        rs = self.ref_track_scale
+        small_ref = cv2.resize(self.ref_grey, (round(ref_w * rs), round(ref_h * rs)), interpolation=cv2.INTER_AREA) \
+            if rs < 1 else self.ref_grey
+        small_mask = cv2.resize(full_mask.astype(np.uint8), small_ref.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+        self.tracker = FaceTracker(small_ref, landmarks * np.float32(rs), small_mask)
         # Feathered face mask (reference crop).
         size = max(h, w)
         er = max(int(round(FEATHER_ERODE * size)), 1)
@@ -187,9 +196,14 @@ class FramePath:
         size = (w, h)
         est = self._estimator(size)
         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        ts = min(1.0, TRACK_ROWS / h)
+        if ts < 1:
+            grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
         last = est.last
-        predict = (lambda idx: est.project(last, idx)) if last is not None else None
+        predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
         track = self.tracker.update(grey, predict)
+        if track is not None and ts < 1:
+            track = type(track)(ref_index=track.ref_index, xy=track.xy / np.float32(ts))
         tm["track"] = (time.perf_counter() - t0) * 1e3
         t1 = time.perf_counter()
         pose = est.solve(track.ref_index, track.xy) if track is not None else None

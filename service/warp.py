@@ -49,10 +49,11 @@ def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int]
         tri = Delaunay(np.asarray(cur, dtype=np.float64))
     except (QhullError, ValueError):
         return None
-    gw, gh = -(-w // step), -(-h // step)
-    # Grid points sit where cv2.resize's bilinear upsampling puts its samples (pixel centres).
-    gx = x0 + (np.arange(gw) + 0.5) * step - 0.5
-    gy = y0 + (np.arange(gh) + 0.5) * step - 0.5
+    # Grid points sit where cv2.resize's bilinear upsampling puts its samples (pixel centres),
+    # one extra on each side so the box's edge pixels are interpolated, not clamped.
+    gw, gh = -(-w // step) + 2, -(-h // step) + 2
+    gx = x0 + (np.arange(gw) - 0.5) * step - 0.5
+    gy = y0 + (np.arange(gh) - 0.5) * step - 0.5
     pts = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
     s = tri.find_simplex(pts)
     inside = s >= 0
@@ -63,15 +64,13 @@ def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int]
     out = np.full((pts.shape[0], 2), OUTSIDE, dtype=np.float64)
     out[inside] = np.einsum("nk,nkj->nj", bary, np.asarray(ref, dtype=np.float64)[verts])
     coarse = out.reshape(gh, gw, 2).astype(np.float32)
-    if step == 1:
-        return coarse[:h, :w]
-    full = cv2.resize(coarse, (gw * step, gh * step), interpolation=cv2.INTER_LINEAR)[:h, :w]
+    full = cv2.resize(coarse, (gw * step, gh * step), interpolation=cv2.INTER_LINEAR)[step:step + h, step:step + w]
     # Pixels between a grid point inside the triangulation and one outside would interpolate
     # toward OUTSIDE and land anywhere: they are outside too.
     valid = cv2.resize(inside.reshape(gh, gw).astype(np.float32), (gw * step, gh * step),
-                       interpolation=cv2.INTER_LINEAR)[:h, :w]
+                       interpolation=cv2.INTER_LINEAR)[step:step + h, step:step + w]
     full[valid < 0.999] = OUTSIDE
-    return full
+    return np.ascontiguousarray(full)
 
 
 def warp(image: np.ndarray, mapping: np.ndarray, origin: tuple[int, int]) -> np.ndarray:

@@ -54,3 +54,7 @@ LINEARITY_REL = 1e-5
 #: Rotating the head vs rotating the environment map the other way (two resamplings of a
 #: smooth environment): relative L2.
 ROTATION_EQUIV_REL = 0.03
+#: Head pose from exact projections of the landmark model (with outliers): degrees per angle.
+POSE_SYNTHETIC_DEG = 0.05
+#: The piecewise-affine warp of an affine map: largest error (px) of the interpolated grid.
+WARP_AFFINE_PX = 0.02

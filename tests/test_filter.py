@@ -1,0 +1,205 @@
+"""The per-frame video path (tracking, pose, warp, compositing) and the `relight filter` command."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from relight import load_environment
+from relight.cli import main
+from relight.directions import rotation_angles, rotation_matrix
+from relight.errors import InputError
+from relight.video import VideoWriter, read_frames
+
+from .tolerances import POSE_SYNTHETIC_DEG, WARP_AFFINE_PX
+
+
+@pytest.fixture(scope="module")
+def clip(small_capture, tmp_path_factory):
+    """45 no-flash frames of the small capture (a face under room light that moves a little),
+    re-encoded with a 440 Hz audio track."""
+    res, cfg = small_capture
+    meta = json.loads((res.truth / "meta.json").read_text())
+    dark = {i for i, f in enumerate(meta["flash_fraction"]) if f == 0.0}
+    frames = [f for i, f in enumerate(read_frames(res.video)) if i in dark][:45]
+    path = tmp_path_factory.mktemp("clip") / "clip.mp4"
+    t = np.arange(int(48000 * len(frames) / cfg.fps)) / 48000.0
+    with VideoWriter(path, cfg.fps, (cfg.width, cfg.height), audio=0.2 * np.sin(2 * np.pi * 440 * t)) as wr:
+        for f in frames:
+            wr.write(f)
+    return path, frames
+
+
+@pytest.fixture(scope="module")
+def frame_path(small_bundle):
+    from relight.service.frame_path import FramePath
+
+    return FramePath(small_bundle, load_environment("builtin:sunset"))
+
+
+def test_one_euro_filter_is_still_at_rest_and_follows_motion():
+    from relight.service.pose import OneEuroFilter
+
+    f = OneEuroFilter(min_cutoff=1.0, beta=0.05)
+    rng = np.random.default_rng(0)
+    noisy = [f(5.0 + rng.normal(0, 0.5), i / 30) for i in range(120)]
+    assert np.std(noisy[60:]) < 0.2  # jitter of 0.5 smoothed
+    f.reset()
+    ramp = [f(30.0 * i / 30, i / 30)[()] for i in range(60)]  # 30 deg/s
+    assert abs(ramp[-1] - 30.0 * 59 / 30) < 1.5  # follows a fast turn with little lag
+    slow = OneEuroFilter(min_cutoff=1.0, beta=0.0)
+    lagged = [slow(30.0 * i / 30, i / 30)[()] for i in range(60)]
+    assert abs(lagged[-1] - 30.0 * 59 / 30) > abs(ramp[-1] - 30.0 * 59 / 30)
+
+
+def test_pose_recovers_a_known_rotation():
+    from relight.service.pose import PoseEstimator, camera_matrix, lift_landmarks
+
+    rng = np.random.default_rng(1)
+    k_ref = camera_matrix((640, 360))
+    pts = rng.uniform([220, 80], [420, 300], size=(60, 2))
+    depth = 60 * np.exp(-((pts[:, 0] - 320) ** 2 + (pts[:, 1] - 190) ** 2) / 8000.0)
+    model = lift_landmarks(pts, depth, k_ref)
+    est = PoseEstimator(model, (640, 360))
+    assert np.allclose(est.solve(np.arange(60), pts).rotation, np.eye(3), atol=1e-4)
+    for angles in [(20, 0, 0), (-15, 10, 5), (0, -12, -8)]:
+        r = rotation_matrix(*angles)
+        flip = np.diag([1.0, -1.0, -1.0])
+        r_cv = flip @ r @ flip
+        centre = model.mean(axis=0)
+        moved = (model - centre) @ r_cv.T + centre
+        proj = moved @ k_ref.T
+        xy = proj[:, :2] / proj[:, 2:]
+        xy[:5] += 40.0  # outliers
+        est.last = None
+        pose = est.solve(np.arange(60), xy)
+        assert pose is not None and pose.inliers.size >= 50
+        assert np.allclose(pose.angles, angles, atol=POSE_SYNTHETIC_DEG)
+        assert np.allclose(rotation_angles(pose.rotation), angles, atol=POSE_SYNTHETIC_DEG)
+
+
+def test_piecewise_affine_warp_reproduces_an_affine_map():
+    from relight.service.warp import GRID_STEP, OUTSIDE, inverse_map
+
+    rng = np.random.default_rng(2)
+    ref = rng.uniform(50, 250, size=(40, 2))
+    a = np.array([[1.1, 0.2], [-0.15, 0.9]])
+    cur = ref @ a.T + np.array([30.0, -10.0])
+    box = (0, 0, 320, 260)
+    m = inverse_map(cur, ref, box)
+    ys, xs = np.mgrid[0:260, 0:320]
+    want = (np.stack([xs, ys], -1) - np.array([30.0, -10.0])) @ np.linalg.inv(a).T
+    from scipy.spatial import Delaunay
+
+    inside = Delaunay(cur).find_simplex(np.stack([xs, ys], -1).reshape(-1, 2)).reshape(260, 320) >= 0
+    valid = m[..., 0] > OUTSIDE / 2
+    near = cv2.dilate(inside.astype(np.uint8), np.ones((2 * GRID_STEP + 1,) * 2, np.uint8)) > 0
+    assert valid.sum() > 0.8 * inside.sum() and not (valid & ~near).any()  # at most a grid cell beyond the hull
+    assert np.abs(m[valid] - want[valid]).max() < WARP_AFFINE_PX
+
+
+def test_frames_are_relit_on_the_face_and_untouched_elsewhere(frame_path, small_bundle, clip):
+    _, frames = clip
+    frame_path.reset()
+    # The capture's head moves a few pixels at most: the changes must stay on the reference's head.
+    head = cv2.dilate(np.asarray(small_bundle.mask, np.uint8), np.ones((15, 15), np.uint8)) > 0
+    found = 0
+    for i, f in enumerate(frames[:30]):
+        out, info = frame_path.process(f, i / 30)
+        found += info.face
+        if info.face:
+            assert max(abs(a) for a in info.angles) < 3.0  # and barely turns
+            changed = np.abs(out.astype(int) - f.astype(int)).sum(axis=2) > 3
+            assert changed.sum() > 0.3 * small_bundle.mask.sum()  # the face took the new light
+            assert not (changed & ~head).any()
+    assert found >= 28
+
+
+def test_strength_zero_and_faceless_frames_pass_through(small_bundle, clip):
+    from relight.service.frame_path import FramePath
+
+    _, frames = clip
+    fp = FramePath(small_bundle, load_environment("builtin:studio"), strength=0.0, mode="paste")
+    out, info = fp.process(frames[3], 0.0)
+    assert info.face and np.array_equal(out, frames[3])
+    blank = np.full_like(frames[0], 90)
+    out, info = fp.process(blank, 1.0)
+    assert not info.face and np.array_equal(out, blank) and info.note
+    with pytest.raises(InputError, match="strength"):
+        fp.set_strength(1.5)
+    with pytest.raises(InputError, match="mode"):
+        fp.set_mode("glow")
+    with pytest.raises(InputError, match="uint8"):
+        fp.process(frames[0].astype(np.float32), 0.0)
+
+
+def _streams(path):
+    import av
+
+    with av.open(str(path)) as c:
+        v = c.streams.video[0]
+        pts = [f.pts for f in c.decode(v)]
+    with av.open(str(path)) as c:
+        audio = [s.codec_context.name for s in c.streams.audio]
+    return pts, audio
+
+
+def test_filter_command_keeps_audio_timestamps_and_reports(small_bundle, clip, tmp_path, capsys):
+    path, frames = clip
+    out = tmp_path / "relit.mp4"
+    rc = main(["filter", str(path), str(out), "--bundle", str(small_bundle.path), "--env", "builtin:window",
+               "--report", str(tmp_path / "rep"), "--quiet"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "median" in printed and "p99" in printed
+    pts_in, audio_in = _streams(path)
+    pts_out, audio_out = _streams(out)
+    assert pts_out == pts_in and audio_out == audio_in == ["aac"]
+    rep = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert rep["frames"] == len(frames) and rep["faces"] >= len(frames) - 3
+    assert all(k.isdigit() and len(v) == 3 for k, v in rep["head_rotation"].items())
+    assert rep["timings_ms"]["total"]["p99"] > 0
+    relit = list(read_frames(out))
+    assert len(relit) == len(frames)
+
+
+def test_filter_reads_image_sequences_and_writes_png_folders(small_bundle, clip, tmp_path):
+    from relight.imageio import write_image
+
+    _, frames = clip
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for i, f in enumerate(frames[:6]):
+        write_image(seq / f"f{i:03d}.png", f)
+    out = tmp_path / "out_frames"
+    assert main(["filter", str(seq), str(out), "--bundle", str(small_bundle.path), "--env", "builtin:studio",
+                 "--mode", "paste", "--quiet"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [f"{i:06d}.png" for i in range(6)]
+
+
+def test_filter_bad_input_fails_cleanly_and_leaves_no_output(small_bundle, clip, tmp_path, capsys):
+    path, frames = clip
+    bundle = str(small_bundle.path)
+    truncated = tmp_path / "truncated.mp4"
+    truncated.write_bytes(path.read_bytes()[:2000])
+    garbage = tmp_path / "garbage.mp4"
+    garbage.write_bytes(b"\x00" * 5000)
+    for bad in (truncated, garbage, tmp_path / "missing.mp4"):
+        out = tmp_path / f"out_{bad.stem}.mp4"
+        assert main(["filter", str(bad), str(out), "--bundle", bundle, "--env", "builtin:studio", "--quiet"]) == 2
+        assert not out.exists()
+        assert list(tmp_path.glob(f".out_{bad.stem}*")) == []
+        assert "error" in capsys.readouterr().err
+    assert main(["filter", str(path), str(path), "--bundle", bundle, "--env", "builtin:studio", "--quiet"]) == 2
+    # A video without a face: a valid output, frames unchanged, and a note saying so.
+    faceless = tmp_path / "faceless.mp4"
+    with VideoWriter(faceless, 30, (frames[0].shape[1], frames[0].shape[0])) as wr:
+        for i in range(5):
+            wr.write(np.full_like(frames[0], 40 + 10 * i))
+    out = tmp_path / "faceless_out.mp4"
+    assert main(["filter", str(faceless), str(out), "--bundle", bundle, "--env", "builtin:studio", "--quiet"]) == 0
+    assert "no face" in capsys.readouterr().out
+    a, b = list(read_frames(faceless)), list(read_frames(out))
+    assert len(a) == len(b) == 5
+    assert all(np.abs(x.astype(int) - y.astype(int)).max() <= 2 for x, y in zip(a, b, strict=True))
