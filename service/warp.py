@@ -57,20 +57,33 @@ def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int]
     pts = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
     s = tri.find_simplex(pts)
     inside = s >= 0
-    t = tri.transform[s[inside]]
-    b = np.einsum("nij,nj->ni", t[:, :2], pts[inside] - t[:, 2])
-    bary = np.concatenate([b, 1.0 - b.sum(axis=1, keepdims=True)], axis=1)
-    verts = tri.simplices[s[inside]]
+    # Each triangle's affine map frame -> reference, solved directly (Qhull's ``transform``
+    # property is several times slower for a few hundred triangles).
+    p = tri.points[tri.simplices]  # (T, 3, 2) frame corners
+    q = np.asarray(ref, dtype=np.float64)[tri.simplices]  # (T, 3, 2) reference corners
+    e = p[:, 1:] - p[:, :1]  # (T, 2, 2) edge vectors (rows)
+    det = e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0]
+    det = np.where(np.abs(det) > 1e-12, det, 1e-12)
+    inv = np.empty_like(e)
+    inv[:, 0, 0], inv[:, 0, 1] = e[:, 1, 1], -e[:, 0, 1]
+    inv[:, 1, 0], inv[:, 1, 1] = -e[:, 1, 0], e[:, 0, 0]
+    inv /= det[:, None, None]
+    lin = np.einsum("tik,tkj->tij", inv, q[:, 1:] - q[:, :1])  # (T, 2, 2): frame offset -> reference offset
+    si = s[inside]
     out = np.full((pts.shape[0], 2), OUTSIDE, dtype=np.float64)
-    out[inside] = np.einsum("nk,nkj->nj", bary, np.asarray(ref, dtype=np.float64)[verts])
+    out[inside] = q[si, 0] + np.einsum("ni,nij->nj", pts[inside] - p[si, 0], lin[si])
     coarse = out.reshape(gh, gw, 2).astype(np.float32)
     full = cv2.resize(coarse, (gw * step, gh * step), interpolation=cv2.INTER_LINEAR)[step:step + h, step:step + w]
     # Pixels between a grid point inside the triangulation and one outside would interpolate
-    # toward OUTSIDE and land anywhere: they are outside too.
-    valid = cv2.resize(inside.reshape(gh, gw).astype(np.float32), (gw * step, gh * step),
-                       interpolation=cv2.INTER_LINEAR)[step:step + h, step:step + w]
-    full[valid < 0.999] = OUTSIDE
-    return np.ascontiguousarray(full)
+    # toward OUTSIDE and land anywhere: they are outside too. A pixel is valid when the four
+    # grid points around it are; the cells between grid points start half a step in.
+    ok = inside.reshape(gh, gw)
+    cell = ok[:-1, :-1] & ok[1:, :-1] & ok[:-1, 1:] & ok[1:, 1:]
+    half = step // 2
+    valid = np.repeat(np.repeat(cell, step, axis=0), step, axis=1)[half:half + h, half:half + w]
+    full = np.ascontiguousarray(full)
+    full[~valid] = OUTSIDE
+    return full
 
 
 def warp(image: np.ndarray, mapping: np.ndarray, origin: tuple[int, int]) -> np.ndarray:

@@ -1,0 +1,207 @@
+"""``relight bench video``: head-pose accuracy and the per-frame path's speed on synthetic live video.
+
+A synthetic live video (``relight synth --live``: the head turning +-30 deg yaw, +-15 deg pitch,
+some roll, moving, under room light) is filtered with a bundle captured from the static studio
+of the same head (same seed and size). Measured:
+
+* head rotation error per frame: the angle of ``R_true^T R_est`` (degrees), median and p95,
+  and the frames where no face was found;
+* the per-frame path (track + pose + relight + warp + composite; decoding and encoding
+  excluded): per-stage medians and p99, frames per second (medians after warm-up);
+* the whole ``relight filter`` run in a fresh process (start-up, decode, encode included) on a
+  10 s 640x360 clip, against the clip's duration.
+
+Writes ``bench.json``, ``video_pose.png`` (estimated vs true angles over time) and
+``video_frames.png`` (input / output pairs to look at).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+STAGES = ("track", "pose", "relight", "warp", "composite", "total")
+
+
+def _bundle(out: Path, size: tuple[int, int], duration: float, progress: bool) -> Path:
+    """A bundle captured from a static studio capture of seed 0 at ``size`` (cached)."""
+    from relight.pipeline.capture import capture
+    from relight.pipeline.synth.studio import SynthConfig, synthesize
+
+    cap = out / f"capture-{size[0]}x{size[1]}-{duration:g}s"
+    bundle = out / f"face-{size[0]}x{size[1]}.bundle"
+    if not bundle.exists():
+        if not (cap / "capture.mp4").exists():
+            if progress:
+                print(f"synthesising a {size[0]}x{size[1]} capture ...", flush=True)
+            synthesize(cap, SynthConfig(width=size[0], height=size[1], duration=duration, seed=0), progress=progress)
+        if progress:
+            print("capturing it ...", flush=True)
+        capture(cap / "capture.mp4", bundle, progress=progress)
+    return bundle
+
+
+def _live(out: Path, size: tuple[int, int], duration: float, progress: bool) -> Path:
+    from relight.pipeline.synth.live import LiveConfig, synthesize_live
+
+    folder = out / f"live-{size[0]}x{size[1]}-{duration:g}s"
+    if not (folder / "truth" / "meta.json").exists():
+        if progress:
+            print(f"synthesising a {size[0]}x{size[1]} live video ...", flush=True)
+        synthesize_live(folder, LiveConfig(width=size[0], height=size[1], duration=duration, seed=0),
+                        progress=progress)
+    return folder
+
+
+def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
+    """Degrees between estimated and true head rotations, for the frames with an estimate."""
+    from relight.directions import rotation_matrix
+
+    out = []
+    for k, angles in estimates.items():
+        r_est = rotation_matrix(*angles)
+        r_true = rotation_matrix(*truth[int(k)])
+        c = (np.trace(r_true.T @ r_est) - 1.0) / 2.0
+        out.append(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    return np.asarray(out)
+
+
+def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
+    import relight
+    from relight.video import read_frames
+
+    from .frame_path import FramePath
+
+    meta = json.loads((live / "truth" / "meta.json").read_text())
+    fps = float(meta["fps"])
+    bundle = relight.load_bundle(bundle_path)
+    fp = FramePath(bundle, relight.load_environment(env), mode=mode, focal=meta.get("focal_px"))
+    frames = list(read_frames(live / "live.mp4"))
+    # Warm-up (kernel caches, first allocations), then the measured pass from a fresh track.
+    for i, f in enumerate(frames[:10]):
+        fp.process(f, i / fps)
+    fp.reset()
+    times = {k: [] for k in STAGES}
+    estimates, raw = {}, {}
+    pairs = []
+    t0 = time.perf_counter()
+    for i, f in enumerate(frames):
+        out, info = fp.process(f, i / fps)
+        for k in STAGES:
+            times[k].append(info.timings.get(k, 0.0))
+        if info.face:
+            estimates[str(i)] = info.angles
+            raw[str(i)] = info.raw_angles
+        if i in (len(frames) // 5, len(frames) // 2, 4 * len(frames) // 5):
+            pairs.append((i, f, out))
+    wall = time.perf_counter() - t0
+    err = rotation_errors(estimates, meta["head_rotation"])
+    err_raw = rotation_errors(raw, meta["head_rotation"])
+    return {"frames": len(frames), "faces": len(estimates), "size": meta["size"],
+            "stage_ms": {k: {"median": float(np.median(v)), "p99": float(np.percentile(v, 99))}
+                         for k, v in times.items()},
+            "fps_sustained": len(frames) / wall,
+            "rotation_error_deg": {"median": float(np.median(err)) if err.size else None,
+                                   "p95": float(np.percentile(err, 95)) if err.size else None,
+                                   "max": float(err.max()) if err.size else None},
+            "rotation_error_raw_deg": {"median": float(np.median(err_raw)) if err_raw.size else None,
+                                       "p95": float(np.percentile(err_raw, 95)) if err_raw.size else None},
+            "estimates": estimates, "truth": meta["head_rotation"], "_pairs": pairs}
+
+
+def _filter_run(bundle_path: Path, live: Path, out: Path, env: str) -> dict:
+    """`relight filter` in a fresh process: wall time including start-up, decode and encode."""
+    meta = json.loads((live / "truth" / "meta.json").read_text())
+    dst = out / "filtered.mp4"
+    cmd = [sys.executable, "-m", "relight", "filter", str(live / "live.mp4"), str(dst), "--bundle", str(bundle_path),
+           "--env", env, "--quiet", "--report", str(out / "filter_report")]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"relight filter failed: {proc.stderr.strip()[-500:]}")
+    duration = meta["frame_count"] / float(meta["fps"])
+    return {"wall_s": wall, "clip_s": duration, "realtime_factor": duration / wall, "size": meta["size"],
+            "output": str(dst)}
+
+
+def _plots(doc: dict, pairs, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pf = doc["per_frame"]
+    fps = 30.0
+    truth = np.asarray(pf["truth"])
+    fig, axes = plt.subplots(3, 1, figsize=(9, 6), sharex=True)
+    for j, name in enumerate(("yaw", "pitch", "roll")):
+        ax = axes[j]
+        ax.plot(np.arange(len(truth)) / fps, truth[:, j], "k-", lw=1.2, label="truth")
+        ks = sorted(int(k) for k in pf["estimates"])
+        ax.plot(np.array(ks) / fps, [pf["estimates"][str(k)][j] for k in ks], "-", lw=1, label="estimate")
+        ax.set_ylabel(f"{name} (deg)")
+    axes[0].legend(fontsize=8, loc="upper right")
+    e = pf["rotation_error_deg"]
+    axes[0].set_title(f"head rotation: median error {e['median']:.2f} deg, p95 {e['p95']:.2f} deg "
+                      f"({pf['faces']}/{pf['frames']} frames tracked)")
+    axes[-1].set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(out / "video_pose.png", dpi=100)
+    plt.close(fig)
+    if pairs:
+        import cv2
+
+        rows = [np.concatenate([f, o], axis=1) for _, f, o in pairs]
+        sheet = np.concatenate(rows, axis=0)
+        scale = min(1.0, 1600 / sheet.shape[1])
+        sheet = cv2.resize(sheet, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(out / "video_frames.png"), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+
+
+def run(out: Path, quick: bool = False, progress: bool = True, env: str = "builtin:sunset",
+        mode: str = "transfer") -> dict:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    size = (480, 270) if quick else (960, 540)
+    cap_s = 20.0 if quick else 30.0
+    bundle = _bundle(out, size, cap_s, progress)
+    live = _live(out, size, 4.0 if quick else 10.0, progress)
+    if progress:
+        print("timing the per-frame path ...", flush=True)
+    pf = _per_frame(bundle, live, env, mode)
+    pairs = pf.pop("_pairs")
+    doc = {"per_frame": pf, "env": env, "mode": mode}
+    fsize = (480, 270) if quick else (640, 360)
+    if progress:
+        print("running relight filter on a 10 s clip ...", flush=True)
+    f_bundle = _bundle(out, fsize, cap_s, progress)
+    f_live = _live(out, fsize, 4.0 if quick else 10.0, progress)
+    doc["filter"] = _filter_run(f_bundle, f_live, out, env)
+    (out / "bench.json").write_text(json.dumps(doc, indent=1))
+    _plots(doc, pairs, out)
+    return doc
+
+
+def table(doc: dict) -> str:
+    pf = doc["per_frame"]
+    e, er = pf["rotation_error_deg"], pf["rotation_error_raw_deg"]
+    lines = [f"per-frame path on {pf['size'][0]}x{pf['size'][1]} ({pf['frames']} frames, {pf['faces']} with a face; "
+             f"mode {doc['mode']}, env {doc['env']})",
+             f"head rotation error: median {e['median']:.2f} deg, p95 {e['p95']:.2f} deg, max {e['max']:.2f} deg "
+             f"(unsmoothed: median {er['median']:.2f}, p95 {er['p95']:.2f})",
+             f"{'stage':10s} {'median ms':>10s} {'p99 ms':>8s}"]
+    for k in STAGES:
+        s = pf["stage_ms"][k]
+        lines.append(f"{k:10s} {s['median']:10.2f} {s['p99']:8.2f}")
+    med = pf["stage_ms"]["total"]["median"]
+    lines.append(f"frames per second: {1000.0 / med:.1f} at the median frame time; {pf['fps_sustained']:.1f} sustained")
+    f = doc["filter"]
+    lines.append(f"relight filter, {f['size'][0]}x{f['size'][1]} {f['clip_s']:.1f} s clip, fresh process: "
+                 f"{f['wall_s']:.1f} s ({f['realtime_factor']:.2f}x real time)")
+    return "\n".join(lines)
