@@ -80,7 +80,9 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     meta = json.loads((live / "truth" / "meta.json").read_text())
     fps = float(meta["fps"])
     bundle = relight.load_bundle(bundle_path)
-    fp = FramePath(bundle, relight.load_environment(env), mode=mode, focal=meta.get("focal_px"))
+    # relight synth's camera is orthographic.
+    focal = "ortho" if "orthographic" in meta.get("conventions", "") else None
+    fp = FramePath(bundle, relight.load_environment(env), mode=mode, focal=focal)
     frames = list(read_frames(live / "live.mp4"))
     # Warm-up (kernel caches, first allocations), then the measured pass from a fresh track.
     for i, f in enumerate(frames[:10]):
@@ -119,7 +121,7 @@ def _filter_run(bundle_path: Path, live: Path, out: Path, env: str) -> dict:
     meta = json.loads((live / "truth" / "meta.json").read_text())
     dst = out / "filtered.mp4"
     cmd = [sys.executable, "-m", "relight", "filter", str(live / "live.mp4"), str(dst), "--bundle", str(bundle_path),
-           "--env", env, "--quiet", "--report", str(out / "filter_report")]
+           "--env", env, "--quiet", "--report", str(out / "filter_report"), "--focal", "ortho"]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0

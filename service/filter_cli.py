@@ -17,6 +17,18 @@ def _strength(text: str) -> float:
     return v
 
 
+def _focal(text: str):
+    if text.strip().lower() == "ortho":
+        return "ortho"
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give the focal length in pixels, or 'ortho'") from None
+    if not (v > 0 and v < 1e6):
+        raise argparse.ArgumentTypeError(f"{text!r}: give a positive focal length in pixels, or 'ortho'")
+    return v
+
+
 def add_filter_parser(sub) -> None:
     p = sub.add_parser(
         "filter", help="relight the face in a video (a virtual-camera-style batch filter)",
@@ -39,8 +51,9 @@ def add_filter_parser(sub) -> None:
     p.add_argument("--strength", type=_strength, default=1.0, help="blend with the original frame, 0 to 1")
     p.add_argument("--exposure", type=float, default=0.0,
                    help="stops (EV) on top of the automatic exposure matching")
-    p.add_argument("--focal", type=float, default=None,
-                   help="the video's focal length in pixels (default: 0.85 x the frame's larger side)")
+    p.add_argument("--focal", type=_focal, default=None, metavar="PIXELS|ortho",
+                   help="the video's focal length in pixels (default: 0.85 x the frame's larger side, a phone or "
+                        "webcam); 'ortho' for an orthographic camera such as relight synth's")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of an image-sequence input")
     p.add_argument("--crf", type=int, default=18, help="output quality (lower = better, bigger)")
     p.add_argument("--report", type=Path, metavar="DIR",
@@ -62,8 +75,6 @@ def run_filter_command(args) -> int:
 
     if not np.isfinite(args.exposure) or abs(args.exposure) > 20:
         raise InputError(f"--exposure {args.exposure}: use stops between -20 and 20")
-    if args.focal is not None and not (np.isfinite(args.focal) and args.focal > 0):
-        raise InputError(f"--focal {args.focal}: use a positive number of pixels")
     if not (1.0 <= args.fps <= 240.0):
         raise InputError(f"--fps {args.fps}: use 1 to 240")
     if not (0 <= args.crf <= 51):

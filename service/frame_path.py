@@ -34,7 +34,7 @@ FEATHER_ERODE = 0.015
 FEATHER_SIGMA = 0.02
 #: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
 ANGLE_MIN_CUTOFF = 1.5
-ANGLE_BETA = 0.02
+ANGLE_BETA = 0.2
 GAIN_MIN_CUTOFF = 0.5
 
 
@@ -74,7 +74,7 @@ class FramePath:
     """Relights faces in frames with one bundle (see the module docstring).
 
     mode : 'transfer' or 'paste'. strength : 0-1. fixed_env : keep the environment still relative
-    to the face (no head-rotation compensation). focal : the frames' focal length in pixels
+    to the face (no head-rotation compensation). focal : the frames' focal length in pixels, or "ortho"
     (None: from the frame size, see :mod:`relight.service.pose`). exposure : stops (EV).
     """
 
