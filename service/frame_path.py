@@ -57,6 +57,14 @@ def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return m.reshape(-1)
 
 
+def _affine_ring(src: np.ndarray, dst: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """The ring around the face carried by the least-squares affine map of the tracked points
+    (robust where the bundle's depth is poor; the ring only anchors the mask's feathered edge)."""
+    a = np.c_[src, np.ones(len(src))].astype(np.float64)
+    m, *_ = np.linalg.lstsq(a, dst.astype(np.float64), rcond=None)
+    return (np.c_[ring, np.ones(len(ring))] @ m).astype(np.float32)
+
+
 def largest_component(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(the mask's largest 8-connected component, the same with its holes filled): specks of
     a capture's mask on the wall would otherwise be composited as dots."""
@@ -139,6 +147,16 @@ class FramePath:
         self.fringe_dst = np.flatnonzero(fringe)
         self.fringe_src = (iy * w + ix).ravel()[self.fringe_dst]
         self.ambient_crop = np.asarray(bundle.ambient, dtype=np.float32)
+        self.reference_light = "room"
+        if not (self.ambient_crop[mask_crop].max(initial=0.0) > composite.TINY):
+            # An RTI-set bundle has no room-light reference: the lighting ratio is taken against
+            # the face under even light (a uniform environment) instead.
+            from relight.envmap import load_environment
+
+            even = np.array(self.relighter.relight(load_environment("builtin:uniform", width=64)))
+            self.ambient_crop = np.ascontiguousarray(even[y0:y0 + h, x0:x0 + w])
+            self.reference_light = "uniform"
+            self.relighter.relight(self.env)  # back to the chosen environment's lights in the cache
         amb_lum = (self.ambient_crop[mask_crop] @ _LUM) if mask_crop.any() else np.zeros(1, np.float32)
         self.ratio_eps = np.float32(composite.RATIO_EPS * max(float(np.median(amb_lum)), composite.TINY))
         self.inv_ambient = (1.0 / (self.ambient_crop + self.ratio_eps)).astype(np.float32)
@@ -231,7 +249,8 @@ class FramePath:
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()
         ref_idx = track.ref_index[keep]
-        cur = np.concatenate([track.xy[keep], est.project(pose, self.ring_index)])
+        cur = np.concatenate([track.xy[keep], _affine_ring(self.control_ref[ref_idx], track.xy[keep],
+                                                           self.control_ref[self.ring_index])])
         ref = np.concatenate([self.control_ref[ref_idx], self.control_ref[self.ring_index]])
         box = points_box(cur, size)
         mapping = inverse_map(cur, ref, box) if box is not None else None
