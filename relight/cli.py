@@ -22,25 +22,40 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+class _DefaultsUnlessNone(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows defaults, except None (those flags say in their help what they default to)."""
+
+    def _get_help_string(self, action):
+        if action.default is None:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def _add_synth(sub) -> None:
+    from .pipeline.synth.live import AUDIO_KINDS, LiveConfig
     from .pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig
 
     d = SynthConfig()
+    live = LiveConfig()
     p = sub.add_parser(
         "synth", help="simulate a two-phone capture of a synthetic head, with its ground truth",
         description="Simulate the paper's acquisition on a procedural head whose truth is known: a phone "
                     "films the face while a second phone's flash blinks and is waved over the front "
                     "hemisphere, a mirror sphere beside the head shows the flash. Writes OUT/capture.mp4 "
                     "(H.264) and OUT/truth/ (meta.json, mask.png, normals/depth/albedo EXR, head.ply, "
-                    "relit_<env>.exr per truth environment, olat_<name>.exr one-light images, ambient.exr).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                    "relit_<env>.exr per truth environment, olat_<name>.exr one-light images, ambient.exr). "
+                    "With --live: OUT/live.mp4 (H.264 + AAC) of the same head (same --seed and --size) turning "
+                    "and moving under the room light, and OUT/truth/ (meta.json with the head rotation and "
+                    "translation of every frame, reference.png, mask_reference.png).",
+        formatter_class=_DefaultsUnlessNone)
     p.add_argument("out", type=Path, help="output folder (created if missing)")
     p.add_argument("--seed", type=int, default=d.seed,
                    help="random seed: flash timing, hand path, head motion, noise, skin texture")
     p.add_argument("--fps", type=float, default=d.fps, help="camera frame rate (frames per second)")
     p.add_argument("--flash-hz", type=float, default=d.flash_hz,
                    help="flash blink rate (Hz); not synchronised with the camera")
-    p.add_argument("--duration", type=float, default=d.duration, help="capture length in seconds")
+    p.add_argument("--duration", type=float, default=None,
+                   help=f"capture length in seconds (default {d.duration:g}; with --live {live.duration:g})")
     p.add_argument("--size", type=_size, default=(d.width, d.height), metavar="WxH",
                    help="frame size in pixels (even numbers)")
     p.add_argument("--truth-env", action="append", default=None, metavar="FILE|builtin:NAME",
@@ -52,20 +67,60 @@ def _add_synth(sub) -> None:
     p.add_argument("--noise", type=float, default=d.noise, help="sensor noise, times the default; 0 = none")
     p.add_argument("--camera-drift", action="store_true",
                    help="simulate a phone's auto-exposure and white-balance drift")
-    p.add_argument("--crf", type=int, default=d.crf, help="H.264 quality (lower = better, bigger)")
+    p.add_argument("--crf", type=int, default=None,
+                   help=f"H.264 quality, lower = better and bigger (default {d.crf}; with --live {live.crf})")
+    p.add_argument("--live", action="store_true",
+                   help="a video of the head turning and moving under room light, with an audio track, and "
+                        "per-frame head rotation truth, instead of a capture (uses --size, --seed, --fps, "
+                        "--duration, --noise, --ambient, --crf, --audio, --quiet)")
+    p.add_argument("--audio", choices=AUDIO_KINDS, default=live.audio,
+                   help="--live only: the audio track, a 440 Hz tone, white noise, or none (no audio stream)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run_synth)
 
 
 def _run_synth(args) -> int:
+    from .errors import InputError
+
+    if args.live:
+        return _run_synth_live(args)
+    if args.audio != "tone":
+        raise InputError("--audio applies to --live videos only; add --live or leave --audio out")
     from .pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig, synthesize
 
+    d = SynthConfig()
     cfg = SynthConfig(width=args.size[0], height=args.size[1], fps=args.fps, flash_hz=args.flash_hz,
-                      duration=args.duration, seed=args.seed, head_motion=args.head_motion,
-                      ambient=args.ambient, noise=args.noise, camera_drift=args.camera_drift,
-                      truth_envs=tuple(args.truth_env or DEFAULT_TRUTH_ENVS), crf=args.crf)
+                      duration=d.duration if args.duration is None else args.duration, seed=args.seed,
+                      head_motion=args.head_motion, ambient=args.ambient, noise=args.noise,
+                      camera_drift=args.camera_drift, truth_envs=tuple(args.truth_env or DEFAULT_TRUTH_ENVS),
+                      crf=d.crf if args.crf is None else args.crf)
     res = synthesize(args.out, cfg, progress=not args.quiet)
     print(f"wrote {res.video} ({res.frame_count} frames, {res.flash_frames} flash frames) and {res.truth}/")
+    print("timings: " + ", ".join(f"{k} {v:.1f}s" for k, v in res.timings.items()))
+    return 0
+
+
+def _run_synth_live(args) -> int:
+    from .errors import InputError
+    from .pipeline.synth.live import LiveConfig, synthesize_live
+    from .pipeline.synth.studio import SynthConfig
+
+    d, s = LiveConfig(), SynthConfig()
+    capture_only = [flag for flag, used in (("--flash-hz", args.flash_hz != s.flash_hz),
+                                            ("--truth-env", bool(args.truth_env)),
+                                            ("--head-motion", args.head_motion != s.head_motion),
+                                            ("--camera-drift", args.camera_drift)) if used]
+    if capture_only:
+        raise InputError(f"{', '.join(capture_only)} apply to captures, not --live videos; leave them out "
+                         f"(a live video's light is the room's alone)")
+    cfg = LiveConfig(width=args.size[0], height=args.size[1], fps=args.fps,
+                     duration=d.duration if args.duration is None else args.duration, seed=args.seed,
+                     ambient=args.ambient, noise=args.noise, crf=d.crf if args.crf is None else args.crf,
+                     audio=args.audio)
+    res = synthesize_live(args.out, cfg, progress=not args.quiet)
+    audio = "no audio" if cfg.audio == "none" else f"{cfg.audio} audio"
+    print(f"wrote {res.video} ({res.frame_count} frames, {cfg.width}x{cfg.height} at {cfg.fps:g} fps, {audio}), "
+          f"{res.meta} (per-frame head rotation and translation), {res.reference} and {res.mask}")
     print("timings: " + ", ".join(f"{k} {v:.1f}s" for k, v in res.timings.items()))
     return 0
 
@@ -256,6 +311,19 @@ def _add_bench(sub) -> None:
     r.add_argument("--quick", action="store_true", help="a 10 s 480x270 capture instead (for CI)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.set_defaults(func=_run_bench_relight)
+    v = bsub.add_parser("video", help="per-frame video path: head-pose error and speed on synthetic live video",
+                        description="Synthesise live videos of the head turning (cached) and a bundle of the same "
+                                    "head, then measure the head rotation error against the truth, the per-frame "
+                                    "path's time per stage (decode/encode excluded) and a whole `relight filter` "
+                                    "run in a fresh process against the clip's duration. Writes bench.json, "
+                                    "video_pose.png and video_frames.png.",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    v.add_argument("-o", "--out", type=Path, default=Path("out/bench-video"), help="output and cache folder")
+    v.add_argument("--env", default="builtin:sunset", metavar="FILE|builtin:NAME", help="environment to relight with")
+    v.add_argument("--mode", choices=("transfer", "paste"), default="transfer", help="compositing mode")
+    v.add_argument("--quick", action="store_true", help="480x270 clips of 4 s instead (for CI)")
+    v.add_argument("--quiet", action="store_true", help="no progress output")
+    v.set_defaults(func=_run_bench_video)
 
 
 def _run_bench_capture(args) -> int:
@@ -273,6 +341,15 @@ def _run_bench_relight(args) -> int:
     doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet)
     print(benchmark.table(doc))
     print(f"wrote {args.out / 'bench.json'} and {args.out / 'relight_error_vs_time.png'}")
+    return 0
+
+
+def _run_bench_video(args) -> int:
+    from .service import benchmark
+
+    doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet, env=args.env, mode=args.mode)
+    print(benchmark.table(doc))
+    print(f"wrote {args.out / 'bench.json'}, {args.out / 'video_pose.png'} and {args.out / 'video_frames.png'}")
     return 0
 
 

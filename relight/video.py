@@ -23,6 +23,11 @@ from .imageio import atomic_path
 #: Largest frame a reader accepts (8K UHD) and the longest video, in frames.
 MAX_VIDEO_DIM = 7680
 MAX_VIDEO_FRAMES = 200_000
+#: Audio written beside the video: sample rate (Hz) and AAC bit rate (bits/s, mono).
+AUDIO_RATE = 48_000
+AUDIO_BIT_RATE = 96_000
+#: Longest audio track a writer accepts, in samples (an hour at 48 kHz).
+MAX_AUDIO_SAMPLES = 3600 * AUDIO_RATE
 
 
 def _sws_flags():
@@ -57,14 +62,32 @@ def _to_rgb(frame) -> np.ndarray:
                           interpolation=_sws_flags()).to_ndarray()
 
 
+def _check_audio(audio: np.ndarray, rate: int) -> np.ndarray:
+    """Mono samples for :class:`VideoWriter`: 1-D, finite, within -1..1 -> float32."""
+    a = np.asarray(audio)
+    if a.ndim != 1 or a.size == 0 or not np.issubdtype(a.dtype, np.floating):
+        raise InputError(f"audio must be a non-empty 1-D float array of mono samples, got {a.shape} {a.dtype}")
+    if not (8000 <= int(rate) <= 192_000):
+        raise InputError(f"audio rate {rate} Hz: use 8000 to 192000 Hz")
+    if a.size > MAX_AUDIO_SAMPLES:
+        raise InputError(f"audio of {a.size} samples is longer than {MAX_AUDIO_SAMPLES}; shorten it")
+    if not np.all(np.isfinite(a)) or np.abs(a).max() > 1.0:
+        raise InputError("audio samples must be finite and within -1..1; scale the signal down")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
 class VideoWriter:
     """Encode RGB frames to H.264 (yuv420p) in an MP4, atomically.
 
     Use as a context manager; the file appears at ``path`` only when the block completes.
+    ``audio``: optional mono samples (1-D float, -1 to 1) at ``audio_rate`` Hz, encoded as an
+    AAC stream beside the video (interleaved with it as the frames arrive; whatever is left
+    when the block ends is written then, so the audio may be longer or shorter than the video).
     """
 
     def __init__(self, path: str | os.PathLike, fps: float, size: tuple[int, int], *, crf: int = 16,
-                 preset: str = "veryfast", codec: str = "libx264"):
+                 preset: str = "veryfast", codec: str = "libx264", audio: np.ndarray | None = None,
+                 audio_rate: int = AUDIO_RATE):
         w, h = size
         if w % 2 or h % 2:
             raise InputError(f"video size {w}x{h}: H.264 (yuv420p) needs even width and height")
@@ -75,6 +98,9 @@ class VideoWriter:
         self.preset = preset
         self.codec = codec
         self.frames = 0
+        self.audio = None if audio is None else _check_audio(audio, audio_rate)
+        self.audio_rate = int(audio_rate)
+        self._audio_done = 0  # samples of ``audio`` handed to the encoder so far
 
     def __enter__(self) -> VideoWriter:
         import av
@@ -97,6 +123,15 @@ class VideoWriter:
         cc.colorspace, cc.color_range, cc.color_primaries = 1, 1, 1  # BT.709, limited range
         cc.color_trc = 13  # IEC 61966-2-1: the frames carry the sRGB transfer curve
         self._stream = stream
+        self._audio_stream = None
+        if self.audio is not None:
+            # Every stream must exist before the first packet is muxed (the header is written then).
+            astream = self._container.add_stream("aac", rate=self.audio_rate)
+            astream.codec_context.layout = "mono"
+            astream.codec_context.format = "fltp"
+            astream.codec_context.bit_rate = AUDIO_BIT_RATE
+            astream.codec_context.time_base = Fraction(1, self.audio_rate)
+            self._audio_stream = astream
 
         # Colour conversion and encoding run on a worker thread (FFmpeg releases the GIL), so
         # the caller renders the next frame meanwhile; the short queue bounds memory.
@@ -120,8 +155,35 @@ class VideoWriter:
                 frame.time_base = 1 / self.fps
                 for packet in self._stream.encode(frame):
                     self._container.mux(packet)
+                if self._audio_stream is not None:
+                    self._encode_audio(int(round((index + 1) / self.fps * self.audio_rate)))
             except BaseException as exc:  # re-raised in the caller's thread
                 self._error = exc
+
+    def _encode_audio(self, until: int | None) -> None:
+        """Encode the audio samples up to index ``until`` (None: all, then flush the encoder).
+
+        Only whole encoder frames are sent before the end (AAC takes 1024 samples a frame;
+        the last one may be short)."""
+        import av
+
+        stream = self._audio_stream
+        total = self.audio.size
+        step = stream.codec_context.frame_size or 1024
+        end = total if until is None else min(until, total)
+        while self._audio_done < end and (until is None or self._audio_done + step <= end):
+            a = self._audio_done
+            chunk = self.audio[a:a + step]
+            frame = av.AudioFrame.from_ndarray(np.ascontiguousarray(chunk[None, :]), format="fltp", layout="mono")
+            frame.sample_rate = self.audio_rate
+            frame.pts = a
+            frame.time_base = Fraction(1, self.audio_rate)
+            for packet in stream.encode(frame):
+                self._container.mux(packet)
+            self._audio_done = a + chunk.size
+        if until is None:
+            for packet in stream.encode():
+                self._container.mux(packet)
 
     def _raise_worker_error(self) -> None:
         if self._error is not None:
@@ -143,6 +205,8 @@ class VideoWriter:
                 self._raise_worker_error()
                 for packet in self._stream.encode():
                     self._container.mux(packet)
+                if self._audio_stream is not None:
+                    self._encode_audio(None)
         except BaseException as err:
             self._container.close()
             self._atomic.__exit__(type(err), err, err.__traceback__)

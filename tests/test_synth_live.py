@@ -1,0 +1,320 @@
+"""The synthetic live video (``relight synth OUT --live``): streams, truth, and geometry checked
+against predictions made here from the documented convention (not from the renderer)."""
+
+import json
+
+import av
+import cv2
+import numpy as np
+import pytest
+
+from relight.cli import main
+from relight.colour import decode_srgb8
+from relight.directions import rotation_matrix
+from relight.envmap import load_environment
+from relight.errors import InputError
+from relight.imageio import read_image
+from relight.pipeline.synth.head import height_units, inside
+from relight.pipeline.synth.live import (
+    AUDIO_RATE,
+    LiveConfig,
+    LiveScene,
+    environment_sh9,
+    head_pose_track,
+    make_audio,
+    sh9_irradiance,
+)
+from relight.video import VideoWriter, read_frames
+
+SIZE, SEED, SECONDS = (320, 180), 5, 2.0
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    """A 2-second 320x180 live video made through the command line, and its truth."""
+    out = tmp_path_factory.mktemp("live")
+    assert main(["synth", str(out), "--live", "--size", f"{SIZE[0]}x{SIZE[1]}", "--duration", str(SECONDS),
+                 "--seed", str(SEED), "--quiet"]) == 0
+    meta = json.loads((out / "truth" / "meta.json").read_text())
+    return out, meta
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """The same scene, prepared (head shaded under the room light, mesh built)."""
+    sc = LiveScene(LiveConfig(width=SIZE[0], height=SIZE[1], duration=SECONDS, seed=SEED))
+    sc.prepare()
+    return sc
+
+
+def _iou(a, b):
+    return (a & b).sum() / (a | b).sum()
+
+
+def _full(box, tile, shape):
+    x0, y0, x1, y1 = box
+    out = np.zeros(shape + tile.shape[2:], dtype=np.float64)
+    out[y0:y1, x0:x1] = tile
+    return out
+
+
+def _pivot(head):
+    """The documented pivot: the head centre, half a head unit behind the frontmost point."""
+    cx, cy = head.center
+    return np.array([cx, -cy, head.height[head.mask].max() - 0.5 * head.scale])
+
+
+def _moved(points, rotation, pivot, t):
+    """R (P - C) + C + (tx, -ty, 0), written out from the README's convention."""
+    return (np.asarray(points) - pivot) @ rotation.T + pivot + np.array([t[0], -t[1], 0.0])
+
+
+# ---------------------------------------------------------------------- files
+def test_video_has_the_frames_and_an_audio_track(live):
+    out, meta = live
+    n = int(round(SECONDS * 30))
+    assert meta["frame_count"] == n and meta["size"] == list(SIZE) and meta["fps"] == 30.0
+    with av.open(str(out / "live.mp4")) as c:
+        assert len(c.streams.video) == 1 and len(c.streams.audio) == 1
+        frames = [f for f in c.decode(video=0)]
+    assert len(frames) == n and (frames[0].width, frames[0].height) == SIZE
+    with av.open(str(out / "live.mp4")) as c:
+        a = c.streams.audio[0]
+        assert a.codec_context.name == "aac" and a.codec_context.sample_rate == AUDIO_RATE
+        assert a.codec_context.layout.nb_channels == 1
+        assert abs(float(a.duration * a.time_base) - SECONDS) < 0.025
+        samples = np.concatenate([f.to_ndarray()[0] for f in c.decode(audio=0)])
+    assert abs(samples.size - SECONDS * AUDIO_RATE) <= 2048  # AAC frames are 1024 samples
+    # A 440 Hz tone at a modest level.
+    body = samples[AUDIO_RATE // 10:int(1.9 * AUDIO_RATE)]
+    spectrum = np.abs(np.fft.rfft(body * np.hanning(body.size)))
+    peak_hz = np.argmax(spectrum) * AUDIO_RATE / body.size
+    assert abs(peak_hz - 440.0) < 2.0
+    assert 0.05 < np.sqrt(np.mean(body**2)) < 0.09 and np.abs(body).max() < 0.2
+    assert meta["audio"]["kind"] == "tone" and meta["audio"]["sample_rate"] == AUDIO_RATE
+
+
+def test_truth_has_one_smooth_pose_per_frame_within_the_amplitudes(live):
+    _, meta = live
+    cfg = LiveConfig()
+    for key in ("kind", "fps", "size", "frame_count", "seed", "head_rotation", "head_translation", "pivot",
+                "conventions", "audio", "files"):
+        assert key in meta
+    assert meta["kind"] == "live" and meta["seed"] == SEED
+    rot, trans = np.array(meta["head_rotation"]), np.array(meta["head_translation"])
+    assert rot.shape == (meta["frame_count"], 3) and trans.shape == (meta["frame_count"], 2)
+    amp = np.array([cfg.yaw, cfg.pitch, cfg.roll])
+    shift = cfg.shift * 0.04 * SIZE[1]
+    assert np.all(np.abs(rot) <= amp) and np.all(np.abs(trans) <= shift + 1e-9)
+    # Most of each range is covered, even in a 2-second clip, and the motion is smooth.
+    assert np.all(rot.max(axis=0) - rot.min(axis=0) > 1.6 * amp)
+    assert np.all(trans.max(axis=0) - trans.min(axis=0) > 1.6 * shift)
+    assert np.all(np.abs(np.diff(rot, axis=0)).max(axis=0) < 0.15 * amp)
+    assert np.abs(rot[0]).max() > 0  # frame 0 need not be the reference pose
+    assert "Ry(yaw) Rx(pitch) Rz(roll)" in meta["conventions"]
+    for rel in ("video", "reference", "mask_reference"):
+        assert (live[0] / meta["files"][rel]).is_file()
+
+
+def test_same_seed_same_motion_other_seed_other_motion():
+    a = head_pose_track(np.random.default_rng(1), 90, 30.0, (30, 15, 8), 7.0)
+    b = head_pose_track(np.random.default_rng(1), 90, 30.0, (30, 15, 8), 7.0)
+    c = head_pose_track(np.random.default_rng(2), 90, 30.0, (30, 15, 8), 7.0)
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    assert not np.allclose(a[0], c[0])
+
+
+def test_reference_files_show_the_static_studios_head(live, scene):
+    out, _ = live
+    studio = scene.studio
+    mask = read_image(out / "truth" / "mask_reference.png", linearize=False)[..., 0] > 0.5
+    assert _iou(mask, studio.head.alpha > 0.5) > 0.97
+    # The reference frame against the static capture's reference frame (no flash, no noise).
+    ref = read_image(out / "truth" / "reference.png")
+    static = decode_srgb8(studio.sensor.expose(studio.render_frame(studio.reference_frame,
+                                                                    flash=np.zeros_like(studio.ambient_head())),
+                                               1.0, np.ones(3), None))
+    inner = cv2.erode(studio.head.mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    rel = np.abs(ref[inner] - static[inner]).sum(axis=1) / np.maximum(static[inner].sum(axis=1), 1e-3)
+    assert np.median(rel) < 0.05
+    wall = np.zeros_like(inner)
+    wall[:, :SIZE[0] // 8] = True  # far from the head and the studio's mirror sphere
+    assert np.abs(ref[wall] - static[wall]).mean() < 0.003
+
+
+# ---------------------------------------------------------------------- geometry
+def test_reference_pose_matches_the_static_head(scene):
+    head, mesh = scene.head, scene.mesh
+    box, img, cov = mesh.render(np.eye(3), (0.0, 0.0))
+    cov = _full(box, cov, head.mask.shape)
+    assert _iou(cov > 0.5, head.alpha > 0.5) > 0.97
+    assert np.abs(cov - head.alpha).mean() < 0.005
+    rad = _full(box, img, head.mask.shape)
+    ref = scene.studio.head_image(scene.studio.ambient_head())
+    inner = cv2.erode(head.mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    rel = np.abs(rad[inner] - ref[inner]).sum(axis=1) / np.maximum(ref[inner].sum(axis=1), 1e-6)
+    assert rel.mean() < 0.05 and np.percentile(rel, 95) < 0.2
+    # Same seed and size: the live head is the static capture's head.
+    assert np.allclose(scene.pivot, _pivot(head))
+
+
+@pytest.mark.parametrize("pose, shift", [((20.0, 0.0, 0.0), (0.0, 0.0)), ((0.0, -12.0, 0.0), (0.0, 0.0)),
+                                         ((0.0, 0.0, 8.0), (0.0, 0.0)), ((-25.0, 10.0, 6.0), (3.0, -2.0)),
+                                         ((30.0, 15.0, 8.0), (-4.5, 5.0))])
+def test_nose_tip_lands_where_the_rotation_puts_it(scene, pose, shift):
+    head, mesh = scene.head, scene.mesh
+    yn, xn = np.unravel_index(np.argmax(np.where(head.mask, head.height, -np.inf)), head.mask.shape)
+    marker = np.zeros(head.mask.shape)
+    marker[yn, xn] = 1.0
+    r = rotation_matrix(*pose)
+    box, img, _ = mesh.render(r, shift, values=mesh.vertex_values(marker))
+    v = _full(box, img, head.mask.shape)[..., 0]
+    ys, xs = np.mgrid[:v.shape[0], :v.shape[1]]
+    measured = np.array([(v * xs).sum(), (v * ys).sum()]) / v.sum()
+    q = _moved([xn, -yn, head.height[yn, xn]], r, _pivot(head), shift)
+    predicted = np.array([q[0], -q[1]])
+    assert np.hypot(*(measured - predicted)) < 1.5
+    if pose[0] > 0:  # +yaw: right-handed about +Y, the nose (toward +Z) swings toward +X (right)
+        assert measured[0] - shift[0] > xn + 3.0
+    if pose[1] < 0 and pose[0] == 0:  # -pitch: the nose rises (toward +Y, up the image)
+        assert measured[1] < yn - 3.0
+    if pose[2] > 0 and pose[:2] == (0.0, 0.0):  # +roll: counter-clockwise on screen; the tip is below
+        assert measured[0] > xn + 0.5  # the pivot row, so it swings to the right
+
+
+def _splat_silhouette(head, rotation, pivot):
+    """The silhouette predicted without the renderer: 4x4 analytic surface points per pixel,
+    moved by the documented formula, splatted, gaps closed."""
+    h, w = head.mask.shape
+    off = (np.arange(4) + 0.5) / 4 - 0.5
+    ys, xs = np.nonzero(cv2.dilate(head.mask.astype(np.uint8), np.ones((3, 3), np.uint8)))
+    x = (xs[:, None, None] + off[None, None, :] + 0 * off[None, :, None]).ravel()
+    y = (ys[:, None, None] + off[None, :, None] + 0 * off[None, None, :]).ravel()
+    cx, cy = head.center
+    u, v = (x - cx) / head.scale, (cy - y) / head.scale
+    keep = inside(u, v)
+    pts = np.stack([x[keep], -y[keep], height_units(u[keep], v[keep]) * head.scale], axis=1)
+    q = _moved(pts, rotation, pivot, (0.0, 0.0))
+    qx, qy = np.round(q[:, 0]).astype(int), np.round(-q[:, 1]).astype(int)
+    ok = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
+    mask = np.zeros((h, w), np.uint8)
+    mask[qy[ok], qx[ok]] = 1
+    return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
+
+
+@pytest.mark.parametrize("pose", [(25.0, 0.0, 0.0), (-25.0, 10.0, 6.0), (30.0, -15.0, -8.0)])
+def test_silhouette_matches_an_independent_projection(scene, pose):
+    head, mesh = scene.head, scene.mesh
+    r = rotation_matrix(*pose)
+    box, _, cov = mesh.render(r, (0.0, 0.0))
+    rendered = _full(box, cov, head.mask.shape) > 0.5
+    rows = slice(0, int(0.85 * head.mask.shape[0]))  # the splat has no neck below the frame
+    right = _iou(rendered[rows], _splat_silhouette(head, r, _pivot(head))[rows])
+    mirrored = _iou(rendered[rows], _splat_silhouette(head, rotation_matrix(-pose[0], pose[1], pose[2]),
+                                                      _pivot(head))[rows])
+    assert right > 0.95 and mirrored < 0.85
+    # With this pivot (behind the face), +yaw swings the face right and the silhouette's rim left.
+    cols = np.nonzero(rendered[rows].any(axis=0))[0]
+    ref_cols = np.nonzero((head.alpha > 0.5)[rows].any(axis=0))[0]
+    if pose[0] > 0:
+        assert cols.min() < ref_cols.min() - 2
+    else:
+        assert cols.max() > ref_cols.max() + 2
+
+
+# ---------------------------------------------------------------------- shading
+def test_spherical_harmonics_irradiance():
+    dirs = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0], [0.6, 0.0, -0.8]])
+    assert np.allclose(sh9_irradiance(environment_sh9(load_environment("builtin:uniform")), dirs), np.pi, rtol=1e-4)
+    # A small light of power pi straight ahead: irradiance ~ pi max(cos, 0) (order-2 SH: within 0.1 pi).
+    sh = environment_sh9(load_environment("builtin:point:0,0,1"))
+    e = sh9_irradiance(sh, dirs)[:, 0]
+    assert np.allclose(e, np.pi * np.maximum(dirs[:, 2], 0.0), atol=0.1 * np.pi)
+
+
+def test_turning_toward_the_ceiling_light_and_the_window_brightens(scene):
+    mesh = scene.mesh
+    assert np.allclose(mesh.colours(np.eye(3)), mesh.radiance, rtol=1e-5, atol=1e-7)
+
+    def level(*pose):
+        return float(mesh.colours(rotation_matrix(*pose)).mean())
+
+    assert level(0, -15, 0) > 1.1 * level(0, 0, 0) > 1.2 * level(0, 15, 0)  # the panel is above
+    assert level(-25, 0, 0) > 1.05 * level(25, 0, 0)  # the window is on the left (-X)
+    # The SH quadratic form gives what rotating the normals and evaluating SH gives.
+    r = rotation_matrix(17, -9, 5)
+    direct = mesh.radiance * np.minimum(np.maximum(sh9_irradiance(mesh.sh, mesh.normal @ r.T), 0.0)
+                                        / mesh._e_ref, 8.0)
+    assert np.allclose(mesh.colours(r), direct, rtol=1e-4, atol=1e-7)
+
+
+# ---------------------------------------------------------------------- audio and settings
+def test_noise_audio_and_no_audio(tmp_path):
+    rng = np.random.default_rng(0)
+    a = make_audio("noise", AUDIO_RATE, rng)
+    assert a.dtype == np.float32 and a.size == AUDIO_RATE and 0.04 < a[1000:-1000].std() < 0.06
+    assert make_audio("none", AUDIO_RATE, rng) is None
+    out = tmp_path / "quiet"
+    assert main(["synth", str(out), "--live", "--size", "128x72", "--duration", "1", "--audio", "none",
+                 "--noise", "0", "--quiet"]) == 0
+    with av.open(str(out / "live.mp4")) as c:
+        assert len(c.streams.audio) == 0 and len(c.streams.video) == 1
+    assert json.loads((out / "truth" / "meta.json").read_text())["audio"] is None
+
+
+def test_audio_writer_is_atomic_and_checks_its_input(tmp_path):
+    target = tmp_path / "v.mp4"
+    tone = np.zeros(AUDIO_RATE, dtype=np.float32)
+    with pytest.raises(RuntimeError):
+        with VideoWriter(target, 30, (64, 48), audio=tone) as w:
+            w.write(np.zeros((48, 64, 3), np.uint8))
+            raise RuntimeError("killed")
+    assert not target.exists() and list(tmp_path.iterdir()) == []
+    for bad in (np.full(10, 2.0), np.zeros((2, 10)), np.array([np.nan, 0.0]), np.zeros(10, dtype=np.int16)):
+        with pytest.raises(InputError):
+            VideoWriter(target, 30, (64, 48), audio=bad)
+
+
+@pytest.mark.parametrize("change, word", [({"width": 321}, "--size"), ({"fps": 1.0}, "--fps"),
+                                          ({"duration": 0.2}, "--duration"), ({"yaw": 90.0}, "yaw"),
+                                          ({"pitch": -1.0}, "pitch"), ({"shift": 50.0}, "shift"),
+                                          ({"ambient": 0.0}, "--ambient"), ({"noise": float("nan")}, "--noise"),
+                                          ({"crf": 60}, "--crf"), ({"audio": "beep"}, "--audio"),
+                                          ({"seed": -1}, "--seed")])
+def test_bad_settings_say_what_to_change(change, word):
+    with pytest.raises(InputError, match=word):
+        LiveConfig(**change).validate()
+
+
+def test_command_line_refuses_capture_flags_with_live(tmp_path, capsys):
+    assert main(["synth", str(tmp_path / "o"), "--live", "--flash-hz", "3", "--quiet"]) == 2
+    assert "--flash-hz" in capsys.readouterr().err
+    assert main(["synth", str(tmp_path / "o"), "--audio", "noise", "--quiet"]) == 2
+    assert "--live" in capsys.readouterr().err
+    assert main(["synth", str(tmp_path / "o"), "--live", "--size", "200x101", "--quiet"]) == 2
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("pose", [(0.0, 15.0, 8.0), (0.0, -15.0, -8.0), (30.0, 15.0, -8.0)])
+def test_neck_stays_on_the_bottom_edge(scene, pose):
+    """At the largest pitch and roll, shifted up as far as the motion goes, the neck still leaves
+    the frame at the bottom (it is extended below the frame, not cut at the reference's edge)."""
+    head, mesh = scene.head, scene.mesh
+    lift = scene.config.shift_px
+    box, _, cov = mesh.render(rotation_matrix(*pose), (0.0, -lift))
+    bottom = _full(box, cov, head.mask.shape)[-1]
+    ref_bottom = (head.alpha[-1] > 0.5).sum()
+    assert 0.8 * ref_bottom < (bottom > 0.5).sum() < 1.3 * ref_bottom
+
+
+def test_each_video_frame_shows_its_recorded_pose(live, scene):
+    out, meta = live
+    frames = list(read_frames(out / "live.mp4"))
+    assert len(frames) == meta["frame_count"]
+    for k in (0, 23, len(frames) - 1):
+        renders = [scene.render(rotation_matrix(*meta["head_rotation"][j]), meta["head_translation"][j])
+                   for j in (k, (k + 6) % len(frames))]
+        head = (renders[0][1] > 0) | (renders[1][1] > 0)
+        got = frames[k].astype(float)[head]
+        right, other = (np.abs(got - scene.expose(lin, None).astype(float)[head]).mean() for lin, _ in renders)
+        assert right < 2.5 and other > 2 * right
