@@ -18,13 +18,13 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from relight.colour import decode_srgb8, encode_srgb8
+from relight.colour import decode_srgb8
 from relight.errors import InputError
 
 from . import composite
 from .pose import OneEuroFilter, PoseEstimator, camera_matrix, lift_landmarks
 from .tracking import MAX_TRACKED, FaceTracker, thin_points
-from .warp import face_ring, inverse_map, points_box, warp
+from .warp import GRID_STEP, coarse_map, face_ring, points_box
 
 _LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
 #: Rows of the frames the tracker sees (larger frames are scaled down for tracking only).
@@ -55,6 +55,22 @@ def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
     m = cv2.remap(img.astype(np.float32), xy[:, 0:1].astype(np.float32), xy[:, 1:2].astype(np.float32),
                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return m.reshape(-1)
+
+
+def _sample_rgb(rgb: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 pixels of ``rgb`` nearest to points ``xy`` (clipped to the frame)."""
+    h, w = rgb.shape[:2]
+    xi = np.clip(np.round(xy[:, 0]).astype(np.int64), 0, w - 1)
+    yi = np.clip(np.round(xy[:, 1]).astype(np.int64), 0, h - 1)
+    return rgb[yi, xi]
+
+
+def _crop_index(xy: np.ndarray, origin, shape) -> np.ndarray:
+    """Flat crop indices of the crop pixels nearest to reference points ``xy``."""
+    h, w = shape
+    xi = np.clip(np.round(xy[:, 0] - origin[0]).astype(np.int64), 0, w - 1)
+    yi = np.clip(np.round(xy[:, 1] - origin[1]).astype(np.int64), 0, h - 1)
+    return yi * w + xi
 
 
 def _affine_ring(src: np.ndarray, dst: np.ndarray, ring: np.ndarray) -> np.ndarray:
@@ -141,11 +157,6 @@ class FramePath:
         er = max(int(round(FEATHER_ERODE * size)), 1)
         m = cv2.erode(solid.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * er + 1,) * 2))
         self.alpha_crop = cv2.GaussianBlur(m.astype(np.float32), (0, 0), FEATHER_SIGMA * size)
-        # Where the feathered mask reaches past the face, layers take the nearest face pixel's
-        # value (no dark or bright halo from the background the maps never saw).
-        fringe = (self.alpha_crop > 1e-3) & ~mask_crop
-        self.fringe_dst = np.flatnonzero(fringe)
-        self.fringe_src = (iy * w + ix).ravel()[self.fringe_dst]
         self.ambient_crop = np.asarray(bundle.ambient, dtype=np.float32)
         self.reference_light = "room"
         if not (self.ambient_crop[mask_crop].max(initial=0.0) > composite.TINY):
@@ -160,8 +171,20 @@ class FramePath:
         amb_lum = (self.ambient_crop[mask_crop] @ _LUM) if mask_crop.any() else np.zeros(1, np.float32)
         self.ratio_eps = np.float32(composite.RATIO_EPS * max(float(np.median(amb_lum)), composite.TINY))
         self.inv_ambient = (1.0 / (self.ambient_crop + self.ratio_eps)).astype(np.float32)
+        # Crop pixel -> relit frame pixel: the face's own, the nearest face pixel in the feathered
+        # fringe (no dark or bright halo from the background the maps never saw), else none.
+        ref_index = ((np.arange(h)[:, None] + y0) * ref_w + (np.arange(w)[None, :] + x0)).astype(np.int64)
+        fill = np.full((h, w), -1, dtype=np.int32)
+        fill[mask_crop] = ref_index[mask_crop]
+        fringe = (self.alpha_crop > 1e-4) & ~mask_crop
+        fill[fringe] = ref_index[iy[fringe], ix[fringe]]
+        self.fill_flat = fill.ravel()
         # Every 7th face pixel: enough for the median of the lighting ratio.
-        self.median_sample = np.flatnonzero(mask_crop.ravel())[::7]
+        self.sample_crop = np.flatnonzero(mask_crop.ravel())[::7]
+        self.sample_full = self.fill_flat[self.sample_crop]
+        from relight.kernels.compositor import Compositor
+
+        self.compositor = Compositor(self.alpha_crop, fill, self.inv_ambient, self.origin, self.relighter)
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
         self.gain_filter = OneEuroFilter(GAIN_MIN_CUTOFF, 0.0)
@@ -243,9 +266,6 @@ class FramePath:
         tm["pose"] = (time.perf_counter() - t1) * 1e3
         t2 = time.perf_counter()
         img = self.relighter.relight(self.env, None if self.fixed_env else rotation, exposure=self.exposure)
-        x0, y0 = self.origin
-        ch, cw = self.mask_crop.shape
-        relit = img[y0:y0 + ch, x0:x0 + cw]
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()
         ref_idx = track.ref_index[keep]
@@ -253,38 +273,32 @@ class FramePath:
                                                            self.control_ref[self.ring_index])])
         ref = np.concatenate([self.control_ref[ref_idx], self.control_ref[self.ring_index]])
         box = points_box(cur, size)
-        mapping = inverse_map(cur, ref, box) if box is not None else None
-        if mapping is None:
+        coarse = coarse_map(cur, ref, box) if box is not None else None
+        if coarse is None:
             info.face = False
             info.note = "face outside the frame"
             tm["warp"] = (time.perf_counter() - t3) * 1e3
             tm["total"] = (time.perf_counter() - t0) * 1e3
             return rgb, info
-        alpha = warp(self.alpha_crop, mapping, self.origin)
+        # Exposure: transfer keeps the face's brightness (the lighting ratio's median is 1);
+        # paste matches the relit face's median to the live face's at the tracked points.
+        flat = img.reshape(-1, 3)
         if self.mode == "transfer":
-            ratio = (relit + self.ratio_eps) * self.inv_ambient
-            lum = ratio.reshape(-1, 3)[self.median_sample] @ _LUM
-            med = float(np.median(lum)) if lum.size else 1.0
-        else:
-            ratio = np.array(relit)
-        flat = ratio.reshape(-1, 3)
-        flat[self.fringe_dst] = flat[self.fringe_src]
-        layer = warp(ratio, mapping, self.origin)
-        tm["warp"] = (time.perf_counter() - t3) * 1e3
-        t4 = time.perf_counter()
-        bx0, by0, bx1, by1 = box
-        frame_lin = decode_srgb8(rgb[by0:by1, bx0:bx1])
-        if self.mode == "transfer":
+            ratio = (flat[self.sample_full] + self.ratio_eps) * self.inv_ambient.reshape(-1, 3)[self.sample_crop]
+            med = float(np.median(ratio @ _LUM)) if ratio.size else 1.0
             gain = 1.0 / med if med > composite.TINY else 1.0
         else:
-            gain = composite.median_gain(frame_lin, layer, alpha)
+            live = decode_srgb8(_sample_rgb(rgb, track.xy[keep])) @ _LUM
+            ref_px = self.fill_flat[_crop_index(self.control_ref[ref_idx], self.origin, self.mask_crop.shape)]
+            relit_l = flat[ref_px[ref_px >= 0]] @ _LUM
+            num, den = float(np.median(live)) if live.size else 0.0, float(np.median(relit_l)) if relit_l.size else 0.0
+            gain = num / den if num > composite.TINY and den > composite.TINY else 1.0
         gain = float(np.exp(self.gain_filter([np.log(max(gain, 1e-6))], t)[0]))
-        if self.mode == "transfer":
-            out_lin = composite.transfer(frame_lin, layer, alpha, gain * self.exposure, self.strength)
-        else:
-            out_lin = composite.paste(frame_lin, layer, alpha, gain * self.exposure, self.strength)
-        out = rgb.copy()
-        out[by0:by1, bx0:bx1] = encode_srgb8(out_lin)
+        tm["warp"] = (time.perf_counter() - t3) * 1e3
+        t4 = time.perf_counter()
+        out = self.compositor.run(rgb, box, coarse, GRID_STEP, transfer=self.mode == "transfer",
+                                  gain=gain * self.exposure, strength=self.strength, eps=float(self.ratio_eps),
+                                  ratio_max=composite.RATIO_MAX)
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info

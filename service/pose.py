@@ -34,7 +34,7 @@ RANSAC_ITERATIONS = 60
 #: Fewest RANSAC inliers for a pose to be believed.
 MIN_INLIERS = 8
 #: While tracking, the share of points the previous pose must explain to skip RANSAC.
-TRACK_INLIERS = 0.7
+TRACK_INLIERS = 0.6
 #: relight camera space <-> OpenCV camera space (flip Y and Z).
 _FLIP = np.diag([1.0, -1.0, -1.0])
 
@@ -129,7 +129,7 @@ class PoseEstimator:
             proj, _ = cv2.projectPoints(obj, rvec, tvec, self.k, None)
         except cv2.error:
             return None
-        inl = np.flatnonzero(np.linalg.norm((proj - img).reshape(-1, 2), axis=1) < thr)
+        inl = np.flatnonzero(np.linalg.norm((proj - img).reshape(-1, 2), axis=1) < 2.0 * thr)
         if inl.size < max(MIN_INLIERS, TRACK_INLIERS * len(obj)):
             return None
         return self._finish(obj, img, rvec, tvec, inl)

@@ -34,13 +34,13 @@ def face_ring(mask: np.ndarray, count: int = 32, margin: float = 0.06) -> np.nda
     return c[(np.arange(count) * step).astype(int)]
 
 
-def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int],
-                step: int = GRID_STEP) -> np.ndarray | None:
-    """(H_box, W_box, 2) float32 reference positions of the frame pixels in ``box``.
-
-    cur, ref : (M, 2) control points in the frame and in the reference. None when the points
-    cannot be triangulated (fewer than 3, or all on a line).
-    """
+def coarse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int],
+               step: int = GRID_STEP) -> np.ndarray | None:
+    """(gh, gw, 2) float32 reference positions of a grid of frame points: grid point (i, j) sits
+    at frame pixel (x0 + (i - 0.5) step - 0.5, y0 + (j - 0.5) step - 0.5) - pixel centres as
+    bilinear upsampling by ``step`` places them, one extra point on each side of the box.
+    ``OUTSIDE`` where a point is outside the triangulation. None when the control points
+    cannot be triangulated (fewer than 3, or all on a line)."""
     x0, y0, x1, y1 = box
     w, h = x1 - x0, y1 - y0
     if w <= 0 or h <= 0 or len(cur) < 3:
@@ -49,8 +49,6 @@ def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int]
         tri = Delaunay(np.asarray(cur, dtype=np.float64))
     except (QhullError, ValueError):
         return None
-    # Grid points sit where cv2.resize's bilinear upsampling puts its samples (pixel centres),
-    # one extra on each side so the box's edge pixels are interpolated, not clamped.
     gw, gh = -(-w // step) + 2, -(-h // step) + 2
     gx = x0 + (np.arange(gw) - 0.5) * step - 0.5
     gy = y0 + (np.arange(gh) - 0.5) * step - 0.5
@@ -72,12 +70,25 @@ def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int]
     si = s[inside]
     out = np.full((pts.shape[0], 2), OUTSIDE, dtype=np.float64)
     out[inside] = q[si, 0] + np.einsum("ni,nij->nj", pts[inside] - p[si, 0], lin[si])
-    coarse = out.reshape(gh, gw, 2).astype(np.float32)
+    return out.reshape(gh, gw, 2).astype(np.float32)
+
+
+def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int],
+                step: int = GRID_STEP) -> np.ndarray | None:
+    """(H_box, W_box, 2) float32 reference positions of the frame pixels in ``box`` (the coarse
+    map upsampled bilinearly; ``OUTSIDE`` unless all four grid points around a pixel are inside).
+    cur, ref : (M, 2) control points in the frame and in the reference."""
+    coarse = coarse_map(cur, ref, box, step)
+    if coarse is None:
+        return None
+    x0, y0, x1, y1 = box
+    w, h = x1 - x0, y1 - y0
+    gh, gw = coarse.shape[:2]
     full = cv2.resize(coarse, (gw * step, gh * step), interpolation=cv2.INTER_LINEAR)[step:step + h, step:step + w]
     # Pixels between a grid point inside the triangulation and one outside would interpolate
     # toward OUTSIDE and land anywhere: they are outside too. A pixel is valid when the four
     # grid points around it are; the cells between grid points start half a step in.
-    ok = inside.reshape(gh, gw)
+    ok = coarse[..., 0] > OUTSIDE / 2
     cell = ok[:-1, :-1] & ok[1:, :-1] & ok[:-1, 1:] & ok[1:, 1:]
     half = step // 2
     valid = np.repeat(np.repeat(cell, step, axis=0), step, axis=1)[half:half + h, half:half + w]

@@ -12,7 +12,7 @@ from relight.directions import rotation_angles, rotation_matrix
 from relight.errors import InputError
 from relight.video import VideoWriter, read_frames
 
-from .tolerances import POSE_SYNTHETIC_DEG, WARP_AFFINE_PX
+from .tolerances import COMPOSITE_TWIN_CODES, POSE_SYNTHETIC_DEG, WARP_AFFINE_PX
 
 
 @pytest.fixture(scope="module")
@@ -203,3 +203,30 @@ def test_filter_bad_input_fails_cleanly_and_leaves_no_output(small_bundle, clip,
     a, b = list(read_frames(faceless)), list(read_frames(out))
     assert len(a) == len(b) == 5
     assert all(np.abs(x.astype(int) - y.astype(int)).max() <= 2 for x, y in zip(a, b, strict=True))
+
+
+@pytest.mark.parametrize("transfer", [True, False])
+def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, transfer):
+    from relight.kernels.compositor import warp_composite_numpy
+    from relight.service.warp import coarse_map
+
+    _, frames = clip
+    fp = frame_path
+    rgb = frames[5]
+    rng = np.random.default_rng(4)
+    # Control points: the reference landmarks moved by a small affine map plus noise.
+    ref = fp.control_ref
+    a = np.array([[1.03, 0.04], [-0.03, 0.98]])
+    cur = (ref - ref.mean(0)) @ a.T + ref.mean(0) + np.array([4.0, -3.0]) + rng.normal(0, 0.3, ref.shape)
+    h, w = rgb.shape[:2]
+    box = (max(int(cur[:, 0].min()), 0), max(int(cur[:, 1].min()), 0), min(int(cur[:, 0].max()) + 1, w),
+           min(int(cur[:, 1].max()) + 1, h))
+    coarse = coarse_map(cur, ref, box)
+    fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(8, -4, 2))
+    settings = dict(transfer=transfer, gain=1.3, strength=0.8, eps=float(fp.ratio_eps), ratio_max=6.0)
+    got = fp.compositor.run(rgb, box, coarse, 8, **settings)
+    want = warp_composite_numpy(rgb, box, coarse, 8, fp.origin, fp.alpha_crop, fp.relighter.frame,
+                                fp.fill_flat.reshape(fp.alpha_crop.shape), fp.inv_ambient, **settings)
+    diff = np.abs(got.astype(int) - want.astype(int))
+    assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
+    assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01

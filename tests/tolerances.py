@@ -58,3 +58,6 @@ ROTATION_EQUIV_REL = 0.03
 POSE_SYNTHETIC_DEG = 0.05
 #: The piecewise-affine warp of an affine map: largest error (px) of the interpolated grid.
 WARP_AFFINE_PX = 0.02
+#: warp_composite kernel vs its NumPy twin: largest difference in 8-bit codes (float rounding
+#: at a LUT step), and it may touch at most 1 % of the pixels.
+COMPOSITE_TWIN_CODES = 1

@@ -1,0 +1,159 @@
+"""Host wrapper and NumPy twin of ``composite.cl``: the relit face warped into a frame and
+composited (transfer or paste), sRGB in and out, in one pass over the face's box.
+
+Arrays (reference crop of ch x cw pixels whose top-left is reference pixel ``origin``):
+alpha (ch, cw) float32 feathered mask; fill (ch, cw) int32 index into the relit frame's pixels
+(-1 = none); inv_amb (ch, cw, 3) float32 = 1 / (reference ambient + eps); relit: the
+Relighter's (H_ref, W_ref, 3) float32 linear frame. ``coarse``: (gh, gw, 2) float32 from
+:func:`relight.service.warp.coarse_map`. Frames: (H, W, 3) uint8 sRGB.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from relight.colour import _decode_lut8, _encode_lut
+
+from .runtime import build_program, get_runtime
+
+#: Reference positions below this mark grid points outside the warp (see warp.OUTSIDE).
+OUTSIDE_HALF = -5.0e3
+#: Feathered-mask values below this are zero (no work, no denormals).
+ALPHA_FLOOR = 1e-4
+#: Pixels per work item (the kernel's RUN) and rows per work-group.
+RUN = 32
+ROWS_PER_GROUP = 16
+
+
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | None = None) -> np.ndarray:
+    """Bilinear samples (N, C) of img (ch, cw, C) - or of img's pixels (M, C) through ``fill`` -
+    at crop positions x, y; zero outside the crop or where fill is -1."""
+    ch, cw = (fill.shape if fill is not None else img.shape[:2])
+    flat = img.reshape(-1, img.shape[-1])
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    ax = (x - x0).astype(np.float32)
+    ay = (y - y0).astype(np.float32)
+    x0 = x0.astype(np.int64)
+    y0 = y0.astype(np.int64)
+    acc = np.zeros((x.size, flat.shape[1]), dtype=np.float32)
+    for k in range(4):
+        xi, yi = x0 + (k & 1), y0 + (k >> 1)
+        w = ((ax if k & 1 else 1.0 - ax) * (ay if k >> 1 else 1.0 - ay)).astype(np.float32)
+        ok = (xi >= 0) & (yi >= 0) & (xi < cw) & (yi < ch)
+        src = np.where(ok, yi * cw + xi, 0)
+        if fill is not None:
+            src = fill.ravel()[src]
+            ok &= src >= 0
+            src = np.where(ok, src, 0)
+        acc += np.where(ok, w, 0.0)[:, None] * flat[src]
+    return acc
+
+
+def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, alpha: np.ndarray,
+                         relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, *, transfer: bool, gain: float,
+                         strength: float, eps: float, ratio_max: float) -> np.ndarray:
+    """NumPy twin of ``warp_composite``: a new frame."""
+    out = np.array(frame)
+    bx0, by0, bx1, by1 = box
+    bw, bh = bx1 - bx0, by1 - by0
+    ys, xs = np.mgrid[0:bh, 0:bw]
+    cx = ((xs + step + 0.5) / step - 0.5).ravel()
+    cy = ((ys + step + 0.5) / step - 0.5).ravel()
+    i0, j0 = np.floor(cx).astype(np.int64), np.floor(cy).astype(np.int64)
+    ax, ay = (cx - i0).astype(np.float32), (cy - j0).astype(np.float32)
+    c = [coarse[j0 + dj, i0 + di] for dj, di in ((0, 0), (0, 1), (1, 0), (1, 1))]
+    inside = np.all([ci[:, 0] >= OUTSIDE_HALF for ci in c], axis=0)
+    m = ((c[0] * (1 - ax)[:, None] + c[1] * ax[:, None]) * (1 - ay)[:, None]
+         + (c[2] * (1 - ax)[:, None] + c[3] * ax[:, None]) * ay[:, None])
+    rx = m[:, 0] - np.float32(origin[0])
+    ry = m[:, 1] - np.float32(origin[1])
+    alpha = np.where(alpha >= ALPHA_FLOOR, alpha, 0.0).astype(np.float32)
+    a = _bilinear(alpha[..., None], rx, ry)[:, 0] * np.float32(strength)
+    sel = inside & (a > 0)
+    rx, ry, a = rx[sel], ry[sel], a[sel, None]
+    rel = _bilinear(relit.reshape(-1, 3), rx, ry, fill)
+    region = out[by0:by1, bx0:bx1].reshape(-1, 3)
+    f = _decode_lut8()[region[sel]]
+    if transfer:
+        inv = _bilinear(inv_amb, rx, ry)
+        r = np.clip(np.float32(gain) * (rel + np.float32(eps)) * inv, 0.0, np.float32(ratio_max))
+        res = f * (1.0 + a * (r - 1.0))
+    else:
+        res = f + a * (np.float32(gain) * rel - f)
+    lut, n = _encode_lut()
+    idx = np.clip(res * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
+    region[sel] = lut[idx]
+    out[by0:by1, bx0:bx1] = region.reshape(bh, bw, 3)
+    return out
+
+
+class Compositor:
+    """The ``warp_composite`` kernel bound to one reference crop and the Relighter's frame."""
+
+    def __init__(self, alpha: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, origin, relighter):
+        import pyopencl as cl
+
+        rt = get_runtime()
+        self.rt = rt
+        ctx = rt.context
+        mf = cl.mem_flags
+        # Denormals flushed (a feathered mask's Gaussian tails reach them: each costs a microcode
+        # assist); alpha below ALPHA_FLOOR counts as zero.
+        self._kernel = cl.Kernel(build_program("composite", ("-cl-denorms-are-zero",)), "warp_composite")
+        self.alpha = np.ascontiguousarray(alpha, dtype=np.float32)
+        self.alpha = np.where(self.alpha >= ALPHA_FLOOR, self.alpha, 0.0).astype(np.float32)
+        self.fill = np.ascontiguousarray(fill, dtype=np.int32)
+        self.inv_amb = np.ascontiguousarray(inv_amb, dtype=np.float32)
+        if not (np.isfinite(self.alpha).all() and np.isfinite(self.inv_amb).all()):
+            raise ValueError("compositor inputs must be finite")
+        self.ch, self.cw = self.alpha.shape
+        self.origin = (float(origin[0]), float(origin[1]))
+        self.relighter = relighter
+        self._alpha = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.alpha)
+        self._fill = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.fill)
+        self._inv = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.inv_amb)
+        self._dec = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_decode_lut8().astype(np.float32))
+        lut, self.lut_n = _encode_lut()
+        self._enc = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(lut))
+        self.frame: np.ndarray | None = None
+        self._frame_buf = None
+        self._coarse_buf = None
+        self._coarse_cap = 0
+
+    def _frame_for(self, shape):
+        import pyopencl as cl
+
+        if self.frame is None or self.frame.shape != shape:
+            self.frame = np.zeros(shape, dtype=np.uint8)
+            self._frame_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE, self.frame.nbytes)
+        return self._frame_buf
+
+    def run(self, rgb: np.ndarray, box, coarse: np.ndarray, step: int, *, transfer: bool, gain: float,
+            strength: float, eps: float, ratio_max: float) -> np.ndarray:
+        """``rgb`` with the face composited (a new array)."""
+        import pyopencl as cl
+
+        q = self.rt.queue
+        buf = self._frame_for(rgb.shape)
+        # The frame goes in and comes out through explicit copies (a host-pointer buffer written
+        # by the host between kernels is not guaranteed to be seen by the device).
+        cl.enqueue_copy(q, buf, np.ascontiguousarray(rgb, dtype=np.uint8), is_blocking=False)
+        coarse = np.ascontiguousarray(coarse, dtype=np.float32)
+        if coarse.nbytes > self._coarse_cap:
+            self._coarse_cap = max(coarse.nbytes, 2 * self._coarse_cap)
+            self._coarse_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY, self._coarse_cap)
+        cl.enqueue_copy(q, self._coarse_buf, coarse, is_blocking=False)
+        bx0, by0, bx1, by1 = box
+        bw, bh = bx1 - bx0, by1 - by0
+        runs = -(-bw // RUN)
+        gy = -(-bh // ROWS_PER_GROUP) * ROWS_PER_GROUP
+        self._kernel(q, (runs, gy), (1, ROWS_PER_GROUP), buf, np.int32(rgb.shape[1]), np.int32(bx0), np.int32(by0),
+                     np.int32(bw), np.int32(bh), self._coarse_buf, np.int32(coarse.shape[1]), np.int32(step),
+                     np.float32(self.origin[0]), np.float32(self.origin[1]), self._alpha, np.int32(self.cw),
+                     np.int32(self.ch), self.relighter._frame_buf, self._fill, self._inv, self._dec, self._enc,
+                     np.int32(self.lut_n), np.int32(1 if transfer else 0), np.float32(gain), np.float32(strength),
+                     np.float32(eps), np.float32(ratio_max))
+        out = np.empty_like(self.frame)
+        cl.enqueue_copy(q, out, buf, is_blocking=True)
+        return out
