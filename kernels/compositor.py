@@ -1,7 +1,9 @@
 """Host wrapper and NumPy twin of ``composite.cl``: the relit face warped into a frame and
 composited (transfer or paste), sRGB in and out, in one pass over the face's box.
 
-Arrays (reference crop of ch x cw pixels whose top-left is reference pixel ``origin``):
+Two kernels: ``build_layer`` makes the crop's float4 layer (lighting ratio or relit colour, and
+alpha), ``warp_composite`` samples it once per frame pixel and composites. Arrays (reference
+crop of ch x cw pixels whose top-left is reference pixel ``origin``):
 alpha (ch, cw) float32 feathered mask; fill (ch, cw) int32 index into the relit frame's pixels
 (-1 = none); inv_amb (ch, cw, 3) float32 = 1 / (reference ambient + eps); relit: the
 Relighter's (H_ref, W_ref, 3) float32 linear frame. ``coarse``: (gh, gw, 2) float32 from
@@ -20,9 +22,6 @@ from .runtime import build_program, get_runtime
 OUTSIDE_HALF = -5.0e3
 #: Feathered-mask values below this are zero (no work, no denormals).
 ALPHA_FLOOR = 1e-4
-#: Pixels per work item (the kernel's RUN) and rows per work-group.
-RUN = 32
-ROWS_PER_GROUP = 16
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | None = None) -> np.ndarray:
@@ -50,10 +49,25 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | 
     return acc
 
 
-def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, alpha: np.ndarray,
-                         relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, *, transfer: bool, gain: float,
-                         strength: float, eps: float, ratio_max: float) -> np.ndarray:
-    """NumPy twin of ``warp_composite``: a new frame."""
+def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, alpha: np.ndarray, *,
+                      transfer: bool, gain: float, strength: float, eps: float, ratio_max: float) -> np.ndarray:
+    """NumPy twin of ``build_layer``: (ch, cw, 4) float32 (rgb, alpha)."""
+    f = fill.ravel()
+    ok = f >= 0
+    rel = np.zeros((f.size, 3), dtype=np.float32)
+    rel[ok] = relit.reshape(-1, 3)[f[ok]]
+    a = np.where(alpha >= ALPHA_FLOOR, alpha, 0.0).astype(np.float32).ravel() * np.float32(strength)
+    if transfer:
+        v = np.clip(np.float32(gain) * (rel + np.float32(eps)) * inv_amb.reshape(-1, 3), 0.0, np.float32(ratio_max))
+        a = np.where(ok, a, 0.0)
+    else:
+        v = np.float32(gain) * rel
+    return np.concatenate([v, a[:, None]], axis=1).astype(np.float32).reshape(*fill.shape, 4)
+
+
+def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, layer: np.ndarray, *,
+                         transfer: bool) -> np.ndarray:
+    """NumPy twin of ``warp_composite``: a new frame (layer from :func:`build_layer_numpy`)."""
     out = np.array(frame)
     bx0, by0, bx1, by1 = box
     bw, bh = bx1 - bx0, by1 - by0
@@ -66,21 +80,13 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
     inside = np.all([ci[:, 0] >= OUTSIDE_HALF for ci in c], axis=0)
     m = ((c[0] * (1 - ax)[:, None] + c[1] * ax[:, None]) * (1 - ay)[:, None]
          + (c[2] * (1 - ax)[:, None] + c[3] * ax[:, None]) * ay[:, None])
-    rx = m[:, 0] - np.float32(origin[0])
-    ry = m[:, 1] - np.float32(origin[1])
-    alpha = np.where(alpha >= ALPHA_FLOOR, alpha, 0.0).astype(np.float32)
-    a = _bilinear(alpha[..., None], rx, ry)[:, 0] * np.float32(strength)
-    sel = inside & (a > 0)
-    rx, ry, a = rx[sel], ry[sel], a[sel, None]
-    rel = _bilinear(relit.reshape(-1, 3), rx, ry, fill)
+    lay = _bilinear(layer, m[:, 0] - np.float32(origin[0]), m[:, 1] - np.float32(origin[1]))
+    sel = inside & (lay[:, 3] > 0)
+    lay = lay[sel]
+    a = lay[:, 3:]
     region = out[by0:by1, bx0:bx1].reshape(-1, 3)
     f = _decode_lut8()[region[sel]]
-    if transfer:
-        inv = _bilinear(inv_amb, rx, ry)
-        r = np.clip(np.float32(gain) * (rel + np.float32(eps)) * inv, 0.0, np.float32(ratio_max))
-        res = f * (1.0 + a * (r - 1.0))
-    else:
-        res = f + a * (np.float32(gain) * rel - f)
+    res = f * (1.0 + a * (lay[:, :3] - 1.0)) if transfer else f + a * (lay[:, :3] - f)
     lut, n = _encode_lut()
     idx = np.clip(res * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
     region[sel] = lut[idx]
@@ -100,7 +106,9 @@ class Compositor:
         mf = cl.mem_flags
         # Denormals flushed (a feathered mask's Gaussian tails reach them: each costs a microcode
         # assist); alpha below ALPHA_FLOOR counts as zero.
-        self._kernel = cl.Kernel(build_program("composite", ("-cl-denorms-are-zero",)), "warp_composite")
+        prg = build_program("composite", ("-cl-denorms-are-zero",))
+        self._kernel = cl.Kernel(prg, "warp_composite")
+        self._k_layer = cl.Kernel(prg, "build_layer")
         self.alpha = np.ascontiguousarray(alpha, dtype=np.float32)
         self.alpha = np.where(self.alpha >= ALPHA_FLOOR, self.alpha, 0.0).astype(np.float32)
         self.fill = np.ascontiguousarray(fill, dtype=np.int32)
@@ -116,6 +124,7 @@ class Compositor:
         self._dec = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_decode_lut8().astype(np.float32))
         lut, self.lut_n = _encode_lut()
         self._enc = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(lut))
+        self._layer = cl.Buffer(ctx, mf.READ_WRITE, self.alpha.size * 16)
         self.frame: np.ndarray | None = None
         self._frame_buf = None
         self._coarse_buf = None
@@ -146,14 +155,15 @@ class Compositor:
         cl.enqueue_copy(q, self._coarse_buf, coarse, is_blocking=False)
         bx0, by0, bx1, by1 = box
         bw, bh = bx1 - bx0, by1 - by0
-        runs = -(-bw // RUN)
-        gy = -(-bh // ROWS_PER_GROUP) * ROWS_PER_GROUP
-        self._kernel(q, (runs, gy), (1, ROWS_PER_GROUP), buf, np.int32(rgb.shape[1]), np.int32(bx0), np.int32(by0),
-                     np.int32(bw), np.int32(bh), self._coarse_buf, np.int32(coarse.shape[1]), np.int32(step),
-                     np.float32(self.origin[0]), np.float32(self.origin[1]), self._alpha, np.int32(self.cw),
-                     np.int32(self.ch), self.relighter._frame_buf, self._fill, self._inv, self._dec, self._enc,
-                     np.int32(self.lut_n), np.int32(1 if transfer else 0), np.float32(gain), np.float32(strength),
-                     np.float32(eps), np.float32(ratio_max))
+        n = self.alpha.size
+        self._k_layer(q, (-(-n // 64) * 64,), (64,), self.relighter._frame_buf, self._fill, self._inv, self._alpha,
+                      np.int32(n), np.int32(1 if transfer else 0), np.float32(gain), np.float32(strength),
+                      np.float32(eps), np.float32(ratio_max), self._layer)
+        self._kernel(q, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(rgb.shape[1]), np.int32(bx0),
+                     np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf, np.int32(coarse.shape[1]),
+                     np.int32(step), np.float32(self.origin[0]), np.float32(self.origin[1]), self._layer,
+                     np.int32(self.cw), np.int32(self.ch), self._dec, self._enc, np.int32(self.lut_n),
+                     np.int32(1 if transfer else 0))
         out = np.empty_like(self.frame)
         cl.enqueue_copy(q, out, buf, is_blocking=True)
         return out

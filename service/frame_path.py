@@ -28,7 +28,7 @@ from .warp import GRID_STEP, coarse_map, face_ring, points_box
 
 _LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
 #: Rows of the frames the tracker sees (larger frames are scaled down for tracking only).
-TRACK_ROWS = 360
+TRACK_ROWS = 270
 #: Feather of the face mask: erosion and Gaussian sigma, as shares of the face's size.
 FEATHER_ERODE = 0.015
 FEATHER_SIGMA = 0.02
