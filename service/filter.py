@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import json
 import os
+import queue
+import threading
 import time
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -101,6 +103,83 @@ class _VirtualCamera:
 
     def close(self):
         self.cam.close()
+
+
+def _threaded(gen_fn, maxsize: int = 4):
+    """Run the generator ``gen_fn()`` on a thread and yield its items here (its exceptions are
+    re-raised here; leaving early stops it)."""
+    q: queue.Queue = queue.Queue(maxsize)
+    stop = threading.Event()
+
+    def run():
+        try:
+            for item in gen_fn():
+                while not stop.is_set():
+                    try:
+                        q.put(("item", item), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put(("end", None))
+        except BaseException as exc:  # handed to the consumer
+            q.put(("error", exc))
+
+    th = threading.Thread(target=run, name="relight-filter-reader", daemon=True)
+    th.start()
+    try:
+        while True:
+            kind, item = q.get()
+            if kind == "end":
+                return
+            if kind == "error":
+                raise item
+            yield item
+    finally:
+        stop.set()
+        while th.is_alive():
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                th.join(timeout=0.05)
+
+
+class _Writer:
+    """Calls ``fn(item)`` for each item put, in order, on its own thread (bounded queue); an
+    error there is raised in the caller at the next put or at exit."""
+
+    def __init__(self, fn, maxsize: int = 4):
+        self.fn = fn
+        self.q: queue.Queue = queue.Queue(maxsize)
+        self.error: BaseException | None = None
+        self.th = threading.Thread(target=self._run, name="relight-filter-writer", daemon=True)
+
+    def _run(self):
+        while True:
+            item = self.q.get()
+            if item is None:
+                return
+            if self.error is None:
+                try:
+                    self.fn(item)
+                except BaseException as exc:
+                    self.error = exc
+
+    def __enter__(self):
+        self.th.start()
+        return self
+
+    def put(self, item):
+        if self.error is not None:
+            raise self.error
+        self.q.put(item)
+
+    def __exit__(self, exc_type, exc, tb):
+        self.q.put(None)
+        self.th.join()
+        if exc_type is None and self.error is not None:
+            raise self.error
 
 
 def run_filter(inp, out, bundle, env, *, mode: str = "transfer", fixed_env: bool = False, strength: float = 1.0,
@@ -253,47 +332,69 @@ def _filter_video(inp, out, handle, crf, res, progress, tqdm):
                                               layout=aout.codec_context.layout.name, rate=aout.rate)
                 res.audio = f"re-encoded ({name} -> {codec})"
         bar = tqdm(total=info.frame_count or None, desc="filter", unit="frame", disable=not progress)
-        index = 0
-        last_pts = None
         streams = [vin] + ([ain] if ain is not None else [])
-        try:
-            for packet in src.demux(*streams):
-                if packet.stream is ain:
-                    if packet.dts is None:
+        state = {"frames": 0}
+
+        def read():
+            """Demux + decode + RGB conversion (a thread: FFmpeg releases the GIL)."""
+            last_pts = None
+            try:
+                for packet in src.demux(*streams):
+                    if packet.stream is ain:
+                        if packet.dts is not None:
+                            yield ("audio", packet)
                         continue
-                    if resampler is None:
-                        packet.stream = aout
-                        dst.mux(packet)
-                    else:
-                        for af in packet.decode():
-                            for rf in resampler.resample(af):
-                                rf.pts = None
-                                for p in aout.encode(rf):
-                                    dst.mux(p)
-                    continue
-                for frame in packet.decode():
-                    if index >= MAX_VIDEO_FRAMES:
-                        raise InputError(f"{inp}: more than {MAX_VIDEO_FRAMES} frames; trim the video")
-                    rgb = _to_rgb(frame)
-                    if rgb.shape[:2] != (info.height, info.width):
-                        raise InputError(f"{inp}: frame {index} is {rgb.shape[1]}x{rgb.shape[0]}, the stream said "
-                                         f"{info.width}x{info.height}; variable-size streams are not supported")
-                    pts = frame.pts if frame.pts is not None else (last_pts + 1 if last_pts is not None else 0)
-                    if last_pts is not None and pts <= last_pts:
-                        pts = last_pts + 1  # broken timestamps: keep them increasing
-                    last_pts = pts
-                    t = float(pts * tb)
-                    outf = _to_yuv(handle(rgb, t, index))
-                    outf.pts = pts
-                    outf.time_base = tb
-                    for p in vout.encode(outf):
-                        dst.mux(p)
-                    index += 1
-                    bar.update(1)
-        except av.error.FFmpegError as exc:
-            if index == 0:
-                raise InputError(f"{inp}: not a readable video ({exc})") from None
-            res.notes.append(f"the input ended early at frame {index} ({exc}); the frames before it were written")
+                    for frame in packet.decode():
+                        if state["frames"] >= MAX_VIDEO_FRAMES:
+                            raise InputError(f"{inp}: more than {MAX_VIDEO_FRAMES} frames; trim the video")
+                        rgb = _to_rgb(frame)
+                        if rgb.shape[:2] != (info.height, info.width):
+                            raise InputError(f"{inp}: frame {state['frames']} is {rgb.shape[1]}x{rgb.shape[0]}, the "
+                                             f"stream said {info.width}x{info.height}; variable-size streams are not "
+                                             "supported")
+                        pts = frame.pts if frame.pts is not None else (last_pts + 1 if last_pts is not None else 0)
+                        if last_pts is not None and pts <= last_pts:
+                            pts = last_pts + 1  # broken timestamps: keep them increasing
+                        last_pts = pts
+                        state["frames"] += 1
+                        yield ("video", rgb, pts)
+            except av.error.FFmpegError as exc:
+                if state["frames"] == 0:
+                    raise InputError(f"{inp}: not a readable video ({exc})") from None
+                res.notes.append(f"the input ended early at frame {state['frames']} ({exc}); the frames before it "
+                                 "were written")
+
+        def write(item):
+            """RGB conversion + encode + mux, and audio (the writer thread owns the output)."""
+            if item[0] == "audio":
+                packet = item[1]
+                if resampler is None:
+                    packet.stream = aout
+                    dst.mux(packet)
+                else:
+                    for af in packet.decode():
+                        for rf in resampler.resample(af):
+                            rf.pts = None
+                            for p in aout.encode(rf):
+                                dst.mux(p)
+                return
+            _, rgb, pts = item
+            outf = _to_yuv(rgb)
+            outf.pts = pts
+            outf.time_base = tb
+            for p in vout.encode(outf):
+                dst.mux(p)
+
+        index = 0
+        try:
+            with _Writer(write) as writer:
+                for item in _threaded(read):
+                    if item[0] == "video":
+                        _, rgb, pts = item
+                        item = ("video", handle(rgb, float(pts * tb), index), pts)
+                        index += 1
+                        bar.update(1)
+                    writer.put(item)
         finally:
             bar.close()
         if index == 0:
