@@ -41,14 +41,16 @@ __attribute__((always_inline)) inline uchar encode(__global const uchar *lut, in
 
 /* One pixel of the box (see the file comment). */
 __kernel void build_layer(
-    __global const float *relit, __global const int *fill,   /* relit frame (.., 3); (n,) indices */
-    __global const float *inv_amb, __global const float *alpha, int n,
+    __global const float *relit, __global const int *fill,   /* relit frame (.., 3); (ch * cw,) indices */
+    __global const float *inv_amb, __global const float *alpha,
+    __global const int *support, int n,                      /* the crop pixels with alpha > 0 */
     int transfer, float gain, float strength, float eps, float ratio_max,
-    __global float4 *layer)
+    __global float4 *layer)                                  /* zero elsewhere (set once) */
 {
-    int p = get_global_id(0);
-    if (p >= n)
+    int i = get_global_id(0);
+    if (i >= n)
         return;
+    int p = support[i];
     int f = fill[p];
     float a = alpha[p] * strength;
     float3 rel = f >= 0 ? (float3)(relit[3 * f], relit[3 * f + 1], relit[3 * f + 2]) : (float3)(0.0f);

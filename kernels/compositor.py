@@ -124,7 +124,12 @@ class Compositor:
         self._dec = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_decode_lut8().astype(np.float32))
         lut, self.lut_n = _encode_lut()
         self._enc = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(lut))
-        self._layer = cl.Buffer(ctx, mf.READ_WRITE, self.alpha.size * 16)
+        # The layer is zero except at the crop pixels with alpha > 0, the only ones rebuilt per frame.
+        self.support = np.flatnonzero(self.alpha.ravel() > 0).astype(np.int32)
+        self._support = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                  hostbuf=self.support if self.support.size else np.zeros(1, np.int32))
+        self._layer = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
+                                hostbuf=np.zeros((self.alpha.size, 4), dtype=np.float32))
         self.frame: np.ndarray | None = None
         self._frame_buf = None
         self._coarse_buf = None
@@ -155,9 +160,9 @@ class Compositor:
         cl.enqueue_copy(q, self._coarse_buf, coarse, is_blocking=False)
         bx0, by0, bx1, by1 = box
         bw, bh = bx1 - bx0, by1 - by0
-        n = self.alpha.size
-        self._k_layer(q, (-(-n // 64) * 64,), (64,), self.relighter._frame_buf, self._fill, self._inv, self._alpha,
-                      np.int32(n), np.int32(1 if transfer else 0), np.float32(gain), np.float32(strength),
+        n = self.support.size
+        self._k_layer(q, (max(-(-n // 64), 1) * 64,), (64,), self.relighter._frame_buf, self._fill, self._inv,
+                      self._alpha, self._support, np.int32(n), np.int32(1 if transfer else 0), np.float32(gain), np.float32(strength),
                       np.float32(eps), np.float32(ratio_max), self._layer)
         self._kernel(q, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(rgb.shape[1]), np.int32(bx0),
                      np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf, np.int32(coarse.shape[1]),

@@ -313,7 +313,7 @@ def _filter_video(inp, out, handle, crf, res, progress, tqdm):
         tb = vin.time_base or Fraction(1, 90000)
         vout.time_base = tb
         vout.codec_context.time_base = tb
-        vout.options = {"crf": str(crf), "preset": "veryfast"} if VIDEO_CODECS[suffix] == "libx264" else \
+        vout.options = {"crf": str(crf), "preset": "superfast"} if VIDEO_CODECS[suffix] == "libx264" else \
             {"crf": str(crf + 12), "b": "0", "deadline": "realtime", "cpu-used": "8"}
         cc = vout.codec_context
         cc.colorspace, cc.color_range, cc.color_primaries, cc.color_trc = 1, 1, 1, 13

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
 #: Spacing (px) of the grid at which the piecewise-affine map is evaluated exactly.
-GRID_STEP = 8
+GRID_STEP = 12
 #: Reference position given to frame pixels outside the triangulation (remap reads zeros there).
 OUTSIDE = -1.0e4
 

@@ -208,7 +208,7 @@ def test_filter_bad_input_fails_cleanly_and_leaves_no_output(small_bundle, clip,
 @pytest.mark.parametrize("transfer", [True, False])
 def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, transfer):
     from relight.kernels.compositor import build_layer_numpy, warp_composite_numpy
-    from relight.service.warp import coarse_map
+    from relight.service.warp import GRID_STEP, coarse_map
 
     _, frames = clip
     fp = frame_path
@@ -224,10 +224,10 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, transfer
     coarse = coarse_map(cur, ref, box)
     fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(8, -4, 2))
     settings = dict(transfer=transfer, gain=1.3, strength=0.8, eps=float(fp.ratio_eps), ratio_max=6.0)
-    got = fp.compositor.run(rgb, box, coarse, 8, **settings)
+    got = fp.compositor.run(rgb, box, coarse, GRID_STEP, **settings)
     layer = build_layer_numpy(fp.relighter.frame, fp.fill_flat.reshape(fp.alpha_crop.shape), fp.inv_ambient,
                               fp.alpha_crop, **settings)
-    want = warp_composite_numpy(rgb, box, coarse, 8, fp.origin, layer, transfer=transfer)
+    want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.origin, layer, transfer=transfer)
     diff = np.abs(got.astype(int) - want.astype(int))
     assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
