@@ -162,8 +162,8 @@ class Compositor:
         bw, bh = bx1 - bx0, by1 - by0
         n = self.support.size
         self._k_layer(q, (max(-(-n // 64), 1) * 64,), (64,), self.relighter._frame_buf, self._fill, self._inv,
-                      self._alpha, self._support, np.int32(n), np.int32(1 if transfer else 0), np.float32(gain), np.float32(strength),
-                      np.float32(eps), np.float32(ratio_max), self._layer)
+                      self._alpha, self._support, np.int32(n), np.int32(1 if transfer else 0), np.float32(gain),
+                      np.float32(strength), np.float32(eps), np.float32(ratio_max), self._layer)
         self._kernel(q, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(rgb.shape[1]), np.int32(bx0),
                      np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf, np.int32(coarse.shape[1]),
                      np.int32(step), np.float32(self.origin[0]), np.float32(self.origin[1]), self._layer,

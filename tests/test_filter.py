@@ -231,3 +231,46 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, transfer
     diff = np.abs(got.astype(int) - want.astype(int))
     assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
+
+
+def test_filter_keeps_variable_frame_rate_timestamps(small_bundle, clip, tmp_path):
+    import av
+
+    _, frames = clip
+    src = tmp_path / "vfr.mkv"
+    pts = [0, 1, 3, 4, 7, 8, 9, 12, 13, 16]  # gaps: a variable frame rate, time base 1/30 s
+    with av.open(str(src), "w") as c:
+        s = c.add_stream("libx264", rate=30)
+        s.width, s.height, s.pix_fmt = frames[0].shape[1], frames[0].shape[0], "yuv420p"
+        s.time_base = s.codec_context.time_base = __import__("fractions").Fraction(1, 30)
+        for p, f in zip(pts, frames, strict=False):
+            vf = av.VideoFrame.from_ndarray(f, format="rgb24").reformat(format="yuv420p")
+            vf.pts = p
+            for pk in s.encode(vf):
+                c.mux(pk)
+        for pk in s.encode(None):
+            c.mux(pk)
+    out = tmp_path / "vfr_out.mkv"
+    assert main(["filter", str(src), str(out), "--bundle", str(small_bundle.path), "--env", "builtin:studio",
+                 "--quiet"]) == 0
+
+    def times(path):
+        with av.open(str(path)) as c:
+            v = c.streams.video[0]
+            return [float(f.pts * v.time_base) for f in c.decode(v)]
+
+    assert np.allclose(times(out), times(src), atol=1e-3)
+    assert np.allclose(np.diff(times(src)), np.diff(pts) / 30.0, atol=1e-3)
+
+
+def test_virtual_camera_without_the_extra_says_how_to_install_it(small_bundle, clip, tmp_path, capsys):
+    try:
+        import pyvirtualcam  # noqa: F401
+        pytest.skip("pyvirtualcam is installed: the message for its absence cannot be checked")
+    except ImportError:
+        pass
+    path, _ = clip
+    out = tmp_path / "vc.mp4"
+    assert main(["filter", str(path), str(out), "--bundle", str(small_bundle.path), "--env", "builtin:studio",
+                 "--virtual-camera", "--quiet"]) == 2
+    assert "pyvirtualcam" in capsys.readouterr().err and not out.exists()
