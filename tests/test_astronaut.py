@@ -78,9 +78,12 @@ def _clip(photo, kind):
             scale = 1.0 + 0.2 * np.sin(2 * np.pi * s)
         elif kind == "brightness":
             gain = 0.6 + 0.8 * s
+        elif kind == "leaving":  # the face slides out of the frame: partly, then wholly
+            shift = (-0.85 * w * s, 0.0)
         m = cv2.getRotationMatrix2D((w / 2, h / 2), angle, scale)
         m[:, 2] += shift
-        f = cv2.warpAffine(photo, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        border = cv2.BORDER_CONSTANT if kind == "leaving" else cv2.BORDER_REFLECT
+        f = cv2.warpAffine(photo, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=border)
         if gain != 1.0:
             f = encode_srgb8(np.clip(decode_srgb8(f) * gain, 0, 1))
         frames.append((f, m))
@@ -88,7 +91,7 @@ def _clip(photo, kind):
 
 
 @pytest.mark.parametrize(("kind", "mode"), [("shifted", "transfer"), ("turned", "paste"), ("scaled", "transfer"),
-                                           ("brightness", "paste")])
+                                           ("brightness", "paste"), ("leaving", "transfer")])
 def test_astronaut_clips_track_and_composite(astronaut_bundle, kind, mode, tmp_path):
     from relight import load_environment
     from relight.imageio import write_image
@@ -119,5 +122,8 @@ def test_astronaut_clips_track_and_composite(astronaut_bundle, kind, mode, tmp_p
             assert not changed.any()
         if i in (0, FRAMES // 2, FRAMES - 1):
             sheet.append(np.concatenate([f, out], axis=1))
-    assert found >= FRAMES - 2
+    if kind == "leaving":
+        assert 3 <= found < FRAMES  # found while it is in the frame, not after it left
+    else:
+        assert found >= FRAMES - 2
     write_image(tmp_path / f"astronaut_{kind}_{mode}.png", np.concatenate(sheet, axis=0))
