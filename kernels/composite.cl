@@ -18,6 +18,10 @@
  */
 
 #define OUTSIDE_HALF (-5.0e3f)
+/* Camera-facing component of a turned normal below which the face fades out, and above which
+   it is fully composited (relight.kernels.compositor.FACING). */
+#define FACING_LO 0.15f
+#define FACING_HI 0.45f
 
 /* PoCL 3.0 calls its math builtins (floor, clamp, ...) out of line, spilling vector registers
    around each call (measured: this kernel took 9 ms for a 300x450 box with them): these
@@ -43,6 +47,7 @@ __attribute__((always_inline)) inline uchar encode(__global const uchar *lut, in
 __kernel void build_layer(
     __global const float *relit, __global const int *fill,   /* relit frame (.., 3); (ch * cw,) indices */
     __global const float *inv_amb, __global const float *alpha,
+    __global const float *normal, float rz0, float rz1, float rz2, /* (ch * cw, 3); the head rotation's z row */
     __global const int *support, int n,                      /* the crop pixels with alpha > 0 */
     int transfer, float gain, float strength, float eps, float ratio_max,
     __global float4 *layer)                                  /* zero elsewhere (set once) */
@@ -52,7 +57,10 @@ __kernel void build_layer(
         return;
     int p = support[i];
     int f = fill[p];
-    float a = alpha[p] * strength;
+    /* Surface turned away from the camera by the head's rotation fades out: the warp of the
+       reference cannot place it, and its light would land on the background. */
+    float nz = rz0 * normal[3 * p] + rz1 * normal[3 * p + 1] + rz2 * normal[3 * p + 2];
+    float a = alpha[p] * strength * fclamp((nz - FACING_LO) / (FACING_HI - FACING_LO), 0.0f, 1.0f);
     float3 rel = f >= 0 ? (float3)(relit[3 * f], relit[3 * f + 1], relit[3 * f + 2]) : (float3)(0.0f);
     float3 v;
     if (transfer) {

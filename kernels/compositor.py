@@ -20,6 +20,9 @@ from .runtime import build_program, get_runtime
 
 #: Reference positions below this mark grid points outside the warp (see warp.OUTSIDE).
 OUTSIDE_HALF = -5.0e3
+#: A turned normal's camera-facing component: the face fades out from the second value down
+#: to the first (the kernel's FACING_HI, FACING_LO).
+FACING = (0.15, 0.45)
 #: Feathered-mask values below this are zero (no work, no denormals).
 ALPHA_FLOOR = 1e-4
 
@@ -49,14 +52,17 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | 
     return acc
 
 
-def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, alpha: np.ndarray, *,
-                      transfer: bool, gain: float, strength: float, eps: float, ratio_max: float) -> np.ndarray:
+def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, alpha: np.ndarray,
+                      normal: np.ndarray, rotation: np.ndarray, *, transfer: bool, gain: float, strength: float,
+                      eps: float, ratio_max: float) -> np.ndarray:
     """NumPy twin of ``build_layer``: (ch, cw, 4) float32 (rgb, alpha)."""
     f = fill.ravel()
     ok = f >= 0
     rel = np.zeros((f.size, 3), dtype=np.float32)
     rel[ok] = relit.reshape(-1, 3)[f[ok]]
-    a = np.where(alpha >= ALPHA_FLOOR, alpha, 0.0).astype(np.float32).ravel() * np.float32(strength)
+    nz = normal.reshape(-1, 3) @ np.asarray(rotation, dtype=np.float32)[2]
+    facing = np.clip((nz - np.float32(FACING[0])) / np.float32(FACING[1] - FACING[0]), 0.0, 1.0)
+    a = np.where(alpha >= ALPHA_FLOOR, alpha, 0.0).astype(np.float32).ravel() * np.float32(strength) * facing
     if transfer:
         v = np.clip(np.float32(gain) * (rel + np.float32(eps)) * inv_amb.reshape(-1, 3), 0.0, np.float32(ratio_max))
         a = np.where(ok, a, 0.0)
@@ -97,7 +103,8 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
 class Compositor:
     """The ``warp_composite`` kernel bound to one reference crop and the Relighter's frame."""
 
-    def __init__(self, alpha: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, origin, relighter):
+    def __init__(self, alpha: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, normal: np.ndarray, origin,
+                 relighter):
         import pyopencl as cl
 
         rt = get_runtime()
@@ -121,6 +128,10 @@ class Compositor:
         self._alpha = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.alpha)
         self._fill = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.fill)
         self._inv = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.inv_amb)
+        self.normal = np.ascontiguousarray(normal, dtype=np.float32)
+        if self.normal.shape != (*self.alpha.shape, 3) or not np.isfinite(self.normal).all():
+            raise ValueError("compositor normals must be finite, (ch, cw, 3)")
+        self._normal = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.normal)
         self._dec = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_decode_lut8().astype(np.float32))
         lut, self.lut_n = _encode_lut()
         self._enc = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(lut))
@@ -144,7 +155,7 @@ class Compositor:
         return self._frame_buf
 
     def run(self, rgb: np.ndarray, box, coarse: np.ndarray, step: int, *, transfer: bool, gain: float,
-            strength: float, eps: float, ratio_max: float) -> np.ndarray:
+            strength: float, eps: float, ratio_max: float, rotation: np.ndarray | None = None) -> np.ndarray:
         """``rgb`` with the face composited (a new array)."""
         import pyopencl as cl
 
@@ -161,8 +172,10 @@ class Compositor:
         bx0, by0, bx1, by1 = box
         bw, bh = bx1 - bx0, by1 - by0
         n = self.support.size
+        rz = np.eye(3)[2] if rotation is None else np.asarray(rotation, dtype=np.float64)[2]
         self._k_layer(q, (max(-(-n // 64), 1) * 64,), (64,), self.relighter._frame_buf, self._fill, self._inv,
-                      self._alpha, self._support, np.int32(n), np.int32(1 if transfer else 0), np.float32(gain),
+                      self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]), np.float32(rz[2]),
+                      self._support, np.int32(n), np.int32(1 if transfer else 0), np.float32(gain),
                       np.float32(strength), np.float32(eps), np.float32(ratio_max), self._layer)
         self._kernel(q, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(rgb.shape[1]), np.int32(bx0),
                      np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf, np.int32(coarse.shape[1]),

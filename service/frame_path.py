@@ -29,6 +29,8 @@ from .warp import GRID_STEP, coarse_map, face_ring, points_box
 _LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
 #: Rows of the frames the tracker sees (larger frames are scaled down for tracking only).
 TRACK_ROWS = 270
+#: The composited region reaches this share of the landmarks' extent beyond their hull.
+HULL_MARGIN = 0.08
 #: Feather of the face mask: erosion and Gaussian sigma, as shares of the face's size.
 FEATHER_ERODE = 0.015
 FEATHER_SIGMA = 0.02
@@ -70,6 +72,15 @@ def limit_blas_threads() -> None:
     except ImportError:  # pragma: no cover - a dependency; without it the path is only slower
         return
     threadpool_limits(limits=max(n, 1), user_api="blas")
+
+
+def _bundle_frame_index(bundle) -> np.ndarray:
+    """(P,) index in the reference frame of each bundle pixel (bundle.pixels are crop indices)."""
+    w = bundle.frame_size[0]
+    x0, y0 = bundle.crop_origin
+    cw = bundle.mask_crop.shape[1]
+    pix = np.asarray(bundle.pixels, dtype=np.int64)
+    return (pix // cw + y0) * w + (pix % cw + x0)
 
 
 def _sample_rgb(rgb: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -143,7 +154,17 @@ class FramePath:
         background = np.asarray(bundle.background)
         self.ref_grey = cv2.cvtColor(np.ascontiguousarray(background), cv2.COLOR_RGB2GRAY)
         landmarks = thin_points(np.asarray(bundle.landmarks, dtype=np.float32).reshape(-1, 2), MAX_TRACKED)
-        ring = face_ring(mask_crop) + np.array([x0, y0], np.float32)
+        # The composited region: the head's mask within a margin of the landmarks' hull. Beyond
+        # the tracked points (neck, a turned head's far side) the warp would only extrapolate.
+        hull = cv2.convexHull((landmarks - np.array([x0, y0], np.float32)).astype(np.int32))
+        region = np.zeros((h, w), np.uint8)
+        cv2.fillConvexPoly(region, hull, 1)
+        grow = max(int(round(HULL_MARGIN * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 1)
+        region = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2)) > 0
+        solid = solid & region
+        if solid.sum() < 64:
+            raise InputError("the bundle's landmarks do not cover its face: capture the bundle again")
+        ring = face_ring(solid) + np.array([x0, y0], np.float32)
         depth = np.asarray(bundle.depth, dtype=np.float32)
         # Depth off the mask (the ring, landmarks on the edge) from the nearest mask pixel.
         from scipy.ndimage import distance_transform_edt
@@ -200,7 +221,13 @@ class FramePath:
         self.sample_full = self.fill_flat[self.sample_crop]
         from relight.kernels.compositor import Compositor
 
-        self.compositor = Compositor(self.alpha_crop, fill, self.inv_ambient, self.origin, self.relighter)
+        # Normals of the crop (nearest face pixel's off the face) for fading out turned-away surface.
+        normal_full = np.zeros((ref_h * ref_w, 3), np.float32)
+        normal_full[_bundle_frame_index(bundle)] = np.asarray(bundle.normal, np.float32)
+        nfill = np.where(fill >= 0, fill, ref_index[iy, ix].astype(np.int32))
+        normal_crop = normal_full[nfill.ravel()].reshape(h, w, 3)
+        self.compositor = Compositor(self.alpha_crop, fill, self.inv_ambient, normal_crop, self.origin,
+                                     self.relighter)
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
         self.gain_filter = OneEuroFilter(GAIN_MIN_CUTOFF, 0.0)
@@ -314,7 +341,7 @@ class FramePath:
         t4 = time.perf_counter()
         out = self.compositor.run(rgb, box, coarse, GRID_STEP, transfer=self.mode == "transfer",
                                   gain=gain * self.exposure, strength=self.strength, eps=float(self.ratio_eps),
-                                  ratio_max=composite.RATIO_MAX)
+                                  ratio_max=composite.RATIO_MAX, rotation=rotation)
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info
