@@ -122,12 +122,18 @@ class FaceTracker:
         ok &= (p1[:, 0] >= 0) & (p1[:, 0] < w) & (p1[:, 1] >= 0) & (p1[:, 1] < h)
         return p1, ok
 
-    def _matched_reference(self, grey: np.ndarray, box) -> np.ndarray:
-        """The reference with its face box's brightness and contrast matched to ``box`` of ``grey``."""
+    def _matched_reference(self, grey: np.ndarray, box, sim=None) -> np.ndarray:
+        """The reference with its face box's brightness and contrast matched to ``box`` of ``grey``
+        (``sim``: the reference -> frame similarity; the frame's box is taken there)."""
         rx, ry, rw, rh = self.ref_box
-        x, y, w, h = box
+        if sim is not None:
+            corners = np.array([[rx, ry], [rx + rw, ry + rh]], np.float64) @ sim[:, :2].T + sim[:, 2]
+            x, y = (int(v) for v in corners.min(axis=0))
+            w, h = (int(v) + 1 for v in np.abs(corners[1] - corners[0]))
+        else:
+            x, y, w, h = box
         a = self.reference[ry:ry + rh, rx:rx + rw].astype(np.float32)
-        b = grey[max(y, 0):y + h, max(x, 0):x + w].astype(np.float32)
+        b = grey[max(y, 0):max(y + h, 0), max(x, 0):max(x + w, 0)].astype(np.float32)
         if a.size < 16 or b.size < 16:
             return self.reference
         gain = float(b.std()) / max(float(a.std()), 1.0)
@@ -137,13 +143,23 @@ class FaceTracker:
 
     def from_reference(self, grey: np.ndarray, guess: np.ndarray, index: np.ndarray | None = None,
                        box=None) -> Track | None:
-        """Landmarks (all, or ``index``) searched in ``grey`` from the reference, starting at ``guess``."""
+        """Landmarks (all, or ``index``) searched in ``grey`` from the reference, starting at ``guess``.
+
+        The reference is first brought into the frame's geometry by the similarity that best
+        takes the landmarks to ``guess`` (frames of another size or scale than the reference
+        work), its face box's brightness matched; then LK from it, forward-backward checked."""
         idx = np.arange(len(self.landmarks)) if index is None else np.asarray(index)
         if box is None:
             xs, ys = guess[:, 0], guess[:, 1]
             box = (int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1)
-        ref = self._matched_reference(grey, box)
-        pts, ok = self._flow(ref, grey, self.landmarks[idx], guess)
+        src = self.landmarks[idx].astype(np.float32)
+        sim, _ = cv2.estimateAffinePartial2D(src, guess.astype(np.float32), method=cv2.LMEDS)
+        if sim is None or not np.isfinite(sim).all():
+            return None
+        ref = cv2.warpAffine(self._matched_reference(grey, box, sim), sim, (grey.shape[1], grey.shape[0]),
+                             flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        start = (src @ sim[:, :2].T + sim[:, 2]).astype(np.float32)
+        pts, ok = self._flow(ref, grey, start, guess)
         if ok.sum() < MIN_POINTS:
             return None
         return Track(ref_index=idx[ok], xy=pts[ok].astype(np.float32))

@@ -275,3 +275,19 @@ def test_virtual_camera_without_the_extra_says_how_to_install_it(small_bundle, c
     assert main(["filter", str(path), str(out), "--bundle", str(small_bundle.path), "--env", "builtin:studio",
                  "--virtual-camera", "--quiet"]) == 2
     assert "pyvirtualcam" in capsys.readouterr().err and not out.exists()
+
+
+def test_frames_of_another_size_than_the_bundle_are_relit(small_bundle, clip):
+    from relight.service.frame_path import FramePath
+
+    _, frames = clip
+    fp = FramePath(small_bundle, load_environment("builtin:studio"))
+    found = 0
+    for i, f in enumerate(frames[:12]):
+        big = cv2.resize(f, (f.shape[1] * 3 // 2, f.shape[0] * 3 // 2), interpolation=cv2.INTER_LINEAR)
+        out, info = fp.process(big, i / 30)
+        assert out.shape == big.shape
+        found += info.face
+        if info.face:
+            assert max(abs(a) for a in info.angles) < 4.0
+    assert found >= 10
