@@ -38,6 +38,9 @@ MIN_POINTS = 8
 #: landmarks is left.
 REANCHOR_EVERY = 10
 REANCHOR_BELOW = 0.6
+#: The reference is resampled into the frame's geometry before LK when the frame's size differs
+#: or the face's scale differs by more than this share.
+REWARP_SCALE = 0.08
 #: Haar detection runs on a copy at most this many rows high.
 DETECT_ROWS = 360
 
@@ -156,9 +159,15 @@ class FaceTracker:
         sim, _ = cv2.estimateAffinePartial2D(src, guess.astype(np.float32), method=cv2.LMEDS)
         if sim is None or not np.isfinite(sim).all():
             return None
-        ref = cv2.warpAffine(self._matched_reference(grey, box, sim), sim, (grey.shape[1], grey.shape[0]),
-                             flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        start = (src @ sim[:, :2].T + sim[:, 2]).astype(np.float32)
+        scale = float(np.sqrt(abs(np.linalg.det(sim[:, :2]))))
+        if grey.shape == self.reference.shape and (self.track is not None or abs(scale - 1.0) < REWARP_SCALE):
+            # Same geometry (or re-anchoring a followed face, whose apparent scale change is a
+            # turn, not a zoom): LK straight from the reference, which resampling would blur.
+            ref, start = self._matched_reference(grey, box), src
+        else:
+            ref = cv2.warpAffine(self._matched_reference(grey, box, sim), sim, (grey.shape[1], grey.shape[0]),
+                                 flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            start = (src @ sim[:, :2].T + sim[:, 2]).astype(np.float32)
         pts, ok = self._flow(ref, grey, start, guess)
         if ok.sum() < MIN_POINTS:
             return None
