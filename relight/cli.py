@@ -406,6 +406,14 @@ def build_parser() -> argparse.ArgumentParser:
     from .service.filter_cli import add_filter_parser
 
     add_filter_parser(sub)
+    sp = sub.add_parser("serve", help="serve relighting of video frames over HTTP (also: relight-serve)",
+                        description="Keep a bundle loaded and relight frames sent over HTTP (POST /v1/relight); "
+                                    "health at /livez and /readyz, Prometheus metrics at /metrics, OpenAPI at /docs.",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    from .service.app import add_serve_arguments, run_serve
+
+    add_serve_arguments(sp)
+    sp.set_defaults(func=run_serve)
     return parser
 
 

@@ -1,0 +1,316 @@
+"""``relight-serve``: the frame service (FastAPI + uvicorn).
+
+One process keeps a bundle loaded and relights frames with one :class:`FramePath` (frames are
+processed one at a time: the per-frame path already uses both cores). Endpoints so far:
+
+* ``POST /v1/relight`` - body: one encoded frame (``image/png`` or ``image/jpeg``); query:
+  ``env`` (a built-in preset name), ``rotation`` (yaw,pitch,roll degrees of the environment),
+  ``exposure`` (EV), ``strength`` (0-1), ``mode`` (transfer|paste). Returns the relit frame in
+  the same format (or the one ``Accept`` asks for); headers: ``Server-Timing`` (per-stage ms),
+  ``X-Relight-Face`` (``found`` or ``none``: then the frame comes back unchanged).
+* ``GET /livez`` (the process answers), ``GET /readyz`` (bundle loaded, kernels built),
+  ``GET /metrics`` (Prometheus text: ``relight_frames_total``, ``relight_dropped_frames_total``,
+  ``relight_errors_total{kind}``, ``relight_frame_latency_seconds``, ``relight_clients``),
+  OpenAPI at ``/docs``.
+
+Limits (each a test): bodies over ``max_body`` bytes -> 413 (read in chunks, never whole);
+images whose header says more than ``max_pixels`` -> 413 before decoding; other content types
+-> 415; undecodable or truncated images -> 400 with a JSON error; a bad query -> 422. Errors
+are counted by kind and never take the server down.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import struct
+import time
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from fastapi import FastAPI, Query, Request, Response
+from fastapi.responses import JSONResponse, PlainTextResponse
+
+#: Default caps: a 4K frame's worth of raw RGB, and its pixel count.
+MAX_BODY = 3840 * 2160 * 3
+MAX_PIXELS = 3840 * 2160
+CONTENT_TYPES = {"image/png": ".png", "image/jpeg": ".jpg"}
+PRESETS = ("studio", "sunset", "window", "uniform", "room")
+
+
+@dataclass
+class ServeConfig:
+    """The service's settings (the ``relight-serve`` flags)."""
+
+    bundle: Path
+    env: str = "builtin:studio"
+    mode: str = "transfer"
+    max_clients: int = 4
+    max_body: int = MAX_BODY
+    max_pixels: int = MAX_PIXELS
+    focal: float | str | None = None
+
+
+class ServiceError(Exception):
+    """An error a request caused: HTTP status, a kind for the metrics, a message saying what to change."""
+
+    def __init__(self, status: int, kind: str, message: str):
+        super().__init__(message)
+        self.status, self.kind, self.message = status, kind, message
+
+
+def image_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a PNG or JPEG header without decoding, or None if there is none."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24 and data[12:16] == b"IHDR":
+        return struct.unpack(">II", data[16:24])
+    if data[:2] == b"\xff\xd8":
+        i = 2
+        while i + 9 < len(data):
+            if data[i] != 0xFF:
+                return None
+            marker = data[i + 1]
+            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+                i += 2
+                continue
+            seg = struct.unpack(">H", data[i + 2:i + 4])[0]
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+                h, w = struct.unpack(">HH", data[i + 5:i + 9])
+                return w, h
+            i += 2 + seg
+    return None
+
+
+def decode_frame(data: bytes, content_type: str, max_pixels: int) -> np.ndarray:
+    """An encoded PNG/JPEG -> (H, W, 3) uint8 RGB, validated (raises ServiceError)."""
+    import cv2
+
+    if content_type not in CONTENT_TYPES:
+        raise ServiceError(415, "content_type", f"content type {content_type!r}: send image/png or image/jpeg")
+    size = image_size(data)
+    if size is None:
+        raise ServiceError(400, "undecodable", "the body is not a PNG or JPEG image (no valid header)")
+    w, h = size
+    if w <= 0 or h <= 0 or w * h > max_pixels:
+        raise ServiceError(413, "too_many_pixels", f"image of {w}x{h} pixels: at most {max_pixels} pixels "
+                                                   "(downscale the frame)")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if img is None or img.shape[0] != h or img.shape[1] != w:
+        raise ServiceError(400, "undecodable", "the image could not be decoded (truncated or corrupt)")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def encode_frame(rgb: np.ndarray, content_type: str) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(CONTENT_TYPES[content_type], cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),
+                           [cv2.IMWRITE_JPEG_QUALITY, 92] if content_type == "image/jpeg" else [])
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 RGB frame
+        raise ServiceError(500, "encode", "the relit frame could not be encoded")
+    return buf.tobytes()
+
+
+class Metrics:
+    """The service's Prometheus metrics, in a registry of their own."""
+
+    def __init__(self):
+        from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+
+        self.registry = CollectorRegistry()
+        self.frames = Counter("relight_frames", "Frames relit", registry=self.registry)
+        self.dropped = Counter("relight_dropped_frames", "Stale stream frames dropped", registry=self.registry)
+        self.errors = Counter("relight_errors", "Requests that failed, by kind", ["kind"], registry=self.registry)
+        self.latency = Histogram("relight_frame_latency_seconds", "Time to relight one frame (s)",
+                                 buckets=(0.005, 0.01, 0.015, 0.02, 0.03, 0.05, 0.1, 0.25, 1.0),
+                                 registry=self.registry)
+        self.clients = Gauge("relight_clients", "Connected stream clients", registry=self.registry)
+
+
+class Engine:
+    """The loaded bundle and per-frame path, one frame at a time; environments cached by name."""
+
+    def __init__(self, config: ServeConfig):
+        import relight
+
+        from .frame_path import FramePath
+
+        self.config = config
+        self.bundle = relight.load_bundle(config.bundle)
+        self._envs: dict = {}
+        self.env_name = config.env
+        self.path = FramePath(self.bundle, self.environment(config.env), mode=config.mode, focal=config.focal)
+        self.lock = asyncio.Lock()
+
+    def environment(self, name: str, rotation: tuple[float, float, float] | None = None) -> np.ndarray:
+        import relight
+        from relight.directions import rotation_matrix
+        from relight.envmap import rotate_environment
+
+        key = (name, rotation)
+        env = self._envs.get(key)
+        if env is None:
+            env = relight.load_environment(name)
+            if rotation is not None and any(rotation):
+                env = rotate_environment(env, rotation_matrix(*rotation), supersample=2)
+            if len(self._envs) > 16:
+                self._envs.clear()
+            self._envs[key] = env
+        return env
+
+    def relight(self, rgb: np.ndarray, *, env: str | None, rotation, exposure: float | None, strength: float | None,
+                mode: str | None):
+        fp = self.path
+        fp.set_environment(self.environment(env or self.env_name, rotation))
+        fp.set_mode(mode or self.config.mode)
+        fp.set_strength(1.0 if strength is None else strength)
+        fp.set_exposure(0.0 if exposure is None else exposure)
+        return fp.process(rgb, time.perf_counter())
+
+
+def _parse_rotation(text: str | None):
+    if not text:
+        return None
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise ServiceError(422, "bad_query", f"rotation={text!r}: give yaw,pitch,roll in degrees") from None
+    if len(vals) != 3 or not all(np.isfinite(vals)) or max(abs(v) for v in vals) > 360:
+        raise ServiceError(422, "bad_query", f"rotation={text!r}: give three angles within +-360 degrees")
+    return vals
+
+
+def create_app(config: ServeConfig):
+    """The FastAPI application (the bundle loads in the lifespan handler; /readyz says when)."""
+    from relight.errors import RelightError
+
+    state: dict = {"engine": None, "error": None}
+    metrics = Metrics()
+
+    @asynccontextmanager
+    async def lifespan(app):
+        try:
+            state["engine"] = await asyncio.to_thread(Engine, config)
+        except RelightError as exc:
+            state["error"] = str(exc)
+            raise
+        yield
+
+    app = FastAPI(title="relight", version="0.1.0", lifespan=lifespan,
+                  description="Relight the face in video frames with a reflectance bundle.")
+    app.state.metrics = metrics
+    app.state.relight = state
+
+    @app.exception_handler(ServiceError)
+    async def _service_error(request, exc: ServiceError):
+        metrics.errors.labels(kind=exc.kind).inc()
+        return JSONResponse({"error": exc.message, "kind": exc.kind}, status_code=exc.status)
+
+    @app.get("/livez", summary="The process answers")
+    async def livez():
+        return {"status": "alive"}
+
+    @app.get("/readyz", summary="Bundle loaded and kernels built")
+    async def readyz():
+        if state["engine"] is None:
+            return JSONResponse({"status": "loading", "error": state["error"]}, status_code=503)
+        return {"status": "ready", "bundle": str(config.bundle), "env": state["engine"].env_name}
+
+    @app.get("/metrics", summary="Prometheus metrics", response_class=PlainTextResponse)
+    async def metrics_endpoint():
+        from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+        return Response(generate_latest(metrics.registry), media_type=CONTENT_TYPE_LATEST)
+
+    @app.post("/v1/relight", summary="Relight one frame",
+              responses={200: {"content": {"image/png": {}, "image/jpeg": {}}}, 400: {}, 413: {}, 415: {}, 422: {}})
+    async def relight_frame(request: Request,
+                            env: str | None = Query(None, description="built-in preset: " + ", ".join(PRESETS)),
+                            rotation: str | None = Query(None, description="environment yaw,pitch,roll (degrees)"),
+                            exposure: float | None = Query(None, ge=-20, le=20, description="stops (EV)"),
+                            strength: float | None = Query(None, ge=0, le=1, description="blend, 0 to 1"),
+                            mode: str | None = Query(None, pattern="^(transfer|paste)$")):
+        engine = state["engine"]
+        if engine is None:
+            raise ServiceError(503, "not_ready", "the service is still loading its bundle; retry shortly")
+        if env is not None and env not in PRESETS:
+            raise ServiceError(422, "bad_query", f"env={env!r}: use one of {', '.join(PRESETS)}")
+        rot = _parse_rotation(rotation)
+        ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
+        if ctype not in CONTENT_TYPES:
+            raise ServiceError(415, "content_type", f"content type {ctype or 'none'!r}: send image/png or image/jpeg")
+        declared = request.headers.get("content-length")
+        if declared is not None and declared.isdigit() and int(declared) > config.max_body:
+            raise ServiceError(413, "too_large", f"body of {declared} bytes: at most {config.max_body}")
+        chunks, total = [], 0
+        async for chunk in request.stream():
+            total += len(chunk)
+            if total > config.max_body:
+                raise ServiceError(413, "too_large", f"body over {config.max_body} bytes: send a smaller frame")
+            chunks.append(chunk)
+        rgb = decode_frame(b"".join(chunks), ctype, config.max_pixels)
+        accept = (request.headers.get("accept") or "").lower()
+        out_type = "image/jpeg" if "image/jpeg" in accept and "image/png" not in accept else \
+            "image/png" if "image/png" in accept and "image/jpeg" not in accept else ctype
+        t0 = time.perf_counter()
+        async with engine.lock:
+            try:
+                out, info = await asyncio.to_thread(engine.relight, rgb, env=f"builtin:{env}" if env else None,
+                                                    rotation=rot, exposure=exposure, strength=strength, mode=mode)
+            except RelightError as exc:
+                raise ServiceError(400, "bad_request", str(exc)) from None
+        metrics.latency.observe(time.perf_counter() - t0)
+        metrics.frames.inc()
+        timing = ", ".join(f"{k};dur={v:.2f}" for k, v in info.timings.items())
+        headers = {"Server-Timing": timing, "X-Relight-Face": "found" if info.face else "none"}
+        if not info.face and info.note:
+            headers["X-Relight-Note"] = info.note
+        return Response(encode_frame(out, out_type), media_type=out_type, headers=headers)
+
+    return app
+
+
+def add_serve_arguments(p) -> None:
+    p.add_argument("bundle", type=Path, help="reflectance bundle to serve (relight capture)")
+    p.add_argument("--env", default="builtin:studio", metavar="FILE|builtin:NAME", help="starting environment")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    p.add_argument("--port", type=int, default=8000, help="port to listen on")
+    p.add_argument("--mode", choices=("transfer", "paste"), default="transfer", help="compositing mode")
+    p.add_argument("--max-clients", type=int, default=4, help="most stream clients at once")
+    p.add_argument("--focal", default=None, metavar="PIXELS|ortho", help="the frames' focal length (see filter)")
+
+
+def run_serve(args) -> int:
+    import uvicorn
+
+    from relight.errors import InputError
+
+    if not args.bundle.is_file():
+        raise InputError(f"{args.bundle}: no such bundle file")
+    if not (1 <= args.port <= 65535):
+        raise InputError(f"--port {args.port}: use 1 to 65535")
+    if not (1 <= args.max_clients <= 1024):
+        raise InputError(f"--max-clients {args.max_clients}: use 1 to 1024")
+    focal = args.focal if args.focal in (None, "ortho") else float(args.focal)
+    app = create_app(ServeConfig(bundle=args.bundle, env=args.env, mode=args.mode, max_clients=args.max_clients,
+                                 focal=focal))
+    uvicorn.run(app, host=args.host, port=args.port, log_level=os.environ.get("RELIGHT_LOG_LEVEL", "info"))
+    return 0
+
+
+def serve_main(argv=None) -> int:
+    """The ``relight-serve`` command (the same as ``relight serve``)."""
+    import argparse
+    import sys
+
+    from relight.errors import RelightError
+
+    p = argparse.ArgumentParser(prog="relight-serve", description="Serve relighting of video frames over HTTP.",
+                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    add_serve_arguments(p)
+    args = p.parse_args(argv)
+    try:
+        return run_serve(args)
+    except RelightError as exc:
+        print(f"relight-serve: error: {exc}", file=sys.stderr)
+        return 2

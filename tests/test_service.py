@@ -1,0 +1,115 @@
+"""The frame service against a real uvicorn server on loopback."""
+
+import socket
+import threading
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+httpx = pytest.importorskip("httpx", reason="httpx (a test extra) is the client")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def server(small_bundle):
+    import uvicorn
+
+    from relight.service.app import ServeConfig, create_app
+
+    port = _free_port()
+    app = create_app(ServeConfig(bundle=small_bundle.path, env="builtin:studio", max_body=2_000_000,
+                                 max_pixels=1_000_000))
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    th = threading.Thread(target=srv.run, daemon=True)
+    th.start()
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        try:
+            if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
+                break
+        except httpx.TransportError:
+            pass
+        time.sleep(0.1)
+    else:
+        pytest.fail("the service did not become ready")
+    yield base
+    srv.should_exit = True
+    th.join(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def frame(small_capture):
+    import json
+
+    from relight.video import read_frames
+
+    res, _ = small_capture
+    meta = json.loads((res.truth / "meta.json").read_text())
+    dark = [i for i, f in enumerate(meta["flash_fraction"]) if f == 0.0]
+    for i, f in enumerate(read_frames(res.video)):
+        if i == dark[0]:
+            return f
+
+
+def _png(rgb):
+    return cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))[1].tobytes()
+
+
+def test_health_docs_and_metrics(server):
+    assert httpx.get(f"{server}/livez").json()["status"] == "alive"
+    assert httpx.get(f"{server}/readyz").json()["status"] == "ready"
+    assert httpx.get(f"{server}/openapi.json").json()["paths"]["/v1/relight"]
+    assert httpx.get(f"{server}/docs").status_code == 200
+
+
+def test_relight_a_png_and_a_jpeg_frame(server, frame):
+    r = httpx.post(f"{server}/v1/relight?env=sunset&rotation=20,0,0&strength=0.9", content=_png(frame),
+                   headers={"content-type": "image/png"}, timeout=30)
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+    assert r.headers["x-relight-face"] == "found" and "relight;dur=" in r.headers["server-timing"]
+    out = cv2.cvtColor(cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    assert out.shape == frame.shape and np.abs(out.astype(int) - frame.astype(int)).sum(axis=2).max() > 10
+    jpg = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))[1].tobytes()
+    r = httpx.post(f"{server}/v1/relight?mode=paste", content=jpg, headers={"content-type": "image/jpeg",
+                                                                              "accept": "image/png"}, timeout=30)
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+    m = httpx.get(f"{server}/metrics").text
+    assert "relight_frames_total" in m and "relight_frame_latency_seconds_bucket" in m
+
+
+def test_a_frame_without_a_face_comes_back_unchanged(server, frame):
+    blank = np.full_like(frame, 120)
+    r = httpx.post(f"{server}/v1/relight", content=_png(blank), headers={"content-type": "image/png"}, timeout=30)
+    assert r.status_code == 200 and r.headers["x-relight-face"] == "none"
+    out = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+    assert np.array_equal(cv2.cvtColor(out, cv2.COLOR_BGR2RGB), blank)
+
+
+def test_bad_requests_get_clear_errors_and_the_server_stays_ready(server, frame):
+    png = _png(frame)
+    cases = [
+        (dict(content=png, headers={"content-type": "text/plain"}), 415, "content_type"),
+        (dict(content=png[: len(png) // 2], headers={"content-type": "image/png"}), 400, "undecodable"),
+        (dict(content=b"\x00" * 100, headers={"content-type": "image/png"}), 400, "undecodable"),
+        (dict(content=b"\x00" * 2_100_000, headers={"content-type": "image/png"}), 413, "too_large"),
+        (dict(content=_png(np.zeros((1200, 1000, 3), np.uint8)), headers={"content-type": "image/png"}), 413,
+         "too_many_pixels"),
+    ]
+    for kwargs, status, kind in cases:
+        r = httpx.post(f"{server}/v1/relight", timeout=30, **kwargs)
+        assert r.status_code == status, (kind, r.text)
+        assert r.json()["kind"] == kind and r.json()["error"]
+    for query in ("env=mars", "rotation=1,2", "strength=2", "mode=glow", "exposure=nan"):
+        r = httpx.post(f"{server}/v1/relight?{query}", content=png, headers={"content-type": "image/png"}, timeout=30)
+        assert r.status_code == 422, (query, r.text)
+    assert httpx.get(f"{server}/readyz").status_code == 200
+    m = httpx.get(f"{server}/metrics").text
+    assert 'relight_errors_total{kind="too_large"}' in m and 'relight_errors_total{kind="undecodable"}' in m
