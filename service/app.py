@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from fastapi import FastAPI, Query, Request, Response
+from fastapi import FastAPI, Query, Request, Response, WebSocket, WebSocketDisconnect
 from fastapi.responses import JSONResponse, PlainTextResponse
 
 #: Default caps: a 4K frame's worth of raw RGB, and its pixel count.
@@ -267,6 +267,132 @@ def create_app(config: ServeConfig):
             headers["X-Relight-Note"] = info.note
         return Response(encode_frame(out, out_type), media_type=out_type, headers=headers)
 
+    @app.websocket("/v1/stream")
+    async def stream(ws: WebSocket):
+        """Binary messages: encoded frames in, relit frames out (latest frame wins: a frame that
+        arrives while another waits replaces it and counts as dropped). Text messages: JSON
+        controls ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8, "mode":
+        "paste", "exposure": 0}`` and ``{"stats": true}``; after each relit frame a JSON text
+        message ``{"frame", "latency_ms", "dropped", "face", "timings"}``."""
+        engine = state["engine"]
+        await ws.accept()  # (closing before the handshake would be an HTTP 403, not a close code)
+        if engine is None:
+            await ws.close(code=1013, reason="loading; try again shortly")
+            return
+        if state.setdefault("clients", 0) >= config.max_clients:
+            metrics.errors.labels(kind="too_many_clients").inc()
+            await ws.close(code=1013, reason=f"at most {config.max_clients} clients; try again later")
+            return
+        state["clients"] += 1
+        metrics.clients.inc()
+        settings: dict = {"env": None, "rotation": None, "strength": None, "mode": None, "exposure": None}
+        latest: dict = {"data": None, "type": None, "t": 0.0}
+        counts = {"frames": 0, "dropped": 0}
+        wake = asyncio.Event()
+        closed = asyncio.Event()
+
+        async def send_json(doc):
+            try:
+                await ws.send_json(doc)
+            except (WebSocketDisconnect, RuntimeError):
+                closed.set()
+
+        def control(doc: dict):
+            if not isinstance(doc, dict):
+                raise ServiceError(422, "bad_control", "control messages are JSON objects")
+            if "env" in doc:
+                if doc["env"] not in PRESETS:
+                    raise ServiceError(422, "bad_control", f"env {doc['env']!r}: use one of {', '.join(PRESETS)}")
+                settings["env"] = f"builtin:{doc['env']}"
+            if "rotation" in doc:
+                settings["rotation"] = _parse_rotation(",".join(str(v) for v in doc["rotation"]))
+            for key, lo, hi in (("strength", 0.0, 1.0), ("exposure", -20.0, 20.0)):
+                if key in doc:
+                    v = doc[key]
+                    if not isinstance(v, int | float) or not (lo <= v <= hi):
+                        raise ServiceError(422, "bad_control", f"{key} {v!r}: use {lo:g} to {hi:g}")
+                    settings[key] = float(v)
+            if "mode" in doc:
+                if doc["mode"] not in ("transfer", "paste"):
+                    raise ServiceError(422, "bad_control", "mode: transfer or paste")
+                settings["mode"] = doc["mode"]
+
+        async def reader():
+            try:
+                while True:
+                    msg = await ws.receive()
+                    if msg["type"] == "websocket.disconnect":
+                        break
+                    if msg.get("bytes") is not None:
+                        data = msg["bytes"]
+                        if len(data) > config.max_body:
+                            metrics.errors.labels(kind="too_large").inc()
+                            await ws.close(code=1009, reason=f"frame over {config.max_body} bytes")
+                            break
+                        if latest["data"] is not None:
+                            counts["dropped"] += 1
+                            metrics.dropped.inc()
+                        latest.update(data=data, t=time.perf_counter())
+                        wake.set()
+                    elif msg.get("text") is not None:
+                        import json
+
+                        try:
+                            doc = json.loads(msg["text"])
+                            if isinstance(doc, dict) and doc.get("stats"):
+                                await send_json({"frames": counts["frames"], "dropped": counts["dropped"]})
+                            else:
+                                control(doc)
+                        except (ValueError, ServiceError) as exc:
+                            metrics.errors.labels(kind="bad_control").inc()
+                            await send_json({"error": str(exc), "kind": "bad_control"})
+            except (WebSocketDisconnect, RuntimeError):
+                pass
+            finally:
+                closed.set()
+                wake.set()
+
+        async def worker():
+            while not closed.is_set():
+                await wake.wait()
+                wake.clear()
+                data, t_in = latest["data"], latest["t"]
+                latest["data"] = None
+                if data is None:
+                    continue
+                try:
+                    size = image_size(data)
+                    ctype = "image/png" if data[:4] == b"\x89PNG" else "image/jpeg"
+                    if size is None:
+                        raise ServiceError(400, "undecodable", "the frame is not a PNG or JPEG image")
+                    rgb = decode_frame(data, ctype, config.max_pixels)
+                    async with engine.lock:
+                        out, info = await asyncio.to_thread(engine.relight, rgb, **settings)
+                    payload = encode_frame(out, ctype)
+                except (ServiceError, RelightError) as exc:
+                    kind = exc.kind if isinstance(exc, ServiceError) else "bad_request"
+                    metrics.errors.labels(kind=kind).inc()
+                    await send_json({"error": str(exc), "kind": kind})
+                    continue
+                try:
+                    await ws.send_bytes(payload)
+                except (WebSocketDisconnect, RuntimeError):
+                    closed.set()
+                    break
+                counts["frames"] += 1
+                metrics.frames.inc()
+                latency = time.perf_counter() - t_in
+                metrics.latency.observe(latency)
+                await send_json({"frame": counts["frames"], "latency_ms": round(latency * 1e3, 2),
+                                 "dropped": counts["dropped"], "face": info.face,
+                                 "timings": {k: round(v, 2) for k, v in info.timings.items()}})
+
+        try:
+            await asyncio.gather(reader(), worker())
+        finally:
+            state["clients"] -= 1
+            metrics.clients.dec()
+
     return app
 
 
@@ -294,7 +420,8 @@ def run_serve(args) -> int:
     focal = args.focal if args.focal in (None, "ortho") else float(args.focal)
     app = create_app(ServeConfig(bundle=args.bundle, env=args.env, mode=args.mode, max_clients=args.max_clients,
                                  focal=focal))
-    uvicorn.run(app, host=args.host, port=args.port, log_level=os.environ.get("RELIGHT_LOG_LEVEL", "info"))
+    uvicorn.run(app, host=args.host, port=args.port, log_level=os.environ.get("RELIGHT_LOG_LEVEL", "info"),
+                ws_max_size=MAX_BODY + 1024)
     return 0
 
 

@@ -113,3 +113,73 @@ def test_bad_requests_get_clear_errors_and_the_server_stays_ready(server, frame)
     assert httpx.get(f"{server}/readyz").status_code == 200
     m = httpx.get(f"{server}/metrics").text
     assert 'relight_errors_total{kind="too_large"}' in m and 'relight_errors_total{kind="undecodable"}' in m
+
+
+def test_stream_relights_latest_frames_and_takes_controls(server, frame):
+    import json
+
+    from websockets.sync.client import connect
+
+    url = server.replace("http://", "ws://") + "/v1/stream"
+    png = _png(frame)
+    with connect(url, max_size=None, open_timeout=10) as ws:
+        ws.send(json.dumps({"env": "window", "strength": 0.7}))
+        for _ in range(4):  # a burst: the stale ones are dropped, not queued
+            ws.send(png)
+        got_frame, stats = None, None
+        deadline = time.time() + 30
+        while time.time() < deadline and (got_frame is None or stats is None):
+            msg = ws.recv(timeout=30)
+            if isinstance(msg, bytes):
+                got_frame = msg
+            else:
+                doc = json.loads(msg)
+                if "latency_ms" in doc:
+                    stats = doc
+        assert got_frame is not None and stats is not None and stats["face"]
+        out = cv2.imdecode(np.frombuffer(got_frame, np.uint8), cv2.IMREAD_COLOR)
+        assert out.shape == frame.shape
+        try:  # let the burst finish: every frame is either relit or dropped
+            while True:
+                ws.recv(timeout=3)
+        except TimeoutError:
+            pass
+        ws.send(json.dumps({"stats": True}))
+        seen = None
+        while seen is None:
+            msg = ws.recv(timeout=30)
+            if isinstance(msg, str) and "frames" in json.loads(msg) and "latency_ms" not in json.loads(msg):
+                seen = json.loads(msg)
+        assert seen["frames"] + seen["dropped"] == 4 and seen["frames"] >= 1
+        ws.send(json.dumps({"env": "mars"}))
+        while True:
+            msg = ws.recv(timeout=30)
+            if isinstance(msg, str) and "error" in json.loads(msg):
+                assert json.loads(msg)["kind"] == "bad_control"
+                break
+    assert httpx.get(f"{server}/readyz").status_code == 200
+
+
+def test_stream_limits_clients_and_message_size(server, frame):
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    from contextlib import ExitStack
+
+    url = server.replace("http://", "ws://") + "/v1/stream"
+    with ExitStack() as stack:
+        for _ in range(4):
+            stack.enter_context(connect(url, open_timeout=10))
+        time.sleep(0.3)
+        with connect(url, open_timeout=10) as extra:
+            with pytest.raises(ConnectionClosed) as info:
+                extra.recv(timeout=10)
+            assert info.value.rcvd.code == 1013
+    time.sleep(0.3)
+    with connect(url, max_size=None, open_timeout=10) as ws:
+        ws.send(b"\x89PNG" + b"\x00" * 2_100_000)
+        with pytest.raises(ConnectionClosed) as info:
+            ws.recv(timeout=10)
+        assert info.value.rcvd.code == 1009
+    m = httpx.get(f"{server}/metrics").text
+    assert 'relight_errors_total{kind="too_many_clients"}' in m and "relight_clients" in m
