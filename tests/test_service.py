@@ -161,10 +161,10 @@ def test_stream_relights_latest_frames_and_takes_controls(server, frame):
 
 
 def test_stream_limits_clients_and_message_size(server, frame):
+    from contextlib import ExitStack
+
     from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect
-
-    from contextlib import ExitStack
 
     url = server.replace("http://", "ws://") + "/v1/stream"
     with ExitStack() as stack:
