@@ -139,8 +139,17 @@ class Engine:
         self.bundle = relight.load_bundle(config.bundle)
         self._envs: dict = {}
         self.env_name = config.env
+        # The service's current environment (PUT /v1/environment): used when a request names none.
+        self.default_rotation: tuple[float, float, float] | None = None
+        self.default_exposure = 0.0
         self.path = FramePath(self.bundle, self.environment(config.env), mode=config.mode, focal=config.focal)
         self.lock = asyncio.Lock()
+
+    def set_uploaded(self, name: str, env: np.ndarray) -> None:
+        """An uploaded (validated) environment becomes the current one under ``name``."""
+        self._envs = {k: v for k, v in self._envs.items() if k[0] != name}
+        self._envs[(name, None)] = env
+        self.env_name = name
 
     def environment(self, name: str, rotation: tuple[float, float, float] | None = None) -> np.ndarray:
         import relight
@@ -150,7 +159,8 @@ class Engine:
         key = (name, rotation)
         env = self._envs.get(key)
         if env is None:
-            env = relight.load_environment(name)
+            base = self._envs.get((name, None))
+            env = relight.load_environment(name) if base is None else base
             if rotation is not None and any(rotation):
                 env = rotate_environment(env, rotation_matrix(*rotation), supersample=2)
             if len(self._envs) > 16:
@@ -161,10 +171,12 @@ class Engine:
     def relight(self, rgb: np.ndarray, *, env: str | None, rotation, exposure: float | None, strength: float | None,
                 mode: str | None):
         fp = self.path
+        if env is None and rotation is None:
+            rotation = self.default_rotation
         fp.set_environment(self.environment(env or self.env_name, rotation))
         fp.set_mode(mode or self.config.mode)
         fp.set_strength(1.0 if strength is None else strength)
-        fp.set_exposure(0.0 if exposure is None else exposure)
+        fp.set_exposure(self.default_exposure if exposure is None else exposure)
         return fp.process(rgb, time.perf_counter())
 
 
@@ -178,6 +190,57 @@ def _parse_rotation(text: str | None):
     if len(vals) != 3 or not all(np.isfinite(vals)) or max(abs(v) for v in vals) > 360:
         raise ServiceError(422, "bad_query", f"rotation={text!r}: give three angles within +-360 degrees")
     return vals
+
+
+#: Environment uploads: content types and the largest body (bytes).
+ENV_TYPES = {"image/vnd.radiance": ".hdr", "image/x-exr": ".exr", "image/aces": ".exr", "image/png": ".png"}
+ENV_MAX_BODY = 64 << 20
+
+
+async def _read_body(request, cap: int) -> bytes:
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > cap:
+        raise ServiceError(413, "too_large", f"body of {declared} bytes: at most {cap}")
+    chunks, total = [], 0
+    async for chunk in request.stream():
+        total += len(chunk)
+        if total > cap:
+            raise ServiceError(413, "too_large", f"body over {cap} bytes: send a smaller file")
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def _load_uploaded_environment(body: bytes, suffix: str) -> np.ndarray:
+    """Validate an uploaded environment exactly as a file would be (written to a temporary file)."""
+    import tempfile
+
+    import relight
+    from relight.errors import RelightError
+
+    with tempfile.TemporaryDirectory(prefix="relight-env-") as tmp:
+        path = Path(tmp) / f"upload{suffix}"
+        path.write_bytes(body)
+        try:
+            return relight.load_environment(path)
+        except RelightError as exc:
+            raise ServiceError(400, "bad_environment", str(exc).replace(str(path), "the uploaded environment")) \
+                from None
+
+
+def _preview_png(env: np.ndarray, exposure_ev: float) -> bytes:
+    """The environment scaled to at most 512x256, Reinhard tone-mapped, sRGB PNG."""
+    import cv2
+
+    from relight.colour import encode_srgb8, luminance
+
+    h, w = env.shape[:2]
+    s = min(1.0, 256.0 / h)
+    small = cv2.resize(env, (max(int(w * s), 2), max(int(h * s), 1)), interpolation=cv2.INTER_AREA) if s < 1 else env
+    small = small * np.float32(2.0 ** exposure_ev)
+    lum = luminance(small)[..., None]
+    mapped = small / (1.0 + lum)
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(encode_srgb8(np.clip(mapped, 0, 1)), cv2.COLOR_RGB2BGR))
+    return buf.tobytes()
 
 
 def create_app(config: ServeConfig):
@@ -239,16 +302,7 @@ def create_app(config: ServeConfig):
         ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
         if ctype not in CONTENT_TYPES:
             raise ServiceError(415, "content_type", f"content type {ctype or 'none'!r}: send image/png or image/jpeg")
-        declared = request.headers.get("content-length")
-        if declared is not None and declared.isdigit() and int(declared) > config.max_body:
-            raise ServiceError(413, "too_large", f"body of {declared} bytes: at most {config.max_body}")
-        chunks, total = [], 0
-        async for chunk in request.stream():
-            total += len(chunk)
-            if total > config.max_body:
-                raise ServiceError(413, "too_large", f"body over {config.max_body} bytes: send a smaller frame")
-            chunks.append(chunk)
-        rgb = decode_frame(b"".join(chunks), ctype, config.max_pixels)
+        rgb = decode_frame(await _read_body(request, config.max_body), ctype, config.max_pixels)
         accept = (request.headers.get("accept") or "").lower()
         out_type = "image/jpeg" if "image/jpeg" in accept and "image/png" not in accept else \
             "image/png" if "image/png" in accept and "image/jpeg" not in accept else ctype
@@ -266,6 +320,55 @@ def create_app(config: ServeConfig):
         if not info.face and info.note:
             headers["X-Relight-Note"] = info.note
         return Response(encode_frame(out, out_type), media_type=out_type, headers=headers)
+
+    @app.get("/v1/environment", summary="The current environment and the built-ins")
+    async def get_environment():
+        engine = _ready()
+        return {"current": engine.env_name, "rotation": engine.default_rotation, "exposure": engine.default_exposure,
+                "builtins": list(PRESETS)}
+
+    @app.put("/v1/environment", summary="Choose a built-in or upload an environment (.hdr/.exr/.png)",
+             responses={400: {}, 413: {}, 415: {}, 422: {}})
+    async def put_environment(request: Request,
+                              builtin: str | None = Query(None, description="a built-in: " + ", ".join(PRESETS)),
+                              rotation: str | None = Query(None, description="yaw,pitch,roll (degrees)"),
+                              exposure: float | None = Query(None, ge=-20, le=20, description="stops (EV)")):
+        engine = _ready()
+        rot = _parse_rotation(rotation)
+        ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
+        body = await _read_body(request, ENV_MAX_BODY)
+        if builtin is not None:
+            if builtin not in PRESETS:
+                raise ServiceError(422, "bad_query", f"builtin={builtin!r}: use one of {', '.join(PRESETS)}")
+            async with engine.lock:
+                await asyncio.to_thread(engine.environment, f"builtin:{builtin}")
+                engine.env_name = f"builtin:{builtin}"
+        elif body:
+            suffix = ENV_TYPES.get(ctype)
+            if suffix is None:
+                raise ServiceError(415, "content_type", f"content type {ctype or 'none'!r}: send "
+                                   + ", ".join(ENV_TYPES) + " (an .hdr, .exr or .png lat-long map)")
+            env = await asyncio.to_thread(_load_uploaded_environment, body, suffix)
+            async with engine.lock:
+                engine.set_uploaded("uploaded" + suffix, env)
+        if rot is not None:
+            engine.default_rotation = rot
+        if exposure is not None:
+            engine.default_exposure = float(exposure)
+        return await get_environment()
+
+    @app.get("/v1/environment/preview.png", summary="The current environment, tone-mapped",
+             response_class=Response, responses={200: {"content": {"image/png": {}}}})
+    async def preview_environment():
+        engine = _ready()
+        env = engine.environment(engine.env_name, engine.default_rotation)
+        return Response(await asyncio.to_thread(_preview_png, env, engine.default_exposure), media_type="image/png")
+
+    def _ready() -> Engine:
+        engine = state["engine"]
+        if engine is None:
+            raise ServiceError(503, "not_ready", "the service is still loading its bundle; retry shortly")
+        return engine
 
     @app.websocket("/v1/stream")
     async def stream(ws: WebSocket):

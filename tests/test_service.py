@@ -183,3 +183,44 @@ def test_stream_limits_clients_and_message_size(server, frame):
         assert info.value.rcvd.code == 1009
     m = httpx.get(f"{server}/metrics").text
     assert 'relight_errors_total{kind="too_many_clients"}' in m and "relight_clients" in m
+
+
+def test_environment_endpoints_choose_upload_validate_and_preview(server, frame, tmp_path):
+    from relight import load_environment
+    from relight.imageio import write_image
+
+    doc = httpx.get(f"{server}/v1/environment").json()
+    assert "sunset" in doc["builtins"] and doc["current"] == "builtin:studio"
+    r = httpx.put(f"{server}/v1/environment?builtin=sunset&rotation=30,0,0&exposure=0.5")
+    assert r.status_code == 200 and r.json()["current"] == "builtin:sunset" and r.json()["rotation"] == [30, 0, 0]
+    env = load_environment("builtin:window", width=128)
+    write_image(tmp_path / "env.exr", env)
+    r = httpx.put(f"{server}/v1/environment", content=(tmp_path / "env.exr").read_bytes(),
+                  headers={"content-type": "image/x-exr"}, timeout=30)
+    assert r.status_code == 200 and r.json()["current"] == "uploaded.exr"
+    p = httpx.get(f"{server}/v1/environment/preview.png")
+    assert p.status_code == 200 and p.headers["content-type"] == "image/png"
+    prev = cv2.imdecode(np.frombuffer(p.content, np.uint8), cv2.IMREAD_COLOR)
+    assert prev.shape[1] == 2 * prev.shape[0] and prev.shape[0] <= 256
+    r = httpx.post(f"{server}/v1/relight", content=_png(frame), headers={"content-type": "image/png"}, timeout=30)
+    assert r.status_code == 200 and r.headers["x-relight-face"] == "found"  # relit under the uploaded map
+    bad = env.copy()
+    bad[3, 4, 1] = np.nan
+    import OpenImageIO as oiio  # written directly: relight's own writer refuses non-finite images
+
+    out = oiio.ImageOutput.create(str(tmp_path / "bad.exr"))
+    out.open(str(tmp_path / "bad.exr"), oiio.ImageSpec(bad.shape[1], bad.shape[0], 3, "float"))
+    out.write_image(bad)
+    out.close()
+    square = np.ones((64, 64, 3), np.float32)
+    write_image(tmp_path / "square.exr", square)
+    for path, kind in ((tmp_path / "bad.exr", "bad_environment"), (tmp_path / "square.exr", "bad_environment")):
+        r = httpx.put(f"{server}/v1/environment", content=path.read_bytes(), headers={"content-type": "image/x-exr"},
+                      timeout=30)
+        assert r.status_code == 400 and r.json()["kind"] == kind, r.text
+    r = httpx.put(f"{server}/v1/environment", content=b"hello", headers={"content-type": "text/plain"})
+    assert r.status_code == 415
+    r = httpx.put(f"{server}/v1/environment", content=b"\x00" * 1000, headers={"content-type": "image/x-exr"})
+    assert r.status_code == 400
+    assert httpx.get(f"{server}/v1/environment").json()["current"] == "uploaded.exr"  # the bad ones changed nothing
+    httpx.put(f"{server}/v1/environment?builtin=studio&rotation=0,0,0&exposure=0")
