@@ -197,6 +197,12 @@ ENV_TYPES = {"image/vnd.radiance": ".hdr", "image/x-exr": ".exr", "image/aces": 
 ENV_MAX_BODY = 64 << 20
 
 
+def _binary_body(*types: str, required: bool = True) -> dict:
+    """OpenAPI request body of raw bytes in ``types`` (the handlers read the stream themselves)."""
+    schema = {"type": "string", "format": "binary"}
+    return {"requestBody": {"required": required, "content": {t: {"schema": schema} for t in types}}}
+
+
 async def _read_body(request, cap: int) -> bytes:
     declared = request.headers.get("content-length")
     if declared is not None and declared.isdigit() and int(declared) > cap:
@@ -285,7 +291,7 @@ def create_app(config: ServeConfig):
 
         return Response(generate_latest(metrics.registry), media_type=CONTENT_TYPE_LATEST)
 
-    @app.post("/v1/relight", summary="Relight one frame",
+    @app.post("/v1/relight", summary="Relight one frame", openapi_extra=_binary_body("image/png", "image/jpeg"),
               responses={200: {"content": {"image/png": {}, "image/jpeg": {}}}, 400: {}, 413: {}, 415: {}, 422: {}})
     async def relight_frame(request: Request,
                             env: str | None = Query(None, description="built-in preset: " + ", ".join(PRESETS)),
@@ -328,7 +334,7 @@ def create_app(config: ServeConfig):
                 "builtins": list(PRESETS)}
 
     @app.put("/v1/environment", summary="Choose a built-in or upload an environment (.hdr/.exr/.png)",
-             responses={400: {}, 413: {}, 415: {}, 422: {}})
+             openapi_extra=_binary_body(*ENV_TYPES, required=False), responses={400: {}, 413: {}, 415: {}, 422: {}})
     async def put_environment(request: Request,
                               builtin: str | None = Query(None, description="a built-in: " + ", ".join(PRESETS)),
                               rotation: str | None = Query(None, description="yaw,pitch,roll (degrees)"),

@@ -10,6 +10,9 @@ import pytest
 
 httpx = pytest.importorskip("httpx", reason="httpx (a test extra) is the client")
 
+#: Requests the fuzzer generates per API operation (bounded: the suite stays fast).
+FUZZ_EXAMPLES = 25
+
 
 def _free_port() -> int:
     with socket.socket() as s:
@@ -223,4 +226,24 @@ def test_environment_endpoints_choose_upload_validate_and_preview(server, frame,
     r = httpx.put(f"{server}/v1/environment", content=b"\x00" * 1000, headers={"content-type": "image/x-exr"})
     assert r.status_code == 400
     assert httpx.get(f"{server}/v1/environment").json()["current"] == "uploaded.exr"  # the bad ones changed nothing
+    httpx.put(f"{server}/v1/environment?builtin=studio&rotation=0,0,0&exposure=0")
+
+
+def test_fuzzing_the_http_api_from_its_openapi_schema_never_gets_a_server_error(server):
+    schemathesis = pytest.importorskip("schemathesis", reason="schemathesis (a test extra) is the fuzzer")
+    from hypothesis import HealthCheck, given, settings
+
+    schema = schemathesis.openapi.from_url(f"{server}/openapi.json")
+    operations = [r.ok() for r in schema.get_all_operations()]
+    assert {f"{o.method.upper()} {o.path}" for o in operations} >= {"POST /v1/relight", "PUT /v1/environment"}
+    for op in operations:
+        @settings(max_examples=FUZZ_EXAMPLES, deadline=None, derandomize=True, database=None,
+                  suppress_health_check=list(HealthCheck))
+        @given(case=op.as_strategy())
+        def check(case):
+            response = case.call(base_url=server, timeout=30)
+            assert response.status_code < 500, (case.method, case.path, response.status_code, response.text[:300])
+
+        check()
+    assert httpx.get(f"{server}/readyz").status_code == 200
     httpx.put(f"{server}/v1/environment?builtin=studio&rotation=0,0,0&exposure=0")
