@@ -275,6 +275,14 @@ def create_app(config: ServeConfig):
         metrics.errors.labels(kind=exc.kind).inc()
         return JSONResponse({"error": exc.message, "kind": exc.kind}, status_code=exc.status)
 
+    @app.get("/", summary="The browser page: webcam in, relit frames out", response_class=Response,
+             responses={200: {"content": {"text/html": {}}}})
+    async def page():
+        from importlib.resources import files
+
+        html = files("relight.service").joinpath("static/index.html").read_text(encoding="utf-8")
+        return Response(html, media_type="text/html")
+
     @app.get("/livez", summary="The process answers")
     async def livez():
         return {"status": "alive"}

@@ -71,6 +71,9 @@ def test_health_docs_and_metrics(server):
     assert httpx.get(f"{server}/readyz").json()["status"] == "ready"
     assert httpx.get(f"{server}/openapi.json").json()["paths"]["/v1/relight"]
     assert httpx.get(f"{server}/docs").status_code == 200
+    page = httpx.get(f"{server}/")
+    assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+    assert "/v1/stream" in page.text and "getUserMedia" in page.text
 
 
 def test_relight_a_png_and_a_jpeg_frame(server, frame):
