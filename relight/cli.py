@@ -324,6 +324,20 @@ def _add_bench(sub) -> None:
     v.add_argument("--quick", action="store_true", help="480x270 clips of 4 s instead (for CI)")
     v.add_argument("--quiet", action="store_true", help="no progress output")
     v.set_defaults(func=_run_bench_video)
+    sv = bsub.add_parser("serve", help="the frame service under load: websocket clients on loopback",
+                         description="Start relight serve in a fresh process and drive it with websocket clients "
+                                     "sending 640x360 JPEG frames of a synthetic live video at a fixed rate: "
+                                     "errors, dropped frames, round-trip p50/p95/p99, server memory before and "
+                                     "after; then one client alone. Writes bench.json.",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    sv.add_argument("-o", "--out", type=Path, default=Path("out/bench-serve"), help="output and cache folder")
+    sv.add_argument("--bundle", type=Path, default=None, help="bundle to serve (default: a synthetic 640x360 one)")
+    sv.add_argument("--clients", type=int, default=4, help="websocket clients at once")
+    sv.add_argument("--fps", type=float, default=30.0, help="frames per second each client sends")
+    sv.add_argument("--duration", type=float, default=60.0, help="seconds of load")
+    sv.add_argument("--quick", action="store_true", help="8 s of load (for CI)")
+    sv.add_argument("--quiet", action="store_true", help="no progress output")
+    sv.set_defaults(func=_run_bench_serve)
 
 
 def _run_bench_capture(args) -> int:
@@ -350,6 +364,19 @@ def _run_bench_video(args) -> int:
     doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet, env=args.env, mode=args.mode)
     print(benchmark.table(doc))
     print(f"wrote {args.out / 'bench.json'}, {args.out / 'video_pose.png'} and {args.out / 'video_frames.png'}")
+    return 0
+
+
+def _run_bench_serve(args) -> int:
+    from .errors import InputError
+    from .service import loadtest
+
+    if not (1 <= args.clients <= 64) or not (1 <= args.fps <= 120) or not (1 <= args.duration <= 3600):
+        raise InputError("--clients 1..64, --fps 1..120, --duration 1..3600 seconds")
+    doc = loadtest.run(args.out, bundle=args.bundle, clients=args.clients, fps=args.fps, duration=args.duration,
+                       quick=args.quick, progress=not args.quiet)
+    print(loadtest.table(doc))
+    print(f"wrote {args.out / 'bench.json'}")
     return 0
 
 

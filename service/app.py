@@ -403,7 +403,8 @@ def create_app(config: ServeConfig):
         state["clients"] += 1
         metrics.clients.inc()
         settings: dict = {"env": None, "rotation": None, "strength": None, "mode": None, "exposure": None}
-        latest: dict = {"data": None, "type": None, "t": 0.0}
+        latest: dict = {"data": None, "type": None, "t": 0.0, "tag": None}
+        pending: dict = {}
         counts = {"frames": 0, "dropped": 0}
         wake = asyncio.Event()
         closed = asyncio.Event()
@@ -449,7 +450,7 @@ def create_app(config: ServeConfig):
                         if latest["data"] is not None:
                             counts["dropped"] += 1
                             metrics.dropped.inc()
-                        latest.update(data=data, t=time.perf_counter())
+                        latest.update(data=data, t=time.perf_counter(), tag=pending.pop("tag", None))
                         wake.set()
                     elif msg.get("text") is not None:
                         import json
@@ -458,6 +459,8 @@ def create_app(config: ServeConfig):
                             doc = json.loads(msg["text"])
                             if isinstance(doc, dict) and doc.get("stats"):
                                 await send_json({"frames": counts["frames"], "dropped": counts["dropped"]})
+                            elif isinstance(doc, dict) and set(doc) == {"tag"}:
+                                pending["tag"] = doc["tag"]  # echoed with the next frame's result
                             else:
                                 control(doc)
                         except (ValueError, ServiceError) as exc:
@@ -473,7 +476,7 @@ def create_app(config: ServeConfig):
             while not closed.is_set():
                 await wake.wait()
                 wake.clear()
-                data, t_in = latest["data"], latest["t"]
+                data, t_in, tag = latest["data"], latest["t"], latest["tag"]
                 latest["data"] = None
                 if data is None:
                     continue
@@ -500,9 +503,11 @@ def create_app(config: ServeConfig):
                 metrics.frames.inc()
                 latency = time.perf_counter() - t_in
                 metrics.latency.observe(latency)
-                await send_json({"frame": counts["frames"], "latency_ms": round(latency * 1e3, 2),
-                                 "dropped": counts["dropped"], "face": info.face,
-                                 "timings": {k: round(v, 2) for k, v in info.timings.items()}})
+                doc = {"frame": counts["frames"], "latency_ms": round(latency * 1e3, 2), "dropped": counts["dropped"],
+                       "face": info.face, "timings": {k: round(v, 2) for k, v in info.timings.items()}}
+                if tag is not None:
+                    doc["tag"] = tag
+                await send_json(doc)
 
         try:
             await asyncio.gather(reader(), worker())

@@ -130,6 +130,14 @@ def test_stream_relights_latest_frames_and_takes_controls(server, frame):
     png = _png(frame)
     with connect(url, max_size=None, open_timeout=10) as ws:
         ws.send(json.dumps({"env": "window", "strength": 0.7}))
+        ws.send(json.dumps({"tag": 7}))  # echoed with this frame's result (round-trip timing)
+        ws.send(png)
+        first = None
+        while first is None:
+            msg = ws.recv(timeout=30)
+            if isinstance(msg, str) and "latency_ms" in json.loads(msg):
+                first = json.loads(msg)
+        assert first["tag"] == 7
         for _ in range(4):  # a burst: the stale ones are dropped, not queued
             ws.send(png)
         got_frame, stats = None, None
@@ -156,7 +164,7 @@ def test_stream_relights_latest_frames_and_takes_controls(server, frame):
             msg = ws.recv(timeout=30)
             if isinstance(msg, str) and "frames" in json.loads(msg) and "latency_ms" not in json.loads(msg):
                 seen = json.loads(msg)
-        assert seen["frames"] + seen["dropped"] == 4 and seen["frames"] >= 1
+        assert seen["frames"] + seen["dropped"] == 5 and seen["frames"] >= 2
         ws.send(json.dumps({"env": "mars"}))
         while True:
             msg = ws.recv(timeout=30)

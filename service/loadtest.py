@@ -1,0 +1,194 @@
+"""``relight bench serve``: the frame service under load, on loopback, bounded in time.
+
+A real ``relight-serve`` process; N websocket clients each send 640x360 JPEG frames of a
+synthetic live video at a fixed rate for a fixed time (latest frame wins on the server: frames
+the server had no time for are dropped and counted, never queued). Each frame is tagged so the
+client measures its round trip (send -> relit frame back). Reported: errors, frames returned,
+dropped, round-trip p50/p95/p99 per run, and the server's resident memory at start and end
+(``/proc``). Runs: the N-client load, then a single client at the same rate.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _client(url: str, frames: list[bytes], fps: float, duration: float, out: dict) -> None:
+    """Send tagged frames at ``fps`` for ``duration`` s; record round trips (ms) and errors."""
+    from websockets.sync.client import connect
+
+    sent: dict[int, float] = {}
+    rtts: list[float] = []
+    errors = 0
+    stop = threading.Event()
+    try:
+        with connect(url, max_size=None, open_timeout=20) as ws:
+            def receive():
+                nonlocal errors
+                while not stop.is_set():
+                    try:
+                        msg = ws.recv(timeout=0.5)
+                    except TimeoutError:
+                        continue
+                    except Exception:
+                        return
+                    if isinstance(msg, str):
+                        doc = json.loads(msg)
+                        if "error" in doc:
+                            errors += 1
+                        elif "tag" in doc and doc["tag"] in sent:
+                            rtts.append((time.perf_counter() - sent[doc["tag"]]) * 1e3)
+
+            rx = threading.Thread(target=receive, daemon=True)
+            rx.start()
+            t0 = time.perf_counter()
+            k = 0
+            while True:
+                due = t0 + k / fps
+                now = time.perf_counter()
+                if now - t0 >= duration:
+                    break
+                if due > now:
+                    time.sleep(due - now)
+                sent[k] = time.perf_counter()
+                ws.send(json.dumps({"tag": k}))
+                ws.send(frames[k % len(frames)])
+                k += 1
+            time.sleep(1.0)  # the last results come back
+            ws.send(json.dumps({"stats": True}))
+            time.sleep(0.5)
+            stop.set()
+            rx.join(timeout=5)
+            out.update(sent=k, returned=len(rtts), rtts=rtts, errors=errors)
+    except Exception as exc:  # a client that cannot connect or is cut off counts as an error
+        out.update(sent=0, returned=0, rtts=[], errors=errors + 1, failure=repr(exc))
+
+
+def _run(url: str, frames, clients: int, fps: float, duration: float) -> dict:
+    outs = [{} for _ in range(clients)]
+    threads = [threading.Thread(target=_client, args=(url, frames, fps, duration, o)) for o in outs]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    rtts = np.concatenate([np.asarray(o.get("rtts", []), dtype=np.float64) for o in outs]) if outs else np.zeros(0)
+    sent = sum(o.get("sent", 0) for o in outs)
+    returned = sum(o.get("returned", 0) for o in outs)
+    pct = {f"p{q}": float(np.percentile(rtts, q)) if rtts.size else None for q in (50, 95, 99)}
+    return {"clients": clients, "fps": fps, "duration_s": duration, "sent": sent, "returned": returned,
+            "dropped": sent - returned, "errors": sum(o.get("errors", 0) for o in outs),
+            "failures": [o["failure"] for o in outs if "failure" in o], "rtt_ms": pct}
+
+
+def _frames(out: Path, progress: bool) -> list[bytes]:
+    import cv2
+
+    from relight.pipeline.synth.live import LiveConfig, synthesize_live
+    from relight.video import read_frames
+
+    live = out / "live-640x360-4s"
+    if not (live / "live.mp4").exists():
+        if progress:
+            print("synthesising a 640x360 live clip ...", flush=True)
+        synthesize_live(live, LiveConfig(width=640, height=360, duration=4.0, seed=0, audio="none"),
+                        progress=progress)
+    return [cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
+            for f in read_frames(live / "live.mp4")]
+
+
+def run(out: Path, bundle: Path | None = None, clients: int = 4, fps: float = 30.0, duration: float = 60.0,
+        quick: bool = False, progress: bool = True) -> dict:
+    import httpx
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if quick:
+        duration = min(duration, 8.0)
+    if bundle is None:
+        from .benchmark import _bundle
+
+        bundle = _bundle(out, (640, 360), 20.0 if quick else 30.0, progress)
+    frames = _frames(out, progress)
+    port = _free_port()
+    env = dict(os.environ, RELIGHT_LOG_LEVEL="warning")
+    proc = subprocess.Popen([sys.executable, "-m", "relight", "serve", str(bundle), "--port", str(port),
+                             "--max-clients", str(max(clients, 1)), "--focal", "ortho"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.time() + 120
+        while True:
+            try:
+                if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if time.time() > deadline or proc.poll() is not None:
+                raise RuntimeError(f"relight serve did not become ready: {proc.stderr.read()[-500:]}")
+            time.sleep(0.2)
+        url = f"ws://127.0.0.1:{port}/v1/stream"
+        _run(url, frames, 1, fps, 2.0)  # warm-up
+        rss_start = _rss_mb(proc.pid)
+        if progress:
+            print(f"{clients} clients x {fps:g} fps x {duration:g} s ...", flush=True)
+        load = _run(url, frames, clients, fps, duration)
+        rss_end = _rss_mb(proc.pid)
+        if progress:
+            print(f"1 client x {fps:g} fps ...", flush=True)
+        single = _run(url, frames, 1, fps, min(duration, 20.0))
+        metrics = httpx.get(f"{base}/metrics").text
+        alive = httpx.get(f"{base}/readyz").status_code == 200
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    doc = {"load": load, "single": single, "rss_mb": {"start": rss_start, "end": rss_end},
+           "ready_after": alive, "server_errors": [ln for ln in metrics.splitlines()
+                                                   if ln.startswith("relight_errors_total")]}
+    (out / "bench.json").write_text(json.dumps(doc, indent=1))
+    return doc
+
+
+def _ms(v) -> str:
+    return "-" if v is None else f"{v:.1f}"
+
+
+def table(doc: dict) -> str:
+    lines = []
+    for name in ("load", "single"):
+        r = doc[name]
+        q = r["rtt_ms"]
+        lines.append(f"{name:6s}: {r['clients']} client(s) x {r['fps']:g} fps x {r['duration_s']:g} s: sent "
+                     f"{r['sent']}, relit {r['returned']}, dropped {r['dropped']}, errors {r['errors']}; round trip "
+                     f"p50 {_ms(q['p50'])} ms, p95 {_ms(q['p95'])} ms, p99 {_ms(q['p99'])} ms")
+    rss = doc["rss_mb"]
+    lines.append(f"server memory (RSS): {rss['start']:.0f} MB before the load, {rss['end']:.0f} MB after; "
+                 f"ready afterwards: {doc['ready_after']}")
+    return "\n".join(lines)
