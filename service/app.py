@@ -180,6 +180,13 @@ class Engine:
         return fp.process(rgb, time.perf_counter())
 
 
+def _decode_relight_encode(engine: Engine, data: bytes, ctype: str, max_pixels: int, settings: dict):
+    """(encoded relit frame, FrameInfo) of an encoded frame (raises ServiceError/RelightError)."""
+    rgb = decode_frame(data, ctype, max_pixels)
+    out, info = engine.relight(rgb, **settings)
+    return encode_frame(out, ctype), info
+
+
 def _parse_rotation(text: str | None):
     if not text:
         return None
@@ -485,10 +492,11 @@ def create_app(config: ServeConfig):
                     ctype = "image/png" if data[:4] == b"\x89PNG" else "image/jpeg"
                     if size is None:
                         raise ServiceError(400, "undecodable", "the frame is not a PNG or JPEG image")
-                    rgb = decode_frame(data, ctype, config.max_pixels)
                     async with engine.lock:
-                        out, info = await asyncio.to_thread(engine.relight, rgb, **settings)
-                    payload = encode_frame(out, ctype)
+                        # Decode, relight and encode in one hop off the event loop (which keeps
+                        # reading the other clients' frames meanwhile).
+                        payload, info = await asyncio.to_thread(_decode_relight_encode, engine, data, ctype,
+                                                                config.max_pixels, settings)
                 except (ServiceError, RelightError) as exc:
                     kind = exc.kind if isinstance(exc, ServiceError) else "bad_request"
                     metrics.errors.labels(kind=kind).inc()

@@ -258,3 +258,25 @@ def test_fuzzing_the_http_api_from_its_openapi_schema_never_gets_a_server_error(
         check()
     assert httpx.get(f"{server}/readyz").status_code == 200
     httpx.put(f"{server}/v1/environment?builtin=studio&rotation=0,0,0&exposure=0")
+
+
+def test_vanished_and_silent_stream_clients_hold_nothing(server, frame):
+    from websockets.sync.client import connect
+
+    url = server.replace("http://", "ws://") + "/v1/stream"
+    png = _png(frame)
+
+    def clients() -> float:
+        return next(float(line.split()[-1]) for line in httpx.get(f"{server}/metrics").text.splitlines()
+                    if line.startswith("relight_clients "))
+
+    with connect(url, open_timeout=10) as ws:  # a client that sends and never reads, then vanishes
+        for _ in range(3):
+            ws.send(png)
+        ws.socket.close()  # no close handshake: the network just goes away
+    deadline = time.time() + 20
+    while clients() > 0 and time.time() < deadline:
+        time.sleep(0.2)
+    assert clients() == 0
+    r = httpx.post(f"{server}/v1/relight", content=png, headers={"content-type": "image/png"}, timeout=30)
+    assert r.status_code == 200 and httpx.get(f"{server}/readyz").status_code == 200
