@@ -1,7 +1,8 @@
 """Putting the relit face into the frame: ``paste`` (the paper) and ``transfer`` (the default).
 
-All images here are linear RGB float32 (H, W, 3) over the face's box; ``alpha`` (H, W) is the
-warped, feathered face mask in 0-1.
+The settings of the two modes; the compositing itself runs in ``kernels/composite.cl``
+(:mod:`relight.kernels.compositor`, with its NumPy twin). ``a`` is the warped, feathered face
+mask in 0-1, all colours linear RGB.
 
 * paste: the relit reference face, scaled by an exposure gain so its median luminance matches
   the live face's, over the frame: ``out = frame (1 - a) + a g relit``.
@@ -17,10 +18,6 @@ warped, feathered face mask in 0-1.
 
 from __future__ import annotations
 
-import numpy as np
-
-from relight.colour import luminance
-
 #: Regulariser of the lighting ratio, as a share of the face's median ambient luminance.
 RATIO_EPS = 0.05
 #: Largest lighting ratio applied (after normalisation).
@@ -28,33 +25,3 @@ RATIO_MAX = 6.0
 #: Smallest luminance a median may have before a gain is taken from it.
 TINY = 1e-6
 MODES = ("transfer", "paste")
-
-
-def ratio_image(relit: np.ndarray, ambient: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(H, W, 3) float32 lighting ratio in the reference (before normalisation)."""
-    lum = luminance(ambient)[mask]
-    eps = np.float32(RATIO_EPS * max(float(np.median(lum)) if lum.size else 0.0, TINY))
-    return (relit + eps) / (ambient + eps)
-
-
-def median_gain(num: np.ndarray, den: np.ndarray, weight: np.ndarray) -> float:
-    """Median luminance of ``num`` over that of ``den`` where ``weight`` > 0.5 (1.0 if undefined)."""
-    sel = weight > 0.5
-    if sel.sum() < 16:
-        return 1.0
-    a = float(np.median(luminance(num[sel])))
-    b = float(np.median(luminance(den[sel])))
-    if not (np.isfinite(a) and np.isfinite(b)) or a <= TINY or b <= TINY:
-        return 1.0
-    return a / b
-
-
-def paste(frame: np.ndarray, relit: np.ndarray, alpha: np.ndarray, gain: float, strength: float) -> np.ndarray:
-    a = (alpha * np.float32(strength))[..., None]
-    return frame + a * (relit * np.float32(gain) - frame)
-
-
-def transfer(frame: np.ndarray, ratio: np.ndarray, alpha: np.ndarray, gain: float, strength: float) -> np.ndarray:
-    a = (alpha * np.float32(strength))[..., None]
-    r = np.clip(ratio * np.float32(gain), 0.0, RATIO_MAX)
-    return frame * (1.0 + a * (r - 1.0))

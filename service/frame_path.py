@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from relight.colour import decode_srgb8
+from relight.directions import rotation_matrix
 from relight.errors import InputError
 
 from . import composite
@@ -204,7 +205,6 @@ class FramePath:
             even = np.array(self.relighter.relight(load_environment("builtin:uniform", width=64)))
             self.ambient_crop = np.ascontiguousarray(even[y0:y0 + h, x0:x0 + w])
             self.reference_light = "uniform"
-            self.relighter.relight(self.env)  # back to the chosen environment's lights in the cache
         amb_lum = (self.ambient_crop[mask_crop] @ _LUM) if mask_crop.any() else np.zeros(1, np.float32)
         self.ratio_eps = np.float32(composite.RATIO_EPS * max(float(np.median(amb_lum)), composite.TINY))
         self.inv_ambient = (1.0 / (self.ambient_crop + self.ratio_eps)).astype(np.float32)
@@ -300,8 +300,6 @@ class FramePath:
             tm["total"] = (time.perf_counter() - t0) * 1e3
             return rgb, info
         angles = self.angle_filter(pose.angles, t)
-        from relight.directions import rotation_matrix
-
         rotation = rotation_matrix(*angles)
         info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles
         keep = pose.inliers

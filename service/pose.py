@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from relight.directions import rotation_angles, rotation_matrix
+from relight.directions import rotation_angles
 
 #: Default focal length as a multiple of the frame's larger side.
 DEFAULT_FOCAL = 0.85
@@ -188,8 +188,3 @@ class OneEuroFilter:
         self.x = self.x + a * (x - self.x)
         self.t = float(t)
         return self.x.copy()
-
-
-def smooth_rotation(filt: OneEuroFilter, rotation: np.ndarray, t: float) -> np.ndarray:
-    """Filter a rotation through its (yaw, pitch, roll) angles (fine within +-90 deg pitch)."""
-    return rotation_matrix(*filt(rotation_angles(rotation), t))

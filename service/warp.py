@@ -97,14 +97,6 @@ def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int]
     return full
 
 
-def warp(image: np.ndarray, mapping: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-    """``image`` (a reference crop whose top-left pixel is reference ``origin``) sampled at
-    ``mapping`` (reference positions): zeros outside the crop."""
-    mx = mapping[..., 0] - np.float32(origin[0])
-    my = mapping[..., 1] - np.float32(origin[1])
-    return cv2.remap(image, mx, my, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-
-
 def points_box(points: np.ndarray, size: tuple[int, int], pad: int = 2) -> tuple[int, int, int, int] | None:
     """Integer box around points, padded and clipped to a (width, height) frame; None if empty."""
     w, h = size

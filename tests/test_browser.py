@@ -6,9 +6,7 @@ import base64
 import json
 import os
 import shutil
-import socket
 import subprocess
-import threading
 import time
 
 import cv2
@@ -17,15 +15,11 @@ import pytest
 
 httpx = pytest.importorskip("httpx", reason="httpx (a test extra) is the client")
 
+from .serving import free_port, running_server  # noqa: E402 (after the skip: it needs httpx)
+
 #: Relit frames the page must show, and how long it may take (s).
 PAGE_FRAMES = 3
 PAGE_TIMEOUT = 90
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -68,27 +62,10 @@ def y4m_clip(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def server(small_bundle):
-    import uvicorn
+    from relight.service.app import ServeConfig
 
-    from relight.service.app import ServeConfig, create_app
-
-    port = _free_port()
-    srv = uvicorn.Server(uvicorn.Config(create_app(ServeConfig(bundle=small_bundle.path)), host="127.0.0.1",
-                                        port=port, log_level="warning"))
-    th = threading.Thread(target=srv.run, daemon=True)
-    th.start()
-    base = f"http://127.0.0.1:{port}"
-    deadline = time.time() + 60
-    while time.time() < deadline:
-        try:
-            if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
-                break
-        except httpx.TransportError:
-            pass
-        time.sleep(0.1)
-    yield base
-    srv.should_exit = True
-    th.join(timeout=10)
+    with running_server(ServeConfig(bundle=small_bundle.path)) as base:
+        yield base
 
 
 class _DevTools:
@@ -114,7 +91,7 @@ class _DevTools:
 def test_browser_page_streams_the_camera_and_shows_relit_frames(chromium, y4m_clip, server, tmp_path):
     from websockets.sync.client import connect
 
-    port = _free_port()
+    port = free_port()
     proc = subprocess.Popen([chromium, "--headless=new", "--no-sandbox", "--disable-gpu",
                              "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
                              f"--use-file-for-fake-video-capture={y4m_clip}", "--window-size=1280,800",

@@ -1,7 +1,5 @@
 """The frame service against a real uvicorn server on loopback."""
 
-import socket
-import threading
 import time
 
 import cv2
@@ -10,42 +8,19 @@ import pytest
 
 httpx = pytest.importorskip("httpx", reason="httpx (a test extra) is the client")
 
+from .serving import running_server  # noqa: E402 (after the skip: it needs httpx)
+
 #: Requests the fuzzer generates per API operation (bounded: the suite stays fast).
 FUZZ_EXAMPLES = 25
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def server(small_bundle):
-    import uvicorn
+    from relight.service.app import ServeConfig
 
-    from relight.service.app import ServeConfig, create_app
-
-    port = _free_port()
-    app = create_app(ServeConfig(bundle=small_bundle.path, env="builtin:studio", max_body=2_000_000,
-                                 max_pixels=1_000_000))
-    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
-    th = threading.Thread(target=srv.run, daemon=True)
-    th.start()
-    base = f"http://127.0.0.1:{port}"
-    deadline = time.time() + 60
-    while time.time() < deadline:
-        try:
-            if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
-                break
-        except httpx.TransportError:
-            pass
-        time.sleep(0.1)
-    else:
-        pytest.fail("the service did not become ready")
-    yield base
-    srv.should_exit = True
-    th.join(timeout=10)
+    with running_server(ServeConfig(bundle=small_bundle.path, env="builtin:studio", max_body=2_000_000,
+                                    max_pixels=1_000_000)) as base:
+        yield base
 
 
 @pytest.fixture(scope="module")
