@@ -4,7 +4,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test lint clean
+.PHONY: install demo serve test lint clean
+PORT ?= 8000
+DEMO_BUNDLE := out/demo/face.bundle
 
 install: $(STAMP)
 
@@ -16,6 +18,11 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/relight demo
+
+# The frame service on the bundle `make demo` built; it prints the browser page's URL once ready.
+serve: $(STAMP)
+	@test -f $(DEMO_BUNDLE) || { echo "make serve: $(DEMO_BUNDLE) is missing - run 'make demo' first" >&2; exit 1; }
+	$(BIN)/relight-serve $(DEMO_BUNDLE) --port $(PORT)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

@@ -415,6 +415,8 @@ def _run_demo(args) -> int:
     sheet = contact_sheet(args.out / "capture", args.out / "contact_sheet.png", bundle=bundle)
     print(f"contact sheet: {sheet}")
     print(f"done in {time.perf_counter() - t0:.1f} s")
+    serve = "make serve" if args.out == Path("out/demo") else f"relight serve {args.out / 'face.bundle'}"
+    print(f"relight this face live in a browser: {serve}")
     return 0
 
 

@@ -51,6 +51,7 @@ class ServeConfig:
     max_body: int = MAX_BODY
     max_pixels: int = MAX_PIXELS
     focal: float | str | None = None
+    announce: str | None = None  # printed once the service is ready (relight-serve: the page's URL)
 
 
 class ServiceError(Exception):
@@ -270,6 +271,8 @@ def create_app(config: ServeConfig):
         except RelightError as exc:
             state["error"] = str(exc)
             raise
+        if config.announce:
+            print(config.announce, flush=True)
         yield
 
     app = FastAPI(title="relight", version="0.1.0", lifespan=lifespan,
@@ -298,7 +301,11 @@ def create_app(config: ServeConfig):
     async def readyz():
         if state["engine"] is None:
             return JSONResponse({"status": "loading", "error": state["error"]}, status_code=503)
-        return {"status": "ready", "bundle": str(config.bundle), "env": state["engine"].env_name}
+        from relight.kernels.runtime import get_runtime
+
+        dev = get_runtime().device
+        return {"status": "ready", "bundle": str(config.bundle), "env": state["engine"].env_name,
+                "device": dev.name.strip(), "compute_units": int(dev.max_compute_units)}
 
     @app.get("/metrics", summary="Prometheus metrics", response_class=PlainTextResponse)
     async def metrics_endpoint():
@@ -543,13 +550,21 @@ def run_serve(args) -> int:
 
     if not args.bundle.is_file():
         raise InputError(f"{args.bundle}: no such bundle file")
+    import relight
+
+    relight.load_bundle(args.bundle)  # a broken bundle: a one-line error here, not a server traceback
     if not (1 <= args.port <= 65535):
         raise InputError(f"--port {args.port}: use 1 to 65535")
     if not (1 <= args.max_clients <= 1024):
         raise InputError(f"--max-clients {args.max_clients}: use 1 to 1024")
     focal = args.focal if args.focal in (None, "ortho") else float(args.focal)
+    shown = "127.0.0.1" if args.host in ("0.0.0.0", "::", "") else args.host
+    shown = f"[{shown}]" if ":" in shown else shown
+    url = f"http://{shown}:{args.port}"
+    announce = (f"relight: serving {args.bundle} - open {url}/ (webcam page), {url}/docs (API), "
+                f"{url}/metrics; Ctrl-C stops")
     app = create_app(ServeConfig(bundle=args.bundle, env=args.env, mode=args.mode, max_clients=args.max_clients,
-                                 focal=focal))
+                                 focal=focal, announce=announce))
     uvicorn.run(app, host=args.host, port=args.port, log_level=os.environ.get("RELIGHT_LOG_LEVEL", "info"),
                 ws_max_size=MAX_BODY + 1024)
     return 0

@@ -44,6 +44,7 @@ def test_demo_writes_a_contact_sheet(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "contact sheet:" in out and "accuracy against the truth" in out
+    assert out.rstrip().splitlines()[-1].endswith(f"relight serve {tmp_path / 'face.bundle'}")
     sheet = cv2.imread(str(tmp_path / "contact_sheet.png"))
     assert sheet.shape == (5 * 270, 4 * 480, 3) and sheet.std() > 10
     assert (tmp_path / "face.bundle").stat().st_size > 1e6 and (tmp_path / "report" / "report.json").exists()

@@ -255,3 +255,51 @@ def test_vanished_and_silent_stream_clients_hold_nothing(server, frame):
     assert clients() == 0
     r = httpx.post(f"{server}/v1/relight", content=png, headers={"content-type": "image/png"}, timeout=30)
     assert r.status_code == 200 and httpx.get(f"{server}/readyz").status_code == 200
+
+
+def test_make_serve_prints_the_page_url_and_serves(small_bundle, tmp_path):
+    """`make serve` (on any bundle via DEMO_BUNDLE): ready, the page's URL printed; a broken
+    bundle stops relight-serve with a one-line error, not a server traceback."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from .serving import free_port
+
+    root = Path(__file__).resolve().parents[1]
+    port = free_port()
+    env = dict(os.environ, RELIGHT_LOG_LEVEL="warning")
+    stamp = tmp_path / "installed"  # the venv this test runs in counts as installed
+    stamp.touch()
+    proc = subprocess.Popen(["make", "--no-print-directory", "-C", str(root), "serve", f"PORT={port}",
+                             f"DEMO_BUNDLE={small_bundle.path}", f"BIN={Path(sys.executable).parent}",
+                             f"STAMP={stamp}"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    try:
+        lines = []
+        deadline = time.time() + 60
+        while time.time() < deadline and not any("open http" in ln for ln in lines):
+            line = proc.stdout.readline()
+            assert line, "make serve ended early:\n" + "".join(lines)
+            lines.append(line)
+        assert any(f"open http://127.0.0.1:{port}/ " in ln for ln in lines), lines
+        for _ in range(100):
+            try:
+                if httpx.get(f"http://127.0.0.1:{port}/readyz", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                time.sleep(0.1)
+        assert httpx.get(f"http://127.0.0.1:{port}/").status_code == 200
+    finally:
+        os.killpg(proc.pid, 15)
+        proc.wait(timeout=20)
+        proc.stdout.close()
+
+    broken = tmp_path / "broken.bundle"
+    broken.write_bytes(small_bundle.path.read_bytes()[:5000])
+    run = subprocess.run([str(Path(sys.executable).parent / "relight-serve"), str(broken)],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert run.stderr.strip().startswith("relight-serve: error:") and "truncated" in run.stderr
