@@ -4,8 +4,9 @@ A real ``relight-serve`` process; N websocket clients each send 640x360 JPEG fra
 synthetic live video at a fixed rate for a fixed time (latest frame wins on the server: frames
 the server had no time for are dropped and counted, never queued). Each frame is tagged so the
 client measures its round trip (send -> relit frame back). Reported: errors, frames returned,
-dropped, round-trip p50/p95/p99 per run, and the server's resident memory at start and end
-(``/proc``). Runs: the N-client load, then a single client at the same rate.
+dropped, round-trip p50/p95/p99 per run, the share of busy CPU time the hypervisor stole
+during the run (on a shared VM that, not our code, stretches the tail), and the server's
+resident memory at start and end (``/proc``). Runs: the N-client load, then a single client at the same rate.
 """
 
 from __future__ import annotations
@@ -30,6 +31,25 @@ def _rss_mb(pid: int) -> float:
     except OSError:
         pass
     return float("nan")
+
+
+def _cpu_jiffies() -> np.ndarray | None:
+    """The machine's CPU time counters (``/proc/stat``: user nice system idle iowait irq softirq
+    steal), or None off Linux."""
+    try:
+        return np.array([int(v) for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:9]], np.int64)
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _steal_share(before, after) -> float | None:
+    """Share of the machine's busy CPU time the hypervisor took (steal) between two readings:
+    on a shared VM this, not our code, is what stretches the latency tail."""
+    if before is None or after is None:
+        return None
+    d = after - before
+    busy = float(d.sum() - d[3] - d[4])
+    return float(d[7]) / busy if busy > 0 else None
 
 
 def _free_port() -> int:
@@ -92,17 +112,19 @@ def _client(url: str, frames: list[bytes], fps: float, duration: float, out: dic
 def _run(url: str, frames, clients: int, fps: float, duration: float) -> dict:
     outs = [{} for _ in range(clients)]
     threads = [threading.Thread(target=_client, args=(url, frames, fps, duration, o)) for o in outs]
+    cpu0 = _cpu_jiffies()
     for t in threads:
         t.start()
     for t in threads:
         t.join()
+    steal = _steal_share(cpu0, _cpu_jiffies())
     rtts = np.concatenate([np.asarray(o.get("rtts", []), dtype=np.float64) for o in outs]) if outs else np.zeros(0)
     sent = sum(o.get("sent", 0) for o in outs)
     returned = sum(o.get("returned", 0) for o in outs)
     pct = {f"p{q}": float(np.percentile(rtts, q)) if rtts.size else None for q in (50, 95, 99)}
     return {"clients": clients, "fps": fps, "duration_s": duration, "sent": sent, "returned": returned,
             "dropped": sent - returned, "errors": sum(o.get("errors", 0) for o in outs),
-            "failures": [o["failure"] for o in outs if "failure" in o], "rtt_ms": pct}
+            "failures": [o["failure"] for o in outs if "failure" in o], "rtt_ms": pct, "cpu_steal": steal}
 
 
 def _frames(out: Path, progress: bool) -> list[bytes]:
@@ -187,7 +209,8 @@ def table(doc: dict) -> str:
         q = r["rtt_ms"]
         lines.append(f"{name:6s}: {r['clients']} client(s) x {r['fps']:g} fps x {r['duration_s']:g} s: sent "
                      f"{r['sent']}, relit {r['returned']}, dropped {r['dropped']}, errors {r['errors']}; round trip "
-                     f"p50 {_ms(q['p50'])} ms, p95 {_ms(q['p95'])} ms, p99 {_ms(q['p99'])} ms")
+                     f"p50 {_ms(q['p50'])} ms, p95 {_ms(q['p95'])} ms, p99 {_ms(q['p99'])} ms; hypervisor steal "
+                     + ("-" if r.get("cpu_steal") is None else f"{100 * r['cpu_steal']:.0f} %") + " of busy CPU")
     rss = doc["rss_mb"]
     lines.append(f"server memory (RSS): {rss['start']:.0f} MB before the load, {rss['end']:.0f} MB after; "
                  f"ready afterwards: {doc['ready_after']}")
