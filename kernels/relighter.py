@@ -142,6 +142,12 @@ class Relighter:
         self._k_exact = cl.Kernel(prg, "relight_exact")
         self.texels = np.asarray(bundle.map_texels, dtype=np.int64)
         self.map_size = bundle.map_size
+        # Samples and maps are stored divided by this power of two (float16 range; 1 for ordinary
+        # captures): the light is multiplied by it instead, so results are in capture units.
+        self.sample_scale = float(bundle.meta.get("sample_scale", 1.0))
+        if not (np.isfinite(self.sample_scale) and self.sample_scale > 0):
+            raise InputError(f"{bundle.path}: sample_scale {self.sample_scale} must be a positive number; "
+                             "the bundle is damaged - capture it again")
         self.maps = bundle.maps
         self.rows = bundle.maps_rows
         self.n_pix, _, self.t_pad = self.maps.shape
@@ -215,7 +221,7 @@ class Relighter:
     def texel_light(self, env, rotation=None, exposure: float = 1.0) -> np.ndarray:
         """(T, 3) ``Lp``: the environment in the map's texels for a head turned by ``rotation``."""
         return transport.texel_light(self.lights(env), check_rotation(rotation), self.map_size, self.texels,
-                                     exposure, self.cone)
+                                     exposure * self.sample_scale, self.cone)
 
     # ------------------------------------------------------------------ relighting
     def relight(self, env: np.ndarray, rotation=None, *, exposure: float = 1.0) -> np.ndarray:
@@ -232,7 +238,8 @@ class Relighter:
         key = (self._env_key, None if r is None else r.round(12).tobytes(), float(exposure))
         if key == self._last_key:
             return self._view()
-        lp = _check_light(transport.texel_light(lights, r, self.map_size, self.texels, exposure, self.cone))
+        lp = _check_light(transport.texel_light(lights, r, self.map_size, self.texels, exposure * self.sample_scale,
+                                                self.cone))
         if self.exact:
             self._run_exact(lp)
         else:
@@ -248,7 +255,7 @@ class Relighter:
         d = np.asarray(direction, dtype=np.float64)
         if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) < 1e-9:
             raise InputError(f"light direction {direction}: three finite numbers, not all zero")
-        lp = _check_light(transport.point_light(d, self.map_size, self.texels) * exposure)
+        lp = _check_light(transport.point_light(d, self.map_size, self.texels) * (exposure * self.sample_scale))
         self._run_rows(lp)
         self._last_key = None
         return self._view()

@@ -166,7 +166,7 @@ def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarr
         directory = {}
         for name, a in prepared.items():
             directory[name] = {"dtype": _dtype_str(a), "shape": list(a.shape), "offset": offset,
-                               "nbytes": int(a.nbytes), "crc32": zlib.crc32(memoryview(a).cast("B"))}
+                               "nbytes": int(a.nbytes), "crc32": zlib.crc32(_raw(a))}
             offset = _align(offset + a.nbytes)
         header = json.dumps({"format": "relight-bundle", "version": VERSION, "meta": meta, "arrays": directory},
                             sort_keys=True, allow_nan=False).encode("utf-8")
@@ -181,10 +181,15 @@ def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarr
         for name, a in prepared.items():
             pos = directory[name]["offset"]
             f.write(b"\0" * (pos - f.tell()))
-            f.write(memoryview(a).cast("B"))
+            f.write(_raw(a))
         f.flush()
         os.fsync(f.fileno())
     return path
+
+
+def _raw(a: np.ndarray) -> np.ndarray:
+    """The bytes of a C-contiguous array as a flat uint8 view (zero-size arrays included)."""
+    return a.reshape(-1).view(np.uint8)
 
 
 def _align(n: int) -> int:

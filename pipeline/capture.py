@@ -43,6 +43,7 @@ class CaptureOptions:
     method: str = "full"
     visibility: bool = True
     adaptation: bool = True
+    extrapolation: bool = True
     map_size: tuple[int, int] = reflectance.DEFAULT_MAP_SIZE
     samples: SampleOptions = field(default_factory=SampleOptions)
     face: tuple[int, int, int, int] | None = None
@@ -288,27 +289,19 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
     prep.images = None  # the full sample images are the largest thing held: the head's pixels suffice now
     normals = geo.normal.reshape(-1, 3)[pix]
     tri = reflectance.triangulate(prep.dirs, opts.map_size)
-    if opts.method in methods.FITTED:
-        front = tri.texel_dirs[:, 2] > 0.0
-        maps = methods.fit_and_evaluate(opts.method, tri.vertices[:tri.n_samples], samples, tri.texel_dirs[front])
-        texels = np.flatnonzero(front)
-        timings["maps"] = time.perf_counter() - t0
-    else:
-        use_vis = opts.visibility and opts.method == "full"
-        adapt = opts.adaptation and opts.method == "full"
-        horizon = horizon_for(geo.depth, geo.mask) if use_vis else None
+    horizon = None
+    if opts.visibility and opts.method == "full":
+        horizon = horizon_for(geo.depth, geo.mask)
         timings["horizon"] = time.perf_counter() - t0
-        t1 = time.perf_counter()
-        done = [0]
+    t1 = time.perf_counter()
+    done = [0]
 
-        def cb(n):
-            done[0] += n
-            progress("maps", done[0], pix.size)
+    def cb(n):
+        done[0] += n
+        progress("maps", done[0], pix.size)
 
-        maps = reflectance.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS,
-                                        adaptation=adapt, backend=opts.backend, half=True, progress=cb)
-        texels = np.flatnonzero(tri.active)
-        timings["maps"] = time.perf_counter() - t1
+    maps, texels, scale, samples = reflectance_maps(samples, normals, tri, opts, horizon, progress=cb)
+    timings["maps"] = time.perf_counter() - t1
     if not np.isfinite(maps).all():
         raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
     maps = flush_subnormal_halves(maps.astype(np.float16, copy=False))
@@ -336,15 +329,46 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "relight_version": __version__, "frame_size": list(prep.frame_size), "crop_origin": list(prep.origin),
         "crop_size": [w, h], "map_size": list(opts.map_size), "method": opts.method,
         "visibility": bool(opts.visibility and opts.method == "full"),
-        "adaptation": bool(opts.adaptation and opts.method == "full"), "n_samples": int(k), "n_pixels": int(pix.size),
+        "adaptation": bool(opts.adaptation and opts.method == "full"),
+        "extrapolation": bool(opts.extrapolation and opts.method == "full"), "n_samples": int(k),
+        "n_pixels": int(pix.size),
         "n_black_lights": int(len(tri.vertices) - tri.n_samples), "units": "linear Rec.709, flash units",
         "conventions": "camera space +X right, +Y up, +Z toward the camera; maps are lat-long (OpenEXR)",
         "geometry": "mesh" if opts.mesh else "photometric stereo",
+        "sample_scale": scale,
         "transport_direct": compact.direct,
         "transport_rank_1pct": compact.rank_for(0.01),
     })
     timings["landmarks"] = time.perf_counter() - t1
     return arrays, meta, geo, tri
+
+
+def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: CaptureOptions, horizon, *,
+                     half: bool = True, progress=None):
+    """The maps stage of :func:`finish`: (maps (P, 3, T_pad) float16 (float32 unless ``half``),
+    texels (T,) map texel ids, scale, stored samples (K, P, 3) float32).
+
+    The samples are divided by ``scale``, a power of two (1 for ordinary captures; see
+    :func:`relight.pipeline.reflectance.storage_scale`) so that maps and samples fit float16;
+    the bundle records it as ``sample_scale`` and the renderer multiplies its light by it.
+    ``horizon``: the pixels' horizon table for visibility, or None.
+    """
+    if not np.isfinite(samples).all():
+        raise InputError("light samples hold NaN or infinite values; check the input images")
+    scale = reflectance.storage_scale(samples)
+    if scale != 1.0:
+        samples = (samples / np.float32(scale)).astype(np.float32)
+    if opts.method in methods.FITTED:
+        front = tri.texel_dirs[:, 2] > 0.0
+        maps = methods.fit_and_evaluate(opts.method, tri.vertices[:tri.n_samples], samples, tri.texel_dirs[front])
+        return maps, np.flatnonzero(front), scale, samples
+    adapt = opts.adaptation and opts.method == "full"
+    map_samples, map_tri = samples, tri
+    if opts.extrapolation and opts.method == "full":
+        map_samples, map_tri = reflectance.model_lights(samples, normals, tri, horizon, HORIZON_DIRS)
+    maps = reflectance.compute_maps(map_samples, normals, map_tri, horizon=horizon, n_az=HORIZON_DIRS,
+                                    adaptation=adapt, backend=opts.backend, half=half, progress=progress)
+    return maps, np.flatnonzero(map_tri.active), scale, samples
 
 
 def texel_major(maps: np.ndarray, n_texels: int, chunk: int = 64) -> np.ndarray:

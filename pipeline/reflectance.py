@@ -214,6 +214,98 @@ def _locate(verts: np.ndarray, faces: np.ndarray, query: np.ndarray) -> tuple[np
     return faces[best], wts
 
 
+def visibility_at(horizon: np.ndarray, n_az: int, dirs: np.ndarray, soft: float) -> np.ndarray:
+    """(P, D) float32 soft visibility (0-1) of directions ``dirs`` (D, 3) for each pixel of a
+    horizon table (P, n_az); ``soft`` is the width (radians of elevation) of the lit/shadowed
+    ramp. The per-direction form of :func:`visibility_maps` (no smoothing over the map)."""
+    dirs = np.asarray(dirs, dtype=np.float64)
+    s = np.hypot(dirs[:, 0], dirs[:, 1])
+    beta = np.mod(np.arctan2(dirs[:, 1], dirs[:, 0]), 2 * np.pi)
+    pos = beta / (2 * np.pi) * n_az - 0.5
+    i0 = np.floor(pos).astype(np.int64) % n_az
+    i1 = (i0 + 1) % n_az
+    f = (pos - np.floor(pos)).astype(np.float32)
+    elev = np.arctan2(dirs[:, 2], np.maximum(s, 1e-9)).astype(np.float32)
+    out = np.empty((horizon.shape[0], dirs.shape[0]), dtype=np.float32)
+    for p0 in range(0, horizon.shape[0], PIXEL_CHUNK):
+        hz = horizon[p0:p0 + PIXEL_CHUNK, i0] * (1 - f) + horizon[p0:p0 + PIXEL_CHUNK, i1] * f
+        out[p0:p0 + PIXEL_CHUNK] = np.clip(0.5 + (elev[None, :] - np.arctan(hz)) / soft, 0.0, 1.0)
+    out[:, s < 1e-6] = 1.0  # straight toward the camera: a height field cannot block it
+    return out
+
+
+#: Bundles store samples and maps as float16 (largest 65504, smallest normal 6.1e-5): samples
+#: are scaled by a power of two so their peak lies at most at ``STORE_PEAK`` (light adaptation
+#: may multiply a value by up to 1 / MIN_COS = 10) and at least at ``STORE_FLOOR``.
+STORE_PEAK = 2.0 ** 12
+STORE_FLOOR = 2.0 ** -4
+
+
+def storage_scale(samples: np.ndarray) -> float:
+    """Power of two to divide samples by before float16 storage: 1.0 when their peak is within
+    [STORE_FLOOR, STORE_PEAK] (every ordinary capture), else the one that brings the peak to
+    about 1. All-zero samples: 1.0."""
+    peak = float(np.max(samples)) if samples.size else 0.0
+    if not np.isfinite(peak):
+        raise InputError("light samples hold NaN or infinite values; check the input images")
+    if peak <= 0.0 or STORE_FLOOR <= peak <= STORE_PEAK:
+        return 1.0
+    return float(2.0 ** np.round(np.log2(peak)))
+
+
+#: Lambert fit of the model lights: samples used where the light is this far above the pixel's
+#: horizon (cosine) and this visible; model-light texels kept where some pixel gets more than
+#: this share of the brightest sample.
+MODEL_MIN_COS = 0.2
+MODEL_MIN_VIS = 0.9
+MODEL_KEEP = 0.01
+
+
+def model_lights(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
+                 n_az: int) -> tuple[np.ndarray, Triangulation]:
+    """Values for the virtual lights beyond the captured hull from a shading model, instead of
+    black (the paper's black lights leave a head lit from the side or behind dark).
+
+    Per pixel: a Lambertian albedo fitted to the samples that light it well (cosine >
+    ``MODEL_MIN_COS``, visibility > ``MODEL_MIN_VIS``); each virtual light's value is albedo x
+    max(n . l, 0) x visibility (from the horizon table; 1 without one). Inside the hull nothing
+    changes (samples only); between the hull and the virtual lights the usual interpolation
+    fades from measured to modelled light. Returns the (K + B, P, 3) float32 samples with the
+    virtual values appended, and the triangulation with every vertex a sample and the map
+    texels activated where the model lights some pixel (more than ``MODEL_KEEP`` of the
+    brightest sample).
+    """
+    k, p = samples.shape[:2]
+    verts = tri.vertices
+    b = len(verts) - k
+    if b == 0:
+        return samples, tri
+    soft = VIS_SOFT_TEXELS * np.pi / tri.map_size[1]
+    n = np.asarray(normals, dtype=np.float64)
+    virt = np.empty((b, p, 3), dtype=np.float32)
+    for p0 in range(0, p, PIXEL_CHUNK):
+        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
+        cs = n[ps] @ verts[:k].T  # (p, K)
+        cb = np.clip(n[ps] @ verts[k:].T, 0.0, None)  # (p, B)
+        if horizon is not None:
+            vis = visibility_at(horizon[ps], n_az, verts, soft)
+            vk, vb = vis[:, :k], vis[:, k:]
+        else:
+            vk, vb = np.ones_like(cs), np.ones_like(cb)
+        c = np.where((cs > MODEL_MIN_COS) & (vk > MODEL_MIN_VIS), cs, 0.0)
+        num = np.einsum("pk,kpc->pc", c, samples[:, ps].astype(np.float64))
+        albedo = num / np.maximum((c * c).sum(axis=1), 1e-6)[:, None]  # no well-lit sample: 0
+        virt[:, ps] = (albedo[None] * (cb * vb).T[..., None]).astype(np.float32)
+    ext = np.concatenate([samples.astype(np.float32, copy=False), virt])
+    # A texel stays black when every vertex of its triangle stays (nearly) black for every pixel.
+    peak = max(float(np.max(samples)) if samples.size else 0.0, 1e-30)
+    lit_vertex = np.concatenate([np.ones(k, dtype=bool), virt.max(axis=(1, 2)) > MODEL_KEEP * peak])
+    active = lit_vertex[tri.texel_vertices].any(axis=1)
+    return ext, Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
+                              texel_vertices=tri.texel_vertices, texel_weights=tri.texel_weights,
+                              active=active, map_size=tri.map_size)
+
+
 def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *, smooth: bool = True) -> np.ndarray:
     """(P, h, w) float32 soft visibility of each map texel for each pixel.
 

@@ -104,7 +104,7 @@ def _directions(plt, tri, path):
         real = (f < tri.n_samples).sum()
         ax.fill(uu, vv, fill=False, lw=0.3, color="0.6" if real < 3 else "0.35")
     ax.plot(u[:tri.n_samples], v[:tri.n_samples], "o", ms=3, color="tab:orange", label="flash samples")
-    ax.plot(u[tri.n_samples:], v[tri.n_samples:], "x", ms=3, color="0.5", label="virtual black lights")
+    ax.plot(u[tri.n_samples:], v[tri.n_samples:], "x", ms=3, color="0.5", label="virtual lights beyond the hull")
     ax.set_xlim(0, 1)
     ax.set_ylim(1, 0)
     ax.set_xticks([0, 0.25, 0.5, 0.75, 1], ["-Z", "+X", "+Z (camera)", "-X", "-Z"])

@@ -67,6 +67,8 @@ def _add_synth(sub) -> None:
     p.add_argument("--noise", type=float, default=d.noise, help="sensor noise, times the default; 0 = none")
     p.add_argument("--camera-drift", action="store_true",
                    help="simulate a phone's auto-exposure and white-balance drift")
+    p.add_argument("--sparse-sides", action="store_true",
+                   help="wave the flash quickly through the sides: sparse samples there (the paper's Fig. 14)")
     p.add_argument("--crf", type=int, default=None,
                    help=f"H.264 quality, lower = better and bigger (default {d.crf}; with --live {live.crf})")
     p.add_argument("--live", action="store_true",
@@ -92,7 +94,8 @@ def _run_synth(args) -> int:
     cfg = SynthConfig(width=args.size[0], height=args.size[1], fps=args.fps, flash_hz=args.flash_hz,
                       duration=d.duration if args.duration is None else args.duration, seed=args.seed,
                       head_motion=args.head_motion, ambient=args.ambient, noise=args.noise,
-                      camera_drift=args.camera_drift, truth_envs=tuple(args.truth_env or DEFAULT_TRUTH_ENVS),
+                      camera_drift=args.camera_drift, sparse_sides=args.sparse_sides,
+                      truth_envs=tuple(args.truth_env or DEFAULT_TRUTH_ENVS),
                       crf=d.crf if args.crf is None else args.crf)
     res = synthesize(args.out, cfg, progress=not args.quiet)
     print(f"wrote {res.video} ({res.frame_count} frames, {res.flash_frames} flash frames) and {res.truth}/")
@@ -109,7 +112,8 @@ def _run_synth_live(args) -> int:
     capture_only = [flag for flag, used in (("--flash-hz", args.flash_hz != s.flash_hz),
                                             ("--truth-env", bool(args.truth_env)),
                                             ("--head-motion", args.head_motion != s.head_motion),
-                                            ("--camera-drift", args.camera_drift)) if used]
+                                            ("--camera-drift", args.camera_drift),
+                                            ("--sparse-sides", args.sparse_sides)) if used]
     if capture_only:
         raise InputError(f"{', '.join(capture_only)} apply to captures, not --live videos; leave them out "
                          f"(a live video's light is the room's alone)")
@@ -164,6 +168,8 @@ def _add_capture(sub) -> None:
                         "adaptation, barycentric = without) or a fitted baseline")
     p.add_argument("--no-visibility", action="store_true", help="leave out visibility-aware interpolation")
     p.add_argument("--no-adaptation", action="store_true", help="leave out light adaptation (cosine factors)")
+    p.add_argument("--no-extrapolation", action="store_true",
+                   help="black light beyond the captured directions (the paper) instead of a shading model's")
     p.add_argument("--map-size", type=_size, default=(64, 32), metavar="WxH", help="reflectance map size (2:1)")
     p.add_argument("--sphere", type=_circle, metavar="cx,cy,r", help="mirror sphere centre and radius (pixels) "
                    "instead of finding it")
@@ -195,6 +201,7 @@ def _run_capture(args) -> int:
         raise InputError("give either a capture video or --images DIR (not both)")
     opts = CaptureOptions(
         method=args.method, visibility=not args.no_visibility, adaptation=not args.no_adaptation,
+        extrapolation=not args.no_extrapolation,
         map_size=args.map_size, face=args.face, mesh=str(args.mesh) if args.mesh else None,
         export_mesh=str(args.export_mesh) if args.export_mesh else None,
         samples=SampleOptions(flash_hz=args.flash_hz, flash_threshold=args.flash_threshold, sphere=args.sphere,
@@ -338,6 +345,44 @@ def _add_bench(sub) -> None:
     sv.add_argument("--quick", action="store_true", help="8 s of load (for CI)")
     sv.add_argument("--quiet", action="store_true", help="no progress output")
     sv.set_defaults(func=_run_bench_serve)
+    a = bsub.add_parser("accuracy", help="every method against the truth and real held-out photos: one report",
+                        description="Synthesise several captures (cached), build a bundle per method (full, its "
+                                    "ablations, barycentric, PTM, HSH orders 3 and 2, RBF) from the same samples, "
+                                    "and measure each against the truth (PSNR/SSIM under in-hull and whole-sphere "
+                                    "environments, single-light error heat maps) and on a real RTI set's held-out "
+                                    "photos; run time beside the error; the numerical stability suite. Writes "
+                                    "bench.json, report.md and PNG plots.",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    a.add_argument("-o", "--out", type=Path, default=Path("out/bench-accuracy"), help="output and cache folder")
+    a.add_argument("--rti", type=Path, default=None,
+                   help="real RTI data: a folder with Dome/ and Test/ image sets (default: ../shared/data/rti-dome "
+                        "when present)")
+    a.add_argument("--quick", action="store_true",
+                   help="one short 480x270 scene instead of five and the real set at half size (for CI)")
+    a.add_argument("--quiet", action="store_true", help="no progress output")
+    a.set_defaults(func=_run_bench_accuracy)
+
+
+def _default_rti() -> Path | None:
+    """The real RTI set next to the project (../shared/data/rti-dome), if present."""
+    for base in (Path.cwd(), Path(__file__).resolve().parents[1]):
+        cand = base.parent / "shared" / "data" / "rti-dome"
+        if (cand / "Dome" / "dirs.lp").exists():
+            return cand
+    return None
+
+
+def _run_bench_accuracy(args) -> int:
+    from .errors import InputError
+    from .pipeline import accuracy
+
+    rti = args.rti if args.rti is not None else _default_rti()
+    if args.rti is not None and not (args.rti / "Dome" / "dirs.lp").exists():
+        raise InputError(f"--rti {args.rti}: expected Dome/dirs.lp and Test/dirs.lp inside")
+    doc = accuracy.run(args.out, quick=args.quick, progress=not args.quiet, rti=rti)
+    print(accuracy.table(doc))
+    print(f"wrote {args.out / 'bench.json'}, {args.out / 'report.md'} and its PNG plots")
+    return 0
 
 
 def _run_bench_capture(args) -> int:

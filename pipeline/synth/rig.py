@@ -57,12 +57,16 @@ def flash_pulses(rng: np.random.Generator, duration: float, flash_hz: float, *, 
     return out
 
 
-def hand_direction(t: np.ndarray, duration: float, rng_phase: np.ndarray) -> np.ndarray:
+def hand_direction(t: np.ndarray, duration: float, rng_phase: np.ndarray, *,
+                   sparse_sides: bool = False) -> np.ndarray:
     """Direction of the hand-held flash at times ``t``: a zig-zag over the frontal hemisphere.
 
     Azimuth sweeps back and forth about 9 times per capture while the elevation climbs from
     low to high and back down once (the passes down fall between those up), with a slow hand
     wobble; as in the paper's Fig. 12 the samples cover the front in zig-zag rows.
+    ``sparse_sides``: the hand hurries through the sides instead of dwelling there (the
+    paper's Fig. 14 sampling pattern): samples at the widest azimuths are about 6x sparser
+    than in front.
     """
     t = np.asarray(t, dtype=np.float64)
     sweeps = 9.0
@@ -71,7 +75,11 @@ def hand_direction(t: np.ndarray, duration: float, rng_phase: np.ndarray) -> np.
         return 2.0 * np.abs(2.0 * (x - np.floor(x + 0.5))) - 1.0
 
     # A hand slows down to turn: sin() of the triangle wave dwells at the ends of each row.
-    az = AZIMUTH_MAX * np.sin(0.5 * np.pi * triangle(t / duration * sweeps + rng_phase[0]))
+    tri = triangle(t / duration * sweeps + rng_phase[0])
+    if sparse_sides:  # slope 0.35 in front, 2.3 at the ends: the sides are crossed quickly
+        az = AZIMUTH_MAX * (0.35 * tri + 0.65 * tri ** 3)
+    else:
+        az = AZIMUTH_MAX * np.sin(0.5 * np.pi * tri)
     el_t = 0.5 - 0.5 * triangle(t / duration + 0.5 + 0.1 * rng_phase[1])
     el = ELEVATION_LOW + (ELEVATION_HIGH - ELEVATION_LOW) * el_t
     wobble = (3.0 * np.sin(2 * np.pi * (0.31 * t + rng_phase[2]))
@@ -90,12 +98,13 @@ MISAIM_STRENGTH = (0.0, 0.003)
 AIM_STRENGTH = (0.85, 1.0)
 
 
-def make_pulses(rng: np.random.Generator, duration: float, flash_hz: float) -> list[Pulse]:
+def make_pulses(rng: np.random.Generator, duration: float, flash_hz: float, *,
+                sparse_sides: bool = False) -> list[Pulse]:
     """Flash pulses with their directions (taken at each pulse's middle) and strengths."""
     intervals = flash_pulses(rng, duration, flash_hz)
     phase = rng.uniform(0.0, 1.0, size=4)
     mids = np.array([(a + b) / 2 for a, b in intervals])
-    dirs = hand_direction(mids, duration, phase) if intervals else np.zeros((0, 3))
+    dirs = hand_direction(mids, duration, phase, sparse_sides=sparse_sides) if intervals else np.zeros((0, 3))
     misaimed = rng.uniform(size=len(intervals)) < MISAIM_PROBABILITY
     strength = np.where(misaimed, rng.uniform(*MISAIM_STRENGTH, size=len(intervals)),
                         rng.uniform(*AIM_STRENGTH, size=len(intervals)))

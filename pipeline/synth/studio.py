@@ -82,6 +82,7 @@ class SynthConfig:
     ambient: float = 1.0
     noise: float = 1.0
     camera_drift: bool = False
+    sparse_sides: bool = False
     truth_envs: tuple[str, ...] = DEFAULT_TRUTH_ENVS
     crf: int = 16
 
@@ -146,7 +147,8 @@ class Studio:
         self.surface = self.head.surface()
         self.shader = LightShader(self.surface)
 
-        self.pulses = rig.make_pulses(np.random.default_rng(rng_rig), c.duration, c.flash_hz)
+        self.pulses = rig.make_pulses(np.random.default_rng(rng_rig), c.duration, c.flash_hz,
+                                     sparse_sides=c.sparse_sides)
         self.lit = rig.flash_fractions(self.pulses, self.n, c.fps, self.exposure_time)
         self.fraction = np.array([sum(f for _, f in lst) for lst in self.lit])
         self.level = np.array([sum(f * self.pulses[k].strength for k, f in lst) for lst in self.lit])
