@@ -48,6 +48,7 @@ VARIANTS: dict[str, dict] = {
     "full -adaptation": {"adaptation": False},
     "full -both": {"visibility": False, "adaptation": False},
     "full -extrapolation": {"extrapolation": False},
+    "full, paper adaptation": {"paper_adaptation": True},
     "barycentric": {"method": "barycentric"},
     "ptm": {"method": "ptm"},
     "hsh": {"method": "hsh"},
@@ -67,7 +68,7 @@ SCENES = [
     {"name": "12 s (sparse)", "width": 480, "height": 270, "duration": 12.0, "seed": 24},
 ]
 QUICK_SCENES = [
-    {"name": "quick sparse sides", "width": 480, "height": 270, "duration": 10.0, "seed": 26, "sparse_sides": True},
+    {"name": "quick sparse sides", "width": 384, "height": 216, "duration": 8.0, "seed": 26, "sparse_sides": True},
 ]
 #: Light directions of the one-light-at-a-time comparison (a lat-long grid) and truth batch size.
 OLAT_GRID = (32, 16)
@@ -328,7 +329,8 @@ def _scaled_rti(folder: Path, out: Path, factor: int) -> Path:
             raise ValueError(f"{src}: not an image OpenCV reads")
         h, w = img.shape[:2]
         small = cv2.resize(img, (w // factor, h // factor), interpolation=cv2.INTER_AREA)
-        cv2.imwrite(str(out / name), small, [cv2.IMWRITE_JPEG_QUALITY, 98])
+        jpeg = src.suffix.lower() in (".jpg", ".jpeg")
+        cv2.imwrite(str(out / name), small, [cv2.IMWRITE_JPEG_QUALITY, 98] if jpeg else [])
     (out / "dirs.lp").write_text((folder / "dirs.lp").read_text())
     return out
 

@@ -44,6 +44,7 @@ class CaptureOptions:
     visibility: bool = True
     adaptation: bool = True
     extrapolation: bool = True
+    paper_adaptation: bool = False
     map_size: tuple[int, int] = reflectance.DEFAULT_MAP_SIZE
     samples: SampleOptions = field(default_factory=SampleOptions)
     face: tuple[int, int, int, int] | None = None
@@ -330,7 +331,9 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "crop_size": [w, h], "map_size": list(opts.map_size), "method": opts.method,
         "visibility": bool(opts.visibility and opts.method == "full"),
         "adaptation": bool(opts.adaptation and opts.method == "full"),
-        "extrapolation": bool(opts.extrapolation and opts.method == "full"), "n_samples": int(k),
+        "extrapolation": bool(opts.extrapolation and opts.method == "full"),
+        "light_adaptation": ("none" if not (opts.adaptation and opts.method == "full") else
+                             "paper" if opts.paper_adaptation else "shading model"), "n_samples": int(k),
         "n_pixels": int(pix.size),
         "n_black_lights": int(len(tri.vertices) - tri.n_samples), "units": "linear Rec.709, flash units",
         "conventions": "camera space +X right, +Y up, +Z toward the camera; maps are lat-long (OpenEXR)",
@@ -362,13 +365,17 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
         front = tri.texel_dirs[:, 2] > 0.0
         maps = methods.fit_and_evaluate(opts.method, tri.vertices[:tri.n_samples], samples, tri.texel_dirs[front])
         return maps, np.flatnonzero(front), scale, samples
-    adapt = opts.adaptation and opts.method == "full"
-    map_samples, map_tri = samples, tri
-    if opts.extrapolation and opts.method == "full":
-        map_samples, map_tri = reflectance.model_lights(samples, normals, tri, horizon, HORIZON_DIRS)
-    maps = reflectance.compute_maps(map_samples, normals, map_tri, horizon=horizon, n_az=HORIZON_DIRS,
-                                    adaptation=adapt, backend=opts.backend, half=half, progress=progress)
-    return maps, np.flatnonzero(map_tri.active), scale, samples
+    full = opts.method == "full"
+    adapt = opts.adaptation and full
+    trend = adapt and not opts.paper_adaptation
+    if full and (trend or opts.extrapolation):
+        maps, map_tri = reflectance.model_maps(samples, normals, tri, horizon, HORIZON_DIRS, trend=trend,
+                                               extrapolate=opts.extrapolation, paper_adaptation=adapt and not trend,
+                                               backend=opts.backend, half=half, progress=progress)
+        return maps, np.flatnonzero(map_tri.active), scale, samples
+    maps = reflectance.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS, adaptation=adapt,
+                                    backend=opts.backend, half=half, progress=progress)
+    return maps, np.flatnonzero(tri.active), scale, samples
 
 
 def texel_major(maps: np.ndarray, n_texels: int, chunk: int = 64) -> np.ndarray:

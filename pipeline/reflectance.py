@@ -214,26 +214,6 @@ def _locate(verts: np.ndarray, faces: np.ndarray, query: np.ndarray) -> tuple[np
     return faces[best], wts
 
 
-def visibility_at(horizon: np.ndarray, n_az: int, dirs: np.ndarray, soft: float) -> np.ndarray:
-    """(P, D) float32 soft visibility (0-1) of directions ``dirs`` (D, 3) for each pixel of a
-    horizon table (P, n_az); ``soft`` is the width (radians of elevation) of the lit/shadowed
-    ramp. The per-direction form of :func:`visibility_maps` (no smoothing over the map)."""
-    dirs = np.asarray(dirs, dtype=np.float64)
-    s = np.hypot(dirs[:, 0], dirs[:, 1])
-    beta = np.mod(np.arctan2(dirs[:, 1], dirs[:, 0]), 2 * np.pi)
-    pos = beta / (2 * np.pi) * n_az - 0.5
-    i0 = np.floor(pos).astype(np.int64) % n_az
-    i1 = (i0 + 1) % n_az
-    f = (pos - np.floor(pos)).astype(np.float32)
-    elev = np.arctan2(dirs[:, 2], np.maximum(s, 1e-9)).astype(np.float32)
-    out = np.empty((horizon.shape[0], dirs.shape[0]), dtype=np.float32)
-    for p0 in range(0, horizon.shape[0], PIXEL_CHUNK):
-        hz = horizon[p0:p0 + PIXEL_CHUNK, i0] * (1 - f) + horizon[p0:p0 + PIXEL_CHUNK, i1] * f
-        out[p0:p0 + PIXEL_CHUNK] = np.clip(0.5 + (elev[None, :] - np.arctan(hz)) / soft, 0.0, 1.0)
-    out[:, s < 1e-6] = 1.0  # straight toward the camera: a height field cannot block it
-    return out
-
-
 #: Bundles store samples and maps as float16 (largest 65504, smallest normal 6.1e-5): samples
 #: are scaled by a power of two so their peak lies at most at ``STORE_PEAK`` (light adaptation
 #: may multiply a value by up to 1 / MIN_COS = 10) and at least at ``STORE_FLOOR``.
@@ -253,57 +233,148 @@ def storage_scale(samples: np.ndarray) -> float:
     return float(2.0 ** np.round(np.log2(peak)))
 
 
-#: Lambert fit of the model lights: samples used where the light is this far above the pixel's
-#: horizon (cosine) and this visible; model-light texels kept where some pixel gets more than
-#: this share of the brightest sample.
+#: Lambert fit of the shading model: samples used where the light is this far above the pixel's
+#: tangent plane (cosine) and this visible; model-light texels kept where some pixel gets more
+#: than ``MODEL_KEEP`` of the brightest sample.
 MODEL_MIN_COS = 0.2
 MODEL_MIN_VIS = 0.9
 MODEL_KEEP = 0.01
 
 
-def model_lights(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
-                 n_az: int) -> tuple[np.ndarray, Triangulation]:
-    """Values for the virtual lights beyond the captured hull from a shading model, instead of
-    black (the paper's black lights leave a head lit from the side or behind dark).
+def _vis_chunk(horizon: np.ndarray | None, ps: slice, n_az: int, map_size, n: int) -> np.ndarray:
+    """(p, T) smoothed visibility maps of a chunk of pixels (ones without a horizon table)."""
+    w, h = map_size
+    if horizon is None:
+        return np.ones((n, w * h), dtype=np.float32)
+    return visibility_maps(horizon[ps], n_az, map_size).reshape(n, -1)
 
-    Per pixel: a Lambertian albedo fitted to the samples that light it well (cosine >
-    ``MODEL_MIN_COS``, visibility > ``MODEL_MIN_VIS``); each virtual light's value is albedo x
-    max(n . l, 0) x visibility (from the horizon table; 1 without one). Inside the hull nothing
-    changes (samples only); between the hull and the virtual lights the usual interpolation
-    fades from measured to modelled light. Returns the (K + B, P, 3) float32 samples with the
-    virtual values appended, and the triangulation with every vertex a sample and the map
-    texels activated where the model lights some pixel (more than ``MODEL_KEEP`` of the
-    brightest sample).
+
+#: How much of a pixel's trend the shading model gets: 0 below this coefficient of determination
+#: (R^2) of its Lambert fit, 1 above ``MODEL_R2_FULL`` (shiny or badly modelled pixels - metal,
+#: wrong normals - keep plain interpolation).
+MODEL_R2_NONE = 0.3
+MODEL_R2_FULL = 0.5
+#: Horizon slope of a pixel that nothing shadows (a horizon table entry far below any light).
+OPEN_SKY = -1e4
+
+
+def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
+                  n_az: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel the shading model ``albedo x max(n . l, 0) x visibility(l)`` (visibility: the
+    smoothed visibility maps of the horizon table, as the interpolation reads them; 1 without
+    one): ((P, 3) float64 albedo, (P,) float64 trust in it, 0-1).
+
+    The albedo is fitted by least squares to the samples that light the pixel well (cosine >
+    ``MODEL_MIN_COS``, visibility > ``MODEL_MIN_VIS``); 0 where none does. The trust ramps from
+    0 to 1 as the fit's R^2 over those samples goes from ``MODEL_R2_NONE`` to ``MODEL_R2_FULL``
+    (0 with fewer than 4 of them)."""
+    k, p = samples.shape[:2]
+    n = np.asarray(normals, dtype=np.float64)
+    vt = tri.vertex_texel[:k]
+    albedo = np.zeros((p, 3))
+    trust = np.zeros(p)
+    for p0 in range(0, p, PIXEL_CHUNK):
+        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
+        m = ps.stop - p0
+        cs = n[ps] @ tri.vertices[:k].T
+        vk = _vis_chunk(horizon, ps, n_az, tri.map_size, m)[:, vt]
+        use = (cs > MODEL_MIN_COS) & (vk > MODEL_MIN_VIS)
+        c = np.where(use, cs, 0.0)
+        y = samples[:, ps].astype(np.float64)  # (K, p, 3)
+        num = np.einsum("pk,kpc->pc", c, y)
+        a = num / np.maximum((c * c).sum(axis=1), 1e-6)[:, None]
+        albedo[ps] = a
+        cnt = use.sum(axis=1)
+        w = use.T[..., None]  # (K, p, 1)
+        mean = (y * w).sum(axis=0) / np.maximum(cnt, 1)[:, None]
+        ss_tot = (((y - mean[None]) ** 2) * w).sum(axis=(0, 2))
+        ss_res = (((y - c.T[..., None] * a[None]) ** 2) * w).sum(axis=(0, 2))
+        r2 = 1.0 - ss_res / np.maximum(ss_tot, 1e-30)
+        t = np.clip((r2 - MODEL_R2_NONE) / (MODEL_R2_FULL - MODEL_R2_NONE), 0.0, 1.0)
+        trust[ps] = np.where(cnt >= 4, t, 0.0)
+    return albedo, trust
+
+
+def _model_at(albedo, normals, dirs, vis) -> np.ndarray:
+    """(D, p, 3) model values for directions (D, 3), visibility (p, D)."""
+    cos = np.clip(np.asarray(normals, dtype=np.float64) @ dirs.T, 0.0, None) * vis  # (p, D)
+    return albedo[None] * cos.T[..., None]
+
+
+def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
+               n_az: int, *, trend: bool = True, extrapolate: bool = True, paper_adaptation: bool = False,
+               backend: str = "opencl", half: bool = False, progress=None) -> tuple[np.ndarray, Triangulation]:
+    """Reflectance maps with the shading model (:func:`shading_model`): (maps (P, 3, T_pad)
+    float32, or float16 with ``half``; the triangulation whose ``active`` texels they hold).
+
+    trend : interpolate what the model does not explain - each sample minus the model's value
+    for its light - and add the model back at every texel: the cosine falloff and the cast
+    shadows then move with the light exactly instead of being interpolated between samples 10-20
+    degrees apart (our light adaptation; the paper divides by the vertices' cosines instead).
+    extrapolate : beyond the captured hull the virtual lights carry the model's value instead of
+    black (residual 0), and texels are kept where the model lights some pixel. Without either
+    this is :func:`compute_maps` without adaptation. The interpolation (visibility-aware with a
+    horizon table) is a convex combination of vertex values, so residuals are interpolated
+    offset to be non-negative and the offset taken off again. paper_adaptation (no trend): the
+    paper's light adaptation (:func:`compute_maps` ``adaptation``) over samples + model lights.
     """
+    if trend and paper_adaptation:
+        raise InputError("the shading-model trend and the paper's light adaptation exclude each other")
     k, p = samples.shape[:2]
     verts = tri.vertices
     b = len(verts) - k
-    if b == 0:
-        return samples, tri
-    soft = VIS_SOFT_TEXELS * np.pi / tri.map_size[1]
+    albedo, trust = shading_model(samples, normals, tri, horizon, n_az)
+    if horizon is not None and (trust < 0.5).any():
+        # Where the model does not explain the samples, neither does its geometry's shadowing:
+        # those pixels interpolate without visibility (an open sky: every light visible).
+        horizon = np.where((trust < 0.5)[:, None], np.float32(OPEN_SKY), horizon).astype(np.float32)
     n = np.asarray(normals, dtype=np.float64)
-    virt = np.empty((b, p, 3), dtype=np.float32)
+    dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
+    vals = np.zeros((len(verts), p, 3), dtype=dt)
+    offset = np.zeros((p, 3), dtype=np.float64)
+    lit_vertex = np.zeros(len(verts), dtype=bool)
+    lit_vertex[:k] = True
+    peak = max(float(np.max(samples)) if samples.size else 0.0, 1e-30)
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
-        cs = n[ps] @ verts[:k].T  # (p, K)
-        cb = np.clip(n[ps] @ verts[k:].T, 0.0, None)  # (p, B)
-        if horizon is not None:
-            vis = visibility_at(horizon[ps], n_az, verts, soft)
-            vk, vb = vis[:, :k], vis[:, k:]
-        else:
-            vk, vb = np.ones_like(cs), np.ones_like(cb)
-        c = np.where((cs > MODEL_MIN_COS) & (vk > MODEL_MIN_VIS), cs, 0.0)
-        num = np.einsum("pk,kpc->pc", c, samples[:, ps].astype(np.float64))
-        albedo = num / np.maximum((c * c).sum(axis=1), 1e-6)[:, None]  # no well-lit sample: 0
-        virt[:, ps] = (albedo[None] * (cb * vb).T[..., None]).astype(np.float32)
-    ext = np.concatenate([samples.astype(np.float32, copy=False), virt])
-    # A texel stays black when every vertex of its triangle stays (nearly) black for every pixel.
-    peak = max(float(np.max(samples)) if samples.size else 0.0, 1e-30)
-    lit_vertex = np.concatenate([np.ones(k, dtype=bool), virt.max(axis=(1, 2)) > MODEL_KEEP * peak])
-    active = lit_vertex[tri.texel_vertices].any(axis=1)
-    return ext, Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
-                              texel_vertices=tri.texel_vertices, texel_weights=tri.texel_weights,
-                              active=active, map_size=tri.map_size)
+        vis = _vis_chunk(horizon, ps, n_az, tri.map_size, ps.stop - p0)[:, tri.vertex_texel]
+        model = _model_at(albedo[ps], n[ps], verts, vis)  # (V, p, 3)
+        chunk = samples[:, ps].astype(np.float64)
+        tw = trust[ps][None, :, None]
+        if trend:  # the trusted share of the model is taken out and added back at each texel
+            chunk = chunk - tw * model[:k]
+        virt = (1.0 - tw) * model[k:] if trend else model[k:]  # beyond the hull: the whole model
+        if b:
+            lit_vertex[k:] |= model[k:].max(axis=(1, 2)) > MODEL_KEEP * peak
+        both = np.concatenate([chunk, virt]) if extrapolate else chunk
+        off = np.maximum(-both.min(axis=0), 0.0)  # (p, 3)
+        offset[ps] = off
+        vals[:both.shape[0], ps] = both + off[None]
+    if extrapolate:
+        active = lit_vertex[tri.texel_vertices].any(axis=1) | tri.active
+        map_tri = Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
+                                texel_vertices=tri.texel_vertices, texel_weights=tri.texel_weights,
+                                active=active, map_size=tri.map_size)
+        ext = vals
+    else:
+        map_tri, ext = tri, vals[:k]
+    # float16 keeps the peak memory of large captures down (the offsets are at most the size of
+    # the values, so the rounding stays that of float16 storage).
+    maps = compute_maps(ext, normals, map_tri, horizon=horizon, n_az=n_az, adaptation=paper_adaptation,
+                        backend=backend, half=half, progress=progress)
+    act = np.flatnonzero(map_tri.active)
+    tdirs = map_tri.texel_dirs[act]
+    for p0 in range(0, p, PIXEL_CHUNK):
+        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
+        m = maps[ps, :, :act.size].astype(dt)
+        m -= offset[ps, :, None].astype(dt)
+        if trend:
+            vis = _vis_chunk(horizon, ps, n_az, tri.map_size, ps.stop - p0)[:, act]
+            m += (trust[ps, None, None] * _model_at(albedo[ps], n[ps], tdirs, vis).transpose(1, 2, 0)).astype(dt)
+        maps[ps, :, :act.size] = np.clip(m, 0.0, None)
+    if not np.isfinite(maps).all():
+        raise ArithmeticError("non-finite reflectance from the shading model; this is a bug, please report it")
+    return maps, map_tri
 
 
 def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *, smooth: bool = True) -> np.ndarray:

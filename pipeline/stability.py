@@ -54,20 +54,18 @@ from relight.errors import InputError
 from relight.numerics import flush_subnormal_halves
 
 from . import methods, reflectance
+from .accuracy import VARIANTS as _CAPTURE_VARIANTS
 
-#: The variants measured: name -> the ``CaptureOptions`` fields that select it (visibility and
-#: light adaptation only act on ``full``; the flags here are the effective ones).
+#: The variants measured: the benchmark's (``relight.pipeline.accuracy.VARIANTS``), each as the
+#: ``CaptureOptions`` fields that select it (visibility, light adaptation and extrapolation only
+#: act on ``full``; the flags here are the effective ones).
 VARIANTS: dict[str, dict] = {
-    "full": {"method": "full", "visibility": True, "adaptation": True, "extrapolation": True},
-    "full -visibility": {"method": "full", "visibility": False, "adaptation": True, "extrapolation": True},
-    "full -adaptation": {"method": "full", "visibility": True, "adaptation": False, "extrapolation": True},
-    "full -both": {"method": "full", "visibility": False, "adaptation": False, "extrapolation": True},
-    "full -extrapolation": {"method": "full", "visibility": True, "adaptation": True, "extrapolation": False},
-    "barycentric": {"method": "barycentric", "visibility": False, "adaptation": False, "extrapolation": False},
-    "ptm": {"method": "ptm", "visibility": False, "adaptation": False, "extrapolation": False},
-    "hsh": {"method": "hsh", "visibility": False, "adaptation": False, "extrapolation": False},
-    "hsh2": {"method": "hsh2", "visibility": False, "adaptation": False, "extrapolation": False},
-    "rbf": {"method": "rbf", "visibility": False, "adaptation": False, "extrapolation": False},
+    name: {"method": kw.get("method", "full"),
+           "visibility": kw.get("visibility", True) and kw.get("method", "full") == "full",
+           "adaptation": kw.get("adaptation", True) and kw.get("method", "full") == "full",
+           "extrapolation": kw.get("extrapolation", True) and kw.get("method", "full") == "full",
+           "paper_adaptation": kw.get("paper_adaptation", False)}
+    for name, kw in _CAPTURE_VARIANTS.items()
 }
 
 #: Floor of the error's denominator (an all-zero reference compares as an absolute error).
@@ -117,7 +115,8 @@ class MapProblem:
         ``barycentric`` are the same one)."""
         opts = VARIANTS[variant]
         kind = opts["method"] if opts["method"] in methods.FITTED else "triangulated"
-        key = (kind, opts["visibility"], opts["adaptation"], opts["extrapolation"], tri.map_size)
+        key = (kind, opts["visibility"], opts["adaptation"], opts["extrapolation"], opts["paper_adaptation"],
+               tri.map_size)
         if key not in self._ref:
             self._ref[key] = reference_maps(variant, self, tri)
         return self._ref[key]
@@ -345,7 +344,8 @@ def builder_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulati
 
     opts = VARIANTS[variant]
     o = CaptureOptions(method=opts["method"], visibility=opts["visibility"], adaptation=opts["adaptation"],
-                       extrapolation=opts["extrapolation"], map_size=tri.map_size)
+                       extrapolation=opts["extrapolation"], paper_adaptation=opts["paper_adaptation"],
+                       map_size=tri.map_size)
     horizon = problem.horizon if opts["visibility"] else None
     maps, _, scale, _ = reflectance_maps(problem.samples, problem.normals, tri, o, horizon, half=half)
     return maps, scale
@@ -370,9 +370,12 @@ def reference_maps(variant: str, problem: MapProblem, tri: reflectance.Triangula
         horizon = problem.horizon if opts["visibility"] else None
         if horizon is not None:
             vis = reflectance.visibility_maps(horizon.astype(np.float64), HORIZON_DIRS, tri.map_size)
-        if opts["extrapolation"]:  # the virtual lights' values are float32 in both (model_lights)
-            ext, tri = reflectance.model_lights(problem.samples, problem.normals, tri, horizon, HORIZON_DIRS)
-            samples = ext.astype(np.float64)
+        trend = opts["adaptation"] and not opts["paper_adaptation"]
+        if opts["method"] == "full" and (trend or opts["extrapolation"]):
+            maps, tri = reflectance.model_maps(samples, problem.normals.astype(np.float64), tri, horizon,
+                                               HORIZON_DIRS, trend=trend, extrapolate=opts["extrapolation"],
+                                               paper_adaptation=opts["adaptation"] and not trend, backend="numpy")
+            return maps[:, :, :int(tri.active.sum())].astype(np.float64)
         maps = reflectance.build_maps(samples, problem.normals.astype(np.float64), tri, visibility=vis,
                                       adaptation=opts["adaptation"])
         return maps[:, :, :int(tri.active.sum())].astype(np.float64)

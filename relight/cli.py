@@ -167,7 +167,11 @@ def _add_capture(sub) -> None:
                    help="how samples become maps: the paper's triangulation (full = with visibility and light "
                         "adaptation, barycentric = without) or a fitted baseline")
     p.add_argument("--no-visibility", action="store_true", help="leave out visibility-aware interpolation")
-    p.add_argument("--no-adaptation", action="store_true", help="leave out light adaptation (cosine factors)")
+    p.add_argument("--no-adaptation", action="store_true",
+                   help="leave out light adaptation (the shading model's cosine, or the paper's cosine factors)")
+    p.add_argument("--paper-adaptation", action="store_true",
+                   help="the paper's light adaptation (divide by the vertices' cosines) instead of interpolating "
+                        "what a shading model (albedo x cosine x visibility) leaves unexplained")
     p.add_argument("--no-extrapolation", action="store_true",
                    help="black light beyond the captured directions (the paper) instead of a shading model's")
     p.add_argument("--map-size", type=_size, default=(64, 32), metavar="WxH", help="reflectance map size (2:1)")
@@ -201,7 +205,7 @@ def _run_capture(args) -> int:
         raise InputError("give either a capture video or --images DIR (not both)")
     opts = CaptureOptions(
         method=args.method, visibility=not args.no_visibility, adaptation=not args.no_adaptation,
-        extrapolation=not args.no_extrapolation,
+        extrapolation=not args.no_extrapolation, paper_adaptation=args.paper_adaptation,
         map_size=args.map_size, face=args.face, mesh=str(args.mesh) if args.mesh else None,
         export_mesh=str(args.export_mesh) if args.export_mesh else None,
         samples=SampleOptions(flash_hz=args.flash_hz, flash_threshold=args.flash_threshold, sphere=args.sphere,
@@ -358,7 +362,7 @@ def _add_bench(sub) -> None:
                    help="real RTI data: a folder with Dome/ and Test/ image sets (default: ../shared/data/rti-dome "
                         "when present)")
     a.add_argument("--quick", action="store_true",
-                   help="one short 480x270 scene instead of five and the real set at half size (for CI)")
+                   help="one short 384x216 scene instead of five and the real set at half size (for CI)")
     a.add_argument("--quiet", action="store_true", help="no progress output")
     a.set_defaults(func=_run_bench_accuracy)
 
