@@ -279,8 +279,9 @@ def _slug(s: str) -> str:
 
 
 def _heat_maps(heat: dict, path: Path, title: str) -> None:
-    """One row per variant: per-pixel RMS error over the whole sphere and over the hull, each
-    column on one colour scale shared by all variants (so they compare)."""
+    """One column per variant, two rows: per-pixel RMS error over the whole sphere of light
+    directions and over the captured hull; each row on one colour scale shared by all variants
+    (so they compare), black = 0, white = that row's 99th percentile over all variants."""
     import cv2
 
     from relight.imageio import write_image
@@ -290,26 +291,31 @@ def _heat_maps(heat: dict, path: Path, title: str) -> None:
     ys, xs = np.nonzero(keep0)
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     scale = [max(float(np.percentile(heat[n][c], 99)) for n in names) or 1.0 for c in (1, 2)]
-    tile_h = 200
+    tile_h = 220
     tw = int(round(tile_h * (x1 - x0) / max(y1 - y0, 1)))
-    label_w = 150
-    rows = []
+    label_h, side_w = 22, 96
+    cols = []
     for n in names:
         keep, *maps = heat[n]
-        tiles = [np.full((tile_h, label_w, 3), 255, np.uint8)]
-        cv2.putText(tiles[0], n, (6, tile_h // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        label = np.full((label_h, tw, 3), 255, np.uint8)
+        cv2.putText(label, n[:22], (3, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        tiles = [label]
         for c, m in enumerate(maps):
             img = np.zeros(keep.shape, np.float32)
             img[keep] = m / scale[c]
-            u8 = np.clip(img * 255, 0, 255).astype(np.uint8)
-            col = cv2.applyColorMap(u8, cv2.COLORMAP_INFERNO)
+            col = cv2.applyColorMap(np.clip(img * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
             col[~keep] = 255
             tiles.append(cv2.resize(col[y0:y1, x0:x1], (tw, tile_h), interpolation=cv2.INTER_AREA)[..., ::-1])
-        rows.append(np.concatenate(tiles, axis=1))
-    head = np.full((28, rows[0].shape[1], 3), 255, np.uint8)
-    cv2.putText(head, f"{title}: per-pixel RMS error, whole sphere | captured hull (one scale per column)",
-                (6, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    write_image(path, np.concatenate([head, *rows], axis=0))
+        cols.append(np.concatenate(tiles, axis=0))
+    side = np.full((label_h + 2 * tile_h, side_w, 3), 255, np.uint8)
+    for r, text in enumerate(("whole", "hull")):
+        cv2.putText(side, text, (4, label_h + r * tile_h + tile_h // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                    (0, 0, 0), 1, cv2.LINE_AA)
+    body = np.concatenate([side, *cols], axis=1)
+    head = np.full((26, body.shape[1], 3), 255, np.uint8)
+    cv2.putText(head, f"{title}: per-pixel RMS error, single lights (top: whole sphere, bottom: captured hull)",
+                (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    write_image(path, np.concatenate([head, body], axis=0))
 
 
 def _scaled_rti(folder: Path, out: Path, factor: int) -> Path:
@@ -567,8 +573,8 @@ def report_markdown(doc: dict) -> str:
             lines.append(f"| {n} | {r['psnr']:.2f} | {r['ssim']:.4f} | {min(r['psnr_per_light']):.2f} | "
                          f"{r['capture_s']:.1f} | {r['bundle_mb']:.1f} |")
     lines += ["", "## Error heat maps (the paper's Fig. 14)", "",
-              "Per pixel: RMS error of single-light renders over all 32x16 light directions (left) and over the "
-              "captured hull only (right), solid-angle weighted; one colour scale per column and scene.", ""]
+              "Per pixel: RMS error of single-light renders over all 32x16 light directions (top) and over the "
+              "captured hull only (bottom), solid-angle weighted; one colour scale per row and scene.", ""]
     for sc in doc["scenes"]:
         lines.append(f"![{sc['name']}]({sc['heat_map']})")
     lines += ["", "## Numerical stability", "",
