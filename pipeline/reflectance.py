@@ -254,12 +254,14 @@ def _vis_chunk(horizon: np.ndarray | None, ps: slice, n_az: int, map_size, n: in
 #: wrong normals - keep plain interpolation).
 MODEL_R2_NONE = 0.3
 MODEL_R2_FULL = 0.5
+#: How far beyond the captured directions (degrees) the model's light is kept in the maps.
+MODEL_REACH_DEG = 30.0
 #: Horizon slope of a pixel that nothing shadows (a horizon table entry far below any light).
 OPEN_SKY = -1e4
 
 
 def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
-                  n_az: int) -> tuple[np.ndarray, np.ndarray]:
+                  n_az: int, *, vertex_vis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per pixel the shading model ``albedo x max(n . l, 0) x visibility(l)`` (visibility: the
     smoothed visibility maps of the horizon table, as the interpolation reads them; 1 without
     one): ((P, 3) float64 albedo, (P,) float64 trust in it, 0-1).
@@ -267,7 +269,8 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     The albedo is fitted by least squares to the samples that light the pixel well (cosine >
     ``MODEL_MIN_COS``, visibility > ``MODEL_MIN_VIS``); 0 where none does. The trust ramps from
     0 to 1 as the fit's R^2 over those samples goes from ``MODEL_R2_NONE`` to ``MODEL_R2_FULL``
-    (0 with fewer than 4 of them)."""
+    (0 with fewer than 4 of them). vertex_vis : (P, >= K) visibility at the vertices' texels when
+    already computed (else computed here)."""
     k, p = samples.shape[:2]
     n = np.asarray(normals, dtype=np.float64)
     vt = tri.vertex_texel[:k]
@@ -277,7 +280,8 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
         m = ps.stop - p0
         cs = n[ps] @ tri.vertices[:k].T
-        vk = _vis_chunk(horizon, ps, n_az, tri.map_size, m)[:, vt]
+        vk = _vis_chunk(horizon, ps, n_az, tri.map_size, m)[:, vt] if vertex_vis is None else \
+            vertex_vis[ps, :k].astype(np.float64)
         use = (cs > MODEL_MIN_COS) & (vk > MODEL_MIN_VIS)
         c = np.where(use, cs, 0.0)
         y = samples[:, ps].astype(np.float64)  # (K, p, 3)
@@ -323,11 +327,16 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     k, p = samples.shape[:2]
     verts = tri.vertices
     b = len(verts) - k
-    albedo, trust = shading_model(samples, normals, tri, horizon, n_az)
-    if horizon is not None and (trust < 0.5).any():
+    vertex_vis = np.empty((p, len(verts)), dtype=np.float32)  # one pass over the visibility maps
+    for p0 in range(0, p, PIXEL_CHUNK):
+        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
+        vertex_vis[ps] = _vis_chunk(horizon, ps, n_az, tri.map_size, ps.stop - p0)[:, tri.vertex_texel]
+    albedo, trust = shading_model(samples, normals, tri, horizon, n_az, vertex_vis=vertex_vis)
+    open_sky = trust < 0.5
+    if horizon is not None and open_sky.any():
         # Where the model does not explain the samples, neither does its geometry's shadowing:
         # those pixels interpolate without visibility (an open sky: every light visible).
-        horizon = np.where((trust < 0.5)[:, None], np.float32(OPEN_SKY), horizon).astype(np.float32)
+        horizon = np.where(open_sky[:, None], np.float32(OPEN_SKY), horizon).astype(np.float32)
     n = np.asarray(normals, dtype=np.float64)
     dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
     vals = np.zeros((len(verts), p, 3), dtype=dt)
@@ -337,7 +346,9 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     peak = max(float(np.max(samples)) if samples.size else 0.0, 1e-30)
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
-        vis = _vis_chunk(horizon, ps, n_az, tri.map_size, ps.stop - p0)[:, tri.vertex_texel]
+        vis = vertex_vis[ps]
+        if horizon is not None and open_sky[ps].any():
+            vis = np.where(open_sky[ps, None], np.float32(1.0), vis)
         model = _model_at(albedo[ps], n[ps], verts, vis)  # (V, p, 3)
         chunk = samples[:, ps].astype(np.float64)
         tw = trust[ps][None, :, None]
@@ -351,7 +362,10 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         offset[ps] = off
         vals[:both.shape[0], ps] = both + off[None]
     if extrapolate:
-        active = lit_vertex[tri.texel_vertices].any(axis=1) | tri.active
+        # Model light where it lights some pixel, within MODEL_REACH_DEG of a captured direction:
+        # farther out (behind the head) it would cost map texels for light that reaches little.
+        near = (tri.texel_dirs @ verts[:k].T).max(axis=1) >= np.cos(np.radians(MODEL_REACH_DEG))
+        active = (lit_vertex[tri.texel_vertices].any(axis=1) & near) | tri.active
         map_tri = Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
                                 texel_vertices=tri.texel_vertices, texel_weights=tri.texel_weights,
                                 active=active, map_size=tri.map_size)
