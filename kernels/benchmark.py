@@ -13,13 +13,11 @@ fraction of this machine's memory read bandwidth, measured in the same run.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import subprocess
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -125,7 +123,7 @@ def _scenario(out: Path, quick: bool, progress: bool):
     """(bundle path, truth folder, {name: env source}) for the benchmark capture (cached)."""
     from relight.envmap import load_environment
     from relight.imageio import write_image
-    from relight.pipeline.synth.studio import SynthConfig, synthesize
+    from relight.pipeline.synth.studio import SynthConfig, cached_synthesis
 
     out.mkdir(parents=True, exist_ok=True)
     front_studio = out / "front_studio.exr"
@@ -138,13 +136,8 @@ def _scenario(out: Path, quick: bool, progress: bool):
     size = (480, 270) if quick else (960, 540)
     cfg = SynthConfig(width=size[0], height=size[1], duration=10.0 if quick else 60.0, seed=0,
                       truth_envs=tuple(envs.values()))
-    key = hashlib.sha1(json.dumps(asdict(cfg), sort_keys=True).encode()).hexdigest()[:10]
-    cap = out / f"synth-{key}"
-    if not (cap / "truth" / "meta.json").exists():
-        if progress:
-            print(f"synthesising a {size[0]}x{size[1]} capture ...", flush=True)
-        synthesize(cap, cfg, progress=progress)
-    bundle = out / f"{key}.bundle"
+    cap = cached_synthesis(out, cfg, label=f"a {size[0]}x{size[1]} capture", progress=progress)
+    bundle = out / f"{cap.name.removeprefix('synth-')}.bundle"
     if not bundle.exists():
         from relight.pipeline.capture import capture
 

@@ -9,11 +9,9 @@ capture (goal: <= 60 s, <= 4 GB); ``--quick`` runs one short capture.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import subprocess
 import sys
-from dataclasses import asdict
 from pathlib import Path
 
 SCENARIOS = [
@@ -42,19 +40,15 @@ def _child(video: str, bundle: str, truth: str) -> None:
 
 
 def run(out: Path, quick: bool = False, progress: bool = True) -> dict:
-    from .synth.studio import SynthConfig, synthesize
+    from .synth.studio import SynthConfig, cached_synthesis
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for sc in QUICK if quick else SCENARIOS:
         cfg = SynthConfig(**{k: v for k, v in sc.items() if k != "name"}, truth_envs=("builtin:studio",))
-        key = hashlib.sha1(json.dumps(asdict(cfg), sort_keys=True).encode()).hexdigest()[:10]
-        cap = out / f"synth-{key}"
-        if not (cap / "truth" / "meta.json").exists():
-            if progress:
-                print(f"synthesising {sc['name']} ...", flush=True)
-            synthesize(cap, cfg, progress=progress)
+        cap = cached_synthesis(out, cfg, label=sc["name"], progress=progress)
+        key = cap.name.removeprefix("synth-")
         if progress:
             print(f"capturing {sc['name']} ...", flush=True)
         code = (f"from relight.pipeline.benchmark import _child; _child({str(cap / 'capture.mp4')!r}, "

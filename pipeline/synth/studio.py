@@ -15,6 +15,7 @@ the 64x32 maps the pipeline builds, and rendered by the shader itself, not inter
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass, field
@@ -485,3 +486,15 @@ def synthesize(out: str | Path, config: SynthConfig = SynthConfig(), *, progress
     timings["total"] = time.perf_counter() - t_all
     return SynthResult(out=out, video=video, truth=truth, frame_count=studio.n,
                        flash_frames=len(meta["flash_frames"]), timings=timings)
+
+
+def cached_synthesis(out: str | Path, config: SynthConfig, *, label: str, progress: bool = True) -> Path:
+    """``out/synth-<hash of the settings>``: synthesised the first time, reused while its truth
+    is there (the benchmarks' cache; any change of a setting makes a new folder)."""
+    key = hashlib.sha1(json.dumps(asdict(config), sort_keys=True).encode()).hexdigest()[:10]
+    cap = Path(out) / f"synth-{key}"
+    if not (cap / "truth" / "meta.json").exists():
+        if progress:
+            print(f"synthesising {label} ...", flush=True)
+        synthesize(cap, config, progress=progress)
+    return cap
