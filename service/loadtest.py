@@ -52,10 +52,28 @@ def _steal_share(before, after) -> float | None:
     return float(d[7]) / busy if busy > 0 else None
 
 
-def _free_port() -> int:
+def free_port() -> int:
+    """A TCP port free on loopback now."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def wait_ready(base: str, timeout: float, *, alive=None) -> bool:
+    """Poll ``base``/readyz until it answers 200 (True), or ``timeout`` seconds pass or
+    ``alive()`` turns False (False)."""
+    import httpx
+
+    deadline = time.time() + timeout
+    while True:
+        try:
+            if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
+                return True
+        except httpx.TransportError:
+            pass
+        if time.time() > deadline or (alive is not None and not alive()):
+            return False
+        time.sleep(0.1)
 
 
 def _client(url: str, frames: list[bytes], fps: float, duration: float, out: dict) -> None:
@@ -156,23 +174,15 @@ def run(out: Path, bundle: Path | None = None, clients: int = 4, fps: float = 30
 
         bundle = _bundle(out, (640, 360), 20.0 if quick else 30.0, progress)
     frames = _frames(out, progress)
-    port = _free_port()
+    port = free_port()
     env = dict(os.environ, RELIGHT_LOG_LEVEL="warning")
     proc = subprocess.Popen([sys.executable, "-m", "relight", "serve", str(bundle), "--port", str(port),
                              "--max-clients", str(max(clients, 1)), "--focal", "ortho"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.time() + 120
-        while True:
-            try:
-                if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if time.time() > deadline or proc.poll() is not None:
-                raise RuntimeError(f"relight serve did not become ready: {proc.stderr.read()[-500:]}")
-            time.sleep(0.2)
+        if not wait_ready(base, 120, alive=lambda: proc.poll() is None):
+            raise RuntimeError(f"relight serve did not become ready: {proc.stderr.read()[-500:]}")
         url = f"ws://127.0.0.1:{port}/v1/stream"
         _run(url, frames, 1, fps, 2.0)  # warm-up
         rss_start = _rss_mb(proc.pid)

@@ -1,24 +1,17 @@
 """A real relight-serve app on loopback for the service and browser tests."""
 
-import socket
 import threading
-import time
 from contextlib import contextmanager
 
 import pytest
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from relight.service.loadtest import free_port, wait_ready
 
 
 @contextmanager
 def running_server(config):
     """Serve ``create_app(config)`` with uvicorn on a free loopback port; yield its base URL once
     /readyz answers 200 (fails the test after a minute), stop it afterwards."""
-    import httpx
     import uvicorn
 
     from relight.service.app import create_app
@@ -28,16 +21,8 @@ def running_server(config):
     th = threading.Thread(target=srv.run, daemon=True)
     th.start()
     base = f"http://127.0.0.1:{port}"
-    deadline = time.time() + 60
-    while True:
-        try:
-            if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
-                break
-        except httpx.TransportError:
-            pass
-        if time.time() > deadline:
-            pytest.fail("the service did not become ready")
-        time.sleep(0.1)
+    if not wait_ready(base, 60):
+        pytest.fail("the service did not become ready")
     try:
         yield base
     finally:

@@ -265,6 +265,8 @@ def test_make_serve_prints_the_page_url_and_serves(small_bundle, tmp_path):
     import sys
     from pathlib import Path
 
+    from relight.service.loadtest import wait_ready
+
     from .serving import free_port
 
     root = Path(__file__).resolve().parents[1]
@@ -285,12 +287,7 @@ def test_make_serve_prints_the_page_url_and_serves(small_bundle, tmp_path):
             assert line, "make serve ended early:\n" + "".join(lines)
             lines.append(line)
         assert any(f"open http://127.0.0.1:{port}/ " in ln for ln in lines), lines
-        for _ in range(100):
-            try:
-                if httpx.get(f"http://127.0.0.1:{port}/readyz", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                time.sleep(0.1)
+        assert wait_ready(f"http://127.0.0.1:{port}", 10)
         assert httpx.get(f"http://127.0.0.1:{port}/").status_code == 200
     finally:
         os.killpg(proc.pid, 15)
