@@ -33,7 +33,6 @@ Metrics, per variant x scene x environment, inside the face mask (bundle mask an
 from __future__ import annotations
 
 import copy
-import hashlib
 import json
 import time
 from dataclasses import asdict
@@ -95,17 +94,11 @@ def _environments(out: Path) -> dict[str, tuple[str, str]]:
 
 
 def _synth(out: Path, scene: dict, envs: dict, progress: bool):
-    from .synth.studio import SynthConfig, synthesize
+    from .synth.studio import SynthConfig, cached_synthesis
 
     cfg = SynthConfig(**{k: v for k, v in scene.items() if k != "name"},
                       truth_envs=tuple(src for src, _ in envs.values()))
-    key = hashlib.sha1(json.dumps(asdict(cfg), sort_keys=True).encode()).hexdigest()[:10]
-    cap = out / f"synth-{key}"
-    if not (cap / "truth" / "meta.json").exists():
-        if progress:
-            print(f"synthesising {scene['name']} ...", flush=True)
-        synthesize(cap, cfg, progress=progress)
-    return cfg, cap
+    return cfg, cached_synthesis(out, cfg, label=scene["name"], progress=progress)
 
 
 def build_variants(source, out_dir: Path, *, images: bool = False, variants=None, progress: bool = False) -> dict:
@@ -354,6 +347,7 @@ def evaluate_dome(dome: Path, test: Path, out: Path, progress: bool, *, scale: i
         dome = _scaled_rti(dome, out / "dome-small" / "Dome", scale)
         test = _scaled_rti(test, out / "dome-small" / "Test", scale)
     bundles = build_variants(dome, out / "bundles" / "dome", images=True, progress=progress)
+    lights_in = len(read_lp(dome / "dirs.lp"))
     held = [(d, read_image(test / name, linearize=False)[..., :3].astype(np.float32))
             for name, d in read_lp(test / "dirs.lp")]
     rows = {}
@@ -371,9 +365,8 @@ def evaluate_dome(dome: Path, test: Path, out: Path, progress: bool, *, scale: i
             {k: info[k] for k in ("capture_s", "maps_s", "bundle_mb")}
         del rl, b
         Path(info["bundle"]).unlink()  # ~1 GB each at full size; the size is recorded
-    size = read_image(dome / read_lp(dome / "dirs.lp")[0][0], linearize=False).shape
-    return {"lights_in": len(read_lp(dome / "dirs.lp")), "held_out": len(held), "variants": rows,
-            "image_size": [size[1], size[0]], "scale": scale}
+    h, w = held[0][1].shape[:2]  # both sets share one size (a bundle renders the Dome frame)
+    return {"lights_in": lights_in, "held_out": len(held), "variants": rows, "image_size": [w, h], "scale": scale}
 
 
 def _mean(xs) -> float | None:
@@ -455,9 +448,10 @@ def run(out: Path, quick: bool = False, progress: bool = True, rti: Path | None 
 
 
 def _write_json(path: Path, doc: dict) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(doc, indent=1))
-    tmp.replace(path)
+    from relight.imageio import atomic_path
+
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(json.dumps(doc, indent=1))
 
 
 def _pareto_plot(doc: dict, path: Path) -> None:
