@@ -47,6 +47,7 @@ VARIANTS: dict[str, dict] = {
     "full -adaptation": {"adaptation": False},
     "full -both": {"visibility": False, "adaptation": False},
     "full -extrapolation": {"extrapolation": False},
+    "full -spline": {"spline": False},
     "full, paper adaptation": {"paper_adaptation": True},
     "barycentric": {"method": "barycentric"},
     "ptm": {"method": "ptm"},

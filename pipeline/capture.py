@@ -45,6 +45,7 @@ class CaptureOptions:
     adaptation: bool = True
     extrapolation: bool = True
     paper_adaptation: bool = False
+    spline: bool = True
     map_size: tuple[int, int] = reflectance.DEFAULT_MAP_SIZE
     samples: SampleOptions = field(default_factory=SampleOptions)
     face: tuple[int, int, int, int] | None = None
@@ -301,7 +302,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         done[0] += n
         progress("maps", done[0], pix.size)
 
-    maps, texels, scale, samples = reflectance_maps(samples, normals, tri, opts, horizon, progress=cb)
+    maps, texels, scale, samples = reflectance_maps(samples, normals, tri, opts, horizon, progress=cb, grid=geo.mask)
     timings["maps"] = time.perf_counter() - t1
     if not np.isfinite(maps).all():
         raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
@@ -332,6 +333,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "visibility": bool(opts.visibility and opts.method == "full"),
         "adaptation": bool(opts.adaptation and opts.method == "full"),
         "extrapolation": bool(opts.extrapolation and opts.method == "full"),
+        "spline": bool(opts.spline and opts.method == "full"),
         "light_adaptation": ("none" if not (opts.adaptation and opts.method == "full") else
                              "paper" if opts.paper_adaptation else "shading model"), "n_samples": int(k),
         "n_pixels": int(pix.size),
@@ -347,7 +349,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
 
 
 def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: CaptureOptions, horizon, *,
-                     half: bool = True, progress=None):
+                     half: bool = True, progress=None, grid: np.ndarray | None = None):
     """The maps stage of :func:`finish`: (maps (P, 3, T_pad) float16 (float32 unless ``half``),
     texels (T,) map texel ids, scale, stored samples (K, P, 3) float32).
 
@@ -368,9 +370,10 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     full = opts.method == "full"
     adapt = opts.adaptation and full
     trend = adapt and not opts.paper_adaptation
-    if full and (trend or opts.extrapolation):
+    if full and (trend or opts.extrapolation or opts.spline):
         maps, map_tri = reflectance.model_maps(samples, normals, tri, horizon, HORIZON_DIRS, trend=trend,
                                                extrapolate=opts.extrapolation, paper_adaptation=adapt and not trend,
+                                               spline=opts.spline, grid=grid,
                                                backend=opts.backend, half=half, progress=progress)
         return maps, np.flatnonzero(map_tri.active), scale, samples
     maps = reflectance.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS, adaptation=adapt,

@@ -19,6 +19,11 @@ fill it in four steps:
 4. **Normalisation** for relighting is the texel's solid angle (stored beside the maps, applied
    to the environment when relighting): sin(latitude) weighting made exact.
 
+``full`` (:func:`model_maps`) replaces step 3 by a per-pixel shading model (albedo x cosine x
+visibility) whose residual is interpolated, extends the model beyond the hull, and blends each
+pixel with a thin-plate spline of its samples (:mod:`relight.pipeline.spline`) by how well each
+predicts left-out samples.
+
 The NumPy implementation here is the reference; it works in chunks of pixels and texels so its
 memory stays bounded.
 """
@@ -307,7 +312,8 @@ def _model_at(albedo, normals, dirs, vis) -> np.ndarray:
 
 def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
                n_az: int, *, trend: bool = True, extrapolate: bool = True, paper_adaptation: bool = False,
-               backend: str = "opencl", half: bool = False, progress=None) -> tuple[np.ndarray, Triangulation]:
+               spline: bool = True, grid: np.ndarray | None = None, backend: str = "opencl", half: bool = False,
+               progress=None) -> tuple[np.ndarray, Triangulation]:
     """Reflectance maps with the shading model (:func:`shading_model`): (maps (P, 3, T_pad)
     float32, or float16 with ``half``; the triangulation whose ``active`` texels they hold).
 
@@ -321,6 +327,10 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     horizon table) is a convex combination of vertex values, so residuals are interpolated
     offset to be non-negative and the offset taken off again. paper_adaptation (no trend): the
     paper's light adaptation (:func:`compute_maps` ``adaptation``) over samples + model lights.
+    spline : inside the captured directions each pixel blends this path with the thin-plate
+    spline of its samples (:mod:`relight.pipeline.spline`; capped at the brightest sample of the
+    texel's triangle), by the weight that best predicts left-out samples (stacking, fitted over
+    a window of neighbouring pixels when ``grid``, the (H, W) mask of the P pixels, is given).
     """
     if trend and paper_adaptation:
         raise InputError("the shading-model trend and the paper's light adaptation exclude each other")
@@ -344,6 +354,13 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     lit_vertex = np.zeros(len(verts), dtype=bool)
     lit_vertex[:k] = True
     peak = max(float(np.max(samples)) if samples.size else 0.0, 1e-30)
+    loo = None
+    blend = trust.copy()  # the model path's weight against the spline, per pixel
+    num, den = np.zeros(p), np.zeros(p)
+    if spline:
+        from .spline import leave_one_out, stacking_terms, stacking_weight
+
+        loo = leave_one_out(verts[:k])
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
         vis = vertex_vis[ps]
@@ -352,6 +369,8 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         model = _model_at(albedo[ps], n[ps], verts, vis)  # (V, p, 3)
         chunk = samples[:, ps].astype(np.float64)
         tw = trust[ps][None, :, None]
+        if loo is not None:
+            num[ps], den[ps] = stacking_terms(samples[:, ps], model[:k], trust[ps], loo)
         if trend:  # the trusted share of the model is taken out and added back at each texel
             chunk = chunk - tw * model[:k]
         virt = (1.0 - tw) * model[k:] if trend else model[k:]  # beyond the hull: the whole model
@@ -361,6 +380,8 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         off = np.maximum(-both.min(axis=0), 0.0)  # (p, 3)
         offset[ps] = off
         vals[:both.shape[0], ps] = both + off[None]
+    if loo is not None:
+        blend = stacking_weight(num, den, trust, grid if grid is not None and grid.sum() == p else None)
     if extrapolate:
         # Model light where it lights some pixel, within MODEL_REACH_DEG of a captured direction:
         # farther out (behind the head) it would cost map texels for light that reaches little.
@@ -378,6 +399,14 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
                         backend=backend, half=half, progress=progress)
     act = np.flatnonzero(map_tri.active)
     tdirs = map_tri.texel_dirs[act]
+    smooth = None
+    if spline and (blend < 1.0).any():
+        from .spline import spline_weights
+
+        inside = np.flatnonzero(inside_hull(verts[:k], tdirs))
+        sw = spline_weights(verts[:k], tdirs[inside]) if inside.size else None
+        if sw is not None:
+            smooth = (inside, sw, map_tri.texel_vertices[act[inside]])
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
         m = maps[ps, :, :act.size].astype(dt)
@@ -385,10 +414,31 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         if trend:
             vis = _vis_chunk(horizon, ps, n_az, tri.map_size, ps.stop - p0)[:, act]
             m += (trust[ps, None, None] * _model_at(albedo[ps], n[ps], tdirs, vis).transpose(1, 2, 0)).astype(dt)
+        if smooth is not None:
+            _blend_spline(m, samples[:, ps], blend[ps], *smooth)
         maps[ps, :, :act.size] = np.clip(m, 0.0, None)
     if not np.isfinite(maps).all():
         raise ArithmeticError("non-finite reflectance from the shading model; this is a bug, please report it")
     return maps, map_tri
+
+
+def _blend_spline(m: np.ndarray, samples: np.ndarray, weight: np.ndarray, inside: np.ndarray,
+                  weights: np.ndarray, corners: np.ndarray) -> None:
+    """In place: maps m (p, 3, T) at texel columns ``inside`` become ``weight x m + (1 - weight) x
+    spline`` for the pixels with weight < 1 (samples (K, p, 3); spline weights (len(inside), K)).
+    The spline is capped at the brightest of the three samples around each texel (``corners``
+    (len(inside), 3) sample ids): its power domain turns a small overshoot into a large one."""
+    from .spline import spline_values
+
+    sel = np.flatnonzero(weight < 1.0)
+    if sel.size == 0:
+        return
+    part = samples[:, sel]
+    spl = spline_values(part, weights)  # (len(inside), s, 3)
+    np.minimum(spl, part[corners].max(axis=1).astype(spl.dtype), out=spl)
+    w = weight[sel, None, None].astype(m.dtype)
+    rows = np.ix_(sel, np.arange(3), inside)
+    m[rows] = w * m[rows] + (1 - w) * spl.transpose(1, 2, 0).astype(m.dtype)
 
 
 def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *, smooth: bool = True) -> np.ndarray:

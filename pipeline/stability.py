@@ -64,7 +64,8 @@ VARIANTS: dict[str, dict] = {
            "visibility": kw.get("visibility", True) and kw.get("method", "full") == "full",
            "adaptation": kw.get("adaptation", True) and kw.get("method", "full") == "full",
            "extrapolation": kw.get("extrapolation", True) and kw.get("method", "full") == "full",
-           "paper_adaptation": kw.get("paper_adaptation", False)}
+           "paper_adaptation": kw.get("paper_adaptation", False),
+           "spline": kw.get("spline", True) and kw.get("method", "full") == "full"}
     for name, kw in _CAPTURE_VARIANTS.items()
 }
 
@@ -116,6 +117,7 @@ class MapProblem:
         opts = VARIANTS[variant]
         kind = opts["method"] if opts["method"] in methods.FITTED else "triangulated"
         key = (kind, opts["visibility"], opts["adaptation"], opts["extrapolation"], opts["paper_adaptation"],
+               opts["spline"],
                tri.map_size)
         if key not in self._ref:
             self._ref[key] = reference_maps(variant, self, tri)
@@ -345,6 +347,7 @@ def builder_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulati
     opts = VARIANTS[variant]
     o = CaptureOptions(method=opts["method"], visibility=opts["visibility"], adaptation=opts["adaptation"],
                        extrapolation=opts["extrapolation"], paper_adaptation=opts["paper_adaptation"],
+                       spline=opts["spline"],
                        map_size=tri.map_size)
     horizon = problem.horizon if opts["visibility"] else None
     maps, _, scale, _ = reflectance_maps(problem.samples, problem.normals, tri, o, horizon, half=half)
@@ -371,10 +374,11 @@ def reference_maps(variant: str, problem: MapProblem, tri: reflectance.Triangula
         if horizon is not None:
             vis = reflectance.visibility_maps(horizon.astype(np.float64), HORIZON_DIRS, tri.map_size)
         trend = opts["adaptation"] and not opts["paper_adaptation"]
-        if opts["method"] == "full" and (trend or opts["extrapolation"]):
+        if opts["method"] == "full" and (trend or opts["extrapolation"] or opts["spline"]):
             maps, tri = reflectance.model_maps(samples, problem.normals.astype(np.float64), tri, horizon,
                                                HORIZON_DIRS, trend=trend, extrapolate=opts["extrapolation"],
-                                               paper_adaptation=opts["adaptation"] and not trend, backend="numpy")
+                                               paper_adaptation=opts["adaptation"] and not trend,
+                                               spline=opts["spline"], backend="numpy")
             return maps[:, :, :int(tri.active.sum())].astype(np.float64)
         maps = reflectance.build_maps(samples, problem.normals.astype(np.float64), tri, visibility=vis,
                                       adaptation=opts["adaptation"])

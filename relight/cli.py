@@ -174,6 +174,9 @@ def _add_capture(sub) -> None:
                         "what a shading model (albedo x cosine x visibility) leaves unexplained")
     p.add_argument("--no-extrapolation", action="store_true",
                    help="black light beyond the captured directions (the paper) instead of a shading model's")
+    p.add_argument("--no-spline", action="store_true",
+                   help="leave out the thin-plate spline over light directions that pixels the shading model does "
+                        "not explain (shiny, badly modelled) are blended with; barycentric only, as the paper")
     p.add_argument("--map-size", type=_size, default=(64, 32), metavar="WxH", help="reflectance map size (2:1)")
     p.add_argument("--sphere", type=_circle, metavar="cx,cy,r", help="mirror sphere centre and radius (pixels) "
                    "instead of finding it")
@@ -206,6 +209,7 @@ def _run_capture(args) -> int:
     opts = CaptureOptions(
         method=args.method, visibility=not args.no_visibility, adaptation=not args.no_adaptation,
         extrapolation=not args.no_extrapolation, paper_adaptation=args.paper_adaptation,
+        spline=not args.no_spline,
         map_size=args.map_size, face=args.face, mesh=str(args.mesh) if args.mesh else None,
         export_mesh=str(args.export_mesh) if args.export_mesh else None,
         samples=SampleOptions(flash_hz=args.flash_hz, flash_threshold=args.flash_threshold, sphere=args.sphere,

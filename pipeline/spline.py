@@ -1,0 +1,139 @@
+"""Smooth interpolation of light samples (a thin-plate spline over directions), for the pixels
+the shading model does not explain.
+
+Plain barycentric interpolation is linear inside each triangle of light directions and bends at
+its edges: between two rings of a light dome 20 degrees apart it draws a moving highlight or
+shadow edge as two half-bright ghosts. A thin-plate spline (:class:`scipy.interpolate.
+RBFInterpolator`, kernel ``r^2 log r`` of the chord between unit directions, plus a linear
+polynomial) passes through every sample with the least bending energy, so it follows the
+samples' trend across the triangles' edges. It interpolates ``value ** SPLINE_GAMMA``, where a
+highlight or shadow blends more like the light moving than like two exposures mixed.
+
+Measured on the real held-out set (``../shared/data/rti-dome``: 49 lights predict 20 held-out
+photos; sRGB PSNR directly at the held-out directions, every third pixel of the mask):
+barycentric 23.67 dB; this spline of the linear values 23.43, of ``value ** 0.4`` 24.87 (0.3:
+24.76, 0.5: 24.83); Clough-Tocher cubics over a projection of the directions 24.70 at best,
+Gaussian and multiquadric kernels 24.2-24.75. Alone it loses on faces (the quick synthetic
+scene: 27.2 dB against 29.5 with the shading model), hence the per-pixel blend
+(:func:`stacking_terms`): the weight of each path is the one that best predicts samples left
+out of the interpolation, pooled over a window of neighbouring pixels.
+
+The spline is linear in the (transformed) values, so it is computed once as a weight matrix
+(query x sample) and applied to every pixel as one matrix product.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Power applied to the (non-negative, linear) values before interpolating, undone after.
+SPLINE_GAMMA = 0.4
+#: Leave-one-out: at most this many samples are left out (evenly spread) to weigh the spline
+#: against the shading-model path per pixel.
+LOO_MAX = 64
+#: Stacking weights are fitted over a window of (2 x this + 1)^2 neighbouring pixels.
+STACK_RADIUS = 3
+
+
+def spline_weights(dirs: np.ndarray, query: np.ndarray) -> np.ndarray | None:
+    """(Q, K) float64 weights of the thin-plate spline through K unit light directions at Q
+    query directions (rows sum to 1; weights may be negative). None when the directions do not
+    determine one (fewer than 4, or all on one plane) - callers keep linear interpolation."""
+    from scipy.interpolate import RBFInterpolator
+
+    dirs = np.asarray(dirs, dtype=np.float64)
+    k = len(dirs)
+    if k < 4:
+        return None
+    try:
+        w = RBFInterpolator(dirs, np.eye(k), kernel="thin_plate_spline", degree=1)(
+            np.asarray(query, dtype=np.float64))
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    return w if np.isfinite(w).all() else None
+
+
+def spline_values(samples: np.ndarray, weights: np.ndarray, gamma: float = SPLINE_GAMMA) -> np.ndarray:
+    """(Q, p, 3) spline interpolation of samples (K, p, 3), linear non-negative values, with
+    weights (Q, K) from :func:`spline_weights`: ``(W @ s**gamma) ** (1/gamma)``, negative
+    overshoot clipped to 0; float64 for float64 samples (the stability reference), else float32."""
+    k, p, c = samples.shape
+    dt = np.float64 if samples.dtype == np.float64 else np.float32
+    s = np.clip(samples.reshape(k, p * c).astype(dt), 0.0, None)
+    np.power(s, dt(gamma), out=s)
+    out = weights.astype(dt) @ s
+    np.clip(out, 0.0, None, out=out)
+    np.power(out, dt(1.0 / gamma), out=out)
+    return out.reshape(len(weights), p, c)
+
+
+def leave_one_out(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Weights that predict samples from the others: (idx (L,) the left-out samples, linear
+    (L, K) spherical barycentric weights, spline (L, K) :func:`spline_weights`), zero at the
+    left-out sample. Only samples inside the others' hull are left out (at most ``LOO_MAX``,
+    evenly spread); None when there is none."""
+    from .reflectance import _cap_faces, _locate, inside_hull
+
+    dirs = np.asarray(dirs, dtype=np.float64)
+    k = len(dirs)
+    if k < 5:
+        return None
+    idx, lin, spl = [], [], []
+    for j in np.linspace(0, k - 1, min(k, LOO_MAX * 3)).round().astype(int):
+        others = np.r_[0:j, j + 1:k]
+        if not inside_hull(dirs[others], dirs[j:j + 1])[0]:
+            continue
+        faces = _cap_faces(dirs[others])
+        sw = spline_weights(dirs[others], dirs[j:j + 1])
+        if faces is None or sw is None:
+            continue
+        tv, tw = _locate(dirs[others], faces, dirs[j:j + 1])
+        a, b = np.zeros(k), np.zeros(k)
+        np.add.at(a, others[tv[0]], tw[0])
+        b[others] = sw[0]
+        idx.append(j)
+        lin.append(a)
+        spl.append(b)
+        if len(idx) == LOO_MAX:
+            break
+    if not idx:
+        return None
+    return np.asarray(idx), np.asarray(lin), np.asarray(spl)
+
+
+def stacking_terms(samples: np.ndarray, model: np.ndarray, trust: np.ndarray, loo) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel the least-squares blend of the shading-model path and the spline from their
+    leave-one-out predictions of the samples (stacking): (num (p,), den (p,)) with the weight of
+    the model path ``num / den`` (clipped to 0-1 by :func:`stacking_weight`).
+
+    samples : (K, p, 3) linear; model : (K, p, 3) the shading model at the sample directions;
+    trust : (p,) the model's share in its path (the residual ``sample - trust x model``
+    interpolated linearly, ``trust x model`` added back); loo : :func:`leave_one_out`."""
+    idx, lin, spl = loo
+    k, p, c = samples.shape
+    s = samples.astype(np.float64)
+    t = trust[None, :, None]
+    resid = (s - t * model).reshape(k, p * c)
+    path = (lin @ resid).reshape(len(idx), p, c) + t * model[idx]
+    smooth = spline_values(s, spl)
+    d = path - smooth
+    return (d * (s[idx] - smooth)).sum(axis=(0, 2)), (d * d).sum(axis=(0, 2))
+
+
+def stacking_weight(num: np.ndarray, den: np.ndarray, trust: np.ndarray, grid: np.ndarray | None = None,
+                    radius: int = STACK_RADIUS) -> np.ndarray:
+    """(p,) weight of the shading-model path against the spline, 0-1, from :func:`stacking_terms`
+    summed over a (2 radius + 1)^2 window of neighbouring pixels when ``grid`` (the (H, W) mask
+    whose True pixels, in raster order, are the p pixels) is given. Where the two paths predict
+    alike (no evidence either way) the pixel keeps ``trust``."""
+    if grid is not None and radius > 0:
+        from scipy.ndimage import uniform_filter
+
+        def window(v):
+            img = np.zeros(grid.shape)
+            img[grid] = v
+            return uniform_filter(img, size=2 * radius + 1, mode="constant")[grid]
+
+        num, den = window(num), window(den)
+    ok = den > 1e-12 * max(float(np.max(den)) if den.size else 0.0, 1e-30)
+    return np.where(ok, np.clip(num / np.where(ok, den, 1.0), 0.0, 1.0), trust)
