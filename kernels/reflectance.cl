@@ -121,6 +121,8 @@ __kernel void build_maps(
     __global const int4 *tex_vertices, __global const float4 *tex_weights,
     __global const float4 *tex_dir, __global const int *tex_index, int n_active,
     __global const float *vis, int n_tex, int use_vis, int adaptation,  /* (n_pix, T) smoothed */
+    /* trend: out = interpolation - offset + coef * max(n . l, 0) * visibility (shading model) */
+    __global const float4 *trend_offset, __global const float4 *trend_coef, int use_trend,
     int p0, int n_pix, int t_pad,
 #ifdef OUT_HALF
     __global half *out)                                            /* (P_all, 3, t_pad): pixel-major */
@@ -171,6 +173,10 @@ __kernel void build_maps(
                 float3 cs = adapt(c, wv, dv, dp, is_sh, adaptation);
                 res = (1.0f - spread) * res + spread * (tl * cl + (1.0f - tl) * cs);
             }
+        }
+        if (use_trend) {
+            float lit = fmax(dot(n, tex_dir[a].xyz), 0.0f) * (use_vis ? pv[tex_index[a]] : 1.0f);
+            res += trend_coef[p].xyz * lit - trend_offset[p].xyz;
         }
         res = fmax(res, 0.0f);
         size_t o = (size_t)p * 3 * t_pad + a;

@@ -246,6 +246,26 @@ MODEL_MIN_VIS = 0.9
 MODEL_KEEP = 0.01
 
 
+def visibility_at(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], columns: np.ndarray, *,
+                  backend: str = "opencl") -> np.ndarray:
+    """(P, len(columns)) float32 smoothed visibility (:func:`visibility_maps`) of the given map
+    texels for each pixel of a horizon table (P, n_az). ``backend`` "opencl"
+    (:func:`relight.kernels.maps.visibility_at_cl`) or "numpy" (in pixel chunks)."""
+    columns = np.asarray(columns, dtype=np.int64)
+    if backend == "opencl":
+        from relight.kernels.maps import visibility_at_cl
+
+        w, h = map_size
+        return visibility_at_cl(horizon, n_az, map_size, equirect_directions(w, h).reshape(-1, 3), columns,
+                                VIS_SOFT_TEXELS * np.pi / h)
+    p = horizon.shape[0]
+    out = np.empty((p, columns.size), dtype=np.float32)
+    for p0 in range(0, p, PIXEL_CHUNK):
+        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
+        out[ps] = _vis_chunk(horizon, ps, n_az, map_size, ps.stop - p0)[:, columns]
+    return out
+
+
 def _vis_chunk(horizon: np.ndarray | None, ps: slice, n_az: int, map_size, n: int) -> np.ndarray:
     """(p, T) smoothed visibility maps of a chunk of pixels (ones without a horizon table)."""
     w, h = map_size
@@ -277,6 +297,7 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     (0 with fewer than 4 of them). vertex_vis : (P, >= K) visibility at the vertices' texels when
     already computed (else computed here)."""
     k, p = samples.shape[:2]
+    dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
     n = np.asarray(normals, dtype=np.float64)
     vt = tri.vertex_texel[:k]
     albedo = np.zeros((p, 3))
@@ -284,20 +305,19 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
         m = ps.stop - p0
-        cs = n[ps] @ tri.vertices[:k].T
-        vk = _vis_chunk(horizon, ps, n_az, tri.map_size, m)[:, vt] if vertex_vis is None else \
-            vertex_vis[ps, :k].astype(np.float64)
+        cs = (n[ps] @ tri.vertices[:k].T).astype(dt)
+        vk = _vis_chunk(horizon, ps, n_az, tri.map_size, m)[:, vt] if vertex_vis is None else vertex_vis[ps, :k]
         use = (cs > MODEL_MIN_COS) & (vk > MODEL_MIN_VIS)
-        c = np.where(use, cs, 0.0)
-        y = samples[:, ps].astype(np.float64)  # (K, p, 3)
-        num = np.einsum("pk,kpc->pc", c, y)
-        a = num / np.maximum((c * c).sum(axis=1), 1e-6)[:, None]
+        c = np.where(use, cs, dt(0.0))
+        y = samples[:, ps].astype(dt)  # (K, p, 3); sums over the K samples in float64
+        num = np.einsum("pk,kpc->pc", c, y, dtype=np.float64)
+        a = num / np.maximum((c * c).sum(axis=1, dtype=np.float64), 1e-6)[:, None]
         albedo[ps] = a
         cnt = use.sum(axis=1)
         w = use.T[..., None]  # (K, p, 1)
-        mean = (y * w).sum(axis=0) / np.maximum(cnt, 1)[:, None]
-        ss_tot = (((y - mean[None]) ** 2) * w).sum(axis=(0, 2))
-        ss_res = (((y - c.T[..., None] * a[None]) ** 2) * w).sum(axis=(0, 2))
+        mean = (y * w).sum(axis=0, dtype=np.float64) / np.maximum(cnt, 1)[:, None]
+        ss_tot = (((y - mean[None].astype(dt)) ** 2) * w).sum(axis=(0, 2), dtype=np.float64)
+        ss_res = (((y - c.T[..., None] * a[None].astype(dt)) ** 2) * w).sum(axis=(0, 2), dtype=np.float64)
         r2 = 1.0 - ss_res / np.maximum(ss_tot, 1e-30)
         t = np.clip((r2 - MODEL_R2_NONE) / (MODEL_R2_FULL - MODEL_R2_NONE), 0.0, 1.0)
         trust[ps] = np.where(cnt >= 4, t, 0.0)
@@ -305,8 +325,8 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
 
 
 def _model_at(albedo, normals, dirs, vis) -> np.ndarray:
-    """(D, p, 3) model values for directions (D, 3), visibility (p, D)."""
-    cos = np.clip(np.asarray(normals, dtype=np.float64) @ dirs.T, 0.0, None) * vis  # (p, D)
+    """(D, p, 3) model values for directions (D, 3), visibility (p, D), in the dtype of the normals."""
+    cos = np.clip(normals @ dirs.T, 0.0, None) * vis  # (p, D)
     return albedo[None] * cos.T[..., None]
 
 
@@ -337,18 +357,24 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     k, p = samples.shape[:2]
     verts = tri.vertices
     b = len(verts) - k
-    vertex_vis = np.empty((p, len(verts)), dtype=np.float32)  # one pass over the visibility maps
-    for p0 in range(0, p, PIXEL_CHUNK):
-        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
-        vertex_vis[ps] = _vis_chunk(horizon, ps, n_az, tri.map_size, ps.stop - p0)[:, tri.vertex_texel]
+    # Model light is kept where it lights some pixel, within MODEL_REACH_DEG of a captured
+    # direction: farther out (behind the head) it would cost map texels for light that reaches little.
+    near = (tri.texel_dirs @ verts[:k].T).max(axis=1) >= np.cos(np.radians(MODEL_REACH_DEG))
+    # Visibility at the vertices (the model at the texels is added by the maps kernel, which
+    # has the texels' visibility at hand).
+    if horizon is None:
+        vertex_vis = np.ones((p, len(verts)), dtype=np.float32)
+    else:
+        vertex_vis = visibility_at(horizon, n_az, tri.map_size, tri.vertex_texel, backend=backend)
     albedo, trust = shading_model(samples, normals, tri, horizon, n_az, vertex_vis=vertex_vis)
     open_sky = trust < 0.5
     if horizon is not None and open_sky.any():
         # Where the model does not explain the samples, neither does its geometry's shadowing:
         # those pixels interpolate without visibility (an open sky: every light visible).
         horizon = np.where(open_sky[:, None], np.float32(OPEN_SKY), horizon).astype(np.float32)
-    n = np.asarray(normals, dtype=np.float64)
     dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
+    n = np.asarray(normals, dtype=dt)
+    albedo_dt = albedo.astype(dt)
     vals = np.zeros((len(verts), p, 3), dtype=dt)
     offset = np.zeros((p, 3), dtype=np.float64)
     lit_vertex = np.zeros(len(verts), dtype=bool)
@@ -366,9 +392,9 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         vis = vertex_vis[ps]
         if horizon is not None and open_sky[ps].any():
             vis = np.where(open_sky[ps, None], np.float32(1.0), vis)
-        model = _model_at(albedo[ps], n[ps], verts, vis)  # (V, p, 3)
-        chunk = samples[:, ps].astype(np.float64)
-        tw = trust[ps][None, :, None]
+        model = _model_at(albedo_dt[ps], n[ps], verts.astype(dt), vis)  # (V, p, 3)
+        chunk = samples[:, ps].astype(dt)
+        tw = trust[ps][None, :, None].astype(dt)
         if loo is not None:
             num[ps], den[ps] = stacking_terms(samples[:, ps], model[:k], trust[ps], loo)
         if trend:  # the trusted share of the model is taken out and added back at each texel
@@ -383,9 +409,6 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     if loo is not None:
         blend = stacking_weight(num, den, trust, grid if grid is not None and grid.sum() == p else None)
     if extrapolate:
-        # Model light where it lights some pixel, within MODEL_REACH_DEG of a captured direction:
-        # farther out (behind the head) it would cost map texels for light that reaches little.
-        near = (tri.texel_dirs @ verts[:k].T).max(axis=1) >= np.cos(np.radians(MODEL_REACH_DEG))
         active = (lit_vertex[tri.texel_vertices].any(axis=1) & near) | tri.active
         map_tri = Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
                                 texel_vertices=tri.texel_vertices, texel_weights=tri.texel_weights,
@@ -393,10 +416,11 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         ext = vals
     else:
         map_tri, ext = tri, vals[:k]
-    # float16 keeps the peak memory of large captures down (the offsets are at most the size of
-    # the values, so the rounding stays that of float16 storage).
+    # The kernel takes the offset off and adds the trusted model back at each texel in float32,
+    # then stores float16 with ``half`` (the bundle's storage; keeps large captures' memory down).
+    coef = trust[:, None] * albedo if trend else np.zeros_like(albedo)
     maps = compute_maps(ext, normals, map_tri, horizon=horizon, n_az=n_az, adaptation=paper_adaptation,
-                        backend=backend, half=half, progress=progress)
+                        backend=backend, half=half, trend=(offset, coef), progress=progress)
     act = np.flatnonzero(map_tri.active)
     tdirs = map_tri.texel_dirs[act]
     smooth = None
@@ -407,16 +431,13 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         sw = spline_weights(verts[:k], tdirs[inside]) if inside.size else None
         if sw is not None:
             smooth = (inside, sw, map_tri.texel_vertices[act[inside]])
-    for p0 in range(0, p, PIXEL_CHUNK):
-        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
-        m = maps[ps, :, :act.size].astype(dt)
-        m -= offset[ps, :, None].astype(dt)
-        if trend:
-            vis = _vis_chunk(horizon, ps, n_az, tri.map_size, ps.stop - p0)[:, act]
-            m += (trust[ps, None, None] * _model_at(albedo[ps], n[ps], tdirs, vis).transpose(1, 2, 0)).astype(dt)
-        if smooth is not None:
-            _blend_spline(m, samples[:, ps], blend[ps], *smooth)
-        maps[ps, :, :act.size] = np.clip(m, 0.0, None)
+    if smooth is not None:
+        for p0 in range(0, p, PIXEL_CHUNK):
+            ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
+            if (blend[ps] < 1.0).any():
+                m = maps[ps, :, :act.size].astype(dt)
+                _blend_spline(m, samples[:, ps], blend[ps], *smooth)
+                maps[ps, :, :act.size] = np.clip(m, 0.0, None)
     if not np.isfinite(maps).all():
         raise ArithmeticError("non-finite reflectance from the shading model; this is a bug, please report it")
     return maps, map_tri
@@ -513,13 +534,15 @@ def _adapt(c, wv, dv, dp, use):
 
 
 def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
-               visibility: np.ndarray | None = None, adaptation: bool = True) -> np.ndarray:
+               visibility: np.ndarray | None = None, adaptation: bool = True, trend=None) -> np.ndarray:
     """Reflectance maps of P pixels, pixel-major: (P, 3, T_pad) float32 over ``tri.active`` texels
     (T_pad: their count rounded up to 16, zero padded).
 
     samples : (K, P, 3) linear colours under each of the K sample lights (flash units).
     normals : (P, 3) unit normals (used by light adaptation). visibility : (P, h, w) smoothed
-    visibility maps, or None to interpolate without them.
+    visibility maps, or None to interpolate without them. trend : None, or (offset (P, 3), coef
+    (P, 3)): each texel becomes ``interpolation - offset + coef x max(n . l, 0) x visibility(l)``
+    (the shading model added back, :func:`model_maps`), then clipped at 0.
     """
     k, p = samples.shape[:2]
     if k != tri.n_samples:
@@ -565,6 +588,10 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
                     c_s = _subset(cv, wv, 1.0 - lit_share)
                 aware = t_lit * c_l + (1 - t_lit) * c_s
                 regular = (1 - spread[..., None]) * regular + spread[..., None] * aware
+            if trend is not None:
+                lit = np.clip(n @ tdirs[ts].T, 0.0, None) * (1.0 if vis is None else vis[:, ts])  # (p, t)
+                regular = regular - np.asarray(trend[0][ps], np.float64)[:, None] + \
+                    np.asarray(trend[1][ps], np.float64)[:, None] * lit[..., None]
             out[t0:t0 + len(ts), ps] = np.clip(regular, 0.0, None).transpose(1, 0, 2)
     if not np.isfinite(out).all():  # pragma: no cover - guarded above
         raise ArithmeticError("non-finite reflectance")
@@ -605,15 +632,16 @@ def sample_map(maps: np.ndarray, tri_active: np.ndarray, map_size: tuple[int, in
 
 def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *, horizon: np.ndarray | None,
                  n_az: int, adaptation: bool = True, backend: str = "opencl", half: bool = False,
-                 progress=None) -> np.ndarray:
+                 trend=None, progress=None) -> np.ndarray:
     """Reflectance maps (P, 3, T_pad) of P pixels, pixel-major: OpenCL, or the NumPy reference (float32).
 
     horizon : (P, n_az) horizon slopes for visibility, or None for none. half : OpenCL output
-    in float16 (the bundle's storage; halves the peak memory of large captures).
+    in float16 (the bundle's storage; halves the peak memory of large captures). trend : see
+    :func:`build_maps`.
     """
     if backend == "numpy":
         vis = None if horizon is None else visibility_maps(horizon, n_az, tri.map_size)
-        return build_maps(samples, normals, tri, visibility=vis, adaptation=adaptation)
+        return build_maps(samples, normals, tri, visibility=vis, adaptation=adaptation, trend=trend)
     if backend != "opencl":
         raise InputError(f"backend {backend!r}: use 'opencl' or 'numpy'")
     from relight.kernels.maps import build_maps_cl
@@ -623,4 +651,4 @@ def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *
                          texel_weights=tri.texel_weights, texel_dirs=tri.texel_dirs, active=tri.active,
                          map_size=tri.map_size, horizon=horizon, n_az=n_az,
                          vis_soft=VIS_SOFT_TEXELS * np.pi / tri.map_size[1], adaptation=adaptation,
-                         half=half, progress=progress)
+                         half=half, trend=trend, progress=progress)

@@ -11,6 +11,8 @@ from relight.pipeline.reflectance import (
     fibonacci_sphere,
     inside_hull,
     triangulate,
+    visibility_at,
+    visibility_maps,
 )
 
 from .tolerances import MAPS_TWIN_REL
@@ -116,3 +118,26 @@ def test_opencl_maps_match_numpy_with_visibility_and_adaptation():
     # Visibility matters here: without it the maps differ.
     c = compute_maps(samples, normals, tri, horizon=None, n_az=64, backend="opencl")
     assert np.abs(a - c).max() > 0.05
+    # The shading-model trend (offset off, coef x cosine x texel visibility back), with and
+    # without visibility: twin again, and it does change the maps.
+    trend = (rng.uniform(0.0, 0.3, (pix.size, 3)), rng.uniform(0.0, 1.0, (pix.size, 3)))
+    for hz in (horizon, None):
+        a = compute_maps(samples, normals, tri, horizon=hz, n_az=64, adaptation=False, trend=trend, backend="opencl")
+        b = compute_maps(samples, normals, tri, horizon=hz, n_az=64, adaptation=False, trend=trend, backend="numpy")
+        assert np.abs(a - b).max() <= MAPS_TWIN_REL * np.abs(b).max()
+        plain = compute_maps(samples, normals, tri, horizon=hz, n_az=64, adaptation=False, backend="numpy")
+        assert np.abs(b - plain).max() > 0.1
+
+
+def test_opencl_visibility_at_texels_matches_numpy():
+    h, w = 30, 36
+    y, x = np.mgrid[0:h, 0:w]
+    z = (12 * np.exp(-((x - 15) ** 2 + (y - 14) ** 2) / 40.0)).astype(np.float32)
+    pix = np.arange(h * w, dtype=np.int32)[::5]
+    horizon = horizon_table(z, pix, 64)
+    cols = np.array([0, 5, 700, 1023, 2047, 1500, 5])
+    a = visibility_at(horizon, 64, (64, 32), cols, backend="opencl")
+    b = visibility_at(horizon, 64, (64, 32), cols, backend="numpy")
+    np.testing.assert_allclose(b, visibility_maps(horizon, 64, (64, 32)).reshape(len(pix), -1)[:, cols])
+    assert np.abs(a - b).max() <= MAPS_TWIN_REL
+    assert b.min() < 0.5 < b.max()  # some texels are shadowed, some not
