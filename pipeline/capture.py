@@ -46,6 +46,7 @@ class CaptureOptions:
     extrapolation: bool = True
     paper_adaptation: bool = False
     spline: bool = True
+    model_reach: float = reflectance.MODEL_REACH_DEG
     map_size: tuple[int, int] = reflectance.DEFAULT_MAP_SIZE
     samples: SampleOptions = field(default_factory=SampleOptions)
     face: tuple[int, int, int, int] | None = None
@@ -58,6 +59,8 @@ class CaptureOptions:
         w, h = self.map_size
         if w != 2 * h or not (8 <= h <= 256):
             raise InputError(f"--map-size {w}x{h}: use a 2:1 size between 16x8 and 512x256, e.g. 64x32")
+        if not (np.isfinite(self.model_reach) and 0.0 < self.model_reach <= 180.0):
+            raise InputError(f"--model-reach {self.model_reach}: use degrees in (0, 180], e.g. 60")
         return self
 
 
@@ -334,6 +337,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "adaptation": bool(opts.adaptation and opts.method == "full"),
         "extrapolation": bool(opts.extrapolation and opts.method == "full"),
         "spline": bool(opts.spline and opts.method == "full"),
+        "model_reach_deg": float(opts.model_reach) if opts.method == "full" and opts.extrapolation else 0.0,
         "light_adaptation": ("none" if not (opts.adaptation and opts.method == "full") else
                              "paper" if opts.paper_adaptation else "shading model"), "n_samples": int(k),
         "n_pixels": int(pix.size),
@@ -373,7 +377,7 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     if full and (trend or opts.extrapolation or opts.spline):
         maps, map_tri = reflectance.model_maps(samples, normals, tri, horizon, HORIZON_DIRS, trend=trend,
                                                extrapolate=opts.extrapolation, paper_adaptation=adapt and not trend,
-                                               spline=opts.spline, grid=grid,
+                                               spline=opts.spline, grid=grid, reach_deg=opts.model_reach,
                                                backend=opts.backend, half=half, progress=progress)
         return maps, np.flatnonzero(map_tri.active), scale, samples
     maps = reflectance.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS, adaptation=adapt,

@@ -177,6 +177,9 @@ def _add_capture(sub) -> None:
     p.add_argument("--no-spline", action="store_true",
                    help="leave out the thin-plate spline over light directions that pixels the shading model does "
                         "not explain (shiny, badly modelled) are blended with; barycentric only, as the paper")
+    p.add_argument("--model-reach", type=float, default=60.0, metavar="DEG",
+                   help="how far (degrees) beyond the captured directions the shading model's light reaches; "
+                        "less: smaller bundle and faster capture, darker under light from behind the head")
     p.add_argument("--map-size", type=_size, default=(64, 32), metavar="WxH", help="reflectance map size (2:1)")
     p.add_argument("--sphere", type=_circle, metavar="cx,cy,r", help="mirror sphere centre and radius (pixels) "
                    "instead of finding it")
@@ -209,7 +212,7 @@ def _run_capture(args) -> int:
     opts = CaptureOptions(
         method=args.method, visibility=not args.no_visibility, adaptation=not args.no_adaptation,
         extrapolation=not args.no_extrapolation, paper_adaptation=args.paper_adaptation,
-        spline=not args.no_spline,
+        spline=not args.no_spline, model_reach=args.model_reach,
         map_size=args.map_size, face=args.face, mesh=str(args.mesh) if args.mesh else None,
         export_mesh=str(args.export_mesh) if args.export_mesh else None,
         samples=SampleOptions(flash_hz=args.flash_hz, flash_threshold=args.flash_threshold, sphere=args.sphere,

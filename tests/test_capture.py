@@ -205,3 +205,10 @@ def test_saturated_and_black_images_stay_finite(tmp_path):
     maps = np.asarray(b.maps, dtype=np.float32)
     assert np.isfinite(maps).all() and maps.max() <= 10.0
     assert np.isfinite(np.asarray(b.normal)).all() and np.isfinite(np.asarray(b.depth)).all()
+
+
+@pytest.mark.parametrize("kw, flag", [({"model_reach": 0.0}, "--model-reach"), ({"model_reach": float("nan")},
+                                      "--model-reach"), ({"map_size": (64, 64)}, "--map-size")])
+def test_bad_capture_options_name_the_flag(kw, flag):
+    with pytest.raises(InputError, match=flag):
+        CaptureOptions(**kw).validate()
