@@ -262,16 +262,8 @@ def visibility_at(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], col
     out = np.empty((p, columns.size), dtype=np.float32)
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
-        out[ps] = _vis_chunk(horizon, ps, n_az, map_size, ps.stop - p0)[:, columns]
+        out[ps] = visibility_maps(horizon[ps], n_az, map_size).reshape(ps.stop - p0, -1)[:, columns]
     return out
-
-
-def _vis_chunk(horizon: np.ndarray | None, ps: slice, n_az: int, map_size, n: int) -> np.ndarray:
-    """(p, T) smoothed visibility maps of a chunk of pixels (ones without a horizon table)."""
-    w, h = map_size
-    if horizon is None:
-        return np.ones((n, w * h), dtype=np.float32)
-    return visibility_maps(horizon[ps], n_az, map_size).reshape(n, -1)
 
 
 #: How much of a pixel's trend the shading model gets: 0 below this coefficient of determination
@@ -287,8 +279,8 @@ MODEL_REACH_DEG = 60.0
 OPEN_SKY = -1e4
 
 
-def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
-                  n_az: int, *, vertex_vis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation,
+                  vertex_vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per pixel the shading model ``albedo x max(n . l, 0) x visibility(l)`` (visibility: the
     smoothed visibility maps of the horizon table, as the interpolation reads them; 1 without
     one): ((P, 3) float64 albedo, (P,) float64 trust in it, 0-1).
@@ -296,19 +288,17 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     The albedo is fitted by least squares to the samples that light the pixel well (cosine >
     ``MODEL_MIN_COS``, visibility > ``MODEL_MIN_VIS``); 0 where none does. The trust ramps from
     0 to 1 as the fit's R^2 over those samples goes from ``MODEL_R2_NONE`` to ``MODEL_R2_FULL``
-    (0 with fewer than 4 of them). vertex_vis : (P, >= K) visibility at the vertices' texels when
-    already computed (else computed here)."""
+    (0 with fewer than 4 of them). vertex_vis : (P, >= K) visibility at the vertices' texels
+    (:func:`visibility_at` of ``tri.vertex_texel``; ones without a horizon table)."""
     k, p = samples.shape[:2]
     dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
     n = np.asarray(normals, dtype=np.float64)
-    vt = tri.vertex_texel[:k]
     albedo = np.zeros((p, 3))
     trust = np.zeros(p)
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
-        m = ps.stop - p0
         cs = (n[ps] @ tri.vertices[:k].T).astype(dt)
-        vk = _vis_chunk(horizon, ps, n_az, tri.map_size, m)[:, vt] if vertex_vis is None else vertex_vis[ps, :k]
+        vk = vertex_vis[ps, :k]
         use = (cs > MODEL_MIN_COS) & (vk > MODEL_MIN_VIS)
         c = np.where(use, cs, dt(0.0))
         y = samples[:, ps].astype(dt)  # (K, p, 3); sums over the K samples in float64
@@ -358,6 +348,8 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     if trend and paper_adaptation:
         raise InputError("the shading-model trend and the paper's light adaptation exclude each other")
     k, p = samples.shape[:2]
+    if grid is not None and int(np.count_nonzero(grid)) != p:
+        raise InputError(f"the pixel grid marks {int(np.count_nonzero(grid))} pixels for {p} pixels of samples")
     verts = tri.vertices
     b = len(verts) - k
     # Model light is kept where it lights some pixel, within reach_deg of a captured direction:
@@ -369,7 +361,7 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         vertex_vis = np.ones((p, len(verts)), dtype=np.float32)
     else:
         vertex_vis = visibility_at(horizon, n_az, tri.map_size, tri.vertex_texel, backend=backend)
-    albedo, trust = shading_model(samples, normals, tri, horizon, n_az, vertex_vis=vertex_vis)
+    albedo, trust = shading_model(samples, normals, tri, vertex_vis)
     open_sky = trust < 0.5
     if horizon is not None and open_sky.any():
         # Where the model does not explain the samples, neither does its geometry's shadowing:
@@ -378,6 +370,7 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
     n = np.asarray(normals, dtype=dt)
     albedo_dt = albedo.astype(dt)
+    verts_dt = verts.astype(dt)
     vals = np.zeros((len(verts), p, 3), dtype=dt)
     offset = np.zeros((p, 3), dtype=np.float64)
     lit_vertex = np.zeros(len(verts), dtype=bool)
@@ -395,7 +388,7 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         vis = vertex_vis[ps]
         if horizon is not None and open_sky[ps].any():
             vis = np.where(open_sky[ps, None], np.float32(1.0), vis)
-        model = _model_at(albedo_dt[ps], n[ps], verts.astype(dt), vis)  # (V, p, 3)
+        model = _model_at(albedo_dt[ps], n[ps], verts_dt, vis)  # (V, p, 3)
         chunk = samples[:, ps].astype(dt)
         tw = trust[ps][None, :, None].astype(dt)
         if loo is not None:
@@ -410,7 +403,7 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         offset[ps] = off
         vals[:both.shape[0], ps] = both + off[None]
     if loo is not None:
-        blend = stacking_weight(num, den, trust, grid if grid is not None and grid.sum() == p else None)
+        blend = stacking_weight(num, den, trust, grid)
     if extrapolate:
         active = (lit_vertex[tri.texel_vertices].any(axis=1) & near) | tri.active
         map_tri = Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
