@@ -32,6 +32,15 @@ def _texel_azimuths(texel_dirs: np.ndarray, n_az: int) -> np.ndarray:
                      np.where(s_xy < 1e-6, 8.0, np.arctan2(texel_dirs[:, 2], np.maximum(s_xy, 1e-9)))], axis=1)
 
 
+def _smoothed_visibility(queue, k_vis, k_box, b_hz, n_az: int, b_taz, map_size, vis_soft: float, p0: int, n: int,
+                         raw, smooth) -> None:
+    """Enqueue soft_visibility then box3 for pixels [p0, p0 + n): ``smooth`` gets (n, T)."""
+    w, h = map_size
+    k_vis(queue, (w * h, n), None, b_hz, np.int32(n_az), b_taz, np.int32(w * h), np.float32(1.0 / vis_soft),
+          np.int32(p0), np.int32(n), raw)
+    k_box(queue, (w, h, n), None, raw, np.int32(w), np.int32(h), np.int32(n), smooth)
+
+
 def visibility_at_cl(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], texel_dirs: np.ndarray,
                      columns: np.ndarray, vis_soft: float) -> np.ndarray:
     """(P, len(columns)) float32 smoothed visibility of the given map texels for each pixel:
@@ -61,9 +70,7 @@ def visibility_at_cl(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], 
     host = np.empty((chunk, n_tex), dtype=np.float32)
     for p0 in range(0, p, chunk):
         n = min(chunk, p - p0)
-        k_vis(queue, (n_tex, n), None, b_hz, np.int32(n_az), b_taz, np.int32(n_tex), np.float32(1.0 / vis_soft),
-              np.int32(p0), np.int32(n), raw)
-        k_box(queue, (w, h, n), None, raw, np.int32(w), np.int32(h), np.int32(n), smooth)
+        _smoothed_visibility(queue, k_vis, k_box, b_hz, n_az, b_taz, map_size, vis_soft, p0, n, raw, smooth)
         cl.enqueue_copy(queue, host[:n], smooth)
         out[p0:p0 + n] = host[:n][:, cols]
     return out
@@ -135,9 +142,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     for p0 in range(0, p, chunk):
         n = min(chunk, p - p0)
         if use_vis:
-            k_vis(queue, (n_tex, n), None, b_hz, np.int32(n_az), b_taz, np.int32(n_tex), np.float32(1.0 / vis_soft),
-                  np.int32(p0), np.int32(n), raw)
-            k_box(queue, (w, h, n), None, raw, np.int32(w), np.int32(h), np.int32(n), smooth)
+            _smoothed_visibility(queue, k_vis, k_box, b_hz, n_az, b_taz, map_size, vis_soft, p0, n, raw, smooth)
         k_maps(queue, (n,), None, b_samples, np.int32(k), np.int32(p), b_normal, b_vdir, b_vtex, b_tv, b_tw,
                b_tdir_act, b_tidx, np.int32(act.size), smooth, np.int32(n_tex), np.int32(use_vis),
                np.int32(adaptation), b_toff, b_tcoef, np.int32(use_trend), np.int32(p0), np.int32(n),
