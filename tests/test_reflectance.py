@@ -8,21 +8,14 @@ from relight.kernels.heightfield import NO_SURFACE, horizon_table
 from relight.pipeline.reflectance import (
     MIN_COS,
     compute_maps,
-    fibonacci_sphere,
     inside_hull,
     triangulate,
     visibility_at,
     visibility_maps,
 )
 
+from .lights import front_directions
 from .tolerances import MAPS_TWIN_REL
-
-
-def _front(k, seed=0):
-    d = fibonacci_sphere(4 * k)
-    d = d[d[:, 2] > 0.2]
-    rng = np.random.default_rng(seed)
-    return d[rng.choice(len(d), k, replace=False)]
 
 
 def _check(tri):
@@ -32,7 +25,7 @@ def _check(tri):
 
 
 def test_partition_of_unity_inside_the_hull_and_black_outside():
-    dirs = _front(60)
+    dirs = front_directions(60)
     tri = triangulate(dirs)
     _check(tri)
     samples = np.ones((60, 5, 3), dtype=np.float32)
@@ -51,14 +44,14 @@ def test_partition_of_unity_inside_the_hull_and_black_outside():
 def test_stiff_triangulations_stay_finite(case):
     rng = np.random.default_rng(1)
     if case == "duplicates":  # the hand paused: identical and near-identical directions
-        base = _front(40)
+        base = front_directions(40)
         dirs = np.concatenate([base, base[:10], base[:10] + 1e-7])
     elif case == "slivers":  # three nearly collinear directions among others
-        base = _front(30)
+        base = front_directions(30)
         line = np.array([[np.sin(a), 0.001 * i, np.cos(a)] for i, a in enumerate(np.linspace(-0.5, 0.5, 12))])
         dirs = np.concatenate([base, line])
     elif case == "poles":
-        dirs = np.concatenate([_front(30), [[0, 1, 1e-4], [1e-4, 0.99999, 0.001], [0, -1, 0.001]]])
+        dirs = np.concatenate([front_directions(30), [[0, 1, 1e-4], [1e-4, 0.99999, 0.001], [0, -1, 0.001]]])
     elif case == "great_circle":  # every light on one great circle: a degenerate hull
         a = rng.uniform(-1.4, 1.4, 40)
         dirs = np.stack([np.sin(a), np.zeros_like(a), np.cos(a)], axis=1)
@@ -80,7 +73,7 @@ def test_stiff_triangulations_stay_finite(case):
 
 
 def test_grazing_normals_are_bounded():
-    dirs = _front(50)
+    dirs = front_directions(50)
     tri = triangulate(dirs)
     normals = np.array([[1.0, 0, 0], [0, 1.0, 0], [0.999, 0, 0.0447]])  # perpendicular to the camera
     samples = np.ones((50, 3, 3), dtype=np.float32)
@@ -105,7 +98,7 @@ def test_opencl_maps_match_numpy_with_visibility_and_adaptation():
     mask = np.ones((h, w), dtype=bool)
     pix = np.flatnonzero(mask)[::7].astype(np.int32)
     horizon = horizon_table(np.where(mask, z, NO_SURFACE).astype(np.float32), pix, 64)
-    dirs = _front(45, seed=2)
+    dirs = front_directions(45, seed=2)
     tri = triangulate(dirs)
     samples = rng.uniform(0.05, 1.0, (45, pix.size, 3)).astype(np.float32)
     normals = rng.normal(size=(pix.size, 3))

@@ -13,16 +13,11 @@ from relight.pipeline.spline import (
     stacking_weight,
 )
 
-
-def _front(k, seed=0):
-    d = fibonacci_sphere(4 * k)
-    d = d[d[:, 2] > 0.3]
-    rng = np.random.default_rng(seed)
-    return d[rng.choice(len(d), k, replace=False)]
+from .lights import front_directions
 
 
 def test_weights_interpolate_the_samples_and_reproduce_linear_functions():
-    dirs = _front(40)
+    dirs = front_directions(40, min_z=0.3)
     query = fibonacci_sphere(300)
     query = query[inside_hull(dirs, query)]
     w = spline_weights(dirs, np.concatenate([dirs, query]))
@@ -34,7 +29,7 @@ def test_weights_interpolate_the_samples_and_reproduce_linear_functions():
 
 
 def test_values_in_the_power_domain():
-    dirs = _front(30, seed=1)
+    dirs = front_directions(30, seed=1, min_z=0.3)
     query = dirs[:5] * 0.9 + dirs[5:10] * 0.1
     query /= np.linalg.norm(query, axis=1, keepdims=True)
     w = spline_weights(dirs, query)
@@ -61,7 +56,7 @@ def test_degenerate_directions_give_none(dirs):
 
 
 def test_leave_one_out_rows():
-    dirs = _front(50, seed=2)
+    dirs = front_directions(50, seed=2, min_z=0.3)
     idx, lin, spl = leave_one_out(dirs)
     assert 0 < len(idx) <= 50
     assert inside_hull(np.delete(dirs, idx[0], axis=0), dirs[idx[:1]])[0]
@@ -73,7 +68,7 @@ def test_leave_one_out_rows():
 
 
 def test_stacking_picks_the_path_that_predicts_left_out_samples():
-    dirs = _front(50, seed=3)
+    dirs = front_directions(50, seed=3, min_z=0.3)
     loo = leave_one_out(dirs)
     n = np.array([0.2, 0.1, 1.0]) / np.linalg.norm([0.2, 0.1, 1.0])
     lambert = np.clip(dirs @ n, 0, None)
@@ -95,7 +90,7 @@ def test_stacking_picks_the_path_that_predicts_left_out_samples():
 
 
 def test_full_maps_blend_in_the_spline_only_where_it_predicts_better():
-    dirs = _front(60, seed=4)
+    dirs = front_directions(60, seed=4, min_z=0.3)
     tri = triangulate(dirs)
     n = np.tile([0.0, 0.0, 1.0], (2, 1))
     lambert = np.clip(dirs @ n[0], 0, None)
