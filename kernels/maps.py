@@ -80,7 +80,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
                   texel_vertices: np.ndarray, texel_weights: np.ndarray, texel_dirs: np.ndarray,
                   active: np.ndarray, map_size: tuple[int, int], horizon: np.ndarray | None, n_az: int,
                   vis_soft: float, adaptation: bool = True, half: bool = False, trend=None,
-                  progress=None) -> np.ndarray:
+                  spec_exponent: float, progress=None) -> np.ndarray:
     """(P, 3, T_pad) reflectance maps, pixel-major (T_pad: active texels rounded up to 16, zero
     padded): float32, or float16 with ``half`` (stored that way).
 
@@ -89,8 +89,10 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     vertex (for its visibility). texel_vertices / texel_weights : (T, 3) each texel's triangle.
     texel_dirs : (T, 3). active : (T,) bool texels to compute. horizon : (P, n_az) slopes, or None
     to skip visibility. vis_soft : width (radians of elevation) of the visibility step.
-    trend : None, or (offset (P, 3), coef (P, 3)): each texel becomes ``interpolation - offset +
-    coef x max(n . l, 0) x visibility(l)`` (the shading model added back), then clipped at 0.
+    trend : None, or (offset (P, 3), coef (P, 3)[, spec (P, 3)]): each texel becomes
+    ``interpolation - offset + (coef x max(n . l, 0) + spec x lobe(l)) x visibility(l)`` (the
+    shading model added back; lobe: ``max(n . h, 0) ** spec_exponent`` where ``n . l > 0``, h the
+    half vector of l and the view +Z, as :func:`relight.pipeline.reflectance.lobe`), then clipped at 0.
     """
     import pyopencl as cl
 
@@ -136,6 +138,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     use_trend = trend is not None
     b_toff = buf(f4(trend[0]) if use_trend else np.zeros(4), np.float32)
     b_tcoef = buf(f4(trend[1]) if use_trend else np.zeros(4), np.float32)
+    b_tspec = buf(f4(trend[2]) if use_trend and len(trend) > 2 else np.zeros((max(p, 1), 4)), np.float32)
     t_pad = padded_texels(act.size)
     out = np.empty((p, 3, t_pad), dtype=np.float16 if half else np.float32)
     b_out = cl.Buffer(ctx, mf.WRITE_ONLY, max(out.nbytes, 4))
@@ -145,7 +148,8 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
             _smoothed_visibility(queue, k_vis, k_box, b_hz, n_az, b_taz, map_size, vis_soft, p0, n, raw, smooth)
         k_maps(queue, (n,), None, b_samples, np.int32(k), np.int32(p), b_normal, b_vdir, b_vtex, b_tv, b_tw,
                b_tdir_act, b_tidx, np.int32(act.size), smooth, np.int32(n_tex), np.int32(use_vis),
-               np.int32(adaptation), b_toff, b_tcoef, np.int32(use_trend), np.int32(p0), np.int32(n),
+               np.int32(adaptation), b_toff, b_tcoef, b_tspec, np.float32(spec_exponent), np.int32(use_trend),
+               np.int32(p0), np.int32(n),
                np.int32(t_pad), b_out)
         queue.finish()
         if progress is not None:

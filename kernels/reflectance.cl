@@ -121,8 +121,10 @@ __kernel void build_maps(
     __global const int4 *tex_vertices, __global const float4 *tex_weights,
     __global const float4 *tex_dir, __global const int *tex_index, int n_active,
     __global const float *vis, int n_tex, int use_vis, int adaptation,  /* (n_pix, T) smoothed */
-    /* trend: out = interpolation - offset + coef * max(n . l, 0) * visibility (shading model) */
-    __global const float4 *trend_offset, __global const float4 *trend_coef, int use_trend,
+    /* trend: out = interpolation - offset + (coef * max(n . l, 0) + spec * lobe(l)) * visibility
+       (the shading model; lobe = max(n . h, 0)^spec_exp where n . l > 0, h the half vector of l and +Z) */
+    __global const float4 *trend_offset, __global const float4 *trend_coef, __global const float4 *trend_spec,
+    float spec_exp, int use_trend,
     int p0, int n_pix, int t_pad,
 #ifdef OUT_HALF
     __global half *out)                                            /* (P_all, 3, t_pad): pixel-major */
@@ -175,8 +177,14 @@ __kernel void build_maps(
             }
         }
         if (use_trend) {
-            float lit = fmax(dot(n, tex_dir[a].xyz), 0.0f) * (use_vis ? pv[tex_index[a]] : 1.0f);
-            res += trend_coef[p].xyz * lit - trend_offset[p].xyz;
+            float3 l = tex_dir[a].xyz;
+            float tv = use_vis ? pv[tex_index[a]] : 1.0f;
+            float nl = dot(n, l);
+            float3 h = l + (float3)(0.0f, 0.0f, 1.0f);
+            float hn = length(h);
+            float nh = hn > 1e-6f ? fmax(dot(n, h) / hn, 0.0f) : 0.0f;
+            float lobe = nl > 0.0f ? pow(nh, spec_exp) : 0.0f;
+            res += (trend_coef[p].xyz * fmax(nl, 0.0f) + trend_spec[p].xyz * lobe) * tv - trend_offset[p].xyz;
         }
         res = fmax(res, 0.0f);
         size_t o = (size_t)p * 3 * t_pad + a;

@@ -74,6 +74,18 @@ QUICK_SCENES = [
 OLAT_GRID = (32, 16)
 #: Relight calls timed per variant (median), after one warm-up.
 TIMED_CALLS = 15
+#: Real faces (``../shared/data/faces-yale``): every FACE_HOLDOUT-th light of a subject (0, 6, 12,
+#: ... in dirs.lp order) is held out and predicted from the rest. The Extended Yale B photos are
+#: camera-linear (the data's README): decoded as such, compared sRGB-encoded.
+FACE_HOLDOUT = 6
+FACES_TRANSFER = "linear"
+QUICK_FACES = ("yaleB01",)
+#: Goals on the real faces: ``full`` over the best other method (baselines and the nearest photo),
+#: mean over the subjects and on every subject (dB).
+FACE_GOAL_MEAN_DB = 2.0
+FACE_GOAL_EACH_DB = 1.0
+#: ``--quick`` builds these variants for its one subject (the others cost ~20 s each).
+QUICK_FACE_VARIANTS = ("full", "barycentric", "ptm", "hsh")
 
 
 def _environments(out: Path) -> dict[str, tuple[str, str]]:
@@ -102,9 +114,11 @@ def _synth(out: Path, scene: dict, envs: dict, progress: bool):
     return cfg, cached_synthesis(out, cfg, label=scene["name"], progress=progress)
 
 
-def build_variants(source, out_dir: Path, *, images: bool = False, variants=None, progress: bool = False) -> dict:
-    """Prepare ``source`` once (a capture video, or an RTI folder with ``images``) and write one
-    bundle per variant to ``out_dir``: name -> {"bundle", "capture_s", "prepare_s", "bundle_mb"}."""
+def build_variants(source, out_dir: Path, *, images: bool = False, variants=None, progress: bool = False,
+                   transfer: str = "srgb") -> dict:
+    """Prepare ``source`` once (a capture video, or an RTI folder with ``images``, its files encoded
+    with ``transfer``) and write one bundle per variant to ``out_dir``: name -> {"bundle",
+    "capture_s", "prepare_s", "bundle_mb"}."""
     from .bundle import write_bundle
     from .capture import CaptureOptions, _Progress, finish, prepare_images, prepare_video
 
@@ -114,7 +128,7 @@ def build_variants(source, out_dir: Path, *, images: bool = False, variants=None
     timings: dict = {}
     t0 = time.perf_counter()
     prepare = prepare_images if images else prepare_video
-    prep = prepare(source, CaptureOptions().validate(), bar, timings)
+    prep = prepare(source, CaptureOptions(transfer=transfer).validate(), bar, timings)
     prepare_s = time.perf_counter() - t0
     rows = {}
     try:
@@ -312,15 +326,16 @@ def _heat_maps(heat: dict, path: Path, title: str) -> None:
     write_image(path, np.concatenate([head, body], axis=0))
 
 
-def _scaled_rti(folder: Path, out: Path, factor: int) -> Path:
-    """A copy of an RTI image set (images, dirs.lp, mask.png) shrunk by ``factor`` (area average)."""
+def scaled_rti(folder: Path, out: Path, factor: int) -> Path:
+    """A copy of an RTI image set (images, dirs.lp, mask.png, ambient) shrunk by ``factor`` (area
+    average)."""
     import cv2
 
-    from .capture import read_lp
+    from .capture import AMBIENT_NAMES, read_lp
 
     out.mkdir(parents=True, exist_ok=True)
     names = [n for n, _ in read_lp(folder / "dirs.lp")]
-    for name in [*names, "mask.png"]:
+    for name in [*names, "mask.png", *AMBIENT_NAMES]:
         src = folder / name
         if not src.exists():
             continue
@@ -345,8 +360,8 @@ def evaluate_dome(dome: Path, test: Path, out: Path, progress: bool, *, scale: i
     from .capture import read_lp
 
     if scale > 1:
-        dome = _scaled_rti(dome, out / "dome-small" / "Dome", scale)
-        test = _scaled_rti(test, out / "dome-small" / "Test", scale)
+        dome = scaled_rti(dome, out / "dome-small" / "Dome", scale)
+        test = scaled_rti(test, out / "dome-small" / "Test", scale)
     bundles = build_variants(dome, out / "bundles" / "dome", images=True, progress=progress)
     lights_in = len(read_lp(dome / "dirs.lp"))
     held = [(d, read_image(test / name, linearize=False)[..., :3].astype(np.float32))
@@ -368,6 +383,81 @@ def evaluate_dome(dome: Path, test: Path, out: Path, progress: bool, *, scale: i
         Path(info["bundle"]).unlink()  # ~1 GB each at full size; the size is recorded
     h, w = held[0][1].shape[:2]  # both sets share one size (a bundle renders the Dome frame)
     return {"lights_in": lights_in, "held_out": len(held), "variants": rows, "image_size": [w, h], "scale": scale}
+
+
+def split_rti(folder: Path, out: Path, every: int = FACE_HOLDOUT) -> list[tuple[str, np.ndarray]]:
+    """Write ``out``: an RTI set of ``folder``'s images without every ``every``-th light (0, every,
+    2 every, ... in ``dirs.lp`` order; links to the files, its ``ambient.*`` and ``mask.png`` too).
+    Returns the held-out (name, direction) pairs."""
+    import os
+
+    from .capture import AMBIENT_NAMES, read_lp
+
+    entries = read_lp(folder / "dirs.lp")
+    held = [e for i, e in enumerate(entries) if i % every == 0]
+    train = [e for i, e in enumerate(entries) if i % every != 0]
+    out.mkdir(parents=True, exist_ok=True)
+    for name in [n for n, _ in train] + ["mask.png", *AMBIENT_NAMES]:
+        src, dst = folder / name, out / name
+        if src.exists() and not dst.exists():
+            os.symlink(src.resolve(), dst)
+    (out / "dirs.lp").write_text(f"{len(train)}\n" + "".join(f"{n} {d[0]:.6f} {d[1]:.6f} {d[2]:.6f}\n"
+                                                              for n, d in train))
+    return held
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(((a.astype(np.float64) - b) ** 2).mean())
+    return float(10.0 * np.log10(1.0 / max(mse, 1e-30)))
+
+
+def evaluate_face(folder: Path, out: Path, progress: bool, *, variants=None, transfer: str = FACES_TRANSFER) -> dict:
+    """A real face's held-out photos predicted by every variant and by the nearest captured photo.
+
+    Every ``FACE_HOLDOUT``-th light of ``folder`` (an RTI set) is held out, the rest build the
+    bundles; each held-out photo is predicted by ``relight_light`` (what ``render --light`` runs)
+    plus the set's room-light frame (``render --ambient``), and both are compared sRGB-encoded
+    (0-1, no gain) over the face (``mask.png``, else the whole crop): PSNR and SSIM."""
+    import relight
+    from relight.colour import linear_to_srgb
+
+    from .capture import read_lp, read_set_image
+
+    train = out / "train" / folder.name
+    held = split_rti(folder, train)
+    bundles = build_variants(train, out / "bundles" / folder.name, images=True, variants=variants,
+                             progress=progress, transfer=transfer)
+    photos = [(d, linear_to_srgb(read_set_image(folder / name, transfer)[0])) for name, d in held]
+    shots = [(d, read_set_image(folder / name, transfer)[0]) for name, d in read_lp(train / "dirs.lp")]
+    rows: dict = {}
+    mask = None
+    for variant, info in bundles.items():
+        b = relight.load_bundle(info["bundle"])
+        rl = relight.Relighter(b, exact=True)
+        mask = np.asarray(b.mask)
+        room = b.ambient_frame()
+        ps, ss = [], []
+        for d, photo in photos:
+            pred = np.clip(linear_to_srgb(np.clip(np.array(rl.relight_light(d)) + room, 0, None)), 0, 1)
+            ps.append(_psnr(pred[mask], photo[mask]))
+            ss.append(masked_ssim(pred, photo, mask))
+        rows[variant] = {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "psnr_per_light": ps} | \
+            {k: info[k] for k in ("capture_s", "maps_s", "bundle_mb")}
+        del rl, b
+        Path(info["bundle"]).unlink()
+    ps, ss = [], []
+    for d, photo in photos:  # the nearest captured photo, as it is
+        near = linear_to_srgb(shots[int(np.argmax([float(np.dot(d, t)) for t, _ in shots]))][1])
+        ps.append(_psnr(near[mask], photo[mask]))
+        ss.append(masked_ssim(near, photo, mask))
+    rows["nearest"] = {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "psnr_per_light": ps,
+                       "capture_s": 0.0, "maps_s": 0.0, "bundle_mb": 0.0}
+    others = [n for n in (*BASELINES, "nearest") if n in rows]
+    best = max(others, key=lambda n: rows[n]["psnr"])
+    return {"subject": folder.name, "lights_in": len(shots), "held_out": [n for n, _ in held],
+            "held_out_dirs": [[round(float(x), 6) for x in d] for _, d in held], "transfer": transfer,
+            "image_size": [int(mask.shape[1]), int(mask.shape[0])], "variants": rows, "best_other": best,
+            "margin_db": rows["full"]["psnr"] - rows[best]["psnr"] if "full" in rows else None}
 
 
 def _mean(xs) -> float | None:
@@ -407,11 +497,36 @@ def summarise(doc: dict) -> dict:
     return {"variants": out, "goal": goal}
 
 
-def run(out: Path, quick: bool = False, progress: bool = True, rti: Path | None = None) -> dict:
+def face_subjects(faces: Path | None) -> list[Path]:
+    """The subject folders (each an RTI set with ``dirs.lp``) of a faces folder, sorted."""
+    if faces is None or not Path(faces).is_dir():
+        return []
+    return sorted(p for p in Path(faces).iterdir() if (p / "dirs.lp").exists())
+
+
+def summarise_faces(faces: list[dict]) -> dict | None:
+    """Per variant the mean PSNR / SSIM over the subjects; the goal check (full against the best
+    other method, mean and per subject)."""
+    if not faces:
+        return None
+    names = list(faces[0]["variants"])
+    mean = {n: {"psnr": _mean(f["variants"][n]["psnr"] for f in faces),
+                "ssim": _mean(f["variants"][n]["ssim"] for f in faces)} for n in names}
+    margins = {f["subject"]: f["margin_db"] for f in faces}
+    m = _mean(margins.values())
+    return {"variants": mean, "margins_db": margins, "mean_margin_db": m,
+            "goal_met": m is not None and m >= FACE_GOAL_MEAN_DB and
+            all(v is not None and v >= FACE_GOAL_EACH_DB for v in margins.values())}
+
+
+def run(out: Path, quick: bool = False, progress: bool = True, rti: Path | None = None,
+        faces: Path | None = None) -> dict:
     """The whole benchmark; writes ``out/bench.json``, ``out/report.md`` and PNG plots.
 
     rti : a folder with ``Dome/`` (the lights a bundle is built from) and ``Test/`` (held-out
     photos), each an RTI image set with ``dirs.lp``; None or missing skips the real-data part.
+    faces : a folder of real faces, one RTI set per subject (``../shared/data/faces-yale``);
+    ``quick`` takes ``QUICK_FACES`` of them with ``QUICK_FACE_VARIANTS``.
     """
     from .stability import run_stability
 
@@ -433,12 +548,23 @@ def run(out: Path, quick: bool = False, progress: bool = True, rti: Path | None 
         if progress:
             print(f"real held-out photos ({rti}) ...", flush=True)
         dome = evaluate_dome(rti / "Dome", rti / "Test", out, progress, scale=2 if quick else 1)
+    face_rows = []
+    subjects = face_subjects(faces)
+    if quick:
+        subjects = [p for p in subjects if p.name in QUICK_FACES]
+    for subject in subjects:
+        if progress:
+            print(f"real face {subject.name} ...", flush=True)
+        face_rows.append(evaluate_face(subject, out / "faces", progress,
+                                       variants={k: VARIANTS[k] for k in QUICK_FACE_VARIANTS} if quick else None))
     if progress:
         print("numerical stability suite ...", flush=True)
     stability = run_stability()
     doc = {"quick": quick, "envs": {k: {"source": s, "kind": kind} for k, (s, kind) in envs.items()},
            "scenes": scenes, "dome": dome,
            "dome_skipped": None if dome else f"no RTI set with Dome/ and Test/ at {rti}",
+           "faces": face_rows, "faces_summary": summarise_faces(face_rows),
+           "faces_skipped": None if face_rows else f"no subject folders with dirs.lp at {faces}",
            "stability": stability, "olat_grid": list(OLAT_GRID)}
     doc["summary"] = summarise(doc)
     doc["seconds"] = time.perf_counter() - t_all
@@ -567,6 +693,30 @@ def report_markdown(doc: dict) -> str:
             r = d["variants"][n]
             lines.append(f"| {n} | {r['psnr']:.2f} | {r['ssim']:.4f} | {min(r['psnr_per_light']):.2f} | "
                          f"{r['capture_s']:.1f} | {r['bundle_mb']:.1f} |")
+    if doc.get("faces"):
+        fs = doc["faces_summary"]
+        f0 = doc["faces"][0]
+        names_f = list(f0["variants"])
+        lines += ["", f"## Real faces: {len(doc['faces'])} subject(s), every {FACE_HOLDOUT}th light held out", "",
+                  f"Each subject's photos ({f0['image_size'][0]}x{f0['image_size'][1]}, decoded as "
+                  f"{f0['transfer']}) minus the held-out lights build the bundles; each held-out photo is "
+                  "predicted by `render --light` plus the set's room-light frame; PSNR / SSIM sRGB-encoded over "
+                  "the face, no gain. `nearest`: the captured photo whose light is closest.", "",
+                  "| variant | " + " | ".join(f["subject"] for f in doc["faces"]) + " | mean PSNR | mean SSIM |",
+                  "|---|" + "---|" * (len(doc["faces"]) + 2)]
+        for n in names_f:
+            cells = [f"{f['variants'][n]['psnr']:.2f}" for f in doc["faces"]]
+            v = fs["variants"][n]
+            lines.append(f"| {n} | " + " | ".join(cells) + f" | {_f(v['psnr'])} | {_f(v['ssim'], '{:.4f}')} |")
+        lines += ["", "Goal: `full` >= the best other method (baselines, nearest photo) + "
+                  f"{FACE_GOAL_MEAN_DB:g} dB mean, + {FACE_GOAL_EACH_DB:g} dB on every subject: margins "
+                  + ", ".join(f"{f['subject']} {f['margin_db']:+.2f} dB (over {f['best_other']})" for f in doc["faces"])
+                  + f"; mean {fs['mean_margin_db']:+.2f} dB - " + ("met" if fs["goal_met"] else "**not met**"), "",
+                  "Per held-out light (PSNR dB, full / best other):", ""]
+        for f in doc["faces"]:
+            pf, po = f["variants"]["full"]["psnr_per_light"], f["variants"][f["best_other"]]["psnr_per_light"]
+            lines.append(f"* {f['subject']}: " + ", ".join(f"{n.split('.')[0]} {a:.1f}/{b:.1f}"
+                                                         for n, a, b in zip(f["held_out"], pf, po, strict=True)))
     lines += ["", "## Error heat maps (the paper's Fig. 14)", "",
               "Per pixel: RMS error of single-light renders over all 32x16 light directions (top) and over the "
               "captured hull only (bottom), solid-angle weighted; one colour scale per row and scene.", ""]
@@ -596,6 +746,14 @@ def table(doc: dict) -> str:
         if r["margin_db"] is not None:
             lines.append(f"goal ({key}): full {r['full']:.2f} dB vs best baseline {r['best_baseline']} "
                          f"{r['best_baseline_value']:.2f} dB: margin {r['margin_db']:+.2f} dB (need >= +1)")
+    fs = doc.get("faces_summary")
+    if fs:
+        for f in doc["faces"]:
+            lines.append(f"real face {f['subject']}: full {f['variants']['full']['psnr']:.2f} dB, best other "
+                         f"{f['best_other']} {f['variants'][f['best_other']]['psnr']:.2f} dB: "
+                         f"margin {f['margin_db']:+.2f} dB (need >= +{FACE_GOAL_EACH_DB:g})")
+        lines.append(f"real faces: mean margin {fs['mean_margin_db']:+.2f} dB (need >= +{FACE_GOAL_MEAN_DB:g}): "
+                     + ("met" if fs["goal_met"] else "not met"))
     bad = [r for r in doc["stability"] if not r["finite"]]
     lines.append(f"stability: {len(doc['stability'])} case x variant runs, non-finite: {len(bad)}")
     return "\n".join(lines)

@@ -23,7 +23,8 @@ field                   shape, dtype                 meaning
 ======================  ===========================  ========================================
 pixels                  (P,) int32                   flat row-major indices of the head pixels in the crop
 mask_crop               (h, w) bool                  head pixels in the crop
-ambient                 (h, w, 3) float32            registered no-flash average, linear
+ambient                 (h, w, 3) float32            registered no-flash average (image sets: their
+                                                     ambient frame, or 0), linear
 background              (H, W, 3) uint8              a full no-flash frame, sRGB
 normal                  (P, 3) float32               camera-space unit normals
 albedo                  (P, 3) float32               Lambertian albedo, linear, flash units
@@ -73,6 +74,9 @@ MAX_HEADER = 64 << 20
 REQUIRED = ("pixels", "mask_crop", "ambient", "background", "normal", "albedo", "depth", "light_dirs", "maps",
             "maps_rows", "map_texels")
 _ALLOWED_DTYPES = {"|b1", "|u1", "<i4", "<i8", "<f2", "<f4", "<f8"}
+#: The ambient frame counts as a picture of the face under the room's light (:attr:`Bundle.room_light`)
+#: when its median over the face is at least this share of the reference frame's.
+ROOM_LIGHT_MIN_SHARE = 0.25
 
 
 @dataclass
@@ -132,6 +136,34 @@ class Bundle:
 
         w, h = self.map_size
         return equirect_directions(w, h).reshape(-1, 3)[np.asarray(self.arrays["map_texels"])]
+
+    def ambient_frame(self) -> np.ndarray:
+        """(H, W, 3) float32 linear: the room light (``ambient``) placed in the reference frame,
+        zero outside the crop: what a photo under a light adds to ``relight_light``'s image."""
+        w, h = self.frame_size
+        out = np.zeros((h, w, 3), dtype=np.float32)
+        x, y = self.crop_origin
+        a = np.asarray(self.arrays["ambient"], dtype=np.float32)
+        out[y:y + a.shape[0], x:x + a.shape[1]] = a
+        return out
+
+    @property
+    def room_light(self) -> np.ndarray | None:
+        """The ambient crop (h, w, 3) when it is a usable picture of the face under the capture
+        room's light (its median luminance over the face at least ``ROOM_LIGHT_MIN_SHARE`` of the
+        reference frame's), else None: a dark room's or an image set's near-black ambient frame is
+        noise, not a reference to track or take lighting ratios against."""
+        from relight.colour import decode_srgb8, luminance
+
+        a = np.asarray(self.arrays["ambient"], dtype=np.float32)
+        m = np.asarray(self.arrays["mask_crop"], dtype=bool)
+        if not m.any():
+            return None
+        x, y = self.crop_origin
+        bg = decode_srgb8(np.asarray(self.arrays["background"])[y:y + m.shape[0], x:x + m.shape[1]])
+        amb = float(np.median(luminance(a[m])))
+        ref = float(np.median(luminance(bg[m])))
+        return a if amb > 0.0 and amb >= ROOM_LIGHT_MIN_SHARE * ref else None
 
     def full_map(self, pixel: int) -> np.ndarray:
         """(H_map, W_map, 3) float32 reflectance map of one head pixel (index into ``pixels``)."""

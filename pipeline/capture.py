@@ -17,7 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from relight import __version__
-from relight.colour import decode_srgb8
+from relight.colour import encode_srgb8, srgb_to_linear
 from relight.errors import InputError
 from relight.imageio import read_image
 from relight.numerics import flush_subnormal_halves
@@ -34,6 +34,14 @@ HALF_RES_PIXELS = 30000
 #: Largest image set accepted (files) and the most landmarks stored.
 MAX_IMAGES = 2000
 MAX_LANDMARKS = 300
+
+#: Transfer curves an image set's 8/16-bit files may be encoded with (``relight capture
+#: --transfer``): sRGB (phones, cameras' JPEGs, most RTI sets) or linear (a camera's raw response,
+#: e.g. the Extended Yale B faces). EXR/HDR files are always linear.
+TRANSFERS = ("srgb", "linear")
+#: An image set's room-light frame (no light of the set on): subtracted from every image and kept
+#: as the bundle's ambient, as a video capture's no-flash frames are.
+AMBIENT_NAMES = ("ambient.png", "ambient.exr", "ambient.tif", "ambient.tiff", "ambient.jpg")
 
 
 @dataclass
@@ -53,9 +61,12 @@ class CaptureOptions:
     mesh: str | None = None
     export_mesh: str | None = None
     backend: str = "opencl"
+    transfer: str = "srgb"
 
     def validate(self) -> CaptureOptions:
         methods.validate_method(self.method)
+        if self.transfer not in TRANSFERS:
+            raise InputError(f"--transfer {self.transfer}: use one of {', '.join(TRANSFERS)}")
         w, h = self.map_size
         if w != 2 * h or not (8 <= h <= 256):
             raise InputError(f"--map-size {w}x{h}: use a 2:1 size between 16x8 and 512x256, e.g. 64x32")
@@ -201,8 +212,23 @@ def read_lp(path: Path) -> list[tuple[str, np.ndarray]]:
     return out
 
 
+def read_set_image(f: Path, transfer: str) -> tuple[np.ndarray, np.ndarray]:
+    """(linear (h, w, 3) float32, clipped (h, w) bool) of one image of an RTI set, its 8/16-bit
+    code values decoded with ``transfer`` (:data:`TRANSFERS`; EXR/HDR are linear as stored)."""
+    if f.suffix.lower() in (".exr", ".hdr"):
+        img = read_image(f)
+        return img, np.zeros(img.shape[:2], dtype=bool)
+    raw = read_image(f, linearize=False)  # 0-1 code values, 8 or 16 bits
+    clip = raw.max(axis=2) >= 250 / 255.0
+    if transfer == "linear":
+        return raw, clip
+    return srgb_to_linear(raw), clip
+
+
 def prepare_images(folder, opts: CaptureOptions, progress: _Progress, timings: dict) -> Prepared:
-    """An RTI image set: images + ``dirs.lp`` (+ optional ``mask.png``) skip stages 1-3."""
+    """An RTI image set: images + ``dirs.lp`` (+ optional ``mask.png``, ``ambient.png``) skip
+    stages 1-3. Files are decoded with ``opts.transfer`` (EXR/HDR: linear); an ambient frame is
+    subtracted from every image and becomes the bundle's ambient."""
     t0 = time.perf_counter()
     folder = Path(folder)
     if not folder.is_dir():
@@ -214,13 +240,7 @@ def prepare_images(folder, opts: CaptureOptions, progress: _Progress, timings: d
     images, clipped, size = [], [], None
     for i, (name, _) in enumerate(entries):
         f = folder / name
-        if f.suffix.lower() in (".exr", ".hdr"):
-            img = read_image(f)
-            clip = np.zeros(img.shape[:2], dtype=bool)
-        else:
-            raw = read_image(f, linearize=False)
-            clip = (raw.max(axis=2) >= 250 / 255.0)
-            img = decode_srgb8(np.round(raw * 255).astype(np.uint8)) if raw.max() <= 1.0 else raw
+        img, clip = read_set_image(f, opts.transfer)
         if size is None:
             size = img.shape[:2]
         elif img.shape[:2] != size:
@@ -241,16 +261,28 @@ def prepare_images(folder, opts: CaptureOptions, progress: _Progress, timings: d
         mask = m > 127
     else:
         mask = np.ones((h, w), dtype=bool)
+    notes = []
+    ambient = np.zeros((h, w, 3), dtype=np.float32)
+    listed = {name for name, _ in entries}
+    amb_path = next((folder / n for n in AMBIENT_NAMES if (folder / n).exists() and n not in listed), None)
+    if amb_path is not None:
+        ambient, _ = read_set_image(amb_path, opts.transfer)
+        if ambient.shape[:2] != (h, w):
+            raise InputError(f"{amb_path}: {ambient.shape[1]}x{ambient.shape[0]}, the images are {w}x{h}; "
+                             "the room-light frame must have their size (or remove it)")
+        notes.append(f"{amb_path.name}: the room light, subtracted from every image")
     timings["read_images"] = time.perf_counter() - t0
     dirs = np.array([d for _, d in entries])
     stack = np.stack(images)
-    ambient = np.zeros((h, w, 3), dtype=np.float32)
-    background = np.round(np.clip(np.median(stack, axis=0), 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)
+    if amb_path is not None:
+        np.maximum(stack - ambient[None], 0.0, out=stack)
+    background = encode_srgb8(np.clip(np.median(stack, axis=0) + ambient, 0.0, 1.0))
     report = {"light_dirs": {name: [round(float(x), 6) for x in d] for name, d in entries},
-              "rejected": {}, "notes": [], "images": len(entries)}
-    return Prepared(images=stack, dirs=dirs, clipped=np.stack(clipped), ambient=ambient, background=background,
-                    origin=(0, 0), frame_size=(w, h), face_local=None, mask=mask,
-                    meta={"source": str(folder), "kind": "images", "lp": lps[0].name}, report=report)
+              "rejected": {}, "notes": notes, "images": len(entries), "transfer": opts.transfer}
+    return Prepared(images=stack, dirs=dirs, clipped=np.stack(clipped), ambient=ambient.astype(np.float32),
+                    background=background, origin=(0, 0), frame_size=(w, h), face_local=None, mask=mask,
+                    meta={"source": str(folder), "kind": "images", "lp": lps[0].name, "transfer": opts.transfer},
+                    report=report)
 
 
 def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: dict):
@@ -424,11 +456,19 @@ def horizon_for(depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def _landmarks(prep: Prepared, mask: np.ndarray) -> np.ndarray:
-    """Shi-Tomasi corners of the reference inside the head (frame pixels), for tracking later."""
-    from relight.colour import encode_srgb8
+    """Shi-Tomasi corners of the reference inside the head (frame pixels), for tracking later:
+    on the room-light frame when it shows the face (a video's no-flash frames), else on the
+    reference frame (an image set's typical lit face)."""
+    from relight.colour import decode_srgb8, luminance
 
-    ref = encode_srgb8(prep.ambient / max(float(prep.ambient.max()), 1e-6)) if prep.ambient.max() > 0 else \
-        prep.background[prep.origin[1]:prep.origin[1] + mask.shape[0], prep.origin[0]:prep.origin[0] + mask.shape[1]]
+    from .bundle import ROOM_LIGHT_MIN_SHARE
+
+    x0, y0 = prep.origin
+    ref = prep.background[y0:y0 + mask.shape[0], x0:x0 + mask.shape[1]]
+    if mask.any():
+        amb = float(np.median(luminance(prep.ambient[mask])))
+        if amb > 0.0 and amb >= ROOM_LIGHT_MIN_SHARE * float(np.median(luminance(decode_srgb8(ref)[mask]))):
+            ref = encode_srgb8(prep.ambient / max(float(prep.ambient.max()), 1e-6))
     grey = cv2.cvtColor(np.ascontiguousarray(ref), cv2.COLOR_RGB2GRAY)
     pts = cv2.goodFeaturesToTrack(grey, maxCorners=MAX_LANDMARKS, qualityLevel=0.01, minDistance=5,
                                   mask=mask.astype(np.uint8) * 255)

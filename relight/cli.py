@@ -150,6 +150,7 @@ def _circle(text: str) -> tuple[float, float, float]:
 
 
 def _add_capture(sub) -> None:
+    from .pipeline.capture import TRANSFERS
     from .pipeline.methods import METHODS
 
     p = sub.add_parser(
@@ -197,6 +198,9 @@ def _add_capture(sub) -> None:
     p.add_argument("--mesh", type=Path, help="a mesh (any format trimesh reads) aligned to the reference camera, "
                    "vertices (column, -row, height) in pixels, instead of photometric-stereo geometry")
     p.add_argument("--export-mesh", type=Path, metavar="FILE", help="write the estimated head as a mesh (.ply, .obj)")
+    p.add_argument("--transfer", choices=TRANSFERS, default="srgb",
+                   help="with --images: how the set's PNG/JPEG/TIFF files encode light - srgb (phones, most RTI "
+                        "sets) or linear (a camera's raw response, e.g. Extended Yale B); EXR/HDR are always linear")
     p.add_argument("--report", type=Path, metavar="DIR", help="write report.json and PNG plots here")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run_capture)
@@ -209,7 +213,9 @@ def _run_capture(args) -> int:
 
     if (args.video is None) == (args.images is None):
         raise InputError("give either a capture video or --images DIR (not both)")
-    opts = CaptureOptions(
+    if args.images is None and args.transfer != "srgb":
+        raise InputError("--transfer applies to --images sets; a video's transfer curve is read from its tags")
+    opts = CaptureOptions(transfer=args.transfer,
         method=args.method, visibility=not args.no_visibility, adaptation=not args.no_adaptation,
         extrapolation=not args.no_extrapolation, paper_adaptation=args.paper_adaptation,
         spline=not args.no_spline, model_reach=args.model_reach,
@@ -265,6 +271,9 @@ def _add_render(sub) -> None:
     acc.add_argument("--exact", action="store_true", help="sum over the full reflectance maps")
     p.add_argument("--background", choices=("none", "reference"), default="none",
                    help="outside the face: black, or the bundle's no-flash reference frame")
+    p.add_argument("--ambient", action="store_true",
+                   help="add the capture room's light (the bundle's ambient frame) to the face: what a photo "
+                        "taken under this light in the capture room shows")
     p.set_defaults(func=_run_render)
 
 
@@ -294,6 +303,8 @@ def _run_render(args) -> int:
         rot = rotation_matrix(*args.rotate) if args.rotate else None
         img = np.array(r.relight(env, rot, exposure=scale))
         what = args.env
+    if args.ambient:
+        img = img + np.where(bundle.mask[..., None], bundle.ambient_frame() * np.float32(scale), 0.0)
     if args.background == "reference":
         bg = decode_srgb8(np.asarray(bundle.background))
         img = np.where(bundle.mask[..., None], img, bg)
@@ -368,17 +379,20 @@ def _add_bench(sub) -> None:
     a.add_argument("--rti", type=Path, default=None,
                    help="real RTI data: a folder with Dome/ and Test/ image sets (default: ../shared/data/rti-dome "
                         "when present)")
+    a.add_argument("--faces", type=Path, default=None,
+                   help="real faces: a folder with one RTI image set per subject (default: "
+                        "../shared/data/faces-yale when present)")
     a.add_argument("--quick", action="store_true",
-                   help="one short 384x216 scene instead of five and the real set at half size (for CI)")
+                   help="one short 384x216 scene instead of five, the real set at half size and one face (for CI)")
     a.add_argument("--quiet", action="store_true", help="no progress output")
     a.set_defaults(func=_run_bench_accuracy)
 
 
-def _default_rti() -> Path | None:
-    """The real RTI set next to the project (../shared/data/rti-dome), if present."""
+def _shared_data(name: str, probe: str) -> Path | None:
+    """A real data set next to the project (../shared/data/NAME, holding PROBE), if present."""
     for base in (Path.cwd(), Path(__file__).resolve().parents[1]):
-        cand = base.parent / "shared" / "data" / "rti-dome"
-        if (cand / "Dome" / "dirs.lp").exists():
+        cand = base.parent / "shared" / "data" / name
+        if list(cand.glob(probe)):
             return cand
     return None
 
@@ -387,10 +401,13 @@ def _run_bench_accuracy(args) -> int:
     from .errors import InputError
     from .pipeline import accuracy
 
-    rti = args.rti if args.rti is not None else _default_rti()
+    rti = args.rti if args.rti is not None else _shared_data("rti-dome", "Dome/dirs.lp")
     if args.rti is not None and not (args.rti / "Dome" / "dirs.lp").exists():
         raise InputError(f"--rti {args.rti}: expected Dome/dirs.lp and Test/dirs.lp inside")
-    doc = accuracy.run(args.out, quick=args.quick, progress=not args.quiet, rti=rti)
+    faces = args.faces if args.faces is not None else _shared_data("faces-yale", "*/dirs.lp")
+    if args.faces is not None and not accuracy.face_subjects(args.faces):
+        raise InputError(f"--faces {args.faces}: expected one folder per subject, each with dirs.lp")
+    doc = accuracy.run(args.out, quick=args.quick, progress=not args.quiet, rti=rti, faces=faces)
     print(accuracy.table(doc))
     print(f"wrote {args.out / 'bench.json'}, {args.out / 'report.md'} and its PNG plots")
     return 0

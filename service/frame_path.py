@@ -195,11 +195,14 @@ class FramePath:
         er = max(int(round(FEATHER_ERODE * size)), 1)
         m = cv2.erode(solid.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * er + 1,) * 2))
         self.alpha_crop = cv2.GaussianBlur(m.astype(np.float32), (0, 0), FEATHER_SIGMA * size)
-        self.ambient_crop = np.asarray(bundle.ambient, dtype=np.float32)
+        room = bundle.room_light
         self.reference_light = "room"
-        if not (self.ambient_crop[mask_crop].max(initial=0.0) > composite.TINY):
-            # An RTI-set bundle has no room-light reference: the lighting ratio is taken against
-            # the face under even light (a uniform environment) instead.
+        if room is not None:
+            self.ambient_crop = np.asarray(room, dtype=np.float32)
+        else:
+            # An RTI-set bundle (or a capture in a dark room) has no usable room-light reference:
+            # the lighting ratio is taken against the face under even light (a uniform
+            # environment) instead.
             from relight.envmap import load_environment
 
             even = np.array(self.relighter.relight(load_environment("builtin:uniform", width=64)))

@@ -19,6 +19,7 @@ from relight.video import VideoWriter
 from .tolerances import (
     DOME_FULL_PSNR,
     DOME_MARGIN_OVER_PTM,
+    FACE_MARGIN_DB,
     FLASH_PRECISION,
     FLASH_RECALL,
     LIGHT_DIR_MEAN_DEG,
@@ -92,6 +93,51 @@ def test_real_rti_set_predicts_held_out_photos(shared_data, tmp_path):
         psnr[method] = _psnr_on_test(load_bundle(res.bundle), test)
     assert psnr["full"] >= DOME_FULL_PSNR, psnr
     assert psnr["full"] >= psnr["ptm"] + DOME_MARGIN_OVER_PTM, psnr
+
+
+def test_real_face_predicts_held_out_photos(shared_data, tmp_path):
+    from relight.pipeline import accuracy
+
+    small = accuracy.scaled_rti(shared_data / "faces-yale" / "yaleB02", tmp_path / "yaleB02", 2)
+    res = accuracy.evaluate_face(small, tmp_path / "eval", False,
+                                 variants={k: accuracy.VARIANTS[k] for k in ("full", "barycentric", "ptm")})
+    psnr = {k: v["psnr"] for k, v in res["variants"].items()}
+    assert res["held_out"][0] == "P00A+000E+00.png" and len(res["held_out"]) == 9  # lights 0, 6, ..., 48
+    assert psnr["full"] >= max(psnr["barycentric"], psnr["ptm"], psnr["nearest"]) + FACE_MARGIN_DB, psnr
+
+
+def test_image_set_transfer_and_room_light(tmp_path):
+    """An image set's files decode with the transfer it names; its ambient frame is subtracted from
+    every image and kept as the bundle's (dim: not a usable room-light reference)."""
+    def write16(path, img):  # grey, so OpenCV's BGR order does not matter
+        cv2.imwrite(str(path), np.round(img * 65535).astype(np.uint16))
+
+    rng = np.random.default_rng(1)
+    h, w = 24, 20
+    albedo = rng.uniform(0.3, 0.6, (h, w, 1)).astype(np.float32)
+    ambient = np.full((h, w, 3), 0.01, np.float32)
+    lines, linear = [], {}
+    for i in range(14):
+        a = 2 * np.pi * i / 14
+        d = np.array([0.5 * np.cos(a), 0.5 * np.sin(a), 0.75])
+        d /= np.linalg.norm(d)
+        img = np.repeat(albedo * d[2], 3, axis=2) + ambient  # a flat face toward the camera
+        linear[f"i{i}.png"] = img
+        write16(tmp_path / f"i{i}.png", img)  # 16-bit linear codes
+        lines.append(f"i{i}.png {d[0]:.5f} {d[1]:.5f} {d[2]:.5f}\n")
+    write16(tmp_path / "ambient.png", ambient)
+    (tmp_path / "dirs.lp").write_text(f"{len(lines)}\n" + "".join(lines))
+    res = capture(tmp_path, tmp_path / "lin.bundle", CaptureOptions(transfer="linear"), images=True, progress=False)
+    b = load_bundle(res.bundle)
+    assert b.meta["transfer"] == "linear" and "ambient.png" in res.report["notes"][0]
+    np.testing.assert_allclose(np.asarray(b.ambient), ambient, atol=2e-5)
+    samples = np.asarray(b.samples, dtype=np.float32)
+    np.testing.assert_allclose(samples[0], (linear["i0.png"] - ambient).reshape(-1, 3), atol=2e-3)
+    assert b.room_light is None  # 1 % of the face's light is noise, not a reference
+    srgb = load_bundle(capture(tmp_path, tmp_path / "srgb.bundle", images=True, progress=False).bundle)
+    assert np.asarray(srgb.samples, np.float32).mean() < 0.5 * samples.mean()  # read as sRGB: far darker
+    with pytest.raises(InputError, match="--transfer"):
+        CaptureOptions(transfer="gamma").validate()
 
 
 def _video(path, frames, fps=30):

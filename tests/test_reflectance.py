@@ -111,15 +111,20 @@ def test_opencl_maps_match_numpy_with_visibility_and_adaptation():
     # Visibility matters here: without it the maps differ.
     c = compute_maps(samples, normals, tri, horizon=None, n_az=64, backend="opencl")
     assert np.abs(a - c).max() > 0.05
-    # The shading-model trend (offset off, coef x cosine x texel visibility back), with and
-    # without visibility: twin again, and it does change the maps.
+    # The shading-model trend (offset off, (coef x cosine + spec x lobe) x texel visibility
+    # back), with and without visibility: twin again, and it does change the maps; so does the lobe.
     trend = (rng.uniform(0.0, 0.3, (pix.size, 3)), rng.uniform(0.0, 1.0, (pix.size, 3)))
+    spec = trend + (rng.uniform(0.0, 1.0, (pix.size, 3)),)
     for hz in (horizon, None):
-        a = compute_maps(samples, normals, tri, horizon=hz, n_az=64, adaptation=False, trend=trend, backend="opencl")
-        b = compute_maps(samples, normals, tri, horizon=hz, n_az=64, adaptation=False, trend=trend, backend="numpy")
-        assert np.abs(a - b).max() <= MAPS_TWIN_REL * np.abs(b).max()
+        for tr in (trend, spec):
+            a = compute_maps(samples, normals, tri, horizon=hz, n_az=64, adaptation=False, trend=tr, backend="opencl")
+            b = compute_maps(samples, normals, tri, horizon=hz, n_az=64, adaptation=False, trend=tr, backend="numpy")
+            assert np.abs(a - b).max() <= MAPS_TWIN_REL * np.abs(b).max()
         plain = compute_maps(samples, normals, tri, horizon=hz, n_az=64, adaptation=False, backend="numpy")
-        assert np.abs(b - plain).max() > 0.1
+        lambert = compute_maps(samples, normals, tri, horizon=hz, n_az=64, adaptation=False, trend=trend,
+                               backend="numpy")
+        assert np.abs(lambert - plain).max() > 0.1
+        assert np.abs(b - lambert).max() > 0.1
 
 
 def test_opencl_visibility_at_texels_matches_numpy():
