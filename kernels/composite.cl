@@ -1,20 +1,34 @@
 /* The relit face warped into a video frame and composited, in two passes.
  *
- * build_layer (reference crop, one work item per crop pixel): a float4 layer
- *     transfer: (gain (relit + eps) / (ambient + eps) clamped to [0, ratio_max], alpha)
- *     paste:    (gain relit, alpha)
- *   with relit read through `fill` (crop pixel -> relit frame pixel, -1 = none: the nearest
- *   face pixel fills the feathered fringe) and alpha = feathered mask x strength.
+ * Every mode is one per-pixel rule in linear light, with f the frame's pixel:
+ *     face = s f r + (1 - s) T,        out = f + a (face - f)
+ * r the lighting ratio applied to the live pixel, T the bundle's own prediction, s in 0-1 how far
+ * the live pixel is trusted, a the composited share (feathered mask x strength x facing).
+ *
+ * build_layer (reference crop, one work item per crop pixel with a > 0) writes (r, s, T, a):
+ *   MODE_AMBIENT  r = gain (relit + eps) / (ambient + eps), clamped to [0, ratio_max]; s = 1
+ *                 (the capture room's light swapped for the target's: the paper's setting);
+ *   MODE_PASTE    s = 0, T = gain relit (the relit reference face, the paper's warp);
+ *   MODE_LIVE     T = gain relit (the target light, exposure-matched to the live face),
+ *                 E = the face under the live light (fitted to the frame), r = (T + eps) / (E + eps)
+ *                 clamped; s falls from 1 to 0 where the live light leaves the pixel much darker
+ *                 than the target wants (q = lum E / max(lum E, lum T) from Q_HI down to Q_LO: a
+ *                 ratio would only amplify noise and cannot bring back detail a shadow hid) or
+ *                 near black (lum E / the face's median from D_HI down to D_LO).
+ *   with relit / E read through `fill` (crop pixel -> relit frame pixel, -1 = none: the nearest
+ *   face pixel fills the feathered fringe).
  * warp_composite (the face's box in the frame, sRGB uint8 RGB, modified in place):
  *   1. the pixel's reference position: bilinear in a coarse inverse map (gh, gw) of float2
  *      reference pixels sampled every `step` frame pixels (one extra grid point on each side of
  *      the box; x < OUTSIDE_HALF marks grid points outside the warp) - inside only when all
  *      four grid points around it are;
- *   2. one bilinear float4 sample of the layer there (zero outside the crop);
- *   3. transfer: out = frame (1 + a (r - 1)); paste: out = frame + a (r - frame);
+ *   2. one bilinear float8 sample of the layer there (zero outside the crop);
+ *   3. MODE_LIVE: s drops to 0 where the live pixel is clipped (max channel from CLIP_LO to
+ *      CLIP_HI: a saturated pixel carries no ratio) and where it is much darker than the live
+ *      light predicts (lum f / lum E from AGREE_HI down to AGREE_LO: a shadow edge the fitted
+ *      light draws a pixel off, which a ratio would keep); the rule above;
  *   4. sRGB encode through the 16k-entry table (as relight.colour.encode_srgb8).
- * Pixels outside the warp keep their bytes. (One float4 layer instead of three bilinear samples
- * with an indirection per pixel: measured 8 ms -> see relight.kernels.compositor.)
+ * Pixels outside the warp keep their bytes.
  */
 
 #define OUTSIDE_HALF (-5.0e3f)
@@ -22,6 +36,18 @@
    it is fully composited (relight.kernels.compositor.FACING). */
 #define FACING_LO 0.15f
 #define FACING_HI 0.45f
+#define MODE_AMBIENT 0
+#define MODE_PASTE 1
+#define MODE_LIVE 2
+/* relight.kernels.compositor.TRUST_RATIO, TRUST_DARK, CLIP_RAMP */
+#define Q_LO 0.25f
+#define Q_HI 0.50f
+#define D_LO 0.02f
+#define D_HI 0.08f
+#define CLIP_LO 0.90f
+#define CLIP_HI 0.99f
+#define AGREE_LO 0.30f
+#define AGREE_HI 0.60f
 
 /* PoCL 3.0 calls its math builtins (floor, clamp, ...) out of line, spilling vector registers
    around each call (measured: this kernel took 9 ms for a 300x450 box with them): these
@@ -37,20 +63,32 @@ __attribute__((always_inline)) inline float fclamp(float v, float lo, float hi)
     return v < lo ? lo : (v > hi ? hi : v);
 }
 
+__attribute__((always_inline)) inline float lum3(float3 c)
+{
+    return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z;
+}
+
 __attribute__((always_inline)) inline uchar encode(__global const uchar *lut, int n, float v)
 {
     float i = fclamp(v * (float)n + 0.5f, 0.0f, (float)n);
     return lut[(int)i];
 }
 
-/* One pixel of the box (see the file comment). */
+__attribute__((always_inline)) inline float3 read3(__global const float *img, int f)
+{
+    return f >= 0 ? (float3)(img[3 * f], img[3 * f + 1], img[3 * f + 2]) : (float3)(0.0f);
+}
+
+/* One crop pixel of the layer (see the file comment). */
 __kernel void build_layer(
-    __global const float *relit, __global const int *fill,   /* relit frame (.., 3); (ch * cw,) indices */
+    __global const float *relit, __global const float *live,  /* relit frames (.., 3): target, live light */
+    __global const int *fill,                                  /* (ch * cw,) indices */
     __global const float *inv_amb, __global const float *alpha,
     __global const float *normal, float rz0, float rz1, float rz2, /* (ch * cw, 3); the head rotation's z row */
     __global const int *support, int n,                      /* the crop pixels with alpha > 0 */
-    int transfer, float gain, float strength, float eps, float ratio_max,
-    __global float4 *layer)                                  /* zero elsewhere (set once) */
+    int mode, float gain, float strength, float eps, float ratio_max, float live_median,
+    __global float8 *layer,                                  /* zero elsewhere (set once) */
+    __global float *expect)                                  /* MODE_LIVE: lum E (live units) */
 {
     int i = get_global_id(0);
     if (i >= n)
@@ -61,22 +99,52 @@ __kernel void build_layer(
        reference cannot place it, and its light would land on the background. */
     float nz = rz0 * normal[3 * p] + rz1 * normal[3 * p + 1] + rz2 * normal[3 * p + 2];
     float a = alpha[p] * strength * fclamp((nz - FACING_LO) / (FACING_HI - FACING_LO), 0.0f, 1.0f);
-    float3 rel = f >= 0 ? (float3)(relit[3 * f], relit[3 * f + 1], relit[3 * f + 2]) : (float3)(0.0f);
-    float3 v;
-    if (transfer) {
-        float3 r = gain * (rel + eps) * (float3)(inv_amb[3 * p], inv_amb[3 * p + 1], inv_amb[3 * p + 2]);
-        v = (float3)(fclamp(r.x, 0.0f, ratio_max), fclamp(r.y, 0.0f, ratio_max), fclamp(r.z, 0.0f, ratio_max));
+    float3 rel = read3(relit, f);
+    float3 r = (float3)(0.0f), t = (float3)(0.0f);
+    float s = 0.0f;
+    if (mode == MODE_AMBIENT) {
+        float3 q = gain * (rel + eps) * (float3)(inv_amb[3 * p], inv_amb[3 * p + 1], inv_amb[3 * p + 2]);
+        r = (float3)(fclamp(q.x, 0.0f, ratio_max), fclamp(q.y, 0.0f, ratio_max), fclamp(q.z, 0.0f, ratio_max));
+        s = 1.0f;
+        if (f < 0)
+            a = 0.0f;
+    } else if (mode == MODE_PASTE) {
+        t = gain * rel;
     } else {
-        v = gain * rel;
+        float3 e = read3(live, f);
+        t = gain * rel;
+        float3 q = (t + eps) / (e + eps);
+        r = (float3)(fclamp(q.x, 0.0f, ratio_max), fclamp(q.y, 0.0f, ratio_max), fclamp(q.z, 0.0f, ratio_max));
+        float le = lum3(e), lt = lum3(t);
+        float share = le / fmax(fmax(le, lt), 1e-12f);
+        float dark = le / fmax(live_median, 1e-12f);
+        s = fclamp((share - Q_LO) / (Q_HI - Q_LO), 0.0f, 1.0f) * fclamp((dark - D_LO) / (D_HI - D_LO), 0.0f, 1.0f);
+        expect[p] = le;
+        if (f < 0)
+            a = 0.0f;
     }
-    layer[p] = (float4)(v, (f >= 0 || !transfer) ? a : 0.0f);
+    layer[p] = (float8)(r, s, t, a);
 }
 
-__attribute__((always_inline)) inline float4 bilerp4(__global const float4 *img, int cw, int ch, float x, float y)
+__attribute__((always_inline)) inline float8 bilerp8(__global const float8 *img, int cw, int ch, float x, float y)
 {
     int x0 = ifloor(x), y0 = ifloor(y);
     float ax = x - (float)x0, ay = y - (float)y0;
-    float4 acc = (float4)(0.0f);
+    float8 acc = (float8)(0.0f);
+    for (int k = 0; k < 4; ++k) {
+        int xi = x0 + (k & 1), yi = y0 + (k >> 1);
+        float w = ((k & 1) ? ax : 1.0f - ax) * ((k >> 1) ? ay : 1.0f - ay);
+        int ok = xi >= 0 && yi >= 0 && xi < cw && yi < ch;
+        acc += (ok ? w : 0.0f) * img[ok ? yi * cw + xi : 0];
+    }
+    return acc;
+}
+
+__attribute__((always_inline)) inline float bilerp1(__global const float *img, int cw, int ch, float x, float y)
+{
+    int x0 = ifloor(x), y0 = ifloor(y);
+    float ax = x - (float)x0, ay = y - (float)y0;
+    float acc = 0.0f;
     for (int k = 0; k < 4; ++k) {
         int xi = x0 + (k & 1), yi = y0 + (k >> 1);
         float w = ((k & 1) ? ax : 1.0f - ax) * ((k >> 1) ? ay : 1.0f - ay);
@@ -91,8 +159,9 @@ __kernel void warp_composite(
     int bx0, int by0, int bw, int bh,                   /* the box */
     __global const float2 *coarse, int gw, int step,   /* (gh, gw) reference positions (frame px) */
     float ox, float oy,                                 /* the crop's origin in the reference */
-    __global const float4 *layer, int cw, int ch,       /* (ch, cw) from build_layer */
-    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int transfer)
+    __global const float8 *layer, int cw, int ch,       /* (ch, cw) from build_layer */
+    __global const float *expect,                       /* (ch, cw) from build_layer (MODE_LIVE) */
+    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode)
 {
     int x = get_global_id(0), y = get_global_id(1);
     if (x >= bw || y >= bh)
@@ -106,13 +175,21 @@ __kernel void warp_composite(
     if (c00.x < OUTSIDE_HALF || c10.x < OUTSIDE_HALF || c01.x < OUTSIDE_HALF || c11.x < OUTSIDE_HALF)
         return;
     float2 m = (c00 * (1.0f - ax) + c10 * ax) * (1.0f - ay) + (c01 * (1.0f - ax) + c11 * ax) * ay;
-    float4 l = bilerp4(layer, cw, ch, m.x - ox, m.y - oy);
-    float a = l.w;
+    float8 l = bilerp8(layer, cw, ch, m.x - ox, m.y - oy);
+    float a = l.s7;
     if (!(a > 0.0f))
         return;
     size_t o = 3 * ((size_t)(by0 + y) * frame_w + (bx0 + x));
     float3 f = (float3)(decode_lut[frame[o]], decode_lut[frame[o + 1]], decode_lut[frame[o + 2]]);
-    float3 res = transfer ? f * (1.0f + a * (l.xyz - 1.0f)) : f + a * (l.xyz - f);
+    float s = l.s3;
+    if (mode == MODE_LIVE && s > 0.0f) {
+        s *= 1.0f - fclamp((fmax(f.x, fmax(f.y, f.z)) - CLIP_LO) / (CLIP_HI - CLIP_LO), 0.0f, 1.0f);
+        float e = bilerp1(expect, cw, ch, m.x - ox, m.y - oy);
+        float agree = lum3(f) / fmax(e, 1e-12f);
+        s *= fclamp((agree - AGREE_LO) / (AGREE_HI - AGREE_LO), 0.0f, 1.0f);
+    }
+    float3 face = s * f * l.s012 + (1.0f - s) * l.s456;
+    float3 res = f + a * (face - f);
     frame[o] = encode(encode_lut, lut_n, res.x);
     frame[o + 1] = encode(encode_lut, lut_n, res.y);
     frame[o + 2] = encode(encode_lut, lut_n, res.z);

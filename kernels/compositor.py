@@ -1,13 +1,15 @@
 """Host wrapper and NumPy twin of ``composite.cl``: the relit face warped into a frame and
-composited (transfer or paste), sRGB in and out, in one pass over the face's box.
+composited (mode ``ambient``, ``paste`` or ``live``), sRGB in and out, in one pass over the face's box.
 
-Two kernels: ``build_layer`` makes the crop's float4 layer (lighting ratio or relit colour, and
-alpha), ``warp_composite`` samples it once per frame pixel and composites. Arrays (reference
-crop of ch x cw pixels whose top-left is reference pixel ``origin``):
+Two kernels: ``build_layer`` makes the crop's float8 layer (lighting ratio r, live trust s,
+the bundle's prediction T, alpha), ``warp_composite`` samples it once per frame pixel and
+composites ``face = s f r + (1 - s) T``, ``out = f + a (face - f)`` (see the .cl file for each
+mode). Arrays (reference crop of ch x cw pixels whose top-left is reference pixel ``origin``):
 alpha (ch, cw) float32 feathered mask; fill (ch, cw) int32 index into the relit frame's pixels
-(-1 = none); inv_amb (ch, cw, 3) float32 = 1 / (reference ambient + eps); relit: the
-Relighter's (H_ref, W_ref, 3) float32 linear frame. ``coarse``: (gh, gw, 2) float32 from
-:func:`relight.service.warp.coarse_map`. Frames: (H, W, 3) uint8 sRGB.
+(-1 = none); inv_amb (ch, cw, 3) float32 = 1 / (reference ambient + eps); relit, live: the
+Relighter's (H_ref, W_ref, 3) float32 linear frames (the target light; the live light).
+``coarse``: (gh, gw, 2) float32 from :func:`relight.service.warp.coarse_map`. Frames: (H, W, 3)
+uint8 sRGB.
 """
 
 from __future__ import annotations
@@ -25,6 +27,18 @@ OUTSIDE_HALF = -5.0e3
 FACING = (0.15, 0.45)
 #: Feathered-mask values below this are zero (no work, no denormals).
 ALPHA_FLOOR = 1e-4
+#: The kernel's modes (composite.cl MODE_*).
+LAYER_MODES = {"ambient": 0, "paste": 1, "live": 2}
+#: Mode live: the live pixel's trust falls from 1 to 0 as lum(live) / max(lum(live), lum(target))
+#: goes from the second value down to the first (Q_HI, Q_LO), and as lum(live) over the face's
+#: median goes from the second down to the first (D_HI, D_LO); and as the frame's pixel clips
+#: (largest channel, linear, from the first value up to the second: CLIP_LO, CLIP_HI).
+TRUST_RATIO = (0.25, 0.5)
+TRUST_DARK = (0.02, 0.08)
+CLIP_RAMP = (0.90, 0.99)
+#: ... and as the frame's pixel is darker than the live light predicts (lum f / lum E from the
+#: second value down to the first: AGREE_HI, AGREE_LO).
+AGREE_RAMP = (0.30, 0.60)
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | None = None) -> np.ndarray:
@@ -52,28 +66,61 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | 
     return acc
 
 
+def _ramp(v, lo_hi) -> np.ndarray:
+    lo, hi = (np.float32(x) for x in lo_hi)
+    return np.clip((v - lo) / (hi - lo), 0.0, 1.0).astype(np.float32)
+
+
 def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, alpha: np.ndarray,
-                      normal: np.ndarray, rotation: np.ndarray, *, transfer: bool, gain: float, strength: float,
-                      eps: float, ratio_max: float) -> np.ndarray:
-    """NumPy twin of ``build_layer``: (ch, cw, 4) float32 (rgb, alpha)."""
+                      normal: np.ndarray, rotation: np.ndarray, *, mode: str, gain: float, strength: float,
+                      eps: float, ratio_max: float, live: np.ndarray | None = None,
+                      live_median: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """NumPy twin of ``build_layer``: ((ch, cw, 8) float32 (r rgb, s, T rgb, alpha), (ch, cw)
+    float32 lum E, the live light's prediction - zero but in mode live)."""
+    from relight.colour import LUMINANCE
+
     f = fill.ravel()
     ok = f >= 0
-    rel = np.zeros((f.size, 3), dtype=np.float32)
-    rel[ok] = relit.reshape(-1, 3)[f[ok]]
+
+    def read(img):
+        out = np.zeros((f.size, 3), dtype=np.float32)
+        out[ok] = img.reshape(-1, 3)[f[ok]]
+        return out
+
+    rel = read(relit)
     nz = normal.reshape(-1, 3) @ np.asarray(rotation, dtype=np.float32)[2]
-    facing = np.clip((nz - np.float32(FACING[0])) / np.float32(FACING[1] - FACING[0]), 0.0, 1.0)
+    facing = _ramp(nz, FACING)
     a = np.where(alpha >= ALPHA_FLOOR, alpha, 0.0).astype(np.float32).ravel() * np.float32(strength) * facing
-    if transfer:
-        v = np.clip(np.float32(gain) * (rel + np.float32(eps)) * inv_amb.reshape(-1, 3), 0.0, np.float32(ratio_max))
+    r = np.zeros_like(rel)
+    t = np.zeros_like(rel)
+    s = np.zeros(f.size, np.float32)
+    expect = np.zeros(f.size, np.float32)
+    g, e32, rmax = np.float32(gain), np.float32(eps), np.float32(ratio_max)
+    if mode == "ambient":
+        r = np.clip(g * (rel + e32) * inv_amb.reshape(-1, 3), 0.0, rmax)
+        s[:] = 1.0
         a = np.where(ok, a, 0.0)
+    elif mode == "paste":
+        t = g * rel
     else:
-        v = np.float32(gain) * rel
-    return np.concatenate([v, a[:, None]], axis=1).astype(np.float32).reshape(*fill.shape, 4)
+        e = read(live)
+        t = g * rel
+        r = np.clip((t + e32) / (e + e32), 0.0, rmax)
+        le, lt = e @ LUMINANCE, t @ LUMINANCE
+        share = le / np.maximum(np.maximum(le, lt), np.float32(1e-12))
+        s = _ramp(share, TRUST_RATIO) * _ramp(le / np.float32(max(live_median, 1e-12)), TRUST_DARK)
+        expect = np.where(a > 0, le, 0.0).astype(np.float32)
+        a = np.where(ok, a, 0.0)
+    layer = np.concatenate([r, s[:, None], t, a[:, None]], axis=1).astype(np.float32).reshape(*fill.shape, 8)
+    return layer, expect.reshape(fill.shape)
 
 
-def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, layer: np.ndarray, *,
-                         transfer: bool) -> np.ndarray:
-    """NumPy twin of ``warp_composite``: a new frame (layer from :func:`build_layer_numpy`)."""
+def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, layer, *,
+                         mode: str) -> np.ndarray:
+    """NumPy twin of ``warp_composite``: a new frame (layer: the pair from :func:`build_layer_numpy`)."""
+    from relight.colour import LUMINANCE
+
+    layer, expect = layer
     out = np.array(frame)
     bx0, by0, bx1, by1 = box
     bw, bh = bx1 - bx0, by1 - by0
@@ -87,12 +134,19 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
     m = ((c[0] * (1 - ax)[:, None] + c[1] * ax[:, None]) * (1 - ay)[:, None]
          + (c[2] * (1 - ax)[:, None] + c[3] * ax[:, None]) * ay[:, None])
     lay = _bilinear(layer, m[:, 0] - np.float32(origin[0]), m[:, 1] - np.float32(origin[1]))
-    sel = inside & (lay[:, 3] > 0)
+    sel = inside & (lay[:, 7] > 0)
     lay = lay[sel]
-    a = lay[:, 3:]
+    mx, my = m[sel, 0] - np.float32(origin[0]), m[sel, 1] - np.float32(origin[1])
+    a = lay[:, 7:8]
     region = out[by0:by1, bx0:bx1].reshape(-1, 3)
     f = _decode_lut8()[region[sel]]
-    res = f * (1.0 + a * (lay[:, :3] - 1.0)) if transfer else f + a * (lay[:, :3] - f)
+    s = lay[:, 3:4]
+    if mode == "live":
+        e = _bilinear(expect[..., None], mx, my)
+        agree = (f @ LUMINANCE)[:, None] / np.maximum(e, np.float32(1e-12))
+        s = np.where(s > 0, s * (1.0 - _ramp(f.max(axis=1, keepdims=True), CLIP_RAMP)) * _ramp(agree, AGREE_RAMP), s)
+    face = s * f * lay[:, 0:3] + (1.0 - s) * lay[:, 4:7]
+    res = f + a * (face - f)
     lut, n = _encode_lut()
     idx = np.clip(res * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
     region[sel] = lut[idx]
@@ -140,7 +194,9 @@ class Compositor:
         self._support = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                   hostbuf=self.support if self.support.size else np.zeros(1, np.int32))
         self._layer = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
-                                hostbuf=np.zeros((self.alpha.size, 4), dtype=np.float32))
+                                hostbuf=np.zeros((self.alpha.size, 8), dtype=np.float32))
+        self._expect = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
+                                 hostbuf=np.zeros(self.alpha.size, dtype=np.float32))
         self.frame: np.ndarray | None = None
         self._frame_buf = None
         self._coarse_buf = None
@@ -154,9 +210,11 @@ class Compositor:
             self._frame_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE, self.frame.nbytes)
         return self._frame_buf
 
-    def run(self, rgb: np.ndarray, box, coarse: np.ndarray, step: int, *, transfer: bool, gain: float,
-            strength: float, eps: float, ratio_max: float, rotation: np.ndarray | None = None) -> np.ndarray:
-        """``rgb`` with the face composited (a new array)."""
+    def run(self, rgb: np.ndarray, box, coarse: np.ndarray, step: int, *, mode: str, gain: float,
+            strength: float, eps: float, ratio_max: float, rotation: np.ndarray | None = None,
+            live_median: float = 0.0) -> np.ndarray:
+        """``rgb`` with the face composited (a new array). mode : one of :data:`LAYER_MODES`
+        (``live`` reads the relighter's "live" slot: the face under the live light)."""
         import pyopencl as cl
 
         q = self.rt.queue
@@ -172,16 +230,19 @@ class Compositor:
         bx0, by0, bx1, by1 = box
         bw, bh = bx1 - bx0, by1 - by0
         n = self.support.size
+        code = LAYER_MODES[mode]
         rz = np.eye(3)[2] if rotation is None else np.asarray(rotation, dtype=np.float64)[2]
-        self._k_layer(q, (max(-(-n // 64), 1) * 64,), (64,), self.relighter._frame_buf, self._fill, self._inv,
+        _, relit_buf = self.relighter.slot("main")
+        live_buf = self.relighter.slot("live")[1] if mode == "live" else relit_buf
+        self._k_layer(q, (max(-(-n // 64), 1) * 64,), (64,), relit_buf, live_buf, self._fill, self._inv,
                       self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]), np.float32(rz[2]),
-                      self._support, np.int32(n), np.int32(1 if transfer else 0), np.float32(gain),
-                      np.float32(strength), np.float32(eps), np.float32(ratio_max), self._layer)
+                      self._support, np.int32(n), np.int32(code), np.float32(gain), np.float32(strength),
+                      np.float32(eps), np.float32(ratio_max), np.float32(live_median), self._layer, self._expect)
         self._kernel(q, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(rgb.shape[1]), np.int32(bx0),
                      np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf, np.int32(coarse.shape[1]),
                      np.int32(step), np.float32(self.origin[0]), np.float32(self.origin[1]), self._layer,
-                     np.int32(self.cw), np.int32(self.ch), self._dec, self._enc, np.int32(self.lut_n),
-                     np.int32(1 if transfer else 0))
+                     np.int32(self.cw), np.int32(self.ch), self._expect, self._dec, self._enc, np.int32(self.lut_n),
+                     np.int32(code))
         out = np.empty_like(self.frame)
         cl.enqueue_copy(q, out, buf, is_blocking=True)
         return out

@@ -181,8 +181,10 @@ class Relighter:
             raise InputError("the bundle's transport basis holds non-finite values: capture the bundle again")
         self._v_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._v)
         self._fidx = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.frame_index)
-        # The frame lives in host memory the device writes into directly (no copy back).
+        # The frame lives in host memory the device writes into directly (no copy back). More
+        # frames ("slots", e.g. the face under the live light beside the target) on request.
         self._frame_buf = cl.Buffer(ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=self.frame)
+        self._slots = {"main": (self.frame, self._frame_buf)}
         self._coef = cl.Buffer(ctx, mf.READ_ONLY, kp * 16)
         self._n_direct_max = max(self.transport.direct, 4)
         self._direct = cl.Buffer(ctx, mf.READ_ONLY, self._n_direct_max * 16)
@@ -260,18 +262,49 @@ class Relighter:
         self._last_key = None
         return self._view()
 
-    def _view(self) -> np.ndarray:
-        out = self.frame.view()
+    def relight_texels(self, lp: np.ndarray, *, slot: str = "main") -> np.ndarray:
+        """The reference frame under a light given in the map's texels: ``lp`` (T, 3) the power
+        each stored texel (``bundle.map_texels``) sends, over pi, in flash units (a light as
+        strong as the capture flash sums to 1). Written into the frame ``slot`` (a name: each slot
+        is one (H, W, 3) frame owned by the Relighter, "main" the one :meth:`relight` fills);
+        returns it (read-only until the slot's next call)."""
+        lp = np.asarray(lp, dtype=np.float64)
+        if lp.shape != (self.texels.size, 3):
+            raise InputError(f"texel light of shape {lp.shape}: expected ({self.texels.size}, 3)")
+        lp = _check_light(lp * self.sample_scale)
+        frame, buf = self.slot(slot)
+        if self.exact:
+            self._run_exact(lp, buf, frame)
+        else:
+            self._run_compact(lp, buf, frame)
+        if slot == "main":
+            self._last_key = None
+        return self._view(frame)
+
+    def slot(self, name: str):
+        """(frame (H, W, 3) float32, its OpenCL buffer) of an output slot, made on first use."""
+        hit = self._slots.get(name)
+        if hit is None:
+            import pyopencl as cl
+
+            frame = np.zeros_like(self.frame)
+            buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR, hostbuf=frame)
+            hit = self._slots[name] = (frame, buf)
+        return hit
+
+    def _view(self, frame: np.ndarray | None = None) -> np.ndarray:
+        out = (self.frame if frame is None else frame).view()
         out.flags.writeable = False
         return out
 
-    def _finish(self) -> None:
+    def _finish(self, buf=None, frame: np.ndarray | None = None) -> None:
         import pyopencl as cl
 
         # The one host sync per frame: mapping a host-pointer buffer waits for the kernel and,
         # on a CPU device, moves nothing.
-        mapped, _ = cl.enqueue_map_buffer(self._queue, self._frame_buf, cl.map_flags.READ, 0, self.frame.shape,
-                                          self.frame.dtype)
+        frame = self.frame if frame is None else frame
+        mapped, _ = cl.enqueue_map_buffer(self._queue, self._frame_buf if buf is None else buf, cl.map_flags.READ, 0,
+                                          frame.shape, frame.dtype)
         mapped.base.release()
 
     def _exact_maps(self):
@@ -292,9 +325,11 @@ class Relighter:
                                        hostbuf=maps)
         return self._maps_buf
 
-    def _launch_compact(self, rank: int, coef: np.ndarray | None, tex: np.ndarray, light: np.ndarray) -> None:
+    def _launch_compact(self, rank: int, coef: np.ndarray | None, tex: np.ndarray, light: np.ndarray,
+                        buf=None, frame=None) -> None:
         """One compact kernel launch and the frame's sync: ``rank`` basis images with ``coef``
-        (rank, 3) plus the texels ``tex`` with their (n, 3) light, exactly."""
+        (rank, 3) plus the texels ``tex`` with their (n, 3) light, exactly (into ``buf``, the
+        main frame's by default)."""
         import pyopencl as cl
 
         q = self._queue
@@ -309,16 +344,16 @@ class Relighter:
         items = -(-self.n_pix // LANES)
         self._k_compact(q, (_round_up(items, COMPACT_GROUP),), (COMPACT_GROUP,), self._v_buf, np.int32(rank),
                         np.int32(self._v.shape[1]), self._coef, self._rows_buf, np.int32(self.n_pix), self._direct,
-                        np.int32(tex.size), self._fidx, np.int32(self.n_pix), self._frame_buf)
-        self._finish()
+                        np.int32(tex.size), self._fidx, np.int32(self.n_pix), self._frame_buf if buf is None else buf)
+        self._finish(buf, frame)
 
-    def _run_compact(self, lp: np.ndarray) -> None:
+    def _run_compact(self, lp: np.ndarray, buf=None, frame=None) -> None:
         k = self.rank
         direct, rest = transport.split_direct(lp, self.transport.direct)
         coef = self.transport.u[:, :k].T @ rest
-        self._launch_compact(k, coef, direct, lp[direct])
+        self._launch_compact(k, coef, direct, lp[direct], buf, frame)
 
-    def _run_exact(self, lp: np.ndarray) -> None:
+    def _run_exact(self, lp: np.ndarray, buf=None, frame=None) -> None:
         import pyopencl as cl
 
         maps = self._exact_maps()
@@ -329,8 +364,8 @@ class Relighter:
                         is_blocking=False)
         grid = (_round_up(self.n_pix, PIXEL_GROUP),), (PIXEL_GROUP,)
         self._k_exact(q, *grid, maps, np.int32(self.t_exact), np.int32(self.n_pix), self._lp,
-                      self._blocks, np.int32(blocks.size), self._fidx, self._frame_buf)
-        self._finish()
+                      self._blocks, np.int32(blocks.size), self._fidx, self._frame_buf if buf is None else buf)
+        self._finish(buf, frame)
 
     def _run_rows(self, lp: np.ndarray) -> None:
         """A few lit texels (a point light): the compact kernel with rank 0 reads just their rows."""

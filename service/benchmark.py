@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-STAGES = ("track", "pose", "relight", "warp", "composite", "total")
+STAGES = ("track", "pose", "relight", "light", "warp", "composite", "total")
 
 
 def _bundle(out: Path, size: tuple[int, int], duration: float, progress: bool) -> Path:

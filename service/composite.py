@@ -1,27 +1,55 @@
-"""Putting the relit face into the frame: ``paste`` (the paper) and ``transfer`` (the default).
+"""Putting the relit face into the frame: ``transfer`` (the default), ``ambient`` and ``paste``.
 
-The settings of the two modes; the compositing itself runs in ``kernels/composite.cl``
+The settings of the modes; the compositing itself runs in ``kernels/composite.cl``
 (:mod:`relight.kernels.compositor`, with its NumPy twin). ``a`` is the warped, feathered face
-mask in 0-1, all colours linear RGB.
+mask in 0-1, ``f`` the live frame's pixel, all colours linear RGB.
 
+* transfer: the light on the live face is measured from the live face (:mod:`relight.service.
+  live_light`: the bundle relit by a fitted non-negative light explains the frame), and the face
+  is relit for real - ``f x relit(target) / relit(live light)`` where the live pixel carries
+  signal, the bundle's own prediction ``relit(target)`` (exposure-matched to the live face)
+  where it does not (the live light left it in deep shadow relative to what the target wants,
+  near black, or clipped); ``eps`` (a share of the face's median) regularises the ratio, bounded
+  to [0, RATIO_MAX]. The live face keeps its eyes, mouth and expression wherever it is lit.
+* ambient: the ratio ``(relit + eps) / (ambient + eps)`` of the relit face to the reference under
+  the capture room's light (the face under even light for bundles without a usable one),
+  normalised to a median luminance of 1 - the live frame's own light stays in the output (the
+  face is tinted, not relit): kept to compare with, and for a live room that is the capture's.
 * paste: the relit reference face, scaled by an exposure gain so its median luminance matches
-  the live face's, over the frame: ``out = frame (1 - a) + a g relit``.
-* transfer: the live face keeps its eyes, mouth and expression and takes the new light as a
-  per-pixel ratio ``(relit + eps) / (ambient + eps)`` of the relit face to the reference under
-  the capture's room light; ``eps`` (a share of the face's median ambient) regularises dark
-  pixels, the ratio is normalised to a median luminance of 1 (the face keeps its brightness,
-  the light changes its distribution and colour; ``exposure`` scales it) and bounded to
-  [0, RATIO_MAX]: ``out = frame (1 + a (g ratio - 1))``.
+  the live face's, over the frame (the paper).
 
 ``strength`` (0-1) scales ``a``: 0 returns the frame unchanged.
 """
 
 from __future__ import annotations
 
-#: Regulariser of the lighting ratio, as a share of the face's median ambient luminance.
+#: Regulariser of the lighting ratio, as a share of the face's median luminance (the ambient
+#: reference's in mode ambient, the live light's in mode transfer).
 RATIO_EPS = 0.05
 #: Largest lighting ratio applied (after normalisation).
 RATIO_MAX = 6.0
 #: Smallest luminance a median may have before a gain is taken from it.
 TINY = 1e-6
-MODES = ("transfer", "paste")
+MODES = ("transfer", "ambient", "paste")
+#: The compositing kernel's mode for each (relight.kernels.compositor.LAYER_MODES).
+LAYER_MODE = {"transfer": "live", "ambient": "ambient", "paste": "paste"}
+#: Mode transfer: the target is brought to the live face's exposure by its mean luminance, but
+#: never so far that its EXPOSURE_PERCENTILE-th percentile exceeds the live face's (a light that
+#: leaves half the face dark must not blow out the other half to keep the mean).
+EXPOSURE_PERCENTILE = 95.0
+
+
+def exposure_match(live, target) -> float:
+    """The gain that brings ``target`` (luminance of face pixels under the target light) to the
+    exposure of ``live`` (the same pixels under the live light): 1 when either is empty or black."""
+    import numpy as np
+
+    live = np.asarray(live, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    if live.size == 0 or target.size == 0:
+        return 1.0
+    ml, mt = float(live.mean()), float(target.mean())
+    pl, pt = (float(np.percentile(v, EXPOSURE_PERCENTILE)) for v in (live, target))
+    if not (ml > TINY and mt > TINY and pt > TINY):
+        return 1.0
+    return min(ml / mt, pl / pt)

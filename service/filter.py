@@ -45,6 +45,7 @@ class FilterResult:
     passed_through: int = 0
     audio: str = "none"
     head_rotation: dict = field(default_factory=dict)
+    live_light: dict = field(default_factory=dict)
     timings_ms: dict = field(default_factory=dict)
     wall_s: float = 0.0
     start_s: float = 0.0
@@ -199,7 +200,7 @@ def run_filter(inp, out, bundle, env, *, mode: str = "transfer", fixed_env: bool
                                  exposure=exposure)
     res = FilterResult(out=out)
     res.start_s = time.perf_counter() - t_start
-    stages: dict[str, list] = {k: [] for k in ("track", "pose", "relight", "warp", "composite", "total")}
+    stages: dict[str, list] = {k: [] for k in ("track", "pose", "relight", "light", "warp", "composite", "total")}
     cam = None
 
     def handle(rgb, t, index):
@@ -209,6 +210,8 @@ def run_filter(inp, out, bundle, env, *, mode: str = "transfer", fixed_env: bool
         if info.face:
             res.faces += 1
             res.head_rotation[str(index)] = [round(a, 3) for a in info.angles]
+            if info.light is not None:
+                res.live_light[str(index)] = info.light.as_json()
         else:
             res.passed_through += 1
         for k in stages:
@@ -238,12 +241,29 @@ def run_filter(inp, out, bundle, env, *, mode: str = "transfer", fixed_env: bool
     return res
 
 
+def _light_summary(lights: dict) -> dict:
+    """Median residual and the count of each status over the frames with a light estimate."""
+    if not lights:
+        return {}
+    res = [v["residual"] for v in lights.values() if v["residual"] == v["residual"]]
+    status: dict = {}
+    for v in lights.values():
+        status[v["status"]] = status.get(v["status"], 0) + 1
+    return {"frames": len(lights), "median_residual": float(np.median(res)) if res else None, "status": status}
+
+
 def write_report(folder: Path, res: FilterResult, inp: Path) -> Path:
     """``report.json``: head_rotation {frame index: [yaw, pitch, roll] deg}, timings, counts."""
     folder.mkdir(parents=True, exist_ok=True)
     doc = {"input": str(inp), "output": str(res.out), "frames": res.frames, "faces": res.faces,
            "passed_through": res.passed_through, "audio": res.audio,
            "head_rotation": res.head_rotation,
+           "live_light": res.live_light,
+           "live_light_summary": _light_summary(res.live_light),
+           "live_light_convention": "mode transfer, per frame: direction (unit, camera space: +X right, +Y up, +Z "
+                                    "toward the camera) the light comes from, intensity (flashes of power, the live "
+                                    "exposure), colour (linear rgb, luminance 1), residual (RMS of the fit relative to "
+                                    "the face's), pixels fitted, status (ok | dark | clipped | few pixels)",
            "head_rotation_convention": "yaw, pitch, roll in degrees, R = Ry(yaw) Rx(pitch) Rz(roll) about camera "
                                        "+Y, +X, +Z (relight camera space), relative to the bundle's reference pose",
            "timings_ms": res.timings_ms, "wall_s": res.wall_s, "start_s": res.start_s, "notes": res.notes}

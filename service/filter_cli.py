@@ -30,6 +30,8 @@ def _focal(text: str):
 
 
 def add_filter_parser(sub) -> None:
+    from .composite import MODES
+
     p = sub.add_parser(
         "filter", help="relight the face in a video (a virtual-camera-style batch filter)",
         description="Relight the face of every frame of a video (any container FFmpeg reads) or a folder of "
@@ -43,9 +45,11 @@ def add_filter_parser(sub) -> None:
     p.add_argument("--bundle", type=Path, required=True, help="reflectance bundle of this face (relight capture)")
     p.add_argument("--env", required=True, metavar="FILE|builtin:NAME",
                    help="environment to light the face with (lat-long .exr/.hdr/.png or a built-in)")
-    p.add_argument("--mode", choices=("transfer", "paste"), default="transfer",
-                   help="transfer: the new light applied to the live face (eyes, mouth, expression kept); "
-                        "paste: the relit reference face warped in (the paper)")
+    p.add_argument("--mode", choices=MODES, default="transfer",
+                   help="transfer: the live face relit for real - its own light measured from it and swapped for "
+                        "the target (eyes, mouth, expression kept where lit; the bundle's prediction where the live "
+                        "light left the face dark); ambient: the ratio to the capture room's light (the live "
+                        "room's light stays); paste: the relit reference face warped in (the paper)")
     p.add_argument("--fixed-env", action="store_true",
                    help="do not turn the environment against the head's rotation (the light follows the face)")
     p.add_argument("--strength", type=_strength, default=1.0, help="blend with the original frame, 0 to 1")

@@ -23,6 +23,7 @@ from relight.directions import rotation_matrix
 from relight.errors import InputError
 
 from . import composite
+from .live_light import SAMPLES, LightEstimator, LiveLight
 from .pose import OneEuroFilter, PoseEstimator, camera_matrix, lift_landmarks
 from .tracking import MAX_TRACKED, FaceTracker, thin_points
 from .warp import GRID_STEP, coarse_map, face_ring, points_box
@@ -31,10 +32,16 @@ _LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
 #: Rows of the frames the tracker sees (larger frames are scaled down for tracking only).
 TRACK_ROWS = 270
 #: The composited region reaches this share of the landmarks' extent beyond their hull.
-HULL_MARGIN = 0.08
+HULL_MARGIN = 0.5
 #: Feather of the face mask: erosion and Gaussian sigma, as shares of the face's size.
 FEATHER_ERODE = 0.015
 FEATHER_SIGMA = 0.02
+#: Tracked points within this distance (px at 540 rows) of the global affine motion are taken as
+#: its noise (:meth:`FramePath._regularised_points`).
+POINT_NOISE_AT_540 = 1.0
+#: Alignment to the live-lit face: ECC iterations and the largest move accepted (px at 540 rows).
+ALIGN_ITERATIONS = 100
+ALIGN_MAX_PX = 12.0
 #: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
 ANGLE_MIN_CUTOFF = 1.5
 ANGLE_BETA = 0.2
@@ -52,6 +59,7 @@ class FrameInfo:
     points: int = 0
     note: str = ""
     timings: dict = field(default_factory=dict)
+    light: LiveLight | None = None
 
 
 def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -189,7 +197,23 @@ class FramePath:
         small_ref = cv2.resize(self.ref_grey, (round(ref_w * rs), round(ref_h * rs)), interpolation=cv2.INTER_AREA) \
             if rs < 1 else self.ref_grey
         small_mask = cv2.resize(full_mask.astype(np.uint8), small_ref.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
-        self.tracker = FaceTracker(small_ref, landmarks * np.float32(rs), small_mask)
+        # The bundle's own face in its illumination subspace finds the face where a generic
+        # detector does not (one-sided light, tight crops).
+        from .acquire import FaceFinder
+
+        solid_full = np.zeros((ref_h, ref_w), dtype=bool)
+        solid_full[y0:y0 + h, x0:x0 + w] = solid
+        room = bundle.room_light
+        finder = FaceFinder.from_relighter(self.relighter, solid_full, scale=rs,
+                                           room=bundle.ambient_frame() if room is not None else None)
+        self.tracker = FaceTracker(small_ref, landmarks * np.float32(rs), small_mask, finder=finder)
+        self.track_face = cv2.resize(solid_full.astype(np.uint8), small_ref.shape[::-1],
+                                     interpolation=cv2.INTER_NEAREST) > 0
+        # The region aligned to the live-lit face (tracker scale): the face, eroded a little.
+        ys, xs = np.nonzero(self.track_face)
+        self.align_box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+        ax0, ay0, ax1, ay1 = self.align_box
+        self.align_mask = cv2.erode(self.track_face[ay0:ay1, ax0:ax1].astype(np.uint8), np.ones((5, 5), np.uint8))
         # Feathered face mask (reference crop).
         size = max(h, w)
         er = max(int(round(FEATHER_ERODE * size)), 1)
@@ -231,6 +255,22 @@ class FramePath:
         normal_crop = normal_full[nfill.ravel()].reshape(h, w, 3)
         self.compositor = Compositor(self.alpha_crop, fill, self.inv_ambient, normal_crop, self.origin,
                                      self.relighter)
+        # The live light (mode transfer): fitted on face pixels well inside the composited region
+        # that face the camera, at most SAMPLES of them, spread evenly.
+        pix = np.asarray(bundle.pixels, dtype=np.int64)
+        px, py = pix % w, pix // w
+        normals = np.asarray(bundle.normal, dtype=np.float32)
+        good = np.flatnonzero((self.alpha_crop[py, px] > 0.5) & (normals[:, 2] > 0.3))
+        if good.size > SAMPLES:
+            good = good[np.linspace(0, good.size - 1, SAMPLES).round().astype(np.int64)]
+        self.live_ref = np.stack([px[good] + x0, py[good] + y0], axis=1).astype(np.float32)
+        self.live_normal = normals[good]
+        self.live_full = _bundle_frame_index(bundle)[good]
+        self.live_box = (int(self.live_ref[:, 0].min(initial=0)) - 2, int(self.live_ref[:, 1].min(initial=0)) - 2,
+                         int(self.live_ref[:, 0].max(initial=0)) + 3, int(self.live_ref[:, 1].max(initial=0)) + 3)
+        n_tex = self.relighter.texels.size
+        maps = np.asarray(bundle.maps[good], dtype=np.float32)[:, :, :n_tex] * np.float32(self.relighter.sample_scale)
+        self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
         self.gain_filter = OneEuroFilter(GAIN_MIN_CUTOFF, 0.0)
@@ -268,6 +308,7 @@ class FramePath:
         self.tracker.prev = None
         self.angle_filter.reset()
         self.gain_filter.reset()
+        self.light_estimator.reset()
         for est in self._estimators.values():
             est.last = None
 
@@ -313,8 +354,13 @@ class FramePath:
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()
         ref_idx = track.ref_index[keep]
-        cur = np.concatenate([track.xy[keep], _affine_ring(self.control_ref[ref_idx], track.xy[keep],
-                                                           self.control_ref[self.ring_index])])
+        xy = self._regularised_points(self.control_ref[ref_idx], track.xy[keep], size)
+        if self.light_estimator.light is not None:
+            # Aligned to the face as the live light shows it (the last frame's estimate): the
+            # whole face, not only the landmarks that survived (a side light hides half of them).
+            xy = self._align_to_live(rgb, self.control_ref[ref_idx], xy)
+        self.tracker.track.xy[keep] = xy * np.float32(ts)
+        cur = np.concatenate([xy, _affine_ring(self.control_ref[ref_idx], xy, self.control_ref[self.ring_index])])
         ref = np.concatenate([self.control_ref[ref_idx], self.control_ref[self.ring_index]])
         box = points_box(cur, size)
         coarse = coarse_map(cur, ref, box) if box is not None else None
@@ -324,25 +370,138 @@ class FramePath:
             tm["warp"] = (time.perf_counter() - t3) * 1e3
             tm["total"] = (time.perf_counter() - t0) * 1e3
             return rgb, info
-        # Exposure: transfer keeps the face's brightness (the lighting ratio's median is 1);
-        # paste matches the relit face's median to the live face's at the tracked points.
         flat = img.reshape(-1, 3)
+        layer_mode = composite.LAYER_MODE[self.mode]
+        live_median = 0.0
+        eps = float(self.ratio_eps)
         if self.mode == "transfer":
-            ratio = (flat[self.sample_full] + self.ratio_eps) * self.inv_ambient.reshape(-1, 3)[self.sample_crop]
-            med = float(np.median(ratio @ _LUM)) if ratio.size else 1.0
-            gain = 1.0 / med if med > composite.TINY else 1.0
+            # The live light, fitted to this frame's face; the target exposure-matched to it.
+            t5 = time.perf_counter()
+            lin, valid = self._sample_live(rgb, cur, ref, rotation)
+            info.light = self.light_estimator.fit(lin, valid, t, rotation)
+            if self.light_estimator.light is not None:
+                lit = self.relighter.relight_texels(self.light_estimator.texel_light(), slot="live")
+                self._set_lit_reference(lit)
+                est = lit.reshape(-1, 3)
+                le = est[self.live_full] @ _LUM
+                lt = flat[self.live_full] @ _LUM
+                live_median = float(np.median(le)) if le.size else 0.0
+                gain = composite.exposure_match(le, lt)
+                eps = composite.RATIO_EPS * max(live_median, composite.TINY)
+            else:  # no light yet (the first frames showed too little): the capture room's ratio
+                layer_mode, gain = "ambient", self._ambient_gain(flat)
+            tm["light"] = (time.perf_counter() - t5) * 1e3
+        elif self.mode == "ambient":
+            # The lighting ratio's median is 1: the face keeps its brightness.
+            gain = self._ambient_gain(flat)
         else:
+            # paste: the relit face's median matched to the live face's at the tracked points.
             live = decode_srgb8(_sample_rgb(rgb, track.xy[keep])) @ _LUM
             ref_px = self.fill_flat[_crop_index(self.control_ref[ref_idx], self.origin, self.mask_crop.shape)]
             relit_l = flat[ref_px[ref_px >= 0]] @ _LUM
             num, den = float(np.median(live)) if live.size else 0.0, float(np.median(relit_l)) if relit_l.size else 0.0
             gain = num / den if num > composite.TINY and den > composite.TINY else 1.0
         gain = float(np.exp(self.gain_filter([np.log(max(gain, 1e-6))], t)[0]))
-        tm["warp"] = (time.perf_counter() - t3) * 1e3
+        tm["warp"] = (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0)
         t4 = time.perf_counter()
-        out = self.compositor.run(rgb, box, coarse, GRID_STEP, transfer=self.mode == "transfer",
-                                  gain=gain * self.exposure, strength=self.strength, eps=float(self.ratio_eps),
-                                  ratio_max=composite.RATIO_MAX, rotation=rotation)
+        out = self.compositor.run(rgb, box, coarse, GRID_STEP, mode=layer_mode, gain=gain * self.exposure,
+                                  strength=self.strength, eps=eps, ratio_max=composite.RATIO_MAX, rotation=rotation,
+                                  live_median=live_median)
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info
+
+    def _regularised_points(self, ref_xy: np.ndarray, xy: np.ndarray, size) -> np.ndarray:
+        """Tracked points (N, 2) as a global affine motion of their reference positions plus what
+        it leaves of each, shrunk toward zero where it is within the tracking noise
+        (``POINT_NOISE_AT_540`` px, scaled): a face that moved rigidly in the image plane gets
+        an exact affine warp instead of one bent by every point's error; a turned or moving face
+        keeps its non-affine part."""
+        if len(xy) < 3:
+            return xy
+        g, _ = cv2.estimateAffine2D(ref_xy, xy, method=cv2.LMEDS)
+        if g is None or not np.isfinite(g).all():
+            return xy
+        base = ref_xy @ g[:, :2].T.astype(np.float32) + g[:, 2].astype(np.float32)
+        e = xy - base
+        noise = POINT_NOISE_AT_540 * size[1] / 540.0
+        n2 = (e * e).sum(axis=1, keepdims=True)
+        shrink = np.clip(1.0 - noise * noise / np.maximum(n2, 1e-12), 0.0, 1.0)
+        return (base + shrink * e).astype(np.float32)
+
+    def _align_to_live(self, rgb: np.ndarray, ref_xy: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """The points moved by the affine correction that best aligns the live frame, taken back
+        into the reference by the points' affine motion, to the face relit by the live light (the
+        "live" slot): ECC (a correlation, blind to the camera's gain and offset) over the face, at
+        the tracker's scale. The points unchanged when the alignment fails or moves too far."""
+        from relight.colour import encode_srgb8
+
+        g, _ = cv2.estimateAffine2D(ref_xy, xy, method=cv2.LMEDS)
+        if g is None or not np.isfinite(g).all():
+            return xy
+        rs = self.ref_track_scale
+        x0, y0, x1, y1 = self.align_box  # reference pixels at the tracker's scale
+        # reference (tracker scale) pixel q -> reference q / rs -> frame g
+        to_frame = np.c_[g[:, :2] / rs, g[:, :2] @ np.array([x0, y0]) / rs + g[:, 2]]
+        live = cv2.warpAffine(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), to_frame, (x1 - x0, y1 - y0),
+                              flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+        lit = np.ascontiguousarray(self.relighter.slot("live")[0]) @ _LUM
+        h, w = self.tracker.reference.shape
+        if (h, w) != lit.shape[:2]:
+            lit = cv2.resize(lit, (w, h), interpolation=cv2.INTER_AREA)
+        template = encode_srgb8(np.clip(lit[y0:y1, x0:x1], 0.0, 1.0)).astype(np.float32)
+        warp = np.eye(2, 3, dtype=np.float32)
+        try:
+            _, warp = cv2.findTransformECC(template, live.astype(np.float32), warp, cv2.MOTION_AFFINE,
+                                           (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, ALIGN_ITERATIONS, 1e-5),
+                                           self.align_mask, 3)
+        except cv2.error:  # no convergence (a face the light left nearly black): keep the points
+            return xy
+        # live(W q) ~ template(q): a reference point q (tracker scale, box coordinates) is at W q.
+        q = (ref_xy * np.float32(rs) - np.array([x0, y0], np.float32))
+        moved_q = q @ warp[:, :2].T + warp[:, 2]
+        moved = (moved_q + np.array([x0, y0], np.float32)) / np.float32(rs)
+        frame_pts = moved @ g[:, :2].T.astype(np.float32) + g[:, 2].astype(np.float32)
+        shift = np.linalg.norm(frame_pts - (ref_xy @ g[:, :2].T.astype(np.float32) + g[:, 2].astype(np.float32)),
+                               axis=1)
+        if not np.isfinite(frame_pts).all() or shift.max() > ALIGN_MAX_PX * rgb.shape[0] / 540.0:
+            return xy
+        # the affine correction applies to the points' affine part; their own residuals stay
+        return (xy + frame_pts - (ref_xy @ g[:, :2].T.astype(np.float32) + g[:, 2].astype(np.float32))).astype(
+            np.float32)
+
+    def _set_lit_reference(self, lit: np.ndarray) -> None:
+        """The tracker's reference with the face as the live light shows it (``lit``: the reference
+        frame relit by the estimate, linear): re-anchoring then matches like with like."""
+        from relight.colour import encode_srgb8
+
+        h, w = self.tracker.reference.shape
+        grey = cv2.resize(np.ascontiguousarray(lit, dtype=np.float32) @ _LUM, (w, h), interpolation=cv2.INTER_AREA) \
+            if (h, w) != lit.shape[:2] else np.ascontiguousarray(lit, dtype=np.float32) @ _LUM
+        ref = self.tracker.reference.copy()
+        ref[self.track_face] = encode_srgb8(np.clip(grey[self.track_face], 0.0, 1.0))
+        self.tracker.lit_reference = ref
+
+    def _ambient_gain(self, flat: np.ndarray) -> float:
+        """The gain that brings the median of the ratio to the reference light to 1."""
+        ratio = (flat[self.sample_full] + self.ratio_eps) * self.inv_ambient.reshape(-1, 3)[self.sample_crop]
+        med = float(np.median(ratio @ _LUM)) if ratio.size else 1.0
+        return 1.0 / med if med > composite.TINY else 1.0
+
+    def _sample_live(self, rgb: np.ndarray, cur: np.ndarray, ref: np.ndarray, rotation: np.ndarray):
+        """The live frame at the light estimator's sample pixels: ((S, 3) float32 linear, (S,) bool
+        where the frame shows them - inside it, the warp and facing the camera)."""
+        n = self.live_ref.shape[0]
+        grid = coarse_map(ref, cur, self.live_box)  # frame positions of a grid over the reference
+        if grid is None or n == 0:
+            return np.zeros((n, 3), np.float32), np.zeros(n, dtype=bool)
+        x0, y0 = self.live_box[:2]
+        gx = ((self.live_ref[:, 0] - x0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
+        gy = ((self.live_ref[:, 1] - y0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
+        pos = cv2.remap(grid, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e4, -1e4))[0]
+        h, w = rgb.shape[:2]
+        valid = (pos[:, 0] >= 0) & (pos[:, 1] >= 0) & (pos[:, 0] <= w - 1) & (pos[:, 1] <= h - 1)
+        valid &= self.live_normal @ np.asarray(rotation, np.float32)[2] > 0.3
+        px = cv2.remap(rgb, pos[:, 0:1].copy(), pos[:, 1:2].copy(), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
+        return decode_srgb8(px).reshape(-1, 3), valid

@@ -43,6 +43,9 @@ REANCHOR_BELOW = 0.6
 REWARP_SCALE = 0.08
 #: Haar detection runs on a copy at most this many rows high.
 DETECT_ROWS = 360
+#: The reference relit as a frame shows it is used when it explains at least this share of the
+#: face's variance there (else the plain reference, brightness matched).
+RELIT_MIN_SHARE = 0.5
 
 
 @dataclass
@@ -85,8 +88,9 @@ def thin_points(points: np.ndarray, n: int) -> np.ndarray:
 class FaceTracker:
     """Follows the reference landmarks (N, 2) of ``reference`` (grey uint8) through frames."""
 
-    def __init__(self, reference: np.ndarray, landmarks: np.ndarray, mask: np.ndarray):
+    def __init__(self, reference: np.ndarray, landmarks: np.ndarray, mask: np.ndarray, finder=None):
         self.reference = np.ascontiguousarray(reference)
+        self.finder = finder
         self.landmarks = thin_points(np.asarray(landmarks, dtype=np.float32).reshape(-1, 2), MAX_TRACKED)
         if len(self.landmarks) < MIN_POINTS:
             raise ValueError(f"the bundle has {len(self.landmarks)} landmarks; tracking needs {MIN_POINTS}")
@@ -98,6 +102,9 @@ class FaceTracker:
         self.ref_box = box
         self.prev: np.ndarray | None = None
         self.track: Track | None = None
+        # The reference as the live light shows it (set by the frame path from its light
+        # estimate): what re-anchoring matches while it is set.
+        self.lit_reference: np.ndarray | None = None
         self.age = 0
 
     def _lk_params(self, rows: int) -> tuple[dict, float]:
@@ -125,9 +132,11 @@ class FaceTracker:
         ok &= (p1[:, 0] >= 0) & (p1[:, 0] < w) & (p1[:, 1] >= 0) & (p1[:, 1] < h)
         return p1, ok
 
-    def _matched_reference(self, grey: np.ndarray, box, sim=None) -> np.ndarray:
-        """The reference with its face box's brightness and contrast matched to ``box`` of ``grey``
-        (``sim``: the reference -> frame similarity; the frame's box is taken there)."""
+    def _matched_reference(self, grey: np.ndarray, box, sim=None, reference=None) -> np.ndarray:
+        """The reference (or ``reference``) with its face box's brightness and contrast matched to
+        ``box`` of ``grey`` (``sim``: the reference -> frame similarity; the frame's box is taken
+        there)."""
+        reference = self.reference if reference is None else reference
         rx, ry, rw, rh = self.ref_box
         if sim is not None:
             corners = np.array([[rx, ry], [rx + rw, ry + rh]], np.float64) @ sim[:, :2].T + sim[:, 2]
@@ -135,18 +144,38 @@ class FaceTracker:
             w, h = (int(v) + 1 for v in np.abs(corners[1] - corners[0]))
         else:
             x, y, w, h = box
-        a = self.reference[ry:ry + rh, rx:rx + rw].astype(np.float32)
+        a = reference[ry:ry + rh, rx:rx + rw].astype(np.float32)
         b = grey[max(y, 0):max(y + h, 0), max(x, 0):max(x + w, 0)].astype(np.float32)
         if a.size < 16 or b.size < 16:
-            return self.reference
+            return reference
         gain = float(b.std()) / max(float(a.std()), 1.0)
         gain = float(np.clip(gain, 0.25, 4.0))
         off = float(b.mean()) - gain * float(a.mean())
-        return cv2.convertScaleAbs(self.reference, alpha=gain, beta=off)
+        return cv2.convertScaleAbs(reference, alpha=gain, beta=off)
+
+    def relit_reference(self, grey: np.ndarray, sim: np.ndarray) -> np.ndarray:
+        """The reference with its face relit as ``grey`` shows it where ``sim`` (reference ->
+        frame) puts it (:meth:`relight.service.acquire.FaceFinder.relit`); the plain reference
+        without a finder or when the fit explains little of the face."""
+        if self.finder is None:
+            return self.reference
+        from relight.colour import decode_srgb8, encode_srgb8
+
+        relit, share = self.finder.relit(decode_srgb8(grey), sim)
+        if not share > RELIT_MIN_SHARE:
+            return self.reference
+        out = self.reference.copy()
+        x0, y0 = (int(round(v)) for v in self.finder.origin)
+        h, w = relit.shape
+        region = out[y0:y0 + h, x0:x0 + w]
+        m = self.finder.mask[:region.shape[0], :region.shape[1]]
+        region[m] = encode_srgb8(np.clip(relit[:region.shape[0], :region.shape[1]][m], 0.0, 1.0))
+        return out
 
     def from_reference(self, grey: np.ndarray, guess: np.ndarray, index: np.ndarray | None = None,
-                       box=None) -> Track | None:
-        """Landmarks (all, or ``index``) searched in ``grey`` from the reference, starting at ``guess``.
+                       box=None, reference: np.ndarray | None = None) -> Track | None:
+        """Landmarks (all, or ``index``) searched in ``grey`` from the reference (or the given
+        ``reference``, e.g. :meth:`relit_reference`), starting at ``guess``.
 
         The reference is first brought into the frame's geometry by the similarity that best
         takes the landmarks to ``guess`` (frames of another size or scale than the reference
@@ -163,10 +192,11 @@ class FaceTracker:
         if grey.shape == self.reference.shape and (self.track is not None or abs(scale - 1.0) < REWARP_SCALE):
             # Same geometry (or re-anchoring a followed face, whose apparent scale change is a
             # turn, not a zoom): LK straight from the reference, which resampling would blur.
-            ref, start = self._matched_reference(grey, box), src
+            ref, start = self._matched_reference(grey, box, reference=reference), src
         else:
-            ref = cv2.warpAffine(self._matched_reference(grey, box, sim), sim, (grey.shape[1], grey.shape[0]),
-                                 flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            ref = cv2.warpAffine(self._matched_reference(grey, box, sim, reference), sim,
+                                 (grey.shape[1], grey.shape[0]), flags=cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_REPLICATE)
             start = (src @ sim[:, :2].T + sim[:, 2]).astype(np.float32)
         pts, ok = self._flow(ref, grey, start, guess)
         if ok.sum() < MIN_POINTS:
@@ -174,15 +204,33 @@ class FaceTracker:
         return Track(ref_index=idx[ok], xy=pts[ok].astype(np.float32))
 
     def acquire(self, grey: np.ndarray) -> Track | None:
-        """Find the face from scratch: Haar box -> similarity guess -> LK from the reference."""
+        """Find the face from scratch: Haar box -> similarity guess -> LK from the reference; where
+        that finds nothing (a face lit from one side, a tight crop), the bundle's own face in its
+        illumination subspace (:mod:`relight.service.acquire`) -> LK from the reference relit as
+        the frame is lit."""
         box = detect_face_box(grey)
-        if box is None:
+        if box is not None:
+            rx, ry, rw, _ = self.ref_box
+            x, y, w, _ = box
+            s = w / max(rw, 1)
+            guess = (self.landmarks - np.array([rx, ry], np.float32)) * s + np.array([x, y], np.float32)
+            track = self.from_reference(grey, guess, box=box)
+            if track is not None:
+                return track
+        if self.finder is None:
             return None
-        rx, ry, rw, _ = self.ref_box
-        x, y, w, _ = box
-        s = w / max(rw, 1)
-        guess = (self.landmarks - np.array([rx, ry], np.float32)) * s + np.array([x, y], np.float32)
-        return self.from_reference(grey, guess, box=box)
+        from relight.colour import decode_srgb8
+
+        found = self.finder.find(decode_srgb8(grey))
+        if found is None:
+            return None
+        guess = (self.landmarks @ found.sim[:, :2].T + found.sim[:, 2]).astype(np.float32)
+        h, w = grey.shape
+        inside = (guess[:, 0] >= 0) & (guess[:, 0] < w) & (guess[:, 1] >= 0) & (guess[:, 1] < h)
+        if inside.sum() < MIN_POINTS:
+            return None
+        idx = np.flatnonzero(inside)
+        return self.from_reference(grey, guess[idx], idx, reference=self.relit_reference(grey, found.sim))
 
     def update(self, grey: np.ndarray, predict=None) -> Track | None:
         """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
@@ -200,7 +248,14 @@ class FaceTracker:
             guess = np.asarray(predict(idx), dtype=np.float32)
             h, w = grey.shape
             inside = (guess[:, 0] >= 0) & (guess[:, 0] < w) & (guess[:, 1] >= 0) & (guess[:, 1] < h)
-            fresh = self.from_reference(grey, guess[inside], idx[inside]) if inside.sum() >= MIN_POINTS else None
+            fresh = None
+            if inside.sum() >= MIN_POINTS:
+                ref = self.lit_reference
+                if ref is None and self.finder is not None:
+                    sim, _ = cv2.estimateAffinePartial2D(self.landmarks[track.ref_index], track.xy, method=cv2.LMEDS)
+                    if sim is not None and np.isfinite(sim).all():
+                        ref = self.relit_reference(grey, sim)
+                fresh = self.from_reference(grey, guess[inside], idx[inside], reference=ref)
             if fresh is not None:
                 # Keep the followed points and add (or correct) the ones found again.
                 merged = dict(zip(track.ref_index.tolist(), track.xy, strict=True))
@@ -218,3 +273,4 @@ class FaceTracker:
     def drop(self) -> None:
         """Forget the current track (the next frame acquires the face again)."""
         self.track = None
+        self.lit_reference = None

@@ -23,13 +23,15 @@ OUTSIDE = -1.0e4
 
 def face_ring(mask: np.ndarray, count: int = 32, margin: float = 0.06) -> np.ndarray:
     """(count, 2) float32 points on a ring around the mask, ``margin`` x its size outside it."""
-    m = mask.astype(np.uint8)
-    ys, xs = np.nonzero(m)
+    ys, xs = np.nonzero(mask)
     size = max(float(np.ptp(xs)), float(np.ptp(ys)), 1.0)
     r = max(int(round(margin * size)), 2)
+    # Padded, so a mask that reaches the crop's edge (a tight crop) gets its ring outside it.
+    pad = r + 2
+    m = np.pad(mask.astype(np.uint8), pad)
     grown = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
     contours, _ = cv2.findContours(grown, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    c = max(contours, key=len).reshape(-1, 2).astype(np.float32)
+    c = max(contours, key=len).reshape(-1, 2).astype(np.float32) - np.float32(pad)
     step = len(c) / count
     return c[(np.arange(count) * step).astype(int)]
 

@@ -205,8 +205,8 @@ def test_filter_bad_input_fails_cleanly_and_leaves_no_output(small_bundle, clip,
     assert all(np.abs(x.astype(int) - y.astype(int)).max() <= 2 for x, y in zip(a, b, strict=True))
 
 
-@pytest.mark.parametrize("transfer", [True, False])
-def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, transfer):
+@pytest.mark.parametrize("mode", ["ambient", "paste", "live"])
+def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     from relight.kernels.compositor import build_layer_numpy, warp_composite_numpy
     from relight.service.warp import GRID_STEP, coarse_map
 
@@ -223,15 +223,30 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, transfer
            min(int(cur[:, 1].max()) + 1, h))
     coarse = coarse_map(cur, ref, box)
     fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(8, -4, 2))
-    settings = dict(transfer=transfer, gain=1.3, strength=0.8, eps=float(fp.ratio_eps), ratio_max=6.0)
+    # The live slot: the face under a light from the left (some of it dark: the trust ramps act).
+    live = np.array(fp.relighter.relight_texels(_texel_point(fp.relighter, [-0.8, 0.2, 0.55]), slot="live"))
+    lum = live.reshape(-1, 3)[fp.live_full] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    settings = dict(mode=mode, gain=1.3, strength=0.8, eps=float(fp.ratio_eps), ratio_max=6.0,
+                    live_median=float(np.median(lum)))
     turn = rotation_matrix(25, -10, 5)  # some of the face turned away: it fades out
     got = fp.compositor.run(rgb, box, coarse, GRID_STEP, rotation=turn, **settings)
     layer = build_layer_numpy(fp.relighter.frame, fp.fill_flat.reshape(fp.alpha_crop.shape), fp.inv_ambient,
-                              fp.alpha_crop, fp.compositor.normal, turn, **settings)
-    want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.origin, layer, transfer=transfer)
+                              fp.alpha_crop, fp.compositor.normal, turn, live=live, **settings)
+    if mode == "live":
+        s = layer[0][..., 3][fp.alpha_crop > 0.5]
+        assert (s < 0.05).mean() > 0.02 and (s > 0.95).mean() > 0.2  # the live pixel trusted, and not
+    want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.origin, layer, mode=mode)
     diff = np.abs(got.astype(int) - want.astype(int))
     assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
+
+
+def _texel_point(relighter, direction):
+    """(T, 3) texel light of one flash-strength light toward ``direction``."""
+    from relight.kernels.transport import point_light
+
+    lp = point_light(np.asarray(direction, float) / np.linalg.norm(direction), relighter.map_size, relighter.texels)
+    return np.repeat(lp[:, None], 3, axis=1) if lp.ndim == 1 else lp
 
 
 def test_filter_keeps_variable_frame_rate_timestamps(small_bundle, clip, tmp_path):

@@ -1,0 +1,245 @@
+"""The light on the live face, measured from the live face.
+
+The bundle is a linear map from light to pixels, so the light that falls on the face in a live
+frame can be fitted to the frame: the frame's face, taken back into the reference's geometry,
+is the bundle relit by some non-negative light, times the live camera's gain and white balance.
+
+* Light model, in the head's frame (where the maps are): a smooth part - ``LOBES`` broad lobes
+  over the sphere, von Mises-Fisher bumps of ``LOBE_DEG``, each one flash of power - plus sharp
+  lights: single map texels (5.6 degrees at 64x32) near the strongest lobes, so a window or a
+  lamp casts the hard shadows it does (a broad lobe alone would soften the nose's shadow and the
+  ratio to it would leave the live shadow in place). Its shape is fitted on luminance; its colour
+  (the light's and the camera's white balance together) is one gain per channel. Lobes the
+  bundle has no texels for (behind the head) get no weight.
+* Fit: non-negative least squares on sampled face pixels (their maps, read once), regularised
+  toward the previous frame's light (a defined answer when the face shows little), with robust
+  weights (Tukey's biweight on the luminance residual): what the bundle cannot explain - eyes,
+  mouth, hair, glints - stops pulling the light. The weights live on the reference's pixels, so
+  each frame reuses the last frame's and refines them once. Clipped and black pixels are left
+  out. The light is smoothed over time (exponential, ``SMOOTH_S``).
+* Status: ``ok``; ``few pixels`` (fewer than ``MIN_PIXELS`` usable: the last light is kept);
+  ``dark`` / ``clipped`` (most of the face under the noise floor or saturated: fitted on what is
+  left, and flagged).
+
+Colours: linear Rec.709, the live frame's exposure. Directions in what is reported: camera space
+(+X right, +Y up, +Z toward the camera), the direction the light comes from.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import nnls
+
+from relight.colour import LUMINANCE
+
+#: Broad lobes over the sphere (Fibonacci directions) and their angular width (degrees, the von
+#: Mises-Fisher sigma).
+LOBES = 48
+LOBE_DEG = 22.0
+#: Sharp lights: the texels within SHARP_REACH_DEG of lobes holding at least SHARP_SHARE of the
+#: strongest lobe's weight, at most SHARP_MAX of them (the nearest first).
+SHARP_REACH_DEG = 25.0
+SHARP_SHARE = 0.15
+SHARP_MAX = 96
+#: Face pixels sampled for the fit (at most).
+SAMPLES = 3000
+#: Fewest usable pixels for a fit.
+MIN_PIXELS = 64
+#: Pixels read as clipped at this linear value (any channel) and as black below this one.
+CLIP = 0.95
+BLACK = 2e-4
+#: Regularisation toward the previous light, relative to the mean diagonal of the normal equations.
+RIDGE = 2e-3
+#: Robust passes on the first frame (later frames: one, from the last frame's weights), and
+#: Tukey's biweight constant (in robust standard deviations of the residual).
+FIRST_PASSES = 3
+TUKEY_C = 4.685
+#: Temporal smoothing of the light: exponential, this time constant (s).
+SMOOTH_S = 0.12
+
+
+@dataclass
+class LiveLight:
+    """One frame's light estimate (see the module docstring)."""
+
+    direction: tuple[float, float, float]  # dominant direction (by what it lights of the face), camera space
+    intensity: float                       # total luminance, flashes of power (live exposure)
+    colour: tuple[float, float, float]     # rgb of the light, luminance 1
+    residual: float                        # RMS fit residual relative to the face's RMS (robust pixels)
+    pixels: int                            # pixels used
+    status: str = "ok"
+    notes: list = field(default_factory=list)
+
+    def as_json(self) -> dict:
+        return {"direction": [round(v, 4) for v in self.direction], "intensity": round(self.intensity, 5),
+                "colour": [round(v, 4) for v in self.colour],
+                "residual": round(self.residual, 4) if self.residual == self.residual else None,
+                "pixels": self.pixels, "status": self.status}
+
+
+def lobe_lights(texel_dirs: np.ndarray, solid_angle: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """(T, n) texel light of each lobe (power per texel over pi, flash units: each column sums to 1
+    over the whole sphere; texels not stored in the bundle receive nothing)."""
+    from relight.directions import equirect_directions, equirect_solid_angles
+
+    kappa = 1.0 / np.radians(LOBE_DEG) ** 2
+    full = equirect_directions(64, 32).reshape(-1, 3)
+    full_sa = np.repeat(equirect_solid_angles(64, 32), 64)
+    norm = (np.exp(kappa * (full @ dirs.T - 1.0)) * full_sa[:, None]).sum(axis=0)
+    return np.exp(kappa * (texel_dirs @ dirs.T - 1.0)) * solid_angle[:, None] / norm[None]
+
+
+def _nnls(a: np.ndarray, y: np.ndarray, prior: np.ndarray, ridge: float = RIDGE) -> np.ndarray:
+    """argmin |a w - y|^2 + lam |w - prior|^2 over w >= 0 (lam = ridge x the mean diagonal of a^T a)."""
+    n = a.shape[1]
+    g = a.T @ a
+    lam = ridge * max(float(np.trace(g)) / max(n, 1), 1e-30)
+    lhs = g + lam * np.eye(n)
+    rhs = a.T @ y + lam * prior
+    try:
+        chol = np.linalg.cholesky(lhs)
+    except np.linalg.LinAlgError:
+        chol = np.linalg.cholesky(lhs + 1e-9 * float(np.trace(lhs)) * np.eye(n))
+    w, _ = nnls(chol.T, np.linalg.solve(chol, rhs), maxiter=20 * n)
+    return w
+
+
+class LightEstimator:
+    """Fits the live light to sampled face pixels of a bundle (module docstring).
+
+    maps : (P_s, 3, T) float32 the bundle's reflectance maps at the sampled pixels (capture units:
+    multiplied by the bundle's sample_scale); texel_dirs (T, 3), solid_angle (T,) of the stored
+    texels.
+    """
+
+    def __init__(self, maps: np.ndarray, texel_dirs: np.ndarray, solid_angle: np.ndarray):
+        from relight.pipeline.reflectance import fibonacci_sphere
+
+        self.maps = np.asarray(maps, dtype=np.float32)
+        self.texel_dirs = np.asarray(texel_dirs, dtype=np.float64)
+        lum = LUMINANCE.astype(np.float32)
+        self.lum_maps = np.einsum("pct,c->pt", self.maps, lum)  # (P_s, T)
+        dirs = fibonacci_sphere(LOBES)
+        lobes = lobe_lights(self.texel_dirs, np.asarray(solid_angle, np.float64), dirs)  # (T, n)
+        reach = (self.lum_maps @ lobes.astype(np.float32)).max(axis=0)
+        live = reach > 1e-6 * max(float(reach.max(initial=0.0)), 1e-30)  # lobes the bundle can show
+        self.lobe_dirs, self.lobes = dirs[live], lobes[:, live]
+        self.lobe_lum = self.lum_maps @ self.lobes.astype(np.float32)  # (P_s, n)
+        self.lobe_cos = self.texel_dirs @ self.lobe_dirs.T  # (T, n)
+        self.reach = self.lum_maps.mean(axis=0, dtype=np.float64)  # (T,) how much each texel lights the face
+        self.robust = np.ones(self.maps.shape[0])
+        self.light = None  # (T, 3) the smoothed light in the texels
+        self.t = None
+
+    def reset(self) -> None:
+        self.robust[:] = 1.0
+        self.light = None
+        self.t = None
+
+    def texel_light(self) -> np.ndarray:
+        """(T, 3) the current light in the bundle's texels (zeros before the first fit)."""
+        return self.light if self.light is not None else np.zeros((self.texel_dirs.shape[0], 3))
+
+    def fit(self, live: np.ndarray, valid: np.ndarray, t: float, rotation: np.ndarray | None = None) -> LiveLight:
+        """The light of one frame. live : (P_s, 3) float32 linear colours of the sampled pixels in
+        the frame (in the maps' order); valid : (P_s,) bool where the frame shows the pixel (inside
+        it, facing the camera); t : seconds (for the smoothing); rotation : the head's 3x3
+        rotation (camera from head), to report the direction in camera space."""
+        live = np.asarray(live, dtype=np.float64)
+        use = np.asarray(valid, dtype=bool) & np.isfinite(live).all(axis=1)
+        clipped = (live >= CLIP).any(axis=1)
+        black = (live <= BLACK).all(axis=1)
+        notes: list = []
+        status = "ok"
+        n_valid = int(use.sum())
+        if n_valid and clipped[use].mean() > 0.5:
+            status = "clipped"
+            notes.append("most of the face is saturated: the frame is overexposed")
+        elif n_valid and black[use].mean() > 0.5:
+            status = "dark"
+            notes.append("most of the face is black: the frame is underexposed")
+        use &= ~clipped & ~black
+        if int(use.sum()) < MIN_PIXELS:
+            notes.append(f"{int(use.sum())} usable face pixels (need {MIN_PIXELS}): the last light is kept")
+            return self._report(rotation, residual=float("nan"), pixels=int(use.sum()), status="few pixels",
+                                notes=notes)
+        idx = np.flatnonzero(use)
+        y = live[idx]
+        yl = y @ LUMINANCE.astype(np.float64)
+        prev = self.light
+        first = prev is None
+        for _ in range(FIRST_PASSES if first else 1):
+            sw = np.sqrt(self.robust[idx])
+            # 1. the smooth part
+            a_b = self.lobe_lum[idx].astype(np.float64)
+            prior_b = np.zeros(a_b.shape[1]) if first else self._project(prev)
+            w_b = _nnls(a_b * sw[:, None], yl * sw, prior_b)
+            # 2. sharp lights near the strongest lobes, fitted with the lobes
+            cand = self._sharp_texels(w_b)
+            a = np.concatenate([a_b, self.lum_maps[idx][:, cand].astype(np.float64)], axis=1)
+            prior_t = np.zeros(cand.size) if first else \
+                np.maximum(prev[cand] @ LUMINANCE - (self.lobes[cand] @ prior_b), 0.0)
+            prior = np.concatenate([w_b, prior_t])
+            w = _nnls(a * sw[:, None], yl * sw, prior)
+            shape = self.lobes @ w[:w_b.size]
+            shape[cand] += w[w_b.size:]
+            fit_l = a @ w
+            r = np.abs(yl - fit_l)
+            scale = 1.4826 * float(np.median(r))  # over every usable pixel: excluded ones can come back
+            u = r / (TUKEY_C * max(scale, 1e-9 * max(float(np.median(yl)), 1e-12)))
+            self.robust[idx] = np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
+        # 3. colour: one gain per channel on the fitted shape
+        fit_c = np.einsum("pct,t->pc", self.maps[idx], shape.astype(np.float32)).astype(np.float64)
+        wts = self.robust[idx][:, None]
+        gains = (wts * fit_c * y).sum(axis=0) / np.maximum((wts * fit_c * fit_c).sum(axis=0), 1e-30)
+        gains = np.where(np.isfinite(gains) & (gains > 0), gains, 0.0)
+        lum_gain = float(gains @ LUMINANCE)
+        gains = gains / lum_gain if lum_gain > 0 else np.ones(3)
+        light = shape[:, None] * gains[None, :]
+        keep = self.robust[idx] > 0
+        rms = float(np.sqrt(np.mean(yl[keep] ** 2))) if keep.any() else 0.0
+        res = float(np.sqrt(np.mean((yl - fit_l)[keep] ** 2))) / rms if rms > 0 else float("nan")
+        if prev is not None and self.t is not None and t > self.t:
+            k = 1.0 - np.exp(-(t - self.t) / SMOOTH_S)
+            light = prev + k * (light - prev)
+        self.light, self.t = light, float(t)
+        return self._report(rotation, residual=res, pixels=int(keep.sum()), status=status, notes=notes)
+
+    def _project(self, light: np.ndarray) -> np.ndarray:
+        """Lobe weights whose light is nearest the given texel light (the prior of the smooth part)."""
+        lum = light @ LUMINANCE
+        w, *_ = np.linalg.lstsq(self.lobes, lum, rcond=None)
+        return np.maximum(w, 0.0)
+
+    def _sharp_texels(self, w_b: np.ndarray) -> np.ndarray:
+        """Texel ids of the sharp lights: near the strongest lobes (module constants)."""
+        if not (w_b.max(initial=0.0) > 0):
+            return np.zeros(0, dtype=np.int64)
+        strong = w_b >= SHARP_SHARE * w_b.max()
+        near = self.lobe_cos[:, strong].max(axis=1)
+        cand = np.flatnonzero(near >= np.cos(np.radians(SHARP_REACH_DEG)))
+        if cand.size > SHARP_MAX:
+            cand = cand[np.argsort(-near[cand])[:SHARP_MAX]]
+        return np.sort(cand)
+
+    def _report(self, rotation, *, residual, pixels, status, notes) -> LiveLight:
+        light = self.light
+        if light is None:
+            return LiveLight(direction=(0.0, 0.0, 1.0), intensity=0.0, colour=(1.0, 1.0, 1.0), residual=residual,
+                             pixels=pixels, status=status, notes=notes)
+        lum = light @ LUMINANCE.astype(np.float64)
+        total = float(lum.sum())
+        # The dominant direction: each texel's light weighted by how much of the face it lights
+        # (grazing light that reaches little of the face does not swing it).
+        d = (lum * self.reach) @ self.texel_dirs
+        norm = float(np.linalg.norm(d))
+        d = d / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
+        if rotation is not None:
+            d = np.asarray(rotation, dtype=np.float64) @ d
+        rgb = light.sum(axis=0)
+        colour = rgb / total if total > 0 else np.ones(3)
+        return LiveLight(direction=tuple(float(v) for v in d), intensity=total,
+                         colour=tuple(float(v) for v in colour), residual=residual, pixels=pixels, status=status,
+                         notes=notes)
