@@ -26,7 +26,11 @@
  *   3. MODE_LIVE: s drops to 0 where the live pixel is clipped (max channel from CLIP_LO to
  *      CLIP_HI: a saturated pixel carries no ratio) and where it is much darker than the live
  *      light predicts (lum f / lum E from AGREE_HI down to AGREE_LO: a shadow edge the fitted
- *      light draws a pixel off, which a ratio would keep); the rule above;
+ *      light draws a pixel off, which a ratio would keep), and where the live pixel differs from
+ *      what the live light predicts by no more than `tau` (relative; the fit's own scatter:
+ *      the ratio would only carry the model's error and the camera's noise into the output) -
+ *      soft-thresholded, so what the bundle cannot explain (eyes, mouth, expression) passes:
+ *      face = T (1 + s soft(lum f / lum E - 1, tau)) in luminance; the rule above;
  *   4. sRGB encode through the 16k-entry table (as relight.colour.encode_srgb8).
  * Pixels outside the warp keep their bytes.
  */
@@ -161,7 +165,7 @@ __kernel void warp_composite(
     float ox, float oy,                                 /* the crop's origin in the reference */
     __global const float8 *layer, int cw, int ch,       /* (ch, cw) from build_layer */
     __global const float *expect,                       /* (ch, cw) from build_layer (MODE_LIVE) */
-    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode)
+    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau)
 {
     int x = get_global_id(0), y = get_global_id(1);
     if (x >= bw || y >= bh)
@@ -187,6 +191,8 @@ __kernel void warp_composite(
         float e = bilerp1(expect, cw, ch, m.x - ox, m.y - oy);
         float agree = lum3(f) / fmax(e, 1e-12f);
         s *= fclamp((agree - AGREE_LO) / (AGREE_HI - AGREE_LO), 0.0f, 1.0f);
+        float dev = fabs(agree - 1.0f);
+        s *= dev > tau ? (dev - tau) / dev : 0.0f;
     }
     float3 face = s * f * l.s012 + (1.0f - s) * l.s456;
     float3 res = f + a * (face - f);

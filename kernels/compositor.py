@@ -116,7 +116,7 @@ def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, 
 
 
 def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, layer, *,
-                         mode: str) -> np.ndarray:
+                         mode: str, tau: float = 0.0) -> np.ndarray:
     """NumPy twin of ``warp_composite``: a new frame (layer: the pair from :func:`build_layer_numpy`)."""
     from relight.colour import LUMINANCE
 
@@ -144,7 +144,10 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
     if mode == "live":
         e = _bilinear(expect[..., None], mx, my)
         agree = (f @ LUMINANCE)[:, None] / np.maximum(e, np.float32(1e-12))
-        s = np.where(s > 0, s * (1.0 - _ramp(f.max(axis=1, keepdims=True), CLIP_RAMP)) * _ramp(agree, AGREE_RAMP), s)
+        dev = np.abs(agree - 1.0)
+        shrink = np.where(dev > tau, (dev - np.float32(tau)) / np.maximum(dev, np.float32(1e-12)), 0.0)
+        s = np.where(s > 0, s * (1.0 - _ramp(f.max(axis=1, keepdims=True), CLIP_RAMP)) * _ramp(agree, AGREE_RAMP)
+                     * shrink, s)
     face = s * f * lay[:, 0:3] + (1.0 - s) * lay[:, 4:7]
     res = f + a * (face - f)
     lut, n = _encode_lut()
@@ -212,7 +215,7 @@ class Compositor:
 
     def run(self, rgb: np.ndarray, box, coarse: np.ndarray, step: int, *, mode: str, gain: float,
             strength: float, eps: float, ratio_max: float, rotation: np.ndarray | None = None,
-            live_median: float = 0.0) -> np.ndarray:
+            live_median: float = 0.0, tau: float = 0.0) -> np.ndarray:
         """``rgb`` with the face composited (a new array). mode : one of :data:`LAYER_MODES`
         (``live`` reads the relighter's "live" slot: the face under the live light)."""
         import pyopencl as cl
@@ -242,7 +245,7 @@ class Compositor:
                      np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf, np.int32(coarse.shape[1]),
                      np.int32(step), np.float32(self.origin[0]), np.float32(self.origin[1]), self._layer,
                      np.int32(self.cw), np.int32(self.ch), self._expect, self._dec, self._enc, np.int32(self.lut_n),
-                     np.int32(code))
+                     np.int32(code), np.float32(tau))
         out = np.empty_like(self.frame)
         cl.enqueue_copy(q, out, buf, is_blocking=True)
         return out

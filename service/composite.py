@@ -6,11 +6,13 @@ mask in 0-1, ``f`` the live frame's pixel, all colours linear RGB.
 
 * transfer: the light on the live face is measured from the live face (:mod:`relight.service.
   live_light`: the bundle relit by a fitted non-negative light explains the frame), and the face
-  is relit for real - ``f x relit(target) / relit(live light)`` where the live pixel carries
-  signal, the bundle's own prediction ``relit(target)`` (exposure-matched to the live face)
-  where it does not (the live light left it in deep shadow relative to what the target wants,
-  near black, or clipped); ``eps`` (a share of the face's median) regularises the ratio, bounded
-  to [0, RATIO_MAX]. The live face keeps its eyes, mouth and expression wherever it is lit.
+  is relit for real: the bundle's own prediction ``relit(target)`` (exposure-matched to the live
+  face) carries the new light, and the live frame's own detail - what the bundle's prediction
+  of the live frame does not explain, beyond the fit's scatter (``DETAIL_SHRINK``): eyes, mouth,
+  expression - is carried over by the ratio ``f x relit(target) / relit(live light)`` where the
+  live pixel has signal (not in deep shadow relative to what the target wants, not near black,
+  not clipped); ``eps`` (a share of the face's median) regularises the ratio, bounded to
+  [0, RATIO_MAX].
 * ambient: the ratio ``(relit + eps) / (ambient + eps)`` of the relit face to the reference under
   the capture room's light (the face under even light for bundles without a usable one),
   normalised to a median luminance of 1 - the live frame's own light stays in the output (the
@@ -33,6 +35,11 @@ TINY = 1e-6
 MODES = ("transfer", "ambient", "paste")
 #: The compositing kernel's mode for each (relight.kernels.compositor.LAYER_MODES).
 LAYER_MODE = {"transfer": "live", "ambient": "ambient", "paste": "paste"}
+#: Mode transfer: a live pixel passes its own detail into the output only where it differs from
+#: what the fitted live light predicts by more than this many times the fit's scatter (relative,
+#: soft-thresholded): eyes, mouth, expression pass; the model's error and the camera's noise
+#: do not (on a still real face, the output then equals the bundle's prediction to 0.03 dB).
+DETAIL_SHRINK = 2.0
 #: Mode transfer: the target is brought to the live face's exposure by its mean luminance, but
 #: never so far that its EXPOSURE_PERCENTILE-th percentile exceeds the live face's (a light that
 #: leaves half the face dark must not blow out the other half to keep the mean).

@@ -38,7 +38,7 @@ FEATHER_ERODE = 0.015
 FEATHER_SIGMA = 0.02
 #: Tracked points within this distance (px at 540 rows) of the global affine motion are taken as
 #: its noise (:meth:`FramePath._regularised_points`).
-POINT_NOISE_AT_540 = 1.0
+POINT_NOISE_AT_540 = 2.0
 #: Alignment to the live-lit face: ECC iterations and the largest move accepted (px at 540 rows).
 ALIGN_ITERATIONS = 100
 ALIGN_MAX_PX = 12.0
@@ -343,16 +343,7 @@ class FramePath:
             info.note = "no face found" if track is None else "no consistent head pose"
             tm["total"] = (time.perf_counter() - t0) * 1e3
             return rgb, info
-        angles = self.angle_filter(pose.angles, t)
-        rotation = rotation_matrix(*angles)
-        info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles
         keep = pose.inliers
-        info.points = int(keep.size)
-        tm["pose"] = (time.perf_counter() - t1) * 1e3
-        t2 = time.perf_counter()
-        img = self.relighter.relight(self.env, None if self.fixed_env else rotation, exposure=self.exposure)
-        tm["relight"] = (time.perf_counter() - t2) * 1e3
-        t3 = time.perf_counter()
         ref_idx = track.ref_index[keep]
         xy = self._regularised_points(self.control_ref[ref_idx], track.xy[keep], size)
         if self.light_estimator.light is not None:
@@ -360,6 +351,21 @@ class FramePath:
             # whole face, not only the landmarks that survived (a side light hides half of them).
             xy = self._align_to_live(rgb, self.control_ref[ref_idx], xy)
         self.tracker.track.xy[keep] = xy * np.float32(ts)
+        # The pose again from the refined points (Levenberg-Marquardt from the first one).
+        refined = est.solve(ref_idx, xy)
+        if refined is not None and refined.inliers.size >= keep.size // 2:
+            pose = refined
+        else:
+            est.last = pose
+        angles = self.angle_filter(pose.angles, t)
+        rotation = rotation_matrix(*angles)
+        info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles
+        info.points = int(keep.size)
+        tm["pose"] = (time.perf_counter() - t1) * 1e3
+        t2 = time.perf_counter()
+        img = self.relighter.relight(self.env, None if self.fixed_env else rotation, exposure=self.exposure)
+        tm["relight"] = (time.perf_counter() - t2) * 1e3
+        t3 = time.perf_counter()
         cur = np.concatenate([xy, _affine_ring(self.control_ref[ref_idx], xy, self.control_ref[self.ring_index])])
         ref = np.concatenate([self.control_ref[ref_idx], self.control_ref[self.ring_index]])
         box = points_box(cur, size)
@@ -373,6 +379,7 @@ class FramePath:
         flat = img.reshape(-1, 3)
         layer_mode = composite.LAYER_MODE[self.mode]
         live_median = 0.0
+        tau = 0.0
         eps = float(self.ratio_eps)
         if self.mode == "transfer":
             # The live light, fitted to this frame's face; the target exposure-matched to it.
@@ -387,6 +394,8 @@ class FramePath:
                 lt = flat[self.live_full] @ _LUM
                 live_median = float(np.median(le)) if le.size else 0.0
                 gain = composite.exposure_match(le, lt)
+                spread = self.light_estimator.spread
+                tau = composite.DETAIL_SHRINK * spread if np.isfinite(spread) else 0.0
                 eps = composite.RATIO_EPS * max(live_median, composite.TINY)
             else:  # no light yet (the first frames showed too little): the capture room's ratio
                 layer_mode, gain = "ambient", self._ambient_gain(flat)
@@ -406,7 +415,7 @@ class FramePath:
         t4 = time.perf_counter()
         out = self.compositor.run(rgb, box, coarse, GRID_STEP, mode=layer_mode, gain=gain * self.exposure,
                                   strength=self.strength, eps=eps, ratio_max=composite.RATIO_MAX, rotation=rotation,
-                                  live_median=live_median)
+                                  live_median=live_median, tau=tau)
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info

@@ -68,6 +68,7 @@ class LiveLight:
     intensity: float                       # total luminance, flashes of power (live exposure)
     colour: tuple[float, float, float]     # rgb of the light, luminance 1
     residual: float                        # RMS fit residual relative to the face's RMS (robust pixels)
+    spread: float                          # robust scatter of live / fitted (1.4826 MAD of the ratio - 1)
     pixels: int                            # pixels used
     status: str = "ok"
     notes: list = field(default_factory=list)
@@ -76,6 +77,7 @@ class LiveLight:
         return {"direction": [round(v, 4) for v in self.direction], "intensity": round(self.intensity, 5),
                 "colour": [round(v, 4) for v in self.colour],
                 "residual": round(self.residual, 4) if self.residual == self.residual else None,
+                "spread": round(self.spread, 4) if self.spread == self.spread else None,
                 "pixels": self.pixels, "status": self.status}
 
 
@@ -132,6 +134,7 @@ class LightEstimator:
         self.robust = np.ones(self.maps.shape[0])
         self.light = None  # (T, 3) the smoothed light in the texels
         self.t = None
+        self.spread = float("nan")
 
     def reset(self) -> None:
         self.robust[:] = 1.0
@@ -201,10 +204,13 @@ class LightEstimator:
         keep = self.robust[idx] > 0
         rms = float(np.sqrt(np.mean(yl[keep] ** 2))) if keep.any() else 0.0
         res = float(np.sqrt(np.mean((yl - fit_l)[keep] ** 2))) / rms if rms > 0 else float("nan")
+        lit = fit_l > 0.05 * max(float(np.median(fit_l)), 1e-12)
+        spread = 1.4826 * float(np.median(np.abs(yl[lit] / fit_l[lit] - 1.0))) if lit.any() else float("nan")
         if prev is not None and self.t is not None and t > self.t:
             k = 1.0 - np.exp(-(t - self.t) / SMOOTH_S)
             light = prev + k * (light - prev)
         self.light, self.t = light, float(t)
+        self.spread = spread
         return self._report(rotation, residual=res, pixels=int(keep.sum()), status=status, notes=notes)
 
     def _project(self, light: np.ndarray) -> np.ndarray:
@@ -228,7 +234,7 @@ class LightEstimator:
         light = self.light
         if light is None:
             return LiveLight(direction=(0.0, 0.0, 1.0), intensity=0.0, colour=(1.0, 1.0, 1.0), residual=residual,
-                             pixels=pixels, status=status, notes=notes)
+                             spread=float("nan"), pixels=pixels, status=status, notes=notes)
         lum = light @ LUMINANCE.astype(np.float64)
         total = float(lum.sum())
         # The dominant direction: each texel's light weighted by how much of the face it lights
@@ -241,5 +247,5 @@ class LightEstimator:
         rgb = light.sum(axis=0)
         colour = rgb / total if total > 0 else np.ones(3)
         return LiveLight(direction=tuple(float(v) for v in d), intensity=total,
-                         colour=tuple(float(v) for v in colour), residual=residual, pixels=pixels, status=status,
-                         notes=notes)
+                         colour=tuple(float(v) for v in colour), residual=residual, spread=self.spread, pixels=pixels,
+                         status=status, notes=notes)

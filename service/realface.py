@@ -13,8 +13,8 @@ faces-yale``: 47-49 photos, each under one known light):
   frames at ``CLIP_FPS`` fps: shift, roll and scale, smooth, spanning +-``SHIFT_PX`` px,
   +-``ROLL_DEG`` deg, +-``SCALE`` of scale); the truth: the photo under B moved the same way;
 * filtered with ``relight filter --env builtin:point:B --fixed-env`` (the light moves with the
-  face in such a clip) in each ``--mode``; and the still prediction of B (``render --light B
-  --ambient``) moved the same way;
+  face in such a clip) in each ``--mode``; and the still prediction of B (``render --light B``)
+  moved the same way;
 * metric: PSNR over the face pixels of every frame (sRGB 0-1) after one least-squares gain (in
   linear light) for the whole clip; and the frames where a face was found.
 """
@@ -177,7 +177,7 @@ def evaluate_subject(folder: Path, out: Path, *, transfer: str, progress: bool =
         rows[mode] = {"psnr": clip_psnr(frames, truth, masks), "faces": rep["faces"], "frames": rep["frames"],
                       "light": rep.get("live_light_summary", {})}
     b = relight.load_bundle(bundle)
-    still = np.array(relight.Relighter(b, exact=True).relight_light(info["dir_b"])) + b.ambient_frame()
+    still = np.array(relight.Relighter(b, exact=True).relight_light(info["dir_b"]))  # what render --light gives
     h, w = still.shape[:2]
     fill = float((CANVAS_CODE / 255.0 + 0.055) / 1.055) ** 2.4
     moved = [encode_srgb8(place(still, m, fill=fill)) for m in motion]
