@@ -133,8 +133,10 @@ def _filter(clip: Path, out: Path, bundle: Path, env: str, mode: str) -> dict:
     """``relight filter`` in a fresh process: (frames written, its report)."""
     dst = out / f"filtered_{mode}.mp4"
     report = out / f"report_{mode}"
+    # The clip is a crop of a long-lens photo moved in the image plane: an orthographic camera
+    # (the default focal length is a phone's whole frame, ~60 degrees across).
     cmd = [sys.executable, "-m", "relight", "filter", str(clip), str(dst), "--bundle", str(bundle), "--env", env,
-           "--fixed-env", "--mode", mode, "--quiet", "--report", str(report)]
+           "--fixed-env", "--mode", mode, "--focal", "ortho", "--quiet", "--report", str(report)]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
