@@ -32,13 +32,18 @@ _LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
 #: Rows of the frames the tracker sees (larger frames are scaled down for tracking only).
 TRACK_ROWS = 270
 #: The composited region reaches this share of the landmarks' extent beyond their hull.
-HULL_MARGIN = 0.5
+HULL_MARGIN = 0.2
 #: Feather of the face mask: erosion and Gaussian sigma, as shares of the face's size.
 FEATHER_ERODE = 0.015
 FEATHER_SIGMA = 0.02
 #: Tracked points within this distance (px at 540 rows) of where the head pose puts them are taken
 #: as its noise (:meth:`FramePath._regularised_points`).
 POINT_NOISE_AT_540 = 2.0
+#: Spacing (reference px) of the grid the reference is rendered through in a turned head's pose.
+VIEW_STEP = 8
+#: Mode transfer: the live light is fitted every this many frames (it is smoothed over a tenth of a
+#: second anyway; the frames between reuse it).
+LIGHT_EVERY = 2
 #: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
 ANGLE_MIN_CUTOFF = 1.5
 ANGLE_BETA = 0.2
@@ -181,6 +186,12 @@ class FramePath:
         pts = np.concatenate([landmarks, ring])
         crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
         model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
+        # A grid over the face lifted the same way: the reference rendered in a turned head's pose.
+        gy, gx = np.mgrid[0:h:VIEW_STEP, 0:w:VIEW_STEP]
+        on = solid[gy, gx]
+        grid = np.stack([gx[on], gy[on]], axis=1).astype(np.float32)
+        self.view_ref = grid + np.array([x0, y0], np.float32)
+        self.view_model = lift_landmarks(self.view_ref, depth_filled[gy[on], gx[on]], k_ref)
         self.n_landmarks = len(landmarks)
         self.ring_index = np.arange(len(landmarks), len(pts))
         self.control_ref = pts
@@ -263,6 +274,8 @@ class FramePath:
         n_tex = self.relighter.texels.size
         maps = np.asarray(bundle.maps[good], dtype=np.float32)[:, :, :n_tex] * np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
+        self._last_light: LiveLight | None = None
+        self._since_light = 0
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
         self.gain_filter = OneEuroFilter(GAIN_MIN_CUTOFF, 0.0)
@@ -301,6 +314,8 @@ class FramePath:
         self.angle_filter.reset()
         self.gain_filter.reset()
         self.light_estimator.reset()
+        self._last_light = None
+        self._since_light = 0
         for est in self._estimators.values():
             est.last = None
 
@@ -321,7 +336,8 @@ class FramePath:
             grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
         last = est.last
         predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
-        track = self.tracker.update(grey, predict)
+        view = (lambda: self._render_view(est, last, ts, grey.shape)) if last is not None else None
+        track = self.tracker.update(grey, predict, view)
         if track is not None and ts < 1:
             track = type(track)(ref_index=track.ref_index, xy=track.xy / np.float32(ts))
         tm["track"] = (time.perf_counter() - t0) * 1e3
@@ -375,12 +391,18 @@ class FramePath:
         if self.mode == "transfer":
             # The live light, fitted to this frame's face; the target exposure-matched to it.
             t5 = time.perf_counter()
-            lin, valid = self._sample_live(rgb, cur, ref, rotation)
-            info.light = self.light_estimator.fit(lin, valid, t, rotation)
+            if self.light_estimator.light is None or self._since_light + 1 >= LIGHT_EVERY:
+                lin, valid = self._sample_live(rgb, cur, ref, rotation)
+                self._last_light = self.light_estimator.fit(lin, valid, t, rotation)
+                self._since_light = 0
+                if self.light_estimator.light is not None:
+                    self._set_lit_reference(self.relighter.relight_texels(self.light_estimator.texel_light(),
+                                                                          slot="live"))
+            else:
+                self._since_light += 1
+            info.light = self._last_light
             if self.light_estimator.light is not None:
-                lit = self.relighter.relight_texels(self.light_estimator.texel_light(), slot="live")
-                self._set_lit_reference(lit)
-                est = lit.reshape(-1, 3)
+                est = self.relighter.slot("live")[0].reshape(-1, 3)
                 le = est[self.live_full] @ _LUM
                 lt = flat[self.live_full] @ _LUM
                 live_median = float(np.median(le)) if le.size else 0.0
@@ -422,6 +444,28 @@ class FramePath:
         n2 = (e * e).sum(axis=1, keepdims=True)
         shrink = np.clip(1.0 - noise * noise / np.maximum(n2, 1e-12), 0.0, 1.0)
         return (base + shrink * e).astype(np.float32)
+
+    def _render_view(self, est: PoseEstimator, pose, ts: float, shape) -> np.ndarray | None:
+        """The tracker's reference (the live-lit one when there is one) rendered as ``pose`` shows
+        the head, in the tracking frame's geometry ((H, W) uint8; 0 off the face), or None."""
+        from .warp import OUTSIDE, inverse_map
+
+        if len(self.view_ref) < 8:
+            return None
+        pts = (est.project_points(pose, self.view_model) * ts).astype(np.float32)
+        h, w = shape
+        box = points_box(pts, (w, h))
+        if box is None:
+            return None
+        m = inverse_map(pts, self.view_ref * np.float32(self.ref_track_scale), box, step=VIEW_STEP)
+        if m is None:
+            return None
+        ref = self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
+        x0, y0, x1, y1 = box
+        out = np.zeros((h, w), np.uint8)
+        out[y0:y1, x0:x1] = cv2.remap(ref, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        out[y0:y1, x0:x1][m[..., 0] <= OUTSIDE / 2] = 0
+        return out
 
     def _set_lit_reference(self, lit: np.ndarray) -> None:
         """The tracker's reference with the face as the live light shows it (``lit``: the reference

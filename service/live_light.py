@@ -42,9 +42,10 @@ LOBE_DEG = 22.0
 #: strongest lobe's weight, at most SHARP_MAX of them (the nearest first).
 SHARP_REACH_DEG = 25.0
 SHARP_SHARE = 0.15
-SHARP_MAX = 96
-#: Face pixels sampled for the fit (at most).
-SAMPLES = 3000
+SHARP_MAX = 64
+#: Face pixels sampled for the fit (at most), and the stride over them of the colour fit.
+SAMPLES = 2000
+COLOUR_STRIDE = 4
 #: Fewest usable pixels for a fit.
 MIN_PIXELS = 64
 #: Pixels read as clipped at this linear value (any channel) and as black below this one.
@@ -119,19 +120,24 @@ class LightEstimator:
     def __init__(self, maps: np.ndarray, texel_dirs: np.ndarray, solid_angle: np.ndarray):
         from relight.pipeline.reflectance import fibonacci_sphere
 
-        self.maps = np.asarray(maps, dtype=np.float32)
+        maps = np.asarray(maps, dtype=np.float32)
         self.texel_dirs = np.asarray(texel_dirs, dtype=np.float64)
         lum = LUMINANCE.astype(np.float32)
-        self.lum_maps = np.einsum("pct,c->pt", self.maps, lum)  # (P_s, T)
+        self.lum_maps = np.einsum("pct,c->pt", maps, lum)  # (P_s, T)
+        # Texel-major copies: a frame reads the rows of a few texels.
+        self.maps_t = np.ascontiguousarray(maps.transpose(2, 0, 1))  # (T, P_s, 3)
+        self.lum_t = np.ascontiguousarray(self.lum_maps.T)  # (T, P_s)
         dirs = fibonacci_sphere(LOBES)
         lobes = lobe_lights(self.texel_dirs, np.asarray(solid_angle, np.float64), dirs)  # (T, n)
         reach = (self.lum_maps @ lobes.astype(np.float32)).max(axis=0)
         live = reach > 1e-6 * max(float(reach.max(initial=0.0)), 1e-30)  # lobes the bundle can show
         self.lobe_dirs, self.lobes = dirs[live], lobes[:, live]
         self.lobe_lum = self.lum_maps @ self.lobes.astype(np.float32)  # (P_s, n)
+        self.lobe_rgb = np.einsum("pct,tn->pcn", maps, self.lobes.astype(np.float32))  # (P_s, 3, n)
+        self.lobe_pinv = np.linalg.pinv(self.lobes)  # (n, T): a texel light's nearest lobe weights
         self.lobe_cos = self.texel_dirs @ self.lobe_dirs.T  # (T, n)
         self.reach = self.lum_maps.mean(axis=0, dtype=np.float64)  # (T,) how much each texel lights the face
-        self.robust = np.ones(self.maps.shape[0])
+        self.robust = np.ones(maps.shape[0])
         self.light = None  # (T, 3) the smoothed light in the texels
         self.t = None
         self.spread = float("nan")
@@ -181,21 +187,24 @@ class LightEstimator:
             w_b = _nnls(a_b * sw[:, None], yl * sw, prior_b)
             # 2. sharp lights near the strongest lobes, fitted with the lobes
             cand = self._sharp_texels(w_b)
-            a = np.concatenate([a_b, self.lum_maps[idx][:, cand].astype(np.float64)], axis=1)
+            a = np.concatenate([a_b, self.lum_t[cand][:, idx].T.astype(np.float64)], axis=1)
             prior_t = np.zeros(cand.size) if first else \
                 np.maximum(prev[cand] @ LUMINANCE - (self.lobes[cand] @ prior_b), 0.0)
             prior = np.concatenate([w_b, prior_t])
             w = _nnls(a * sw[:, None], yl * sw, prior)
-            shape = self.lobes @ w[:w_b.size]
-            shape[cand] += w[w_b.size:]
+            w_lobes, w_tex = w[:w_b.size], w[w_b.size:]
+            shape = self.lobes @ w_lobes
+            shape[cand] += w_tex
             fit_l = a @ w
             r = np.abs(yl - fit_l)
             scale = 1.4826 * float(np.median(r))  # over every usable pixel: excluded ones can come back
             u = r / (TUKEY_C * max(scale, 1e-9 * max(float(np.median(yl)), 1e-12)))
             self.robust[idx] = np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
         # 3. colour: one gain per channel on the fitted shape
-        fit_c = np.einsum("pct,t->pc", self.maps[idx], shape.astype(np.float32)).astype(np.float64)
-        wts = self.robust[idx][:, None]
+        sub = idx[::COLOUR_STRIDE]
+        fit_c = self.lobe_rgb[sub] @ w_lobes + np.tensordot(w_tex, self.maps_t[cand][:, sub], axes=(0, 0))
+        y = live[sub]
+        wts = self.robust[sub][:, None]
         gains = (wts * fit_c * y).sum(axis=0) / np.maximum((wts * fit_c * fit_c).sum(axis=0), 1e-30)
         gains = np.where(np.isfinite(gains) & (gains > 0), gains, 0.0)
         lum_gain = float(gains @ LUMINANCE)
@@ -215,9 +224,7 @@ class LightEstimator:
 
     def _project(self, light: np.ndarray) -> np.ndarray:
         """Lobe weights whose light is nearest the given texel light (the prior of the smooth part)."""
-        lum = light @ LUMINANCE
-        w, *_ = np.linalg.lstsq(self.lobes, lum, rcond=None)
-        return np.maximum(w, 0.0)
+        return np.maximum(self.lobe_pinv @ (light @ LUMINANCE), 0.0)
 
     def _sharp_texels(self, w_b: np.ndarray) -> np.ndarray:
         """Texel ids of the sharp lights: near the strongest lobes (module constants)."""

@@ -149,7 +149,12 @@ class PoseEstimator:
 
     def project(self, pose: Pose, ref_index: np.ndarray) -> np.ndarray:
         """(M, 2) frame positions of model points ``ref_index`` under ``pose``."""
-        pts, _ = cv2.projectPoints(self.model[ref_index].reshape(-1, 1, 3), pose.rvec, pose.tvec, self.k, None)
+        return self.project_points(pose, self.model[ref_index])
+
+    def project_points(self, pose: Pose, points: np.ndarray) -> np.ndarray:
+        """(M, 2) frame positions of any model-space points (M, 3) (:func:`lift_landmarks`) under ``pose``."""
+        pts, _ = cv2.projectPoints(np.asarray(points, np.float64).reshape(-1, 1, 3), pose.rvec, pose.tvec, self.k,
+                                   None)
         return pts.reshape(-1, 2)
 
 

@@ -43,6 +43,12 @@ REANCHOR_BELOW = 0.6
 REWARP_SCALE = 0.08
 #: Haar detection runs on a copy at most this many rows high.
 DETECT_ROWS = 360
+#: A point found again by re-anchoring replaces the followed one (or joins, when it was lost) only
+#: within this distance (px at 540 rows) of it (or of where the pose puts it).
+REANCHOR_AGREE_AT_540 = 3.0
+#: Re-anchoring falls back to the reference rendered in the current pose when matching the flat
+#: reference finds fewer than this share of the landmarks in view.
+VIEW_BELOW = 0.8
 #: The reference relit as a frame shows it is used when it explains at least this share of the
 #: face's variance there (else the plain reference, brightness matched).
 RELIT_MIN_SHARE = 0.5
@@ -232,9 +238,12 @@ class FaceTracker:
         idx = np.flatnonzero(inside)
         return self.from_reference(grey, guess[idx], idx, reference=self.relit_reference(grey, found.sim))
 
-    def update(self, grey: np.ndarray, predict=None) -> Track | None:
+    def update(self, grey: np.ndarray, predict=None, view=None) -> Track | None:
         """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
-        current pose puts landmarks (used to re-anchor); without it tracks are only followed."""
+        current pose puts landmarks (used to re-anchor); without it tracks are only followed.
+        ``view() -> (H, W) uint8 or None``: the reference rendered as the current pose shows it, in
+        the frame's geometry (a turned head's landmarks then look as they do in the frame: LK
+        from it holds where LK from the flat reference loses them)."""
         grey = np.ascontiguousarray(grey)
         track = None
         if self.track is not None and self.prev is not None and self.prev.shape == grey.shape:
@@ -256,10 +265,25 @@ class FaceTracker:
                     if sim is not None and np.isfinite(sim).all():
                         ref = self.relit_reference(grey, sim)
                 fresh = self.from_reference(grey, guess[inside], idx[inside], reference=ref)
+                # A turned head loses points matched against the flat reference: then against the
+                # reference rendered in the current pose, whichever finds more.
+                if view is not None and (fresh is None or len(fresh) < VIEW_BELOW * inside.sum()):
+                    rendered = view()
+                    if rendered is not None:
+                        pts, ok = self._flow(rendered, grey, guess[inside], guess[inside])
+                        if ok.sum() >= max(MIN_POINTS, 0 if fresh is None else len(fresh) + 1):
+                            fresh = Track(ref_index=idx[inside][ok], xy=pts[ok].astype(np.float32))
             if fresh is not None:
-                # Keep the followed points and add (or correct) the ones found again.
+                # Keep the followed points and add (or correct) the ones found again - those that
+                # agree with them, or for new ones with where the pose puts them, within
+                # REANCHOR_AGREE px: matching the flat reference to a turned head can lock a point
+                # onto the wrong corner, and a handful of those would swing the pose.
+                tol = REANCHOR_AGREE_AT_540 * grey.shape[0] / 540.0
                 merged = dict(zip(track.ref_index.tolist(), track.xy, strict=True))
-                merged.update(zip(fresh.ref_index.tolist(), fresh.xy, strict=True))
+                for k, p in zip(fresh.ref_index.tolist(), fresh.xy, strict=True):
+                    near = merged.get(k, guess[k])
+                    if float(np.hypot(*(p - near))) <= tol:
+                        merged[k] = p
                 keys = np.fromiter(merged.keys(), dtype=np.int64)
                 track = Track(ref_index=keys, xy=np.array([merged[k] for k in keys], dtype=np.float32))
                 self.age = 0
