@@ -154,7 +154,8 @@ class FaceFinder:
 
     @staticmethod
     def _scores(frame: np.ndarray, tpl) -> tuple[np.ndarray, np.ndarray]:
-        """(score map, patch mean map) of a template over every position of ``frame``."""
+        """(score map, patch mean map) of a template over every position of ``frame``: the share
+        of the patch's variance (about its mean) the face's basis explains."""
         basis, m, _ = tpl
         n = float(m.sum())
         s1 = cv2.matchTemplate(frame, m, cv2.TM_CCORR)
@@ -174,11 +175,16 @@ class FaceFinder:
         """The face in ``frame`` ((H, W) float32 linear luminance), or None."""
         frame = np.ascontiguousarray(frame, dtype=np.float32)
         fh, fw = frame.shape
+        # Padded (edges repeated) so that a template's square canvas fits around a face that fills
+        # the frame: a tight crop is the case a generic detector misses.
+        aspect = np.hypot(*self.mask.shape) / self.box_h
+        pad = int(np.ceil(0.5 * aspect * MAX_FACE * fh))
+        frame = cv2.copyMakeBorder(frame, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
         cands = []
         size = MIN_FACE * fh
         while size <= MAX_FACE * fh:
             r = COARSE_ROWS / size
-            small = cv2.resize(frame, (max(int(round(fw * r)), 1), max(int(round(fh * r)), 1)),
+            small = cv2.resize(frame, (max(int(round((fw + 2 * pad) * r)), 1), max(int(round((fh + 2 * pad) * r)), 1)),
                                interpolation=cv2.INTER_AREA if r < 1 else cv2.INTER_LINEAR)
             for roll in ROLLS:
                 tpl = self._template(COARSE_ROWS, roll)
@@ -197,12 +203,20 @@ class FaceFinder:
                 chosen.append(c)
             if len(chosen) == CANDIDATES:
                 break
-        best = None
+        # The largest consistent match wins: a face is similar to parts of itself at smaller
+        # scales (an eye and a brow look like a small face), never to something larger.
+        best, rank = None, -1.0
         for _, size, roll, cx, cy in chosen:
             got = self._refine(frame, size, roll, cx, cy)
-            if got is not None and (best is None or got.score > best.score):
-                best = got
-        return best if best is not None and best.score >= MIN_SCORE else None
+            if got is None or got.score < MIN_SCORE:
+                continue
+            height = self.box_h * float(np.sqrt(abs(np.linalg.det(got.sim[:, :2]))))
+            if got.score * height > rank:
+                best, rank = got, got.score * height
+        if best is None:
+            return None
+        best.sim[:, 2] -= pad  # padded -> frame coordinates
+        return best
 
     def _refine(self, frame: np.ndarray, size: float, roll: float, cx: float, cy: float) -> Found | None:
         """A coarse match refined: roll over FINE_ROLL, then scale over FINE_SCALE (coordinate

@@ -29,8 +29,10 @@ from .tracking import MAX_TRACKED, FaceTracker, thin_points
 from .warp import GRID_STEP, coarse_map, face_ring, points_box
 
 _LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
-#: Rows of the frames the tracker sees (larger frames are scaled down for tracking only).
+#: Rows of the frames the tracker sees (larger frames are scaled down for tracking only), and the
+#: level (8-bit codes) a dark frame's brightest face tones are brought to for tracking.
 TRACK_ROWS = 270
+TRACK_BRIGHT = 200
 #: The composited region reaches this share of the landmarks' extent beyond their hull.
 HULL_MARGIN = 0.2
 #: Feather of the face mask: erosion and Gaussian sigma, as shares of the face's size.
@@ -68,6 +70,18 @@ def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
     m = cv2.remap(img.astype(np.float32), xy[:, 0:1].astype(np.float32), xy[:, 1:2].astype(np.float32),
                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return m.reshape(-1)
+
+
+def _track_exposure(grey: np.ndarray) -> tuple[np.ndarray, float]:
+    """(the tracking image, the gain on its codes): a dark frame brightened (a gain in quarter stops, so it holds still
+    while the exposure does): its 99th percentile brought to ``TRACK_BRIGHT`` codes. Tracking
+    compares brightness gradients against fixed thresholds; a frame a twentieth as bright as the
+    capture would otherwise lose the face."""
+    top = float(np.percentile(grey[::4, ::4], 99))
+    if top >= TRACK_BRIGHT / 2 or top <= 0:
+        return grey, 1.0
+    gain = float(2.0 ** (np.floor(4.0 * np.log2(TRACK_BRIGHT / top)) / 4.0))
+    return cv2.convertScaleAbs(grey, alpha=gain), gain
 
 
 def limit_blas_threads() -> None:
@@ -182,7 +196,13 @@ class FramePath:
 
         _, (iy, ix) = distance_transform_edt(~mask_crop, return_indices=True)
         depth_filled = depth[iy, ix]
-        k_ref = camera_matrix(self.ref_size, focal)
+        if focal == "ortho":
+            # One long focal length for the reference and every frame (a crop or a resized copy of
+            # an orthographic view must not get a different perspective than the reference).
+            from .pose import ORTHOGRAPHIC_FOCAL
+
+            self.focal = ORTHOGRAPHIC_FOCAL * max(self.ref_size)
+        k_ref = camera_matrix(self.ref_size, self.focal)
         pts = np.concatenate([landmarks, ring])
         crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
         model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
@@ -275,6 +295,7 @@ class FramePath:
         maps = np.asarray(bundle.maps[good], dtype=np.float32)[:, :, :n_tex] * np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
         self._last_light: LiveLight | None = None
+        self._track_gain = 1.0
         self._since_light = 0
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
@@ -334,6 +355,7 @@ class FramePath:
         ts = min(1.0, TRACK_ROWS / h)
         if ts < 1:
             grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
+        grey, self._track_gain = _track_exposure(grey)
         last = est.last
         predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
         view = (lambda: self._render_view(est, last, ts, grey.shape)) if last is not None else None
@@ -476,7 +498,10 @@ class FramePath:
         grey = cv2.resize(np.ascontiguousarray(lit, dtype=np.float32) @ _LUM, (w, h), interpolation=cv2.INTER_AREA) \
             if (h, w) != lit.shape[:2] else np.ascontiguousarray(lit, dtype=np.float32) @ _LUM
         ref = self.tracker.reference.copy()
-        ref[self.track_face] = encode_srgb8(np.clip(grey[self.track_face], 0.0, 1.0))
+        face = encode_srgb8(np.clip(grey[self.track_face], 0.0, 1.0))
+        # in the codes the tracker sees (a dark frame's are brightened by the same gain)
+        ref[self.track_face] = face if self._track_gain == 1.0 else \
+            cv2.convertScaleAbs(face, alpha=self._track_gain).ravel()
         self.tracker.lit_reference = ref
 
     def _ambient_gain(self, flat: np.ndarray) -> float:

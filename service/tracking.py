@@ -195,14 +195,22 @@ class FaceTracker:
         if sim is None or not np.isfinite(sim).all():
             return None
         scale = float(np.sqrt(abs(np.linalg.det(sim[:, :2]))))
+        # A reference relit as the frame is lit is already matched in brightness; the plain one
+        # gets its face box's brightness and contrast matched.
         if grey.shape == self.reference.shape and (self.track is not None or abs(scale - 1.0) < REWARP_SCALE):
             # Same geometry (or re-anchoring a followed face, whose apparent scale change is a
             # turn, not a zoom): LK straight from the reference, which resampling would blur.
-            ref, start = self._matched_reference(grey, box, reference=reference), src
+            ref = reference if reference is not None else self._matched_reference(grey, box)
+            start = src
         else:
-            ref = cv2.warpAffine(self._matched_reference(grey, box, sim, reference), sim,
-                                 (grey.shape[1], grey.shape[0]), flags=cv2.INTER_LINEAR,
-                                 borderMode=cv2.BORDER_REPLICATE)
+            src_img = reference if reference is not None else self._matched_reference(grey, box, sim)
+            size = (grey.shape[1], grey.shape[0])
+            ref = cv2.warpAffine(src_img, sim, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+            # Beyond the reference's frame the frame itself: LK's coarse pyramid levels then see
+            # the same surroundings in both (a smeared border would pull them off a small face).
+            cover = cv2.warpAffine(np.full(src_img.shape, 255, np.uint8), sim, size, flags=cv2.INTER_NEAREST,
+                                   borderMode=cv2.BORDER_CONSTANT)
+            ref = np.where(cover > 0, ref, grey)
             start = (src @ sim[:, :2].T + sim[:, 2]).astype(np.float32)
         pts, ok = self._flow(ref, grey, start, guess)
         if ok.sum() < MIN_POINTS:
