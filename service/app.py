@@ -5,7 +5,7 @@ processed one at a time: the per-frame path already uses both cores). Endpoints 
 
 * ``POST /v1/relight`` - body: one encoded frame (``image/png`` or ``image/jpeg``); query:
   ``env`` (a built-in preset name), ``rotation`` (yaw,pitch,roll degrees of the environment),
-  ``exposure`` (EV), ``strength`` (0-1), ``mode`` (transfer|paste). Returns the relit frame in
+  ``exposure`` (EV), ``strength`` (0-1), ``mode`` (transfer|ambient|paste). Returns the relit frame in
   the same format (or the one ``Accept`` asks for); headers: ``Server-Timing`` (per-stage ms),
   ``X-Relight-Face`` (``found`` or ``none``: then the frame comes back unchanged).
 * ``GET /livez`` (the process answers), ``GET /readyz`` (bundle loaded, kernels built),
@@ -22,6 +22,7 @@ are counted by kind and never take the server down.
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import struct
 import time
@@ -32,6 +33,8 @@ from pathlib import Path
 import numpy as np
 from fastapi import FastAPI, Query, Request, Response, WebSocket, WebSocketDisconnect
 from fastapi.responses import JSONResponse, PlainTextResponse
+
+from .composite import MODES
 
 #: Default caps: a 4K frame's worth of raw RGB, and its pixel count.
 MAX_BODY = 3840 * 2160 * 3
@@ -320,7 +323,9 @@ def create_app(config: ServeConfig):
                             rotation: str | None = Query(None, description="environment yaw,pitch,roll (degrees)"),
                             exposure: float | None = Query(None, ge=-20, le=20, description="stops (EV)"),
                             strength: float | None = Query(None, ge=0, le=1, description="blend, 0 to 1"),
-                            mode: str | None = Query(None, pattern="^(transfer|paste)$")):
+                            mode: str | None = Query(None, pattern="^(transfer|ambient|paste)$",
+                                                     description="transfer (the live light measured and swapped), "
+                                                                 "ambient (ratio to the capture room), paste")):
         engine = state["engine"]
         if engine is None:
             raise ServiceError(503, "not_ready", "the service is still loading its bundle; retry shortly")
@@ -347,6 +352,8 @@ def create_app(config: ServeConfig):
         headers = {"Server-Timing": timing, "X-Relight-Face": "found" if info.face else "none"}
         if not info.face and info.note:
             headers["X-Relight-Note"] = info.note
+        if info.light is not None:
+            headers["X-Relight-Light"] = json.dumps(info.light.as_json(), separators=(",", ":"))
         return Response(encode_frame(out, out_type), media_type=out_type, headers=headers)
 
     @app.get("/v1/environment", summary="The current environment and the built-ins")
@@ -445,8 +452,8 @@ def create_app(config: ServeConfig):
                         raise ServiceError(422, "bad_control", f"{key} {v!r}: use {lo:g} to {hi:g}")
                     settings[key] = float(v)
             if "mode" in doc:
-                if doc["mode"] not in ("transfer", "paste"):
-                    raise ServiceError(422, "bad_control", "mode: transfer or paste")
+                if doc["mode"] not in MODES:
+                    raise ServiceError(422, "bad_control", f"mode: one of {', '.join(MODES)}")
                 settings["mode"] = doc["mode"]
 
         async def reader():
@@ -467,8 +474,6 @@ def create_app(config: ServeConfig):
                         latest.update(data=data, t=time.perf_counter(), tag=pending.pop("tag", None))
                         wake.set()
                     elif msg.get("text") is not None:
-                        import json
-
                         try:
                             doc = json.loads(msg["text"])
                             if isinstance(doc, dict) and doc.get("stats"):
@@ -520,6 +525,8 @@ def create_app(config: ServeConfig):
                 metrics.latency.observe(latency)
                 doc = {"frame": counts["frames"], "latency_ms": round(latency * 1e3, 2), "dropped": counts["dropped"],
                        "face": info.face, "timings": {k: round(v, 2) for k, v in info.timings.items()}}
+                if info.light is not None:
+                    doc["light"] = info.light.as_json()
                 if tag is not None:
                     doc["tag"] = tag
                 await send_json(doc)
@@ -538,7 +545,9 @@ def add_serve_arguments(p) -> None:
     p.add_argument("--env", default="builtin:studio", metavar="FILE|builtin:NAME", help="starting environment")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")
     p.add_argument("--port", type=int, default=8000, help="port to listen on")
-    p.add_argument("--mode", choices=("transfer", "paste"), default="transfer", help="compositing mode")
+    p.add_argument("--mode", choices=MODES, default="transfer",
+                   help="transfer: the live light measured from the face and swapped for the target; ambient: the "
+                        "ratio to the capture room's light; paste: the relit reference face (the paper)")
     p.add_argument("--max-clients", type=int, default=4, help="most stream clients at once")
     p.add_argument("--focal", default=None, metavar="PIXELS|ortho", help="the frames' focal length (see filter)")
 

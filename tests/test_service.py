@@ -1,5 +1,6 @@
 """The frame service against a real uvicorn server on loopback."""
 
+import json
 import time
 
 import cv2
@@ -56,6 +57,8 @@ def test_relight_a_png_and_a_jpeg_frame(server, frame):
                    headers={"content-type": "image/png"}, timeout=30)
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
     assert r.headers["x-relight-face"] == "found" and "relight;dur=" in r.headers["server-timing"]
+    light = json.loads(r.headers["x-relight-light"])  # transfer: the live light measured from the frame
+    assert {"direction", "intensity", "colour", "residual", "status"} <= set(light) and light["intensity"] > 0
     out = cv2.cvtColor(cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     assert out.shape == frame.shape and np.abs(out.astype(int) - frame.astype(int)).sum(axis=2).max() > 10
     jpg = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))[1].tobytes()
@@ -126,6 +129,14 @@ def test_stream_relights_latest_frames_and_takes_controls(server, frame):
                 if "latency_ms" in doc:
                     stats = doc
         assert got_frame is not None and stats is not None and stats["face"]
+        assert stats["light"]["status"] in ("ok", "dark", "clipped") and len(stats["light"]["direction"]) == 3
+        ws.send(json.dumps({"mode": "ambient"}))
+        ws.send(json.dumps({"mode": "glow"}))
+        while True:
+            doc = json.loads(ws.recv(timeout=30))
+            if doc.get("kind") == "bad_control":
+                assert "ambient" in doc["error"]
+                break
         out = cv2.imdecode(np.frombuffer(got_frame, np.uint8), cv2.IMREAD_COLOR)
         assert out.shape == frame.shape
         try:  # let the burst finish: every frame is either relit or dropped
