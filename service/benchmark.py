@@ -101,6 +101,7 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     flick = []
     lights = {}
     prev = None
+    side = 0.0
     t0 = time.perf_counter()
     for i, f in enumerate(frames):
         out, info = fp.process(f, i / fps)
@@ -111,14 +112,16 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
             raw[str(i)] = info.raw_angles
         if info.light is not None:
             lights[str(i)] = info.light.as_json()
+        t_side = time.perf_counter()  # the benchmark's own measuring, left out of the wall time
         if prev is not None:
             d = flicker_step(prev[0], prev[1], f, out)
             if d is not None:
                 flick.append(d)
         prev = (f, out)
+        side += time.perf_counter() - t_side
         if i in (len(frames) // 5, len(frames) // 2, 4 * len(frames) // 5):
             pairs.append((i, f, out))
-    wall = time.perf_counter() - t0
+    wall = time.perf_counter() - t0 - side
     err = rotation_errors(estimates, meta["head_rotation"])
     err_raw = rotation_errors(raw, meta["head_rotation"])
     return {"frames": len(frames), "faces": len(estimates), "size": meta["size"],

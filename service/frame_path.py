@@ -42,7 +42,7 @@ FEATHER_SIGMA = 0.02
 #: as its noise (:meth:`FramePath._regularised_points`).
 POINT_NOISE_AT_540 = 2.0
 #: Spacing (reference px) of the grid the reference is rendered through in a turned head's pose.
-VIEW_STEP = 8
+VIEW_STEP = 16
 #: Mode transfer: the live light is fitted every this many frames (it is smoothed over a tenth of a
 #: second anyway; the frames between reuse it).
 LIGHT_EVERY = 2

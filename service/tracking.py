@@ -34,9 +34,9 @@ MAX_TRACKED = 120
 FB_MAX_AT_540 = 0.8
 #: Fewest points a track needs; below this the face counts as lost.
 MIN_POINTS = 8
-#: Re-anchor from the reference this often (frames), or when fewer than this share of the
-#: landmarks is left.
-REANCHOR_EVERY = 10
+#: Re-anchor from the reference this often (frames), or when fewer than this share of the points
+#: found at the last anchoring is left.
+REANCHOR_EVERY = 2
 REANCHOR_BELOW = 0.6
 #: The reference is resampled into the frame's geometry before LK when the frame's size differs
 #: or the face's scale differs by more than this share.
@@ -48,7 +48,7 @@ DETECT_ROWS = 360
 REANCHOR_AGREE_AT_540 = 3.0
 #: Re-anchoring falls back to the reference rendered in the current pose when matching the flat
 #: reference finds fewer than this share of the landmarks in view.
-VIEW_BELOW = 0.8
+VIEW_BELOW = 0.5
 #: The reference relit as a frame shows it is used when it explains at least this share of the
 #: face's variance there (else the plain reference, brightness matched).
 RELIT_MIN_SHARE = 0.5
@@ -111,6 +111,7 @@ class FaceTracker:
         # The reference as the live light shows it (set by the frame path from its light
         # estimate): what re-anchoring matches while it is set.
         self.lit_reference: np.ndarray | None = None
+        self.anchored = len(self.landmarks)  # points the track had when last found or re-anchored
         self.age = 0
 
     def _lk_params(self, rows: int) -> tuple[dict, float]:
@@ -260,7 +261,7 @@ class FaceTracker:
                 track = Track(ref_index=self.track.ref_index[ok], xy=pts[ok].astype(np.float32))
         self.age += 1
         if track is not None and predict is not None and (
-                self.age >= REANCHOR_EVERY or len(track) < REANCHOR_BELOW * len(self.landmarks)):
+                self.age >= REANCHOR_EVERY or len(track) < REANCHOR_BELOW * self.anchored):
             idx = np.arange(len(self.landmarks))
             guess = np.asarray(predict(idx), dtype=np.float32)
             h, w = grey.shape
@@ -298,6 +299,8 @@ class FaceTracker:
         if track is None:
             track = self.acquire(grey)
             self.age = 0
+        if self.age == 0 and track is not None:
+            self.anchored = len(track)
         self.track = track
         self.prev = grey
         return track
