@@ -162,7 +162,8 @@ def _add_capture(sub) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("video", nargs="?", type=Path, help="capture video (any container FFmpeg reads)")
     p.add_argument("--images", type=Path, metavar="DIR",
-                   help="an RTI image set instead of a video: images plus dirs.lp (and optional mask.png)")
+                   help="an RTI image set instead of a video: images plus dirs.lp (and optional mask.png, and "
+                        "ambient.png: the room light alone, subtracted and kept as the bundle's ambient)")
     p.add_argument("-o", "--out", type=Path, required=True, help="bundle file to write")
     p.add_argument("--method", default="full", choices=METHODS,
                    help="how samples become maps: the paper's triangulation (full = with visibility and light "
