@@ -136,7 +136,7 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
             "flicker_codes": float(np.mean(flick)) if flick else None,
             "flicker_p95_codes": float(np.percentile(flick, 95)) if flick else None,
             "live_light_last": lights.get(str(len(frames) - 1)),
-            "estimates": estimates, "truth": meta["head_rotation"], "_pairs": pairs}
+            "estimates": estimates, "raw_estimates": raw, "truth": meta["head_rotation"], "_pairs": pairs}
 
 
 def flicker_step(inp0: np.ndarray, out0: np.ndarray, inp1: np.ndarray, out1: np.ndarray) -> float | None:
