@@ -10,7 +10,8 @@ landmark's 3D position (for the head pose) and its reference position (for the w
 * Track: pyramidal LK from the previous frame, forward-backward checked.
 * Re-anchor: every ``REANCHOR_EVERY`` frames, or when the points thin out, the landmarks are
   searched again from the reference, starting where the current pose puts them (drift and lost
-  points come back); a track that cannot be re-anchored for long is dropped and re-detected.
+  points come back) - with a pose, by templates warped as the pose shows each landmark (the
+  caller's ``refind``); a track that cannot be re-anchored for long is dropped and re-detected.
 
 Images are (H, W) uint8 grey; points are (N, 2) float32 frame pixels (x right, y down).
 """
@@ -247,12 +248,15 @@ class FaceTracker:
         idx = np.flatnonzero(inside)
         return self.from_reference(grey, guess[idx], idx, reference=self.relit_reference(grey, found.sim))
 
-    def update(self, grey: np.ndarray, predict=None, view=None) -> Track | None:
+    def update(self, grey: np.ndarray, predict=None, view=None, refind=None) -> Track | None:
         """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
         current pose puts landmarks (used to re-anchor); without it tracks are only followed.
         ``view() -> (H, W) uint8 or None``: the reference rendered as the current pose shows it, in
         the frame's geometry (a turned head's landmarks then look as they do in the frame: LK
-        from it holds where LK from the flat reference loses them)."""
+        from it holds where LK from the flat reference loses them). ``refind(ref_index, grey) ->
+        Track or None``: the landmarks searched again with templates warped by the current pose
+        (:meth:`relight.service.frame_path.FramePath._refind`); when given, re-anchoring uses it
+        instead of LK from the reference."""
         grey = np.ascontiguousarray(grey)
         track = None
         if self.track is not None and self.prev is not None and self.prev.shape == grey.shape:
@@ -267,7 +271,9 @@ class FaceTracker:
             h, w = grey.shape
             inside = (guess[:, 0] >= 0) & (guess[:, 0] < w) & (guess[:, 1] >= 0) & (guess[:, 1] < h)
             fresh = None
-            if inside.sum() >= MIN_POINTS:
+            if inside.sum() >= MIN_POINTS and refind is not None:
+                fresh = refind(idx[inside], grey)
+            elif inside.sum() >= MIN_POINTS:
                 ref = self.lit_reference
                 if ref is None and self.finder is not None:
                     sim, _ = cv2.estimateAffinePartial2D(self.landmarks[track.ref_index], track.xy, method=cv2.LMEDS)
