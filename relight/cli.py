@@ -344,8 +344,8 @@ def _add_bench(sub) -> None:
     v = bsub.add_parser("video", help="per-frame video path: head-pose error and speed on synthetic live video",
                         description="Synthesise live videos of the head turning (cached) and a bundle of the same "
                                     "head (a 24 s capture at a 4 Hz flash), then measure the head rotation error "
-                                    "against the truth (at 640x360 also on two other synthetic heads, each with its own capture), "
-                                    "the per-frame path's time per stage (decode/encode "
+                                    "against the truth (at 640x360 also on two other synthetic heads, each with "
+                                    "its own capture), the per-frame path's time per stage (decode/encode "
                                     "excluded), flicker, and a whole `relight filter` run in a fresh process "
                                     "against the clip's duration; and real faces: a clip of each subject's photo "
                                     "under a side light, moving, relit toward a held-out light in every mode, "

@@ -49,9 +49,9 @@ LIGHT_EVERY = 2
 #: Re-anchoring (:meth:`FramePath._refind`): template side and search radius (px at the tracking
 #: scale), the least contrast a template needs (std of its 8-bit codes) and the least normalised
 #: cross-correlation a match needs. Measured on three synthetic heads at 640x360 (each its own
-#: 24 s 4 Hz capture): head rotation error median 2.02 / 2.48 / 2.07 -> 1.06 / 1.20 / 1.38 deg with
-#: the pose's RANSAC check (:meth:`relight.service.pose.PoseEstimator.solve`); RANSAC alone 1.68 /
-#: 2.67 / 1.38.
+#: 24 s 4 Hz capture; `relight bench video`): head rotation error median 2.02 / 2.48 / 2.07 ->
+#: 1.15 / 1.23 / 1.29 deg, p95 3.95 / 5.97 / 5.49 -> 2.83 / 1.99 / 2.36, with the pose's RANSAC
+#: check (:meth:`relight.service.pose.PoseEstimator.solve`); that check alone: 1.68 / 2.67 / 1.38.
 REFIND_TEMPLATE = 13
 REFIND_RADIUS = 4
 REFIND_MIN_STD = 4.0

@@ -12,7 +12,7 @@ from relight.directions import rotation_angles, rotation_matrix
 from relight.errors import InputError
 from relight.video import VideoWriter, read_frames
 
-from .tolerances import COMPOSITE_TWIN_CODES, POSE_SYNTHETIC_DEG, WARP_AFFINE_PX
+from .tolerances import COMPOSITE_TWIN_CODES, POSE_SYNTHETIC_DEG, REFIND_MEDIAN_PX, WARP_AFFINE_PX
 
 
 @pytest.fixture(scope="module")
@@ -77,6 +77,64 @@ def test_pose_recovers_a_known_rotation():
         assert pose is not None and pose.inliers.size >= 50
         assert np.allclose(pose.angles, angles, atol=POSE_SYNTHETIC_DEG)
         assert np.allclose(rotation_angles(pose.rotation), angles, atol=POSE_SYNTHETIC_DEG)
+
+
+def test_pose_is_not_held_back_by_a_lagging_warm_start():
+    """A warm start from a pose 10 deg behind, with a fifth of the points left where that pose
+    put them (drifted tracks): the pose must follow the rest (the warm start alone settled at
+    13.6 deg, choosing its points by the lagging pose)."""
+    from relight.service.pose import PoseEstimator, camera_matrix, lift_landmarks
+
+    rng = np.random.default_rng(4)
+    k_ref = camera_matrix((640, 360))
+    pts = rng.uniform([220, 80], [420, 300], size=(80, 2))
+    depth = 60 * np.exp(-((pts[:, 0] - 320) ** 2 + (pts[:, 1] - 190) ** 2) / 8000.0)
+    model = lift_landmarks(pts, depth, k_ref)
+    est = PoseEstimator(model, (640, 360))
+    flip = np.diag([1.0, -1.0, -1.0])
+    centre = model.mean(axis=0)
+
+    def seen(angles):
+        moved = (model - centre) @ (flip @ rotation_matrix(*angles) @ flip).T + centre
+        proj = moved @ k_ref.T
+        return proj[:, :2] / proj[:, 2:]
+
+    est.last = est.solve(np.arange(80), seen((10.0, 0.0, 0.0)))
+    xy = seen((20.0, 0.0, 0.0))
+    xy[:16] = seen((10.0, 0.0, 0.0))[:16]
+    pose = est.solve(np.arange(80), xy)
+    assert pose is not None and abs(pose.angles[0] - 20.0) < 0.5
+
+
+def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, small_bundle):
+    """The reference moved by a known similarity; the pose given to the search is 2 px off: the
+    landmarks are found where they are, not where the pose puts them."""
+    from relight.service.frame_path import TRACK_ROWS, _track_exposure
+
+    fp = frame_path
+    fp.reset()
+    ref = np.ascontiguousarray(np.asarray(small_bundle.background))
+    h, w = ref.shape[:2]
+    centre = fp._ref_pts[:fp.n_landmarks].mean(axis=0)
+    sim = cv2.getRotationMatrix2D((float(centre[0]), float(centre[1])), 3.0, 1.0)
+    sim[:, 2] += (2.4, -1.3)
+    frame = cv2.warpAffine(ref, sim, (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    idx = np.arange(fp.n_landmarks)
+    truth = fp._ref_pts[idx] @ sim[:, :2].T + sim[:, 2]
+    est = fp._estimator((w, h))
+    est.last = None
+    pose = est.solve(idx, truth + np.array([2.0, 0.0]))
+    assert pose is not None
+    ts = min(1.0, TRACK_ROWS / h)
+    grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+    if ts < 1:
+        grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
+    grey, _ = _track_exposure(grey)
+    found = fp._refind(est, pose, ts, grey, idx)
+    assert found is not None and len(found) >= 0.5 * len(idx)
+    err = np.linalg.norm(found.xy / ts - truth[found.ref_index], axis=1)
+    before = np.linalg.norm(est.project(pose, found.ref_index) - truth[found.ref_index], axis=1)
+    assert np.median(before) > 1.5 and np.median(err) < REFIND_MEDIAN_PX
 
 
 def test_piecewise_affine_warp_reproduces_an_affine_map():

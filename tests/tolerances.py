@@ -61,6 +61,9 @@ ROTATION_EQUIV_REL = 0.03
 POSE_SYNTHETIC_DEG = 0.05
 #: The piecewise-affine warp of an affine map: largest error (px) of the interpolated grid.
 WARP_AFFINE_PX = 0.02
+#: Re-anchoring by pose-warped templates: median landmark error (px) on a reference moved by a
+#: known sub-pixel similarity (sub-pixel peak of the correlation).
+REFIND_MEDIAN_PX = 0.25
 #: warp_composite kernel vs its NumPy twin: largest difference in 8-bit codes (float rounding
 #: at a LUT step), and it may touch at most 1 % of the pixels.
 COMPOSITE_TWIN_CODES = 1
