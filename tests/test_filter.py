@@ -53,24 +53,33 @@ def test_one_euro_filter_is_still_at_rest_and_follows_motion():
     assert abs(lagged[-1] - 30.0 * 59 / 30) > abs(ramp[-1] - 30.0 * 59 / 30)
 
 
-def test_pose_recovers_a_known_rotation():
+def _bump_head(seed: int, n: int):
+    """A landmark model on a Gaussian bump 60 px high (640x360 frame, default focal): its pose
+    estimator and ``seen(angles) -> (n, 2)``, the landmarks' image positions with the head turned
+    by (yaw, pitch, roll) degrees about their centroid."""
     from relight.service.pose import PoseEstimator, camera_matrix, lift_landmarks
 
-    rng = np.random.default_rng(1)
+    rng = np.random.default_rng(seed)
     k_ref = camera_matrix((640, 360))
-    pts = rng.uniform([220, 80], [420, 300], size=(60, 2))
+    pts = rng.uniform([220, 80], [420, 300], size=(n, 2))
     depth = 60 * np.exp(-((pts[:, 0] - 320) ** 2 + (pts[:, 1] - 190) ** 2) / 8000.0)
     model = lift_landmarks(pts, depth, k_ref)
-    est = PoseEstimator(model, (640, 360))
-    assert np.allclose(est.solve(np.arange(60), pts).rotation, np.eye(3), atol=1e-4)
-    for angles in [(20, 0, 0), (-15, 10, 5), (0, -12, -8)]:
-        r = rotation_matrix(*angles)
-        flip = np.diag([1.0, -1.0, -1.0])
-        r_cv = flip @ r @ flip
-        centre = model.mean(axis=0)
-        moved = (model - centre) @ r_cv.T + centre
+    flip = np.diag([1.0, -1.0, -1.0])
+    centre = model.mean(axis=0)
+
+    def seen(angles):
+        moved = (model - centre) @ (flip @ rotation_matrix(*angles) @ flip).T + centre
         proj = moved @ k_ref.T
-        xy = proj[:, :2] / proj[:, 2:]
+        return proj[:, :2] / proj[:, 2:]
+
+    return PoseEstimator(model, (640, 360)), seen
+
+
+def test_pose_recovers_a_known_rotation():
+    est, seen = _bump_head(1, 60)
+    assert np.allclose(est.solve(np.arange(60), seen((0.0, 0.0, 0.0))).rotation, np.eye(3), atol=1e-4)
+    for angles in [(20, 0, 0), (-15, 10, 5), (0, -12, -8)]:
+        xy = seen(angles)
         xy[:5] += 40.0  # outliers
         est.last = None
         pose = est.solve(np.arange(60), xy)
@@ -83,22 +92,7 @@ def test_pose_is_not_held_back_by_a_lagging_warm_start():
     """A warm start from a pose 10 deg behind, with a fifth of the points left where that pose
     put them (drifted tracks): the pose must follow the rest (the warm start alone settled at
     13.6 deg, choosing its points by the lagging pose)."""
-    from relight.service.pose import PoseEstimator, camera_matrix, lift_landmarks
-
-    rng = np.random.default_rng(4)
-    k_ref = camera_matrix((640, 360))
-    pts = rng.uniform([220, 80], [420, 300], size=(80, 2))
-    depth = 60 * np.exp(-((pts[:, 0] - 320) ** 2 + (pts[:, 1] - 190) ** 2) / 8000.0)
-    model = lift_landmarks(pts, depth, k_ref)
-    est = PoseEstimator(model, (640, 360))
-    flip = np.diag([1.0, -1.0, -1.0])
-    centre = model.mean(axis=0)
-
-    def seen(angles):
-        moved = (model - centre) @ (flip @ rotation_matrix(*angles) @ flip).T + centre
-        proj = moved @ k_ref.T
-        return proj[:, :2] / proj[:, 2:]
-
+    est, seen = _bump_head(4, 80)
     est.last = est.solve(np.arange(80), seen((10.0, 0.0, 0.0)))
     xy = seen((20.0, 0.0, 0.0))
     xy[:16] = seen((10.0, 0.0, 0.0))[:16]
