@@ -41,8 +41,6 @@ FEATHER_SIGMA = 0.02
 #: Tracked points within this distance (px at 540 rows) of where the head pose puts them are taken
 #: as its noise (:meth:`FramePath._regularised_points`).
 POINT_NOISE_AT_540 = 2.0
-#: Spacing (reference px) of the grid the reference is rendered through in a turned head's pose.
-VIEW_STEP = 16
 #: Mode transfer: the live light is fitted every this many frames (it is smoothed over a tenth of a
 #: second anyway; the frames between reuse it).
 LIGHT_EVERY = 2
@@ -226,12 +224,6 @@ class FramePath:
         crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
         model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
         self._depth_filled, self._k_ref, self._ref_pts = depth_filled, k_ref, pts
-        # A grid over the face lifted the same way: the reference rendered in a turned head's pose.
-        gy, gx = np.mgrid[0:h:VIEW_STEP, 0:w:VIEW_STEP]
-        on = solid[gy, gx]
-        grid = np.stack([gx[on], gy[on]], axis=1).astype(np.float32)
-        self.view_ref = grid + np.array([x0, y0], np.float32)
-        self.view_model = lift_landmarks(self.view_ref, depth_filled[gy[on], gx[on]], k_ref)
         self.n_landmarks = len(landmarks)
         self.ring_index = np.arange(len(landmarks), len(pts))
         self.control_ref = pts
@@ -378,9 +370,8 @@ class FramePath:
         grey, self._track_gain = _track_exposure(grey)
         last = est.last
         predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
-        view = (lambda: self._render_view(est, last, ts, grey.shape)) if last is not None else None
         refind = (lambda idx, g: self._refind(est, last, ts, g, idx)) if last is not None else None
-        track = self.tracker.update(grey, predict, view, refind)
+        track = self.tracker.update(grey, predict, refind)
         if track is not None and ts < 1:
             track = type(track)(ref_index=track.ref_index, xy=track.xy / np.float32(ts))
         tm["track"] = (time.perf_counter() - t0) * 1e3
@@ -544,28 +535,6 @@ class FramePath:
         if len(out_i) < 8:
             return None
         return Track(ref_index=np.asarray(out_i), xy=np.asarray(out_xy, np.float32))
-
-    def _render_view(self, est: PoseEstimator, pose, ts: float, shape) -> np.ndarray | None:
-        """The tracker's reference (the live-lit one when there is one) rendered as ``pose`` shows
-        the head, in the tracking frame's geometry ((H, W) uint8; 0 off the face), or None."""
-        from .warp import OUTSIDE, inverse_map
-
-        if len(self.view_ref) < 8:
-            return None
-        pts = (est.project_points(pose, self.view_model) * ts).astype(np.float32)
-        h, w = shape
-        box = points_box(pts, (w, h))
-        if box is None:
-            return None
-        m = inverse_map(pts, self.view_ref * np.float32(self.ref_track_scale), box, step=VIEW_STEP)
-        if m is None:
-            return None
-        ref = self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
-        x0, y0, x1, y1 = box
-        out = np.zeros((h, w), np.uint8)
-        out[y0:y1, x0:x1] = cv2.remap(ref, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        out[y0:y1, x0:x1][m[..., 0] <= OUTSIDE / 2] = 0
-        return out
 
     def _set_lit_reference(self, lit: np.ndarray) -> None:
         """The tracker's reference with the face as the live light shows it (``lit``: the reference

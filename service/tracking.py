@@ -47,9 +47,6 @@ DETECT_ROWS = 360
 #: A point found again by re-anchoring replaces the followed one (or joins, when it was lost) only
 #: within this distance (px at 540 rows) of it (or of where the pose puts it).
 REANCHOR_AGREE_AT_540 = 3.0
-#: Re-anchoring falls back to the reference rendered in the current pose when matching the flat
-#: reference finds fewer than this share of the landmarks in view.
-VIEW_BELOW = 0.5
 #: The reference relit as a frame shows it is used when it explains at least this share of the
 #: face's variance there (else the plain reference, brightness matched).
 RELIT_MIN_SHARE = 0.5
@@ -248,12 +245,10 @@ class FaceTracker:
         idx = np.flatnonzero(inside)
         return self.from_reference(grey, guess[idx], idx, reference=self.relit_reference(grey, found.sim))
 
-    def update(self, grey: np.ndarray, predict=None, view=None, refind=None) -> Track | None:
+    def update(self, grey: np.ndarray, predict=None, refind=None) -> Track | None:
         """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
         current pose puts landmarks (used to re-anchor); without it tracks are only followed.
-        ``view() -> (H, W) uint8 or None``: the reference rendered as the current pose shows it, in
-        the frame's geometry (a turned head's landmarks then look as they do in the frame: LK
-        from it holds where LK from the flat reference loses them). ``refind(ref_index, grey) ->
+        ``refind(ref_index, grey) ->
         Track or None``: the landmarks searched again with templates warped by the current pose
         (:meth:`relight.service.frame_path.FramePath._refind`); when given, re-anchoring uses it
         instead of LK from the reference."""
@@ -280,14 +275,6 @@ class FaceTracker:
                     if sim is not None and np.isfinite(sim).all():
                         ref = self.relit_reference(grey, sim)
                 fresh = self.from_reference(grey, guess[inside], idx[inside], reference=ref)
-                # A turned head loses points matched against the flat reference: then against the
-                # reference rendered in the current pose, whichever finds more.
-                if view is not None and (fresh is None or len(fresh) < VIEW_BELOW * inside.sum()):
-                    rendered = view()
-                    if rendered is not None:
-                        pts, ok = self._flow(rendered, grey, guess[inside], guess[inside])
-                        if ok.sum() >= max(MIN_POINTS, 0 if fresh is None else len(fresh) + 1):
-                            fresh = Track(ref_index=idx[inside][ok], xy=pts[ok].astype(np.float32))
             if fresh is not None:
                 # Keep the followed points and add (or correct) the ones found again - those that
                 # agree with them, or for new ones with where the pose puts them, within
