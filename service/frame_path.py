@@ -54,8 +54,11 @@ REFIND_TEMPLATE = 13
 REFIND_RADIUS = 4
 REFIND_MIN_STD = 4.0
 REFIND_MIN_NCC = 0.6
-#: Finite-difference step (reference px) of the pose's local affine at a landmark.
+#: Finite-difference step (reference px) of the pose's local affine at a landmark, and the least
+#: area that affine may keep (a landmark the turned head shows at a fifth of its area is grazing:
+#: its template would be a smear).
 REFIND_STEP = 2.0
+REFIND_MIN_AREA = 0.2
 #: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
 ANGLE_MIN_CUTOFF = 1.5
 ANGLE_BETA = 0.2
@@ -489,7 +492,7 @@ class FramePath:
         (gain and offset free), the peak refined to sub-pixel by a parabola per axis. Templates
         without contrast, matches below ``REFIND_MIN_NCC`` and peaks on the search border
         (the landmark is farther) are left out."""
-        from .tracking import Track
+        from .tracking import MIN_POINTS, Track
 
         rs = self.ref_track_scale
         ref = self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
@@ -511,7 +514,7 @@ class FramePath:
         for k in range(n):
             a = np.array([[jx[k, 0], jy[k, 0]], [jx[k, 1], jy[k, 1]]])
             det = np.linalg.det(a)
-            if not (np.isfinite(det) and det > 0.2):
+            if not (np.isfinite(det) and det > REFIND_MIN_AREA):
                 continue
             ai = np.linalg.inv(a)
             lt = L[k] * rs
@@ -532,7 +535,7 @@ class FramePath:
             dy = _parabola_peak(r[py - 1, px], r[py, px], r[py + 1, px])
             out_i.append(idx[k])
             out_xy.append((gx + px + dx + h, gy + py + dy + h))
-        if len(out_i) < 8:
+        if len(out_i) < MIN_POINTS:
             return None
         return Track(ref_index=np.asarray(out_i), xy=np.asarray(out_xy, np.float32))
 

@@ -248,10 +248,9 @@ class FaceTracker:
     def update(self, grey: np.ndarray, predict=None, refind=None) -> Track | None:
         """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
         current pose puts landmarks (used to re-anchor); without it tracks are only followed.
-        ``refind(ref_index, grey) ->
-        Track or None``: the landmarks searched again with templates warped by the current pose
-        (:meth:`relight.service.frame_path.FramePath._refind`); when given, re-anchoring uses it
-        instead of LK from the reference."""
+        ``refind(ref_index, grey) -> Track or None``: the landmarks searched again with templates
+        warped by the current pose (:meth:`relight.service.frame_path.FramePath._refind`); when
+        given, re-anchoring uses it instead of LK from the reference."""
         grey = np.ascontiguousarray(grey)
         track = None
         if self.track is not None and self.prev is not None and self.prev.shape == grey.shape:
