@@ -62,6 +62,40 @@ def _to_rgb(frame) -> np.ndarray:
                           interpolation=_sws_flags()).to_ndarray()
 
 
+def display_orientation(frame) -> tuple[int, bool]:
+    """How a decoded frame is shown: (quarter turns counter-clockwise, then mirror left-right),
+    from the display matrix its container carries (phones store portrait video as landscape
+    frames plus this matrix); (0, False) without one.
+
+    FFmpeg's matrix (``AV_FRAME_DATA_DISPLAYMATRIX``, 16.16 fixed point) is a rotation, possibly
+    with one column negated (a mirror); its rotation angle is read as ``av_display_rotation_get``
+    does, and a mirrored matrix (negative determinant) is a mirror after the rotation that angle
+    implies. Angles that are not a multiple of 90 degrees go to the nearest one."""
+    data = None
+    for sd in getattr(frame, "side_data", ()) or ():
+        if str(getattr(sd, "type", "")).endswith("DISPLAYMATRIX"):
+            data = bytes(sd)
+            break
+    if data is None or len(data) < 36:
+        return 0, False
+    m = np.frombuffer(data[:36], dtype="<i4").astype(np.float64) / 65536.0
+    s0, s1 = np.hypot(m[0], m[3]), np.hypot(m[1], m[4])
+    if not (s0 > 0 and s1 > 0):
+        return 0, False
+    angle = -np.degrees(np.arctan2(m[1] / s1, m[0] / s0))  # av_display_rotation_get
+    mirror = bool(m[0] * m[4] - m[1] * m[3] < 0)
+    if mirror:
+        angle = -angle - 180.0
+    return int(np.round(angle / 90.0)) % 4, mirror
+
+
+def orient(img: np.ndarray, turns: int, mirror: bool) -> np.ndarray:
+    """``img`` (H, W, ...) turned ``turns`` quarter turns counter-clockwise, then mirrored
+    left-right when ``mirror`` (see :func:`display_orientation`); a view when nothing changes."""
+    out = np.rot90(img, turns % 4) if turns % 4 else img
+    return out[:, ::-1] if mirror else out
+
+
 def _check_audio(audio: np.ndarray, rate: int) -> np.ndarray:
     """Mono samples for :class:`VideoWriter`: 1-D, finite, within -1..1 -> float32."""
     a = np.asarray(audio)

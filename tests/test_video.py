@@ -56,3 +56,36 @@ def test_broken_videos(tmp_path):
         probe_video(tmp_path / "missing.mp4")
     with pytest.raises(InputError, match="more than"):
         list(read_frames(tmp_path / "v.mp4", max_frames=5))
+
+
+@pytest.mark.parametrize("degrees,hflip,vflip", [(0, False, False), (90, False, False), (180, False, False),
+                                                 (270, False, False), (0, True, False), (0, False, True),
+                                                 (90, True, False), (90, False, True)])
+def test_display_orientation_follows_the_container_matrix(tmp_path, degrees, hflip, vflip):
+    """Every EXIF orientation written as PyAV documents it (rotate counter-clockwise, then mirror)
+    reads back as the turn and mirror that show the frame that way."""
+    import av
+
+    from relight.video import display_orientation, orient
+
+    coded = np.zeros((48, 64, 3), np.uint8)
+    coded[:16, :16] = 255  # a bright corner: top left
+    coded[-16:, :16, 0] = 255  # a red one: bottom left
+    path = tmp_path / "o.mp4"
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("libx264", rate=30)
+        s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+        s.set_display_rotation(degrees, hflip=hflip, vflip=vflip)
+        for pkt in s.encode(av.VideoFrame.from_ndarray(coded, format="rgb24")):
+            c.mux(pkt)
+        for pkt in s.encode():
+            c.mux(pkt)
+    want = np.rot90(coded, degrees // 90)
+    want = want[:, ::-1] if hflip else want
+    want = want[::-1] if vflip else want
+    with av.open(str(path)) as c:
+        frame = next(iter(c.decode(c.streams.video[0])))
+    turns, mirror = display_orientation(frame)
+    shown = orient(frame.to_ndarray(format="rgb24"), turns, mirror)
+    assert shown.shape == want.shape
+    assert np.abs(shown.astype(int) - want.astype(int)).mean() < 8  # H.264 ringing at the corners' edges
