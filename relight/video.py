@@ -277,9 +277,10 @@ def read_luma(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) ->
                         if lut is None:
                             lut = np.clip(np.round((np.arange(256) - 16) * 255.0 / 219.0), 0, 255).astype(np.uint8)
                         y = lut[y]
-                    yield np.ascontiguousarray(y)
                 else:
-                    yield frame.to_ndarray(format="gray")
+                    y = frame.to_ndarray(format="gray")
+                turns, mirror = display_orientation(frame)
+                yield np.ascontiguousarray(orient(y, turns, mirror))
     except av.error.FFmpegError as exc:
         raise InputError(f"{path}: decoding failed after {count} frame(s) ({exc}); the file is corrupt") from None
     if count == 0:
@@ -315,10 +316,20 @@ class FrameCrop:
     matrix: str = "bt709"
     full_range: bool = False
     rgb_data: np.ndarray | None = None
+    turns: int = 0                 # the display orientation (:func:`display_orientation`) applied
+    mirror: bool = False           # to every output; the planes stay as coded
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.y.shape if self.rgb_data is None else self.rgb_data.shape[:2]
+        if self.rgb_data is not None:
+            return self.rgb_data.shape[:2]
+        h, w = self.y.shape
+        return (w, h) if self.turns % 2 else (h, w)
+
+    def _shown(self, img: np.ndarray) -> np.ndarray:
+        if not (self.turns % 4 or self.mirror):
+            return img
+        return np.ascontiguousarray(orient(img, self.turns, self.mirror))
 
     def luma(self, *, native: bool = False) -> np.ndarray:
         """(h, w) uint8 luma (sRGB-encoded grey): full range, or as stored with ``native``
@@ -328,13 +339,15 @@ class FrameCrop:
         if self.rgb_data is not None:
             return cv2.cvtColor(self.rgb_data, cv2.COLOR_RGB2GRAY)
         if self.full_range or native:
-            return self.y
-        return _LIMITED_TO_FULL[self.y]
+            return self._shown(self.y)
+        return self._shown(_LIMITED_TO_FULL[self.y])
 
     def rgb_sparse(self, step: int) -> np.ndarray:
         """RGB uint8 of every ``step``-th pixel each way (nearest chroma): cheap statistics."""
         if self.rgb_data is not None:
             return self.rgb_data[::step, ::step]
+        if self.turns % 4 or self.mirror:
+            return self.rgb()[::step, ::step]  # the display grid, exactly (rare: turned videos)
         h, w = self.y.shape
         rows, cols = np.arange(0, h, step), np.arange(0, w, step)
         if self.shift:
@@ -378,18 +391,38 @@ class FrameCrop:
         ycc = cv2.merge([self.y.astype(np.float32), planes[0], planes[1]])
         rgb = cv2.transform(ycc, np.hstack([m, off[:, None]]).astype(np.float32))
         np.maximum(rgb, 0.0, out=rgb)
-        return cv2.convertScaleAbs(rgb)  # rounds and saturates at 255
+        return self._shown(cv2.convertScaleAbs(rgb))  # rounds and saturates at 255
 
 
 _LIMITED_TO_FULL = np.clip(np.round((np.arange(256) - 16) * 255.0 / 219.0), 0, 255).astype(np.uint8)
 
 
-def crop_frame(frame, box: tuple[int, int, int, int]) -> FrameCrop:
-    """Keep the region ``box`` (x, y, w, h) of a decoded frame in its native planes."""
+def _coded_box(box: tuple[int, int, int, int], turns: int, mirror: bool,
+               coded: tuple[int, int]) -> tuple[int, int, int, int]:
+    """The region (x, y, w, h) of the coded frame (size ``coded`` = (W, H)) that a region of the
+    displayed frame shows, for a display orientation (:func:`display_orientation`)."""
     x, y, w, h = box
+    turns %= 4
+    size = coded if turns % 2 == 0 else (coded[1], coded[0])  # the displayed size
+    if mirror:
+        x = size[0] - x - w
+    for _ in range(turns):
+        # One counter-clockwise quarter turn undone: a box of the turned image (size (Wr, Hr))
+        # is (Wp - y - h, x, h, w) in the image before it (size (Hr, Wr)).
+        size = (size[1], size[0])
+        x, y, w, h = size[0] - y - h, x, h, w
+    return x, y, w, h
+
+
+def crop_frame(frame, box: tuple[int, int, int, int]) -> FrameCrop:
+    """Keep the region ``box`` (x, y, w, h, in the frame as displayed: :func:`display_orientation`)
+    of a decoded frame in its native planes."""
     name = frame.format.name
     if name not in _YUV_FORMATS:
-        return FrameCrop(y=None, rgb_data=np.ascontiguousarray(_to_rgb(frame)[y:y + h, x:x + w]))
+        x, y, w, h = box
+        return FrameCrop(y=None, rgb_data=np.ascontiguousarray(frame_to_rgb(frame)[y:y + h, x:x + w]))
+    turns, mirror = display_orientation(frame)
+    x, y, w, h = _coded_box(box, turns, mirror, (frame.width, frame.height))
     shift = _YUV_FORMATS[name]
     ys = frame.planes[0]
     yp = np.frombuffer(ys, dtype=np.uint8).reshape(frame.height, ys.line_size)[y:y + h, x:x + w].copy()
@@ -405,11 +438,11 @@ def crop_frame(frame, box: tuple[int, int, int, int]) -> FrameCrop:
         chroma.append(np.frombuffer(pl, dtype=np.uint8).reshape(rows, pl.line_size)[cy0:cy1, cx0:cx1].copy())
     off = (x - 2 * cx0, (y - 2 * cy0) if shift == 2 else 0) if shift else (0, 0)
     return FrameCrop(y=yp, u=chroma[0], v=chroma[1], offset=off, shift=shift, matrix=_matrix_name(frame),
-                     full_range=name.startswith("yuvj") or int(frame.color_range) == 2)
+                     full_range=name.startswith("yuvj") or int(frame.color_range) == 2, turns=turns, mirror=mirror)
 
 
 def yuv_crop_to_rgb(frame, box: tuple[int, int, int, int]) -> np.ndarray:
-    """RGB uint8 of the region ``box`` (x, y, w, h) of a decoded frame, converting only that region.
+    """RGB uint8 of the region ``box`` (x, y, w, h, as displayed) of a decoded frame, converting only that region.
 
     Planar YUV frames are converted in NumPy with the frame's matrix and range (untagged: BT.709
     for HD, else BT.601; limited range), chroma upsampled bilinearly; other formats go through
@@ -429,9 +462,10 @@ def read_frames_raw(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAM
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
             for frame in container.decode(stream):
-                if frame.width != info.width or frame.height != info.height:
+                if (frame.width, frame.height) != info.coded_size:
                     raise InputError(f"{path}: frame {count} is {frame.width}x{frame.height}, the stream said "
-                                     f"{info.width}x{info.height}; variable-size streams are not supported")
+                                     f"{info.coded_size[0]}x{info.coded_size[1]}; variable-size streams are not "
+                                     "supported")
                 count += 1
                 if count > max_frames:
                     raise InputError(f"{path}: more than {max_frames} frames; trim the video")
@@ -441,22 +475,33 @@ def read_frames_raw(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAM
 
 
 def frame_to_rgb(frame) -> np.ndarray:
-    """A decoded frame -> (H, W, 3) uint8 sRGB (the conversion :func:`read_frames` uses)."""
-    return _to_rgb(frame)
+    """A decoded frame -> (H, W, 3) uint8 sRGB as displayed (its container's display rotation and
+    mirror applied: :func:`display_orientation`); the conversion :func:`read_frames` uses."""
+    rgb = _to_rgb(frame)
+    turns, mirror = display_orientation(frame)
+    return np.ascontiguousarray(orient(rgb, turns, mirror)) if (turns or mirror) else rgb
 
 
 @dataclass(frozen=True)
 class VideoInfo:
     """What a video's container says about its first video stream."""
 
-    width: int
+    width: int        # as displayed (the display rotation applied)
     height: int
     fps: float
     frame_count: int  # from the container; 0 when it does not say
+    turns: int = 0    # display orientation of the first frame (:func:`display_orientation`)
+    mirror: bool = False
+
+    @property
+    def coded_size(self) -> tuple[int, int]:
+        """(width, height) of the frames as decoded, before the display rotation."""
+        return (self.height, self.width) if self.turns % 2 else (self.width, self.height)
 
 
 def probe_video(path: str | os.PathLike) -> VideoInfo:
-    """Open a video and validate its first video stream without decoding it."""
+    """Open a video and validate its first video stream; only its first frame is decoded (for the
+    display orientation a phone's portrait video carries)."""
     import av
 
     path = Path(path)
@@ -470,15 +515,26 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
             w, h = s.codec_context.width, s.codec_context.height
             rate = s.average_rate or s.guessed_rate or 0
             n = s.frames or 0
+            turns, mirror = 0, False
+            if 0 < w <= MAX_VIDEO_DIM and 0 < h <= MAX_VIDEO_DIM:
+                try:
+                    first = next(iter(container.decode(s)), None)
+                except av.error.FFmpegError:
+                    first = None  # the readers say what is broken
+                if first is not None:
+                    turns, mirror = display_orientation(first)
     except av.error.FFmpegError as exc:
         raise InputError(f"{path}: not a readable video ({exc}); use MP4/MOV/MKV/WebM") from None
     if not (0 < w <= MAX_VIDEO_DIM and 0 < h <= MAX_VIDEO_DIM):
         raise InputError(f"{path}: frame size {w}x{h} is outside 1..{MAX_VIDEO_DIM}; downscale the video")
-    return VideoInfo(width=w, height=h, fps=float(rate), frame_count=int(n))
+    if turns % 2:
+        w, h = h, w
+    return VideoInfo(width=w, height=h, fps=float(rate), frame_count=int(n), turns=turns, mirror=mirror)
 
 
 def read_frames(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) -> Iterator[np.ndarray]:
-    """Decode the first video stream as (H, W, 3) uint8 sRGB frames, in order.
+    """Decode the first video stream as (H, W, 3) uint8 sRGB frames, in order, as displayed (the
+    container's display rotation and mirror applied: a phone's portrait video comes out upright).
 
     Raises :class:`InputError` for an unreadable file, a corrupt stream, or more than
     ``max_frames`` frames.
@@ -492,12 +548,13 @@ def read_frames(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) 
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
             for frame in container.decode(stream):
-                if frame.width != info.width or frame.height != info.height:
+                if (frame.width, frame.height) != info.coded_size:
                     raise InputError(f"{path}: frame {count} is {frame.width}x{frame.height}, the stream said "
-                                     f"{info.width}x{info.height}; variable-size streams are not supported")
+                                     f"{info.coded_size[0]}x{info.coded_size[1]}; variable-size streams are not "
+                                     "supported")
                 count += 1
                 if count > max_frames:
                     raise InputError(f"{path}: more than {max_frames} frames; trim the video")
-                yield _to_rgb(frame)
+                yield frame_to_rgb(frame)
     except av.error.FFmpegError as exc:
         raise InputError(f"{path}: decoding failed after {count} frame(s) ({exc}); the file is corrupt") from None

@@ -314,7 +314,7 @@ def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
 def _filter_video(inp, out, handle, crf, res, progress, tqdm):
     import av
 
-    from relight.video import MAX_VIDEO_FRAMES, _to_rgb, _to_yuv, probe_video
+    from relight.video import MAX_VIDEO_FRAMES, _to_yuv, frame_to_rgb, probe_video
 
     info = probe_video(inp)
     suffix = out.suffix.lower()
@@ -367,7 +367,7 @@ def _filter_video(inp, out, handle, crf, res, progress, tqdm):
                     for frame in packet.decode():
                         if state["frames"] >= MAX_VIDEO_FRAMES:
                             raise InputError(f"{inp}: more than {MAX_VIDEO_FRAMES} frames; trim the video")
-                        rgb = _to_rgb(frame)
+                        rgb = frame_to_rgb(frame)  # as displayed: the output is written upright
                         if rgb.shape[:2] != (info.height, info.width):
                             raise InputError(f"{inp}: frame {state['frames']} is {rgb.shape[1]}x{rgb.shape[0]}, the "
                                              f"stream said {info.width}x{info.height}; variable-size streams are not "

@@ -89,3 +89,47 @@ def test_display_orientation_follows_the_container_matrix(tmp_path, degrees, hfl
     shown = orient(frame.to_ndarray(format="rgb24"), turns, mirror)
     assert shown.shape == want.shape
     assert np.abs(shown.astype(int) - want.astype(int)).mean() < 8  # H.264 ringing at the corners' edges
+
+
+@pytest.mark.parametrize("degrees,hflip", [(90, False), (270, False), (180, True)])
+def test_turned_video_reads_upright_in_every_reader(tmp_path, degrees, hflip):
+    """A portrait video stored as turned frames plus a display matrix: probe, full frames, luma
+    and crops (the capture's path) all see it as displayed."""
+    import av
+
+    from relight.video import crop_frame, frame_to_rgb, probe_video, read_frames, read_frames_raw, read_luma
+
+    rng = np.random.default_rng(5)
+    shown = cv2_resize_noise(rng, (96, 64))  # displayed: 64 wide, 96 high (portrait)
+    coded = np.rot90(shown[:, ::-1] if hflip else shown, -(degrees // 90))  # what the phone stores
+    path = tmp_path / "portrait.mp4"
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("libx264", rate=30)
+        s.width, s.height, s.pix_fmt = coded.shape[1], coded.shape[0], "yuv444p"
+        s.options = {"crf": "0"}
+        s.set_display_rotation(degrees, hflip=hflip)
+        for _ in range(3):
+            for pkt in s.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(coded), format="rgb24")):
+                c.mux(pkt)
+        for pkt in s.encode():
+            c.mux(pkt)
+    info = probe_video(path)
+    assert (info.width, info.height) == (64, 96)
+    frames = list(read_frames(path))
+    assert frames[0].shape == shown.shape and np.abs(frames[0].astype(int) - shown).mean() < 3
+    luma = next(iter(read_luma(path)))
+    assert luma.shape == shown.shape[:2]
+    raw = next(iter(read_frames_raw(path)))
+    full = frame_to_rgb(raw)
+    box = (10, 20, 30, 40)
+    crop = crop_frame(raw, box)
+    assert crop.shape == (40, 30) and crop.luma().shape == (40, 30)
+    assert np.abs(crop.rgb().astype(int) - full[20:60, 10:40]).mean() < 3
+
+
+def cv2_resize_noise(rng, shape):
+    """Smooth random colour (no edges that 4:2:0 or the codec would blur), uint8 (H, W, 3)."""
+    import cv2
+
+    small = rng.uniform(30, 225, size=(shape[0] // 8, shape[1] // 8, 3)).astype(np.float32)
+    return cv2.resize(small, (shape[1], shape[0]), interpolation=cv2.INTER_CUBIC).clip(0, 255).astype(np.uint8)
