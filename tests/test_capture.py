@@ -61,6 +61,36 @@ def test_video_capture_meets_the_accuracy_goals(synth_capture, tmp_path):
     assert bundle.landmarks.shape[0] > 20
 
 
+def test_portrait_phone_video_captures_as_well(synth_capture, tmp_path):
+    """The capture stored as a phone stores portrait video - turned frames plus a display
+    rotation in the container - meets the same goals against the same truth."""
+    import av
+
+    from relight.video import probe_video, read_frames
+
+    info = probe_video(synth_capture.video)
+    turned = tmp_path / "turned.mp4"
+    with av.open(str(turned), "w") as c:
+        s = c.add_stream("libx264", rate=round(info.fps))
+        s.width, s.height, s.pix_fmt = info.height, info.width, "yuv420p"
+        s.options = {"crf": "12"}
+        s.set_display_rotation(90)  # shown turned a quarter counter-clockwise: upright again
+        for f in read_frames(synth_capture.video):
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(np.rot90(f, -1)), format="rgb24")
+            for pkt in s.encode(frame):
+                c.mux(pkt)
+        for pkt in s.encode():
+            c.mux(pkt)
+    assert (probe_video(turned).width, probe_video(turned).height) == (info.width, info.height)
+    report_dir = tmp_path / "report"
+    capture(turned, tmp_path / "f.bundle", progress=False, report_dir=report_dir)
+    report = json.loads((report_dir / "report.json").read_text())
+    m = evaluate_capture(report, load_bundle(tmp_path / "f.bundle"), synth_capture.truth)
+    assert m["flash_precision"] >= FLASH_PRECISION and m["flash_recall"] >= FLASH_RECALL, m
+    assert m["light_dir_mean_deg"] <= LIGHT_DIR_MEAN_DEG and m["light_dir_p95_deg"] <= LIGHT_DIR_P95_DEG, m
+    assert m["normal_median_deg"] <= NORMAL_MEDIAN_DEG, m
+
+
 def test_stages_can_be_switched_off(synth_capture, tmp_path):
     from relight.pipeline.samples import SampleOptions
 
