@@ -279,8 +279,7 @@ def read_luma(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) ->
                         y = lut[y]
                 else:
                     y = frame.to_ndarray(format="gray")
-                turns, mirror = display_orientation(frame)
-                yield np.ascontiguousarray(orient(y, turns, mirror))
+                yield np.ascontiguousarray(orient(y, *display_orientation(frame)))
     except av.error.FFmpegError as exc:
         raise InputError(f"{path}: decoding failed after {count} frame(s) ({exc}); the file is corrupt") from None
     if count == 0:
@@ -327,8 +326,6 @@ class FrameCrop:
         return (w, h) if self.turns % 2 else (h, w)
 
     def _shown(self, img: np.ndarray) -> np.ndarray:
-        if not (self.turns % 4 or self.mirror):
-            return img
         return np.ascontiguousarray(orient(img, self.turns, self.mirror))
 
     def luma(self, *, native: bool = False) -> np.ndarray:
@@ -477,9 +474,7 @@ def read_frames_raw(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAM
 def frame_to_rgb(frame) -> np.ndarray:
     """A decoded frame -> (H, W, 3) uint8 sRGB as displayed (its container's display rotation and
     mirror applied: :func:`display_orientation`); the conversion :func:`read_frames` uses."""
-    rgb = _to_rgb(frame)
-    turns, mirror = display_orientation(frame)
-    return np.ascontiguousarray(orient(rgb, turns, mirror)) if (turns or mirror) else rgb
+    return np.ascontiguousarray(orient(_to_rgb(frame), *display_orientation(frame)))
 
 
 @dataclass(frozen=True)

@@ -226,7 +226,12 @@ class FramePath:
         pts = np.concatenate([landmarks, ring])
         crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
         model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
-        self._depth_filled, self._k_ref, self._ref_pts = depth_filled, k_ref, pts
+        # Each control point and its neighbours REFIND_STEP px right and down, lifted the same way:
+        # the pose's local affine at a landmark (:meth:`_refind`) by finite differences.
+        self._ref_pts = pts
+        steps = np.concatenate([pts + [REFIND_STEP, 0.0], pts + [0.0, REFIND_STEP]])
+        steps_xy = np.clip(steps - np.array([x0, y0], np.float32), 0, [w - 1, h - 1]).astype(np.float32)
+        self._refind_model = np.concatenate([model, lift_landmarks(steps, _bilinear(depth_filled, steps_xy), k_ref)])
         self.n_landmarks = len(landmarks)
         self.ring_index = np.arange(len(landmarks), len(pts))
         self.control_ref = pts
@@ -497,15 +502,10 @@ class FramePath:
         rs = self.ref_track_scale
         ref = self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
         idx = np.asarray(idx)
-        n = len(idx)
+        n, m_all = len(idx), len(self._ref_pts)
         L = self._ref_pts[idx].astype(np.float64)
         d = REFIND_STEP
-        p3 = np.concatenate([L, L + [d, 0.0], L + [0.0, d]])
-        x0, y0 = self.origin
-        hh, ww = self._depth_filled.shape
-        cxy = np.clip(p3 - [x0, y0], 0, [ww - 1, hh - 1]).astype(np.float32)
-        model = lift_landmarks(p3, _bilinear(self._depth_filled, cxy), self._k_ref)
-        P = est.project_points(pose, model) * ts
+        P = est.project_points(pose, self._refind_model[np.concatenate([idx, idx + m_all, idx + 2 * m_all])]) * ts
         c, jx, jy = P[:n], (P[n:2 * n] - P[:n]) / (d * rs), (P[2 * n:] - P[:n]) / (d * rs)
         T, R = REFIND_TEMPLATE, REFIND_RADIUS
         h = (T - 1) / 2.0

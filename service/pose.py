@@ -126,24 +126,26 @@ class PoseEstimator:
             return None
         return Pose(rotation=_FLIP @ r_cv @ _FLIP, rvec=rvec, tvec=tvec, inliers=inl)
 
+    def _errors(self, obj, img, rvec, tvec) -> np.ndarray:
+        """(N,) px between where the pose (rvec, tvec) projects the points and where they were seen."""
+        proj, _ = cv2.projectPoints(obj, rvec, tvec, self.k, None)
+        return np.linalg.norm((proj - img).reshape(-1, 2), axis=1)
+
     def _explained(self, obj, img, pose: Pose, thr: float) -> int:
         """How many of the points ``pose`` projects within ``thr`` px of where they were seen."""
-        proj, _ = cv2.projectPoints(obj, pose.rvec, pose.tvec, self.k, None)
-        return int((np.linalg.norm((proj - img).reshape(-1, 2), axis=1) < thr).sum())
+        return int((self._errors(obj, img, pose.rvec, pose.tvec) < thr).sum())
 
     def _track(self, obj, img, thr) -> Pose | None:
         rvec, tvec = self.last.rvec.copy(), self.last.tvec.copy()
         try:
             for _ in range(2):
-                proj, _ = cv2.projectPoints(obj, rvec, tvec, self.k, None)
-                inl = np.flatnonzero(np.linalg.norm((proj - img).reshape(-1, 2), axis=1) < 2.0 * thr)
+                inl = np.flatnonzero(self._errors(obj, img, rvec, tvec) < 2.0 * thr)
                 if inl.size < max(MIN_INLIERS, TRACK_INLIERS * len(obj)):
                     return None
                 rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], self.k, None, rvec, tvec)
-            proj, _ = cv2.projectPoints(obj, rvec, tvec, self.k, None)
+            inl = np.flatnonzero(self._errors(obj, img, rvec, tvec) < 2.0 * thr)
         except cv2.error:
             return None
-        inl = np.flatnonzero(np.linalg.norm((proj - img).reshape(-1, 2), axis=1) < 2.0 * thr)
         if inl.size < max(MIN_INLIERS, TRACK_INLIERS * len(obj)):
             return None
         return self._finish(obj, img, rvec, tvec, inl)

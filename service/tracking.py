@@ -267,7 +267,7 @@ class FaceTracker:
             fresh = None
             if inside.sum() >= MIN_POINTS and refind is not None:
                 fresh = refind(idx[inside], grey)
-            elif inside.sum() >= MIN_POINTS:
+            elif inside.sum() >= MIN_POINTS:  # no pose to warp templates with: LK from the reference
                 ref = self.lit_reference
                 if ref is None and self.finder is not None:
                     sim, _ = cv2.estimateAffinePartial2D(self.landmarks[track.ref_index], track.xy, method=cv2.LMEDS)
