@@ -66,13 +66,24 @@ class FlashFrames:
     rejected: dict = field(default_factory=dict)
 
 
-def estimate_flash_hz(trace: np.ndarray, fps: float) -> float | None:
+#: Relative difference between the stated frame rate and the frames' mean rate above which the
+#: mean rate is used (below it the stated one: the frames are evenly spaced).
+RATE_TOLERANCE = 1e-3
+
+
+def estimate_flash_hz(trace: np.ndarray, fps: float, times: np.ndarray | None = None) -> float | None:
     """The dominant blink rate of a brightness trace (Hz), or None if there is no clear one.
 
     Looks for the strongest spectral peak between 0.5 Hz and fps / 4 and refines it by
     parabolic interpolation; "clear" means at least 4 times the median spectral power.
+    ``times``: the frames' times in seconds (variable frame rate: the trace is resampled
+    linearly onto an even grid at ``fps`` first).
     """
     x = np.asarray(trace, dtype=np.float64)
+    if times is not None and x.size > 1:
+        t = np.asarray(times, dtype=np.float64)
+        grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * fps)) + 1) / fps
+        x = np.interp(grid, t, x)
     n = x.size
     if n < 16:
         return None
@@ -99,8 +110,13 @@ def estimate_flash_hz(trace: np.ndarray, fps: float) -> float | None:
 
 
 def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
-             threshold: float = DEFAULT_THRESHOLD, min_share: float = DEFAULT_MIN_SHARE) -> FlashFrames:
+             threshold: float = DEFAULT_THRESHOLD, min_share: float = DEFAULT_MIN_SHARE,
+             times: np.ndarray | None = None) -> FlashFrames:
     """Classify frames from a brightness trace (N,) of linear mean luminance.
+
+    ``times``: (N,) each frame's time in seconds (phones record at a variable frame rate); the
+    blink rate and the period check use them, and ``fps`` becomes their mean rate. None: frames
+    evenly spaced at ``fps``.
 
     Raises :class:`InputError` when the trace is too short or not finite, or when no flash
     survives the filters (the message says which filter removed them).
@@ -113,9 +129,18 @@ def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
         raise InputError("the brightness trace holds non-finite values; the video is corrupt")
     if fps <= 0 or not np.isfinite(fps):
         raise InputError(f"frame rate {fps}: the video must state a positive frame rate")
+    if times is None:
+        times = np.arange(n) / fps
+    else:
+        times = np.asarray(times, dtype=np.float64)
+        if times.shape != (n,) or not np.isfinite(times).all() or (np.diff(times) <= 0).any():
+            raise InputError("frame times must be finite and increasing, one per frame of the trace")
+        rate = (n - 1) / (times[-1] - times[0])
+        if abs(rate - fps) > RATE_TOLERANCE * fps:
+            fps = rate  # the stated rate is not what the frames show (variable frame rate)
     estimated = flash_hz is None
     if estimated:
-        flash_hz = estimate_flash_hz(trace, fps) or DEFAULT_FLASH_HZ
+        flash_hz = estimate_flash_hz(trace, fps, times) or DEFAULT_FLASH_HZ
     if not (0 < flash_hz <= fps / 2):
         raise InputError(f"--flash-hz {flash_hz}: must be above 0 and at most half the frame rate ({fps / 2:g})")
     s = fps / (2.0 * flash_hz)
@@ -157,12 +182,14 @@ def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
     cand_dark = dark_level[keep]
     cand_contrast = contrast[keep]
 
-    # Period filter: both gaps far from a whole number of periods (2 s) -> a spurious extremum.
-    # Whole multiples, because a dropped flash between two good ones doubles their gap.
+    # Period filter: both gaps far from a whole number of blink periods -> a spurious extremum.
+    # Whole multiples, because a dropped flash between two good ones doubles their gap. In
+    # seconds, from the frames' times (evenly spaced frames: 2 s frames a period, s / 2 off).
     if cand.size >= 3:
-        gaps = np.diff(cand).astype(np.float64)
-        periods = np.maximum(np.round(gaps / (2 * s)), 1.0)
-        off = np.abs(gaps - periods * 2 * s) > s / 2
+        gaps = np.diff(times[cand])
+        period = 1.0 / flash_hz
+        periods = np.maximum(np.round(gaps / period), 1.0)
+        off = np.abs(gaps - periods * period) > period / 4
         prev_bad = np.r_[True, off]
         next_bad = np.r_[off, True]
         bad = prev_bad & next_bad

@@ -15,7 +15,8 @@ import numpy as np
 
 from relight.colour import decode_srgb8
 from relight.errors import InputError
-from relight.video import crop_frame, frame_to_rgb, probe_video, read_frames_raw, yuv_crop_to_rgb
+from relight.video import crop_frame, frame_to_rgb, probe_video, read_frames_raw
+from relight.video_colour import PLANAR_FORMATS, VideoColour, luma_table, video_colour
 
 from . import registration, sphere
 
@@ -35,6 +36,9 @@ class Ingested:
     crop : (x, y, w, h) of the stored face region; crops[i] its pixels as a
     :class:`relight.video.FrameCrop` (native YUV planes; ``.rgb()`` / ``.luma()`` convert).
     sphere_box / sphere_crops : the same for the mirror sphere (None without a sphere).
+    colour : how the stream's codes become linear light (:mod:`relight.video_colour`).
+    times : (N,) each frame's presentation time in seconds from the first (variable frame rate
+    is common on phones: the stages that reason in time use these, not frame numbers).
     face_box : the face in frame coordinates; face_source: 'haar', 'given' or 'none'.
     sphere_guess : (cx, cy, r) from the first seconds (refined later), sphere_source likewise.
     still : the darkest early frame in full (H, W, 3) uint8, and still_index its frame number.
@@ -55,6 +59,8 @@ class Ingested:
     still: np.ndarray
     still_index: int
     trace: np.ndarray
+    colour: VideoColour = VideoColour()
+    times: np.ndarray | None = None
     notes: list = field(default_factory=list)
 
     @property
@@ -110,10 +116,11 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
     if len(head_raw) < 8:
         raise InputError(f"{path}: {len(head_raw)} frames; a capture needs several seconds of video")
     head_rgb = [frame_to_rgb(f) for f in head_raw]
+    colour = video_colour(head_raw[0])
+    notes: list[str] = [f"video colour: {colour.describe()}"] + [f"video colour: {n}" for n in colour.notes]
     lut = decode_srgb8(np.arange(256, dtype=np.uint8))
     means = [float(lut[_luma(r)].mean()) for r in head_rgb]
     order = np.argsort(means)
-    notes: list[str] = []
 
     # The face: given, or Haar on the darkest early frames (no flash: the paper's reference).
     face_source = "given" if face is not None else "none"
@@ -153,20 +160,26 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
     fx, fy, fw, fh = face or crop
     fx, fy = fx - crop[0], fy - crop[1]
     face_rows, face_cols = slice(max(fy, 0), fy + fh), slice(max(fx, 0), fx + fw)
-    crops, scrops, fmean, trace = [], [] if sbox else None, [], []
+    crops, scrops, fmean, trace, stamps = [], [] if sbox else None, [], [], []
     for f in _chain(head_raw, frames):
         c = crop_frame(f, crop)
         crops.append(c)
-        trace.append(float(lut[c.luma()[face_rows, face_cols]].mean()))
+        trace.append(float(c.luma_linear()[face_rows, face_cols].mean()))
         if sbox is not None:
-            scrops.append(yuv_crop_to_rgb(f, sbox))
+            scrops.append(crop_frame(f, sbox))
         fmean.append(_frame_mean(f, lut))
+        stamps.append(f.time)
         if progress is not None:
             progress(1)
+    times = frame_times(stamps, info.fps)
+    if times is None:
+        notes.append("frame timestamps missing or not increasing; frames taken as evenly spaced at "
+                     f"{info.fps:g} fps")
+        times = np.arange(len(crops)) / info.fps
     return Ingested(path=str(path), fps=info.fps, size=size, frame_mean=np.asarray(fmean), crop=crop,
                     crops=crops, sphere_box=sbox, sphere_crops=scrops, face_box=face, face_source=face_source,
                     sphere_guess=sphere_hint, sphere_source=sphere_source, still=still, still_index=still_index,
-                    trace=np.asarray(trace), notes=notes)
+                    trace=np.asarray(trace), colour=colour, times=times, notes=notes)
 
 
 def _chain(first, rest):
@@ -183,10 +196,37 @@ def _luma(rgb: np.ndarray) -> np.ndarray:
 def _frame_mean(frame, lut) -> float:
     """Mean linear brightness of a whole frame from its luma plane (subsampled 4x: it is a trace)."""
     name = frame.format.name
-    if name.startswith("yuv"):
+    if name in PLANAR_FORMATS:
+        colour = video_colour(frame)
         p = frame.planes[0]
-        y = np.frombuffer(p, dtype=np.uint8).reshape(frame.height, p.line_size)[::4, :frame.width:4]
-        if not (name.startswith("yuvj") or int(frame.color_range) == 2):
-            y = np.clip((y.astype(np.int32) - 16) * 255 // 219, 0, 255).astype(np.uint8)
-        return float(lut[y].mean())
+        if colour.plain_srgb8:
+            y = np.frombuffer(p, dtype=np.uint8).reshape(frame.height, p.line_size)[::4, :frame.width:4]
+            if not colour.full_range:
+                y = np.clip((y.astype(np.int32) - 16) * 255 // 219, 0, 255).astype(np.uint8)
+            return float(lut[y].mean())
+        dtype = np.uint8 if colour.bits == 8 else np.dtype("<u2")
+        y = np.frombuffer(p, dtype=dtype).reshape(frame.height, -1)[::4, :frame.width:4]
+        return float(luma_table(colour)[np.minimum(y, (1 << colour.bits) - 1)].mean())
     return float(lut[_luma(frame_to_rgb(frame))[::4, ::4]].mean())
+
+
+#: Frame-to-frame gaps a timestamp track may show before it is distrusted, as a share of the
+#: stated frame period (a gap of 0 or below is always distrusted).
+MAX_GAP_PERIODS = 50.0
+
+
+def frame_times(stamps, fps: float) -> np.ndarray | None:
+    """(N,) seconds from the first frame, from the frames' presentation times (PyAV's
+    ``frame.time``), or None when they are missing, not increasing, or have gaps longer than
+    :data:`MAX_GAP_PERIODS` frame periods (a broken track, not a variable frame rate)."""
+    if not stamps or any(t is None for t in stamps):
+        return None
+    t = np.asarray(stamps, dtype=np.float64)
+    if not np.isfinite(t).all():
+        return None
+    t = t - t[0]
+    if t.size > 1:
+        gaps = np.diff(t)
+        if (gaps <= 0).any() or (fps > 0 and gaps.max() > MAX_GAP_PERIODS / fps):
+            return None
+    return t

@@ -179,14 +179,17 @@ class Tracker:
         return TrackResult(m, int(inl.sum()), float(np.sqrt(np.mean(res**2))))
 
 
-def interpolate_motions(known: dict[int, tuple[float, float, float]], frames) -> dict[int, tuple[float, float, float]]:
-    """Motions at ``frames`` linearly interpolated between the known frames (held at the ends)."""
-    idx = np.array(sorted(known), dtype=np.float64)
+def interpolate_motions(known: dict[int, tuple[float, float, float]], frames,
+                        times: np.ndarray | None = None) -> dict[int, tuple[float, float, float]]:
+    """Motions at ``frames`` linearly interpolated between the known frames (held at the ends),
+    in time when ``times`` (seconds per frame number) is given, else in frame numbers."""
+    idx = np.array(sorted(known), dtype=np.int64)
     vals = np.array([known[int(i)] for i in idx], dtype=np.float64)
-    out = {}
-    for f in frames:
-        out[int(f)] = tuple(float(np.interp(f, idx, vals[:, k])) for k in range(3))
-    return out
+    frames = np.asarray(list(frames), dtype=np.int64)
+    at = (lambda f: np.asarray(times, dtype=np.float64)[f]) if times is not None else (lambda f: f.astype(np.float64))
+    x, xp = at(frames), at(idx)
+    cols = [np.interp(x, xp, vals[:, k]) for k in range(3)]
+    return {int(f): (float(cols[0][i]), float(cols[1][i]), float(cols[2][i])) for i, f in enumerate(frames)}
 
 
 def warp_to_reference(image: np.ndarray, motion: tuple[float, float, float], center: tuple[float, float],

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from relight.colour import decode_srgb8, luminance
+from relight.colour import luminance
 from relight.errors import InputError
 
 from . import flash as flash_stage
@@ -25,8 +25,9 @@ from .ingest import Ingested
 
 #: Frames a flash lit for at least this share of its peak are averaged into its sample.
 SAMPLE_LEVEL = 0.85
-#: Pixels at or above this sRGB code count as clipped (the sample is flagged there).
-CLIP_CODE = 250
+#: Pixels with a channel at or above this share of the code range's top count as clipped (the
+#: sample is flagged there): code 250 of 8-bit video, the same share of the signal in 10-bit/HDR.
+CLIP_LEVEL = 250.0 / 255.0
 #: A flash sample adding less than this share of the median sample's light to the face is dropped.
 WEAK_SHARE = 0.1
 #: No-flash frames averaged into the room light, and the pixel step of the exposure measurement.
@@ -117,7 +118,8 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     timings: dict[str, float] = {}
     rejected: dict[str, int] = {}
     t0 = time.perf_counter()
-    fl = flash_stage.separate(ing.face_trace(), ing.fps, opts.flash_hz, opts.flash_threshold, opts.flash_min_share)
+    fl = flash_stage.separate(ing.face_trace(), ing.fps, opts.flash_hz, opts.flash_threshold, opts.flash_min_share,
+                              times=ing.times)
     rejected.update({f"flash_{k}": v for k, v in fl.rejected.items() if v})
     timings["flash"] = time.perf_counter() - t0
 
@@ -148,12 +150,11 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
                 rejected["track_lost"] = rejected.get("track_lost", 0) + 1
             if progress:
                 progress("register", i + 1, len(tracked))
-    all_motions = registration.interpolate_motions(motions, range(ing.frame_count))
+    all_motions = registration.interpolate_motions(motions, range(ing.frame_count), ing.times)
     timings["registration"] = time.perf_counter() - t0
 
     # ---- ambient: registered no-flash average and each no-flash frame's exposure/white balance
     t0 = time.perf_counter()
-    lut = decode_srgb8(np.arange(256, dtype=np.uint8))
     h, w = ing.crop_shape
     amb_sum = np.zeros((h, w, 3), dtype=np.float64)
     dark_used = [int(d) for d in fl.dark if int(d) in motions]
@@ -162,7 +163,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     pick = dark_used if len(dark_used) <= AMBIENT_FRAMES else \
         [dark_used[int(i)] for i in np.linspace(0, len(dark_used) - 1, AMBIENT_FRAMES)]
     for d in pick:
-        img = decode_srgb8(ing.crops[d].rgb())
+        img = ing.crops[d].linear()
         if opts.register:
             img = registration.warp_to_reference(img, all_motions[d], center_crop, interpolation=cv2.INTER_LINEAR)
         amb_sum += img
@@ -173,12 +174,13 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
         core = luminance(ambient) > 0.005
     core_s = core[::GAIN_STEP, ::GAIN_STEP]
     amb_mean = ambient[::GAIN_STEP, ::GAIN_STEP][core_s].mean(axis=0) + 1e-6
-    gains = {d: lut[ing.crops[d].rgb_sparse(GAIN_STEP)][core_s].mean(axis=0) / amb_mean for d in dark_used}
-    gidx = np.array(sorted(gains), dtype=np.float64)
+    gains = {d: ing.crops[d].sparse(GAIN_STEP).linear()[core_s].mean(axis=0) / amb_mean for d in dark_used}
+    gidx = np.array(sorted(gains), dtype=np.int64)
     gval = np.array([gains[int(i)] for i in gidx])
+    times = ing.times if ing.times is not None else np.arange(ing.frame_count, dtype=np.float64)
 
-    def gain_at(f):
-        return np.array([np.interp(f, gidx, gval[:, c]) for c in range(3)], dtype=np.float32)
+    def gain_at(f):  # exposure and white balance drift in time: interpolated in time
+        return np.array([np.interp(times[f], times[gidx], gval[:, c]) for c in range(3)], dtype=np.float32)
 
     timings["ambient"] = time.perf_counter() - t0
 
@@ -189,7 +191,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     if circle is None or ing.sphere_crops is None:
         raise InputError("no mirror sphere found; give --sphere cx,cy,r (centre and radius in pixels)")
     sx0, sy0 = ing.sphere_box[:2]
-    dark_sphere = np.mean([luminance(lut[ing.sphere_crops[d]]) for d in dark_used], axis=0)
+    dark_sphere = np.mean([luminance(ing.sphere_crops[d].linear()) for d in dark_used], axis=0)
     local = (circle[0] - sx0, circle[1] - sy0, circle[2])
     if opts.refine_sphere:
         local = sphere.refine_circle(dark_sphere, local)
@@ -198,7 +200,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
         f = int(f)
         if fl.level[f] < SAMPLE_LEVEL:
             continue
-        lum = luminance(lut[ing.sphere_crops[f]]) / float(gain_at(f).mean())
+        lum = luminance(ing.sphere_crops[f].linear()) / float(gain_at(f).mean())
         hl = sphere.find_highlight(lum, dark_sphere, local, method=opts.highlight)
         if hl.xy is None:
             rejected[f"highlight_{hl.reason}"] = rejected.get(f"highlight_{hl.reason}", 0) + 1
@@ -226,10 +228,10 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
         wsum = 0.0
         dsum = np.zeros(3)
         for f in frames:
-            raw = ing.crops[f].rgb()
-            acc += decode_srgb8(raw)
+            crop = ing.crops[f]
+            acc += crop.linear()
             wsum += float(fl.level[f])
-            clip |= np.maximum(np.maximum(raw[..., 0], raw[..., 1]), raw[..., 2]) >= CLIP_CODE
+            clip |= crop.clipped(CLIP_LEVEL)
             dsum += light_dirs[f]
         gain = np.mean([gain_at(f) for f in frames], axis=0)
         img = acc / (gain * len(frames))  # mean frame at the reference exposure

@@ -17,8 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .colour import decode_srgb8, encode_srgb8, luminance
 from .errors import InputError
 from .imageio import atomic_path
+from .video_colour import PLANAR_FORMATS, VideoColour, luma_table, signal_to_linear, tonemap, video_colour, ycbcr_matrix
 
 #: Largest frame a reader accepts (8K UHD) and the longest video, in frames.
 MAX_VIDEO_DIM = 7680
@@ -269,7 +271,7 @@ def read_luma(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) ->
                 if count > max_frames:
                     raise InputError(f"{path}: more than {max_frames} frames; trim the video")
                 name = frame.format.name
-                if name in ("yuv420p", "yuvj420p", "nv12", "yuv422p", "yuv444p", "yuvj422p", "yuvj444p"):
+                if name in PLANAR_FORMATS and PLANAR_FORMATS[name][0] == 8:
                     y = np.frombuffer(frame.planes[0], dtype=np.uint8).reshape(
                         frame.height, frame.planes[0].line_size)[:, :frame.width]
                     full = name.startswith("yuvj") or int(frame.color_range) == 2
@@ -277,6 +279,10 @@ def read_luma(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) ->
                         if lut is None:
                             lut = np.clip(np.round((np.arange(256) - 16) * 255.0 / 219.0), 0, 255).astype(np.uint8)
                         y = lut[y]
+                elif name in PLANAR_FORMATS:  # 10/12-bit: through linear light (HDR tone-mapped)
+                    yield crop_frame(frame, (0, 0, frame.width, frame.height) if display_orientation(frame)[0] % 2 == 0
+                                     else (0, 0, frame.height, frame.width)).luma()
+                    continue
                 else:
                     y = frame.to_ndarray(format="gray")
                 yield np.ascontiguousarray(orient(y, *display_orientation(frame)))
@@ -286,34 +292,24 @@ def read_luma(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) ->
         raise InputError(f"{path}: the video holds no frames")
 
 
-#: Y'CbCr -> R'G'B' matrices (Kr, Kb) by colour matrix.
-_KRKB = {"bt709": (0.2126, 0.0722), "bt601": (0.299, 0.114)}
-_YUV_FORMATS = {"yuv420p": 2, "yuvj420p": 2, "yuv422p": 1, "yuvj422p": 1, "yuv444p": 0, "yuvj444p": 0}
-
-
-def _matrix_name(frame) -> str:
-    cs = int(frame.colorspace)
-    if cs == 1:
-        return "bt709"
-    if cs in (5, 6):
-        return "bt601"
-    return "bt709" if frame.height >= 720 else "bt601"
-
-
 @dataclass
 class FrameCrop:
-    """A region of a decoded frame kept in its native planes (YUV: 1.5 bytes a pixel for 4:2:0).
+    """A region of a decoded frame kept in its native planes (YUV 4:2:0: 1.5 samples a pixel;
+    uint8 for 8-bit video, uint16 for 10/12-bit).
 
-    Convert with :meth:`rgb` only when colour is needed; :meth:`luma` is free.
+    Convert with :meth:`linear` (float32 linear Rec.709, the stream's colour tags honoured:
+    :mod:`relight.video_colour`) or :meth:`rgb` (uint8 sRGB for display and detection; HDR
+    tone-mapped) only when colour is needed; :meth:`luma` is almost free.
     """
 
-    y: np.ndarray                  # (h, w) uint8 luma (or None for an RGB crop)
+    y: np.ndarray | None           # (h, w) luma codes (None for an RGB crop)
     u: np.ndarray | None = None    # chroma planes covering the crop
     v: np.ndarray | None = None
     offset: tuple[int, int] = (0, 0)  # where the crop starts in the 2x-upsampled chroma block
     shift: int = 0                 # 2: 4:2:0, 1: 4:2:2, 0: 4:4:4
-    matrix: str = "bt709"
-    full_range: bool = False
+    colour: VideoColour = VideoColour()
+    # (h, w, 3) as displayed, for frames not in planar Y'CbCr: uint8 sRGB codes, uint16
+    # non-linear signal (65535 = 1) in the stream's primaries, or float32 linear Rec.709.
     rgb_data: np.ndarray | None = None
     turns: int = 0                 # the display orientation (:func:`display_orientation`) applied
     mirror: bool = False           # to every output; the planes stay as coded
@@ -329,22 +325,35 @@ class FrameCrop:
         return np.ascontiguousarray(orient(img, self.turns, self.mirror))
 
     def luma(self, *, native: bool = False) -> np.ndarray:
-        """(h, w) uint8 luma (sRGB-encoded grey): full range, or as stored with ``native``
-        (no re-quantisation: best for tracking, which only needs relative brightness)."""
+        """(h, w) uint8 luma: sRGB-encoded grey (full range; HDR tone-mapped), or with ``native``
+        the stored codes' top 8 bits, range as stored (cheapest: for tracking, which only
+        needs relative brightness)."""
         import cv2
 
         if self.rgb_data is not None:
-            return cv2.cvtColor(self.rgb_data, cv2.COLOR_RGB2GRAY)
-        if self.full_range or native:
-            return self._shown(self.y)
-        return self._shown(_LIMITED_TO_FULL[self.y])
+            return cv2.cvtColor(self.rgb(), cv2.COLOR_RGB2GRAY)
+        if native:
+            y = self.y if self.y.dtype == np.uint8 else (self.y >> (self.colour.bits - 8)).astype(np.uint8)
+            return self._shown(y)
+        if self.colour.plain_srgb8:
+            return self._shown(self.y if self.colour.full_range else _LIMITED_TO_FULL[self.y])
+        return encode_srgb8(tonemap(self.luma_linear()) if self.colour.hdr else self.luma_linear())
 
-    def rgb_sparse(self, step: int) -> np.ndarray:
-        """RGB uint8 of every ``step``-th pixel each way (nearest chroma): cheap statistics."""
+    def luma_linear(self) -> np.ndarray:
+        """(h, w) float32 linear grey of the luma codes (a brightness trace's input)."""
         if self.rgb_data is not None:
-            return self.rgb_data[::step, ::step]
+            return luminance(self.linear())
+        if self.colour.plain_srgb8:
+            return decode_srgb8(self.luma())
+        return self._shown(luma_table(self.colour)[self.y])
+
+    def sparse(self, step: int) -> FrameCrop:
+        """Every ``step``-th pixel each way (nearest chroma), as displayed: cheap statistics."""
+        if self.rgb_data is not None:
+            return FrameCrop(y=None, rgb_data=self.rgb_data[::step, ::step], colour=self.colour)
         if self.turns % 4 or self.mirror:
-            return self.rgb()[::step, ::step]  # the display grid, exactly (rare: turned videos)
+            # The display grid, exactly (rare: turned videos): taken from the full conversion.
+            return FrameCrop(y=None, rgb_data=self.linear()[::step, ::step], colour=self.colour)
         h, w = self.y.shape
         rows, cols = np.arange(0, h, step), np.arange(0, w, step)
         if self.shift:
@@ -353,18 +362,19 @@ class FrameCrop:
             cc = (cols + ox) // 2
         else:
             cr, cc = rows, cols
-        sub = FrameCrop(y=self.y[np.ix_(rows, cols)], u=self.u[np.ix_(cr, cc)], v=self.v[np.ix_(cr, cc)],
-                        shift=0, matrix=self.matrix, full_range=self.full_range)
-        return sub.rgb()
+        return FrameCrop(y=self.y[np.ix_(rows, cols)], u=self.u[np.ix_(cr, cc)], v=self.v[np.ix_(cr, cc)],
+                         shift=0, colour=self.colour)
 
-    def rgb(self) -> np.ndarray:
-        """(h, w, 3) uint8 sRGB, with the frame's matrix and range, chroma upsampled bilinearly."""
+    def rgb_sparse(self, step: int) -> np.ndarray:
+        """uint8 sRGB of every ``step``-th pixel each way (see :meth:`sparse`)."""
+        return self.sparse(step).rgb()
+
+    def _signal(self) -> np.ndarray:
+        """(h, w, 3) float32 non-linear R'G'B' (0-1 nominal) in the stream's primaries, as coded."""
         import cv2
 
-        if self.rgb_data is not None:
-            return self.rgb_data
         h, w = self.y.shape
-        planes = []
+        planes = [self.y.astype(np.float32)]
         for c in (self.u, self.v):
             c = c.astype(np.float32)
             if self.shift:
@@ -373,22 +383,50 @@ class FrameCrop:
                 ox, oy = self.offset
                 c = c[oy:oy + h, ox:ox + w]
             planes.append(c)
+        # One affine colour transform of [Y, Cb, Cr, 1] (OpenCV: SIMD, threaded).
+        return cv2.transform(cv2.merge(planes), ycbcr_matrix(self.colour))
+
+    def rgb(self) -> np.ndarray:
+        """(h, w, 3) uint8 sRGB as displayed, with the stream's matrix and range, chroma upsampled
+        bilinearly; other curves and primaries through linear light (HDR tone-mapped:
+        :func:`relight.video_colour.tonemap`)."""
         import cv2
 
-        kr, kb = _KRKB[self.matrix]
-        kg = 1.0 - kr - kb
-        if self.full_range:
-            ys, cs, y0 = 1.0, 1.0, 0.0
-        else:
-            ys, cs, y0 = 255.0 / 219.0, 255.0 / 224.0, 16.0
-        crk, cbk = 2.0 * (1.0 - kr) * cs, 2.0 * (1.0 - kb) * cs
-        # One affine colour transform of [Y, Cb, Cr, 1] (OpenCV: SIMD, threaded).
-        m = np.array([[ys, 0.0, crk], [ys, -kb / kg * cbk, -kr / kg * crk], [ys, cbk, 0.0]])
-        off = -m @ np.array([y0, 128.0, 128.0])
-        ycc = cv2.merge([self.y.astype(np.float32), planes[0], planes[1]])
-        rgb = cv2.transform(ycc, np.hstack([m, off[:, None]]).astype(np.float32))
-        np.maximum(rgb, 0.0, out=rgb)
-        return self._shown(cv2.convertScaleAbs(rgb))  # rounds and saturates at 255
+        if self.rgb_data is not None and self.rgb_data.dtype == np.uint8:
+            return self.rgb_data
+        if self.rgb_data is None and self.colour.plain_srgb8:
+            sig = self._signal()
+            sig *= 255.0
+            np.maximum(sig, 0.0, out=sig)
+            return self._shown(cv2.convertScaleAbs(sig))  # rounds and saturates at 255
+        lin = self.linear()
+        return encode_srgb8(tonemap(lin) if self.colour.hdr else lin)
+
+    def linear(self) -> np.ndarray:
+        """(h, w, 3) float32 linear Rec.709 as displayed, reference white 1.0 (HDR above it):
+        exactly :func:`relight.colour.decode_srgb8` of :meth:`rgb` for 8-bit sRGB video."""
+        if self.rgb_data is not None:
+            if self.rgb_data.dtype == np.uint8:
+                return decode_srgb8(self.rgb_data)
+            if self.rgb_data.dtype == np.float32:
+                return self.rgb_data
+            return signal_to_linear(self.rgb_data.astype(np.float32) / 65535.0, self.colour)
+        if self.colour.plain_srgb8:
+            return decode_srgb8(self.rgb())
+        return self._shown(signal_to_linear(self._signal(), self.colour))
+
+    def clipped(self, level: float) -> np.ndarray:
+        """(h, w) bool: pixels with a channel at or above ``level`` of the code range's top
+        (sensor saturation), as displayed."""
+        if self.rgb_data is not None and self.rgb_data.dtype == np.uint8:
+            return self.rgb_data.max(axis=-1) >= level * 255.0
+        if self.rgb_data is None and self.colour.plain_srgb8:
+            return self.rgb().max(axis=-1) >= level * 255.0
+        if self.rgb_data is not None:
+            if self.rgb_data.dtype == np.float32:
+                raise ValueError("a linear crop has no code range to be clipped at")
+            return self.rgb_data.max(axis=-1) >= level * 65535.0
+        return self._shown(self._signal().max(axis=-1) >= level)
 
 
 _LIMITED_TO_FULL = np.clip(np.round((np.arange(256) - 16) * 255.0 / 219.0), 0, 255).astype(np.uint8)
@@ -413,29 +451,37 @@ def _coded_box(box: tuple[int, int, int, int], turns: int, mirror: bool,
 
 def crop_frame(frame, box: tuple[int, int, int, int]) -> FrameCrop:
     """Keep the region ``box`` (x, y, w, h, in the frame as displayed: :func:`display_orientation`)
-    of a decoded frame in its native planes."""
+    of a decoded frame in its native planes (8-bit codes as uint8, 10/12-bit as uint16)."""
     name = frame.format.name
-    if name not in _YUV_FORMATS:
+    colour = video_colour(frame)
+    if name not in PLANAR_FORMATS:
         x, y, w, h = box
-        return FrameCrop(y=None, rgb_data=np.ascontiguousarray(frame_to_rgb(frame)[y:y + h, x:x + w]))
+        if colour.bits > 8:
+            sig = orient(frame.to_ndarray(format="rgb48le"), *display_orientation(frame))
+            return FrameCrop(y=None, rgb_data=np.ascontiguousarray(sig[y:y + h, x:x + w]), colour=colour)
+        return FrameCrop(y=None, rgb_data=np.ascontiguousarray(frame_to_rgb(frame)[y:y + h, x:x + w]),
+                         colour=colour)
     turns, mirror = display_orientation(frame)
     x, y, w, h = _coded_box(box, turns, mirror, (frame.width, frame.height))
-    shift = _YUV_FORMATS[name]
+    bits, shift = PLANAR_FORMATS[name]
+    dtype = np.uint8 if bits == 8 else np.dtype("<u2")
+    itemsize = np.dtype(dtype).itemsize
     ys = frame.planes[0]
-    yp = np.frombuffer(ys, dtype=np.uint8).reshape(frame.height, ys.line_size)[y:y + h, x:x + w].copy()
+    yp = np.frombuffer(ys, dtype=dtype).reshape(frame.height, ys.line_size // itemsize)[y:y + h, x:x + w].copy()
     if shift == 0:
         cx0, cx1, cy0, cy1 = x, x + w, y, y + h
     else:
         cx0, cx1 = x >> 1, (x + w + 1) >> 1
         cy0, cy1 = ((y >> 1), ((y + h + 1) >> 1)) if shift == 2 else (y, y + h)
     chroma = []
-    rows = frame.height >> 1 if shift == 2 else frame.height
+    rows = (frame.height + 1) >> 1 if shift == 2 else frame.height
     for k in (1, 2):
         pl = frame.planes[k]
-        chroma.append(np.frombuffer(pl, dtype=np.uint8).reshape(rows, pl.line_size)[cy0:cy1, cx0:cx1].copy())
+        chroma.append(np.frombuffer(pl, dtype=dtype).reshape(-1, pl.line_size // itemsize)[:rows][cy0:cy1, cx0:cx1]
+                      .copy())
     off = (x - 2 * cx0, (y - 2 * cy0) if shift == 2 else 0) if shift else (0, 0)
-    return FrameCrop(y=yp, u=chroma[0], v=chroma[1], offset=off, shift=shift, matrix=_matrix_name(frame),
-                     full_range=name.startswith("yuvj") or int(frame.color_range) == 2, turns=turns, mirror=mirror)
+    return FrameCrop(y=yp, u=chroma[0], v=chroma[1], offset=off, shift=shift, colour=colour, turns=turns,
+                     mirror=mirror)
 
 
 def yuv_crop_to_rgb(frame, box: tuple[int, int, int, int]) -> np.ndarray:
@@ -473,8 +519,17 @@ def read_frames_raw(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAM
 
 def frame_to_rgb(frame) -> np.ndarray:
     """A decoded frame -> (H, W, 3) uint8 sRGB as displayed (its container's display rotation and
-    mirror applied: :func:`display_orientation`); the conversion :func:`read_frames` uses."""
-    return np.ascontiguousarray(orient(_to_rgb(frame), *display_orientation(frame)))
+    mirror applied: :func:`display_orientation`); the conversion :func:`read_frames` uses.
+
+    8-bit SDR video in Rec.709 goes through swscale with the stream's matrix and range (codes
+    kept as they are: what players show); 10/12-bit, HDR and wide-gamut video through linear
+    light (:mod:`relight.video_colour`; HDR tone-mapped)."""
+    colour = video_colour(frame)
+    if colour.bits == 8 and colour.primaries == "bt709" and not colour.hdr:
+        return np.ascontiguousarray(orient(_to_rgb(frame), *display_orientation(frame)))
+    turns, _ = display_orientation(frame)
+    w, h = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)
+    return crop_frame(frame, (0, 0, w, h)).rgb()
 
 
 @dataclass(frozen=True)
