@@ -322,11 +322,17 @@ def _add_bench(sub) -> None:
     c = bsub.add_parser("capture", help="capture pipeline: time per stage, peak memory, accuracy vs truth",
                         description="Synthesise captures (cached) and run `relight capture` on each in a fresh "
                                     "process: total and per-stage time, peak memory, and accuracy against the "
-                                    "truth (flash frames, registration, light directions, normals). Writes "
-                                    "bench.json and capture_timings.png.",
+                                    "truth (flash frames, registration, light directions, normals), bundle size; "
+                                    "goals: real time up to 960x540, twice real time at 1080p/4K, <= 3 GB. Writes "
+                                    "bench.json, capture_timings.png and (several scenarios) capture_growth.png.",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     c.add_argument("-o", "--out", type=Path, default=Path("out/bench-capture"), help="output and cache folder")
     c.add_argument("--quick", action="store_true", help="one short capture (10 s at 480x270) instead of the set")
+    c.add_argument("--growth", action="store_true",
+                   help="the growth series (640x360 at 6/12/24 s, 12 s at 480x270/640x360/960x540) and its plot, "
+                        "capture_growth.png")
+    c.add_argument("--only", nargs="+", metavar="NAME",
+                   help="run only the scenarios whose name contains one of these (e.g. 640x360 1920x1080)")
     c.add_argument("--quiet", action="store_true", help="no progress output")
     c.set_defaults(func=_run_bench_capture)
     r = bsub.add_parser("relight", help="relighting: error against run time, exact vs compact vs NumPy",
@@ -426,9 +432,10 @@ def _run_bench_accuracy(args) -> int:
 def _run_bench_capture(args) -> int:
     from .pipeline import benchmark
 
-    doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet)
+    doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet, growth=args.growth, only=args.only)
     print(benchmark.table(doc))
-    print(f"wrote {args.out / 'bench.json'} and {args.out / 'capture_timings.png'}")
+    print(f"wrote {args.out / ('bench-growth.json' if args.growth else 'bench.json')} and "
+          f"{args.out / 'capture_timings.png'}")
     return 0
 
 
