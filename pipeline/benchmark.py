@@ -124,21 +124,29 @@ def _plot_growth(rows, path):
     import matplotlib
 
     matplotlib.use("Agg")
+    from collections import Counter
+
     import matplotlib.pyplot as plt
 
+    size = Counter((r["scenario"]["width"], r["scenario"]["height"]) for r in rows).most_common(1)[0][0]
+    duration = Counter(r["scenario"]["duration"] for r in rows).most_common(1)[0][0]
+    panels = (("duration", f"capture duration (s), {size[0]}x{size[1]}",
+               [r for r in rows if (r["scenario"]["width"], r["scenario"]["height"]) == size]),
+              ("pixels", f"face pixels, {duration:g} s captures",
+               [r for r in rows if r["scenario"]["duration"] == duration]))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for ax, key, label in ((axes[0], "duration", "capture duration (s)"), (axes[1], "pixels", "face pixels")):
-        x = [r["scenario"]["duration"] if key == "duration" else r["pixels"] for r in rows]
-        order = sorted(range(len(rows)), key=lambda i: x[i])
+    for ax, (key, label, group) in zip(axes, panels, strict=True):
+        x = [r["scenario"]["duration"] if key == "duration" else r["pixels"] for r in group]
+        order = sorted(range(len(group)), key=lambda i: x[i])
         xs = [x[i] for i in order]
-        ax.plot(xs, [rows[i]["wall_s"] for i in order], "o-", label="wall time (s)")
+        ax.plot(xs, [group[i]["wall_s"] for i in order], "o-", label="wall time (s)")
         ax.set_xlabel(label)
-        ax.set_ylabel("seconds")
+        ax.set_ylabel("wall seconds")
         ax2 = ax.twinx()
-        ax2.plot(xs, [rows[i]["peak_mb"] for i in order], "s--", color="tab:red", label="peak RSS (MB)")
-        ax2.set_ylabel("MB", color="tab:red")
+        ax2.plot(xs, [group[i]["peak_mb"] for i in order], "s--", color="tab:red", label="peak RSS (MB)")
+        ax2.set_ylabel("peak RSS (MB)", color="tab:red")
         for i in order:
-            ax.annotate(rows[i]["scenario"]["name"], (x[i], rows[i]["wall_s"]), fontsize=7)
+            ax.annotate(group[i]["scenario"]["name"], (x[i], group[i]["wall_s"]), fontsize=7)
         ax.set_title(f"relight capture against {key}")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
