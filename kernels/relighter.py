@@ -21,6 +21,7 @@ from relight.errors import InputError
 from relight.numerics import flush_subnormal_halves, read_halves
 
 from . import transport
+from .maps import padded_texels
 from .runtime import build_program, get_runtime
 
 #: Largest accepted deviation of a rotation matrix from orthonormal.
@@ -148,9 +149,10 @@ class Relighter:
         if not (np.isfinite(self.sample_scale) and self.sample_scale > 0):
             raise InputError(f"{bundle.path}: sample_scale {self.sample_scale} must be a positive number; "
                              "the bundle is damaged - capture it again")
-        self.maps = bundle.maps
         self.rows = bundle.maps_rows
-        self.n_pix, _, self.t_pad = self.maps.shape
+        self.n_pix = int(self.rows.shape[2])
+        self.t_pad = padded_texels(int(self.rows.shape[0]))
+        self._maps = None
         w, h = bundle.frame_size
         x0, y0 = bundle.crop_origin
         cw = bundle.mask_crop.shape[1]
@@ -208,7 +210,15 @@ class Relighter:
                                        rank_errors=np.asarray(arrays["transport_errors"]),
                                        sigma=np.asarray(arrays.get("transport_sigma", np.zeros(1))),
                                        direct=int(bundle.meta.get("transport_direct", transport.DIRECT_TEXELS)))
-        return transport.factorize(bundle.maps, bundle.map_size, np.asarray(bundle.map_texels))
+        return transport.factorize(bundle.pixel_maps(), bundle.map_size, np.asarray(bundle.map_texels))
+
+    @property
+    def maps(self) -> np.ndarray:
+        """(P, 3, Tp) float16 pixel-major maps (the bundle's, or gathered from its texel-major rows
+        once: :meth:`relight.pipeline.bundle.Bundle.pixel_maps`)."""
+        if self._maps is None:
+            self._maps = self.bundle.pixel_maps()
+        return self._maps
 
     # ------------------------------------------------------------------ direction space
     def lights(self, env: np.ndarray) -> transport.EnvLights:
@@ -316,7 +326,7 @@ class Relighter:
         if self._maps_buf is None:
             maps = aligned_zeros((self.n_pix, 3, self.t_exact), np.float16)
             for p0 in range(0, self.n_pix, 8192):
-                blk = np.asarray(self.maps[p0:p0 + 8192])
+                blk = self.bundle.pixel_maps(slice(p0, p0 + 8192))
                 if not np.isfinite(blk).all():
                     raise InputError("the bundle's reflectance maps hold non-finite values: capture the bundle again")
                 maps[p0:p0 + 8192, :, :self.t_pad] = flush_subnormal_halves(blk.copy())

@@ -1,9 +1,9 @@
 """Stage 6: the reflectance bundle - one file with everything the online side needs.
 
-Format (version 1), little-endian::
+Format (version 2), little-endian::
 
     offset 0   8 bytes   magic b"RLBUNDLE"
-    offset 8   u32       format version (1)
+    offset 8   u32       format version (2; version 1 files load too: they hold a superset)
     offset 12  u32       CRC-32 of the header bytes
     offset 16  u64       header length H
     offset 24  H bytes   header: UTF-8 JSON {"format", "version", "meta", "arrays"}
@@ -31,10 +31,11 @@ albedo                  (P, 3) float32               Lambertian albedo, linear, 
 depth                   (h, w) float32               height toward the camera, pixels
 landmarks               (N, 2) float32               trackable points of the reference (frame px)
 light_dirs              (K, 3) float32               sample light directions (camera space)
-samples                 (K, P, 3) float16            flash-only colour of each pixel per sample
-maps                    (P, 3, Tp) float16           reflectance maps, pixel-major: per pixel and channel
+samples (*)             (K, P, 3) float16            flash-only colour of each pixel per sample
+maps (*)                (P, 3, Tp) float16           reflectance maps, pixel-major: per pixel and channel
                                                      the T active texels, zero padded to Tp (multiple of 16)
-maps_rows               (T, 3, P) float16            the same, texel-major (single texels: point lights, suns)
+maps_rows               (T, 3, P) float16            the maps texel-major (single texels: point lights, suns;
+                                                     the exact path reads pixel-major blocks of it)
 map_texels              (T,) int32                   map texel (row-major in the lat-long map) of each column
 transport_u             (T, K) float32               compact transport: orthonormal texel basis
 transport_v             (P, 3, Kp) float16           maps projected on it, pixel-major, zero padded to 16
@@ -43,6 +44,9 @@ transport_sigma         (K,) float32                 singular values
 tri_vertices            (V, 3) float32               triangulation vertices (samples, then black lights)
 tri_faces               (F, 3) int32                 triangulation faces
 ======================  ===========================  ========================================
+
+(*) only in bundles captured with ``--keep-maps`` (:meth:`Bundle.pixel_maps` gives the pixel-major
+maps either way). ``meta["stored"]`` lists the fields a bundle holds.
 
 Units: linear Rec.709; "flash units" means a pixel's value under a light as strong as the
 capture flash (a white Lambertian surface facing it reads 1). Relighting under an environment
@@ -66,12 +70,14 @@ from relight.errors import InputError
 from relight.imageio import atomic_path
 
 MAGIC = b"RLBUNDLE"
-VERSION = 1
+VERSION = 2
+#: Format versions this relight reads (version 1 always stored the optional fields).
+READABLE_VERSIONS = (1, 2)
 ALIGN = 64
 _PREFIX = struct.Struct("<8sIIQ")
 #: Largest header accepted (a corrupt length must not make us allocate gigabytes).
 MAX_HEADER = 64 << 20
-REQUIRED = ("pixels", "mask_crop", "ambient", "background", "normal", "albedo", "depth", "light_dirs", "maps",
+REQUIRED = ("pixels", "mask_crop", "ambient", "background", "normal", "albedo", "depth", "light_dirs",
             "maps_rows", "map_texels")
 _ALLOWED_DTYPES = {"|b1", "|u1", "<i4", "<i8", "<f2", "<f4", "<f8"}
 #: The ambient frame counts as a picture of the face under the room's light (:attr:`Bundle.room_light`)
@@ -165,12 +171,41 @@ class Bundle:
         ref = float(np.median(luminance(bg[m])))
         return a if amb > 0.0 and amb >= ROOM_LIGHT_MIN_SHARE * ref else None
 
+    @property
+    def n_pixels(self) -> int:
+        return int(self.arrays["maps_rows"].shape[2])
+
+    def pixel_maps(self, index=None, *, padded: bool = True) -> np.ndarray:
+        """(n, 3, Tp) float16 pixel-major maps of the head pixels ``index`` (an index array or
+        slice into ``pixels``; None: all), zero padded to Tp texels (a multiple of 16) unless
+        ``padded`` is False. From ``maps`` when the bundle stores it, else gathered from
+        ``maps_rows`` (memory: the result only)."""
+        from relight.kernels.maps import padded_texels
+
+        if "maps" in self.arrays:
+            sel = self.arrays["maps"] if index is None else self.arrays["maps"][index]
+            out = np.asarray(sel)
+            return out if padded else out[:, :, :self.arrays["map_texels"].shape[0]]
+        rows = self.arrays["maps_rows"]
+        t = rows.shape[0]
+        idx = np.arange(rows.shape[2]) if index is None else np.arange(rows.shape[2])[index]
+        out = np.zeros((idx.size, 3, padded_texels(t) if padded else t), dtype=np.float16)
+        step = 8192
+        for i0 in range(0, idx.size, step):
+            part = idx[i0:i0 + step]
+            if part.size and part[-1] - part[0] + 1 == part.size and np.all(np.diff(part) == 1):
+                blk = np.asarray(rows[:, :, part[0]:part[-1] + 1])  # a run: one strided read
+            else:
+                blk = np.asarray(rows[:, :, part])
+            out[i0:i0 + part.size, :, :t] = blk.transpose(2, 1, 0)
+        return out
+
     def full_map(self, pixel: int) -> np.ndarray:
         """(H_map, W_map, 3) float32 reflectance map of one head pixel (index into ``pixels``)."""
         w, h = self.map_size
         tex = np.asarray(self.arrays["map_texels"])
         out = np.zeros((h * w, 3), dtype=np.float32)
-        out[tex] = np.asarray(self.arrays["maps"][pixel, :, :tex.size], dtype=np.float32).T
+        out[tex] = np.asarray(self.arrays["maps_rows"][:, :, pixel], dtype=np.float32)
         return out.reshape(h, w, 3)
 
 
@@ -245,9 +280,10 @@ def load_bundle(path: str | os.PathLike, *, verify: bool = True) -> Bundle:
         magic, version, crc, hlen = _PREFIX.unpack(prefix)
         if magic != MAGIC:
             raise InputError(f"{path}: not a relight bundle (bad magic); make one with `relight capture`")
-        if version != VERSION:
-            raise InputError(f"{path}: bundle format version {version}, this relight reads version {VERSION}; "
-                             "re-run `relight capture` with this version")
+        if version not in READABLE_VERSIONS:
+            raise InputError(f"{path}: bundle format version {version}, this relight reads versions "
+                             f"{', '.join(map(str, READABLE_VERSIONS))}; re-run `relight capture` with this version "
+                             "(or use the relight that wrote it)")
         if hlen > MAX_HEADER or _PREFIX.size + hlen > size:
             raise InputError(f"{path}: header length {hlen} does not fit the {size}-byte file; it is truncated "
                              "or corrupt")

@@ -24,7 +24,7 @@ from relight.numerics import flush_subnormal_halves
 
 from . import geometry, methods, reflectance
 from .bundle import write_bundle
-from .ingest import ingest
+from .ingest import DEFAULT_FACE_PIXELS, ingest
 from .samples import SampleOptions, collect_samples
 
 #: Image-plane directions of the horizon table used for visibility, and the head size (pixels)
@@ -34,6 +34,11 @@ HALF_RES_PIXELS = 30000
 #: Largest image set accepted (files) and the most landmarks stored.
 MAX_IMAGES = 2000
 MAX_LANDMARKS = 300
+
+#: Bundle fields written only with ``relight capture --keep-maps``: the pixel-major copy of the
+#: maps (the texel-major ``maps_rows`` hold the same values, and the exact path reads them from
+#: there) and the flash samples (for re-fitting; no reader of the bundle needs them).
+KEPT_ONLY_ON_REQUEST = ("maps", "samples")
 
 #: Transfer curves an image set's 8/16-bit files may be encoded with (``relight capture
 #: --transfer``): sRGB (phones, cameras' JPEGs, most RTI sets) or linear (a camera's raw response,
@@ -62,6 +67,8 @@ class CaptureOptions:
     export_mesh: str | None = None
     backend: str = "opencl"
     transfer: str = "srgb"
+    keep_maps: bool = False
+    face_pixels: int | None = DEFAULT_FACE_PIXELS
 
     def validate(self) -> CaptureOptions:
         methods.validate_method(self.method)
@@ -140,7 +147,8 @@ def prepare_video(path, opts: CaptureOptions, progress: _Progress, timings: dict
         total[0] += n
         progress("decode", total[0], max(expected, total[0]))
 
-    ing = ingest(path, face=opts.face, sphere_hint=opts.samples.sphere, progress=frame_cb)
+    ing = ingest(path, face=opts.face, sphere_hint=opts.samples.sphere, progress=frame_cb,
+                 face_pixels=opts.face_pixels)
     timings["ingest"] = time.perf_counter() - t0
     smp = collect_samples(ing, opts.samples, progress=progress)
     timings.update({f"samples_{k}": v for k, v in smp.timings.items()})
@@ -170,11 +178,15 @@ def prepare_video(path, opts: CaptureOptions, progress: _Progress, timings: dict
         "_level": smp.flash.level.tolist(),
         "_track_quality": {str(k): list(v) for k, v in smp.track_quality.items()},
         "fps": ing.fps,
+        "capture_scale": ing.scale,
+        "source_size": list(ing.source_size or ing.size),
     }
     background = ing.still
     return Prepared(images=smp.images, dirs=smp.dirs, clipped=smp.clipped, ambient=smp.ambient,
                     background=background, origin=smp.origin, frame_size=ing.size, face_local=face_local,
-                    mask=None, meta={"source": str(path), "kind": "video", "fps": ing.fps}, report=report)
+                    mask=None, meta={"source": str(path), "kind": "video", "fps": ing.fps,
+                                     "capture_scale": ing.scale, "source_size": list(ing.source_size or ing.size)},
+                    report=report)
 
 
 def read_lp(path: Path) -> list[tuple[str, np.ndarray]]:
@@ -490,7 +502,9 @@ def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = F
         t0 = time.perf_counter()
         meta["timings"] = {k: round(v, 3) for k, v in timings.items()}
         meta["rejected"] = prep.report.get("rejected", {})
-        path = write_bundle(out, meta, arrays)
+        stored = arrays if opts.keep_maps else {k: v for k, v in arrays.items() if k not in KEPT_ONLY_ON_REQUEST}
+        meta["stored"] = sorted(stored)
+        path = write_bundle(out, meta, stored)
         timings["write"] = time.perf_counter() - t0
     finally:
         bar.close()

@@ -26,6 +26,19 @@ HEAD_SECONDS = 3.0
 #: moved down a little (the chin, jaw and neck lie below a Haar box).
 CROP_GROW = (2.0, 2.3)
 CROP_SHIFT_DOWN = 0.15
+#: ``relight capture --face-pixels``: the head is worked on at no more than about this many
+#: pixels; larger captures (1080p, 4K phones) are downscaled as they are decoded. 100k is a head
+#: in 720p video - what the live side shows it at - and keeps time and memory bounded.
+DEFAULT_FACE_PIXELS = 100_000
+#: Head pixels per pixel of the stored face region (measured on the synthetic heads: 0.28-0.31),
+#: to tell the head's size from the region before there is a mask.
+HEAD_SHARE_OF_CROP = 0.3
+#: Face and sphere detection run on the first seconds at no more than this many pixels across
+#: (4K frames are scaled down for it; the circles and Haar boxes are scaled back).
+DETECT_MAX_SIDE = 1280
+#: The first seconds' decoded frames are kept for the main pass when they take at most this
+#: many bytes; otherwise the video is decoded again from the start (bounded memory at 4K).
+HOLD_HEAD_BYTES = 512 << 20
 
 
 @dataclass
@@ -37,6 +50,9 @@ class Ingested:
     :class:`relight.video.FrameCrop` (native YUV planes; ``.rgb()`` / ``.luma()`` convert).
     sphere_box / sphere_crops : the same for the mirror sphere (None without a sphere).
     colour : how the stream's codes become linear light (:mod:`relight.video_colour`).
+    scale : stored pixels per pixel of the video (< 1 when downscaled for ``face_pixels``); every
+    coordinate here (size, boxes, crops, the sphere) is in the scaled frame.
+    source_size : (W, H) of the video as displayed.
     times : (N,) each frame's presentation time in seconds from the first (variable frame rate
     is common on phones: the stages that reason in time use these, not frame numbers).
     face_box : the face in frame coordinates; face_source: 'haar', 'given' or 'none'.
@@ -61,6 +77,8 @@ class Ingested:
     trace: np.ndarray
     colour: VideoColour = VideoColour()
     times: np.ndarray | None = None
+    scale: float = 1.0
+    source_size: tuple[int, int] | None = None
     notes: list = field(default_factory=list)
 
     @property
@@ -94,79 +112,126 @@ def face_crop(face_box, size):
     return _clip_box((cx - cw / 2, cy - ch / 2, cw, ch), size)
 
 
+def _scaled_box(box, s: float, size) -> tuple[int, int, int, int]:
+    x, y, w, h = box
+    return _clip_box((x * s, y * s, max(w * s, 1.0), max(h * s, 1.0)), size)
+
+
 def ingest(path, *, face: tuple[int, int, int, int] | None = None,
            sphere_hint: tuple[float, float, float] | None = None,
-           progress: Callable[[int], None] | None = None) -> Ingested:
+           progress: Callable[[int], None] | None = None,
+           face_pixels: int | None = DEFAULT_FACE_PIXELS) -> Ingested:
     """Decode ``path`` once (see the module docstring).
 
     face : a face box (x, y, w, h) to use instead of detection. sphere_hint : (cx, cy, r) of the
-    mirror sphere instead of detection.
+    mirror sphere instead of detection (both in pixels of the video as displayed).
+    face_pixels : downscale the capture so the head has about this many pixels (None: never).
     """
     info = probe_video(path)
     if info.fps <= 0:
         raise InputError(f"{path}: the video does not state a frame rate")
+    if face_pixels is not None and not (1000 <= int(face_pixels) <= 10_000_000):
+        raise InputError(f"--face-pixels {face_pixels}: use 1000 to 10000000 (default {DEFAULT_FACE_PIXELS})")
     size = (info.width, info.height)
     frames = read_frames_raw(path)
     head_n = max(int(round(HEAD_SECONDS * info.fps)), 8)
-    head_raw = []
-    for f in frames:
-        head_raw.append(f)
-        if len(head_raw) >= head_n:
-            break
-    if len(head_raw) < 8:
-        raise InputError(f"{path}: {len(head_raw)} frames; a capture needs several seconds of video")
-    head_rgb = [frame_to_rgb(f) for f in head_raw]
-    colour = video_colour(head_raw[0])
-    notes: list[str] = [f"video colour: {colour.describe()}"] + [f"video colour: {n}" for n in colour.notes]
+    # The first seconds, for detection: at most DETECT_MAX_SIDE pixels across, and the darkest
+    # frame (the background) kept whole, in its planes.
+    det = min(1.0, DETECT_MAX_SIDE / max(size))
+    det_size = (max(int(round(size[0] * det)), 1), max(int(round(size[1] * det)), 1))
+    hold = info.coded_size[0] * info.coded_size[1] * 3 * head_n <= HOLD_HEAD_BYTES
+    head_raw, head_rgb, means = [], [], []
+    darkest, colour = None, None
     lut = decode_srgb8(np.arange(256, dtype=np.uint8))
-    means = [float(lut[_luma(r)].mean()) for r in head_rgb]
+    for f in frames:
+        whole = crop_frame(f, (0, 0, size[0], size[1]))
+        if colour is None:
+            colour = whole.colour
+        small = whole if det == 1.0 else whole.resized(det_size)
+        rgb = frame_to_rgb(f) if det == 1.0 else small.rgb()
+        head_rgb.append(rgb)
+        means.append(float(lut[_luma(rgb)].mean()))
+        if darkest is None or means[-1] < means[darkest[0]]:
+            darkest = (len(means) - 1, whole)
+        if hold:
+            head_raw.append(f)
+        if len(head_rgb) >= head_n:
+            break
+    if len(head_rgb) < 8:
+        raise InputError(f"{path}: {len(head_rgb)} frames; a capture needs several seconds of video")
+    notes: list[str] = [f"video colour: {colour.describe()}"] + [f"video colour: {n}" for n in colour.notes]
     order = np.argsort(means)
 
     # The face: given, or Haar on the darkest early frames (no flash: the paper's reference).
     face_source = "given" if face is not None else "none"
     if face is None:
         for i in order[:8]:
-            face = registration.detect_face(head_rgb[i])
-            if face is not None:
+            found = registration.detect_face(head_rgb[i])
+            if found is not None:
+                face = _scaled_box(found, 1.0 / det, size)
                 face_source = "haar"
                 break
     else:
         face = _clip_box(face, size)
     still_index = int(order[0])
-    still = head_rgb[still_index]
 
     # The sphere: given, or circles in the darkest frame checked against where the flashes
     # appear in the brightest ones.
     sphere_source = "given" if sphere_hint is not None else "none"
     if sphere_hint is None:
         bright = [head_rgb[i] for i in order[::-1][:12]]
-        sphere_hint = sphere.find_sphere(still, bright, exclude=face)
-        if sphere_hint is not None:
+        exclude = None if face is None else _scaled_box(face, det, det_size)
+        found = sphere.find_sphere(head_rgb[still_index], bright, exclude=exclude)
+        if found is not None:
+            sphere_hint = tuple(float(v) / det for v in found)
             sphere_source = "hough"
+    still_rgb = head_rgb[still_index] if det == 1.0 else None
+    del head_rgb
+
+    # The working scale: the head at about ``face_pixels`` pixels.
+    crop_full = (0, 0, size[0], size[1]) if face is None else face_crop(face, size)
+    head_est = HEAD_SHARE_OF_CROP * crop_full[2] * crop_full[3]
+    s = 1.0 if face_pixels is None or head_est <= face_pixels else float(np.sqrt(face_pixels / head_est))
+    work = (max(int(round(size[0] * s)), 1), max(int(round(size[1] * s)), 1))
+    if s < 1.0:
+        notes.append(f"downscaled by {s:.3f} to {work[0]}x{work[1]} (head ~{head_est:.0f} px, --face-pixels "
+                     f"{face_pixels})")
     if face is None:
         notes.append("no face detected in the first seconds; using features over the whole frame outside the "
                      "sphere (give --face x,y,w,h to choose the region)")
-        crop = (0, 0, size[0], size[1])
+        crop = (0, 0, work[0], work[1])
     else:
-        crop = face_crop(face, size)
-    sbox = None
+        crop = _scaled_box(crop_full, s, work)
+    sbox_full = sbox = None
     if sphere_hint is not None:
         cx, cy, r = sphere_hint
-        pad = max(0.35 * r, 6)
-        sbox = _clip_box((cx - r - pad, cy - r - pad, 2 * (r + pad), 2 * (r + pad)), size)
+        pad = max(0.35 * r, 6 / s)
+        sbox_full = _clip_box((cx - r - pad, cy - r - pad, 2 * (r + pad), 2 * (r + pad)), size)
+        sbox = _scaled_box(sbox_full, s, work)
+    face_w = None if face is None else _scaled_box(face, s, work)
+    guess_w = None if sphere_hint is None else tuple(float(v) * s for v in sphere_hint)
+    whole = darkest[1]
+    still = still_rgb if s == 1.0 and still_rgb is not None else whole.resized(work).rgb()
+    del darkest, whole
 
     # The face's brightness trace is read from the luma as frames pass (decoded as if grey:
     # monotone in the brightness and exact on grey, which is all a trace needs).
-    fx, fy, fw, fh = face or crop
+    fx, fy, fw, fh = face_w or crop
     fx, fy = fx - crop[0], fy - crop[1]
     face_rows, face_cols = slice(max(fy, 0), fy + fh), slice(max(fx, 0), fx + fw)
     crops, scrops, fmean, trace, stamps = [], [] if sbox else None, [], [], []
-    for f in _chain(head_raw, frames):
-        c = crop_frame(f, crop)
+    if not hold:
+        frames.close()  # the first seconds are decoded again: memory bounded at any frame size
+    source = _chain(head_raw, frames) if hold else read_frames_raw(path)
+    for f in source:
+        if s == 1.0:
+            c = crop_frame(f, crop)
+        else:
+            c = crop_frame(f, crop_full).resized(crop[2:])
         crops.append(c)
         trace.append(float(c.luma_linear()[face_rows, face_cols].mean()))
         if sbox is not None:
-            scrops.append(crop_frame(f, sbox))
+            scrops.append(crop_frame(f, sbox) if s == 1.0 else crop_frame(f, sbox_full).resized(sbox[2:]))
         fmean.append(_frame_mean(f, lut))
         stamps.append(f.time)
         if progress is not None:
@@ -176,10 +241,10 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
         notes.append("frame timestamps missing or not increasing; frames taken as evenly spaced at "
                      f"{info.fps:g} fps")
         times = np.arange(len(crops)) / info.fps
-    return Ingested(path=str(path), fps=info.fps, size=size, frame_mean=np.asarray(fmean), crop=crop,
-                    crops=crops, sphere_box=sbox, sphere_crops=scrops, face_box=face, face_source=face_source,
-                    sphere_guess=sphere_hint, sphere_source=sphere_source, still=still, still_index=still_index,
-                    trace=np.asarray(trace), colour=colour, times=times, notes=notes)
+    return Ingested(path=str(path), fps=info.fps, size=work, frame_mean=np.asarray(fmean), crop=crop,
+                    crops=crops, sphere_box=sbox, sphere_crops=scrops, face_box=face_w, face_source=face_source,
+                    sphere_guess=guess_w, sphere_source=sphere_source, still=still, still_index=still_index,
+                    trace=np.asarray(trace), colour=colour, times=times, scale=s, source_size=size, notes=notes)
 
 
 def _chain(first, rest):

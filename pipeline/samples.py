@@ -186,7 +186,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
 
     # ---- sphere: outline, highlights -> light directions per flash frame
     t0 = time.perf_counter()
-    circle = opts.sphere or ing.sphere_guess
+    circle = ing.sphere_guess  # given (--sphere) or found, in the working frame (ingest scaled it)
     light_dirs: dict[int, np.ndarray] = {}
     if circle is None or ing.sphere_crops is None:
         raise InputError("no mirror sphere found; give --sphere cx,cy,r (centre and radius in pixels)")
@@ -206,7 +206,8 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
             rejected[f"highlight_{hl.reason}"] = rejected.get(f"highlight_{hl.reason}", 0) + 1
             continue
         xy = (hl.xy[0] + sx0, hl.xy[1] + sy0)
-        light_dirs[f] = sphere.light_direction(xy, circle, focal=opts.focal, image_size=ing.size)
+        focal = None if opts.focal is None else opts.focal * ing.scale  # pixels of the working frame
+        light_dirs[f] = sphere.light_direction(xy, circle, focal=focal, image_size=ing.size)
     timings["sphere"] = time.perf_counter() - t0
 
     # ---- one sample per flash: its well-lit frames, registered, ambient removed, level-weighted

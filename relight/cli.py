@@ -151,6 +151,7 @@ def _circle(text: str) -> tuple[float, float, float]:
 
 def _add_capture(sub) -> None:
     from .pipeline.capture import TRANSFERS
+    from .pipeline.ingest import DEFAULT_FACE_PIXELS
     from .pipeline.methods import METHODS
 
     p = sub.add_parser(
@@ -202,6 +203,12 @@ def _add_capture(sub) -> None:
     p.add_argument("--transfer", choices=TRANSFERS, default="srgb",
                    help="with --images: how the set's PNG/JPEG/TIFF files encode light - srgb (phones, most RTI "
                         "sets) or linear (a camera's raw response, e.g. Extended Yale B); EXR/HDR are always linear")
+    p.add_argument("--face-pixels", type=int, default=DEFAULT_FACE_PIXELS, metavar="N",
+                   help="work on the head at about N pixels: larger captures (1080p, 4K) are downscaled as they "
+                        "are decoded, bounding time and memory; the bundle records the scale (0: never downscale)")
+    p.add_argument("--keep-maps", action="store_true",
+                   help="also store the maps pixel-major and the flash samples (twice the size; the exact path "
+                        "starts faster and the samples can be re-fitted); without it the bundle holds the maps once")
     p.add_argument("--report", type=Path, metavar="DIR", help="write report.json and PNG plots here")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run_capture)
@@ -216,7 +223,7 @@ def _run_capture(args) -> int:
         raise InputError("give either a capture video or --images DIR (not both)")
     if args.images is None and args.transfer != "srgb":
         raise InputError("--transfer applies to --images sets; a video's transfer curve is read from its tags")
-    opts = CaptureOptions(transfer=args.transfer,
+    opts = CaptureOptions(transfer=args.transfer, keep_maps=args.keep_maps, face_pixels=args.face_pixels or None,
         method=args.method, visibility=not args.no_visibility, adaptation=not args.no_adaptation,
         extrapolation=not args.no_extrapolation, paper_adaptation=args.paper_adaptation,
         spline=not args.no_spline, model_reach=args.model_reach,

@@ -365,6 +365,36 @@ class FrameCrop:
         return FrameCrop(y=self.y[np.ix_(rows, cols)], u=self.u[np.ix_(cr, cc)], v=self.v[np.ix_(cr, cc)],
                          shift=0, colour=self.colour)
 
+    def resized(self, size: tuple[int, int]) -> FrameCrop:
+        """This crop resampled (area average) to ``size`` = (w, h) as displayed. Planes are kept
+        as coded, at 16 bits (the average of several codes has more precision than one code):
+        the result's colour is ``bits=16`` with the same curve, matrix and range."""
+        import dataclasses
+
+        import cv2
+
+        w, h = (int(v) for v in size)
+        if self.rgb_data is not None:
+            return FrameCrop(y=None, rgb_data=cv2.resize(self.rgb_data, (w, h), interpolation=cv2.INTER_AREA),
+                             colour=self.colour)
+        cw, ch = (h, w) if self.turns % 2 else (w, h)
+        up = float(1 << (16 - self.colour.bits))
+
+        def area(plane, dsize):
+            out = cv2.resize(plane.astype(np.float32), dsize, interpolation=cv2.INTER_AREA)
+            return np.clip(np.round(out * up), 0, 65535).astype(np.uint16)
+
+        if self.shift == 2:
+            csize = ((cw + 1) // 2, (ch + 1) // 2)
+        elif self.shift == 1:
+            csize = ((cw + 1) // 2, ch)
+        else:
+            csize = (cw, ch)
+        # The chroma planes cover the crop plus at most one luma column/row before it (offset):
+        # under a downscale that is under half an output pixel, left as is.
+        return FrameCrop(y=area(self.y, (cw, ch)), u=area(self.u, csize), v=area(self.v, csize), shift=self.shift,
+                         colour=dataclasses.replace(self.colour, bits=16), turns=self.turns, mirror=self.mirror)
+
     def rgb_sparse(self, step: int) -> np.ndarray:
         """uint8 sRGB of every ``step``-th pixel each way (see :meth:`sparse`)."""
         return self.sparse(step).rgb()

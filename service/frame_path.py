@@ -311,8 +311,7 @@ class FramePath:
         self.live_full = _bundle_frame_index(bundle)[good]
         self.live_box = (int(self.live_ref[:, 0].min(initial=0)) - 2, int(self.live_ref[:, 1].min(initial=0)) - 2,
                          int(self.live_ref[:, 0].max(initial=0)) + 3, int(self.live_ref[:, 1].max(initial=0)) + 3)
-        n_tex = self.relighter.texels.size
-        maps = np.asarray(bundle.maps[good], dtype=np.float32)[:, :, :n_tex] * np.float32(self.relighter.sample_scale)
+        maps = bundle.pixel_maps(good, padded=False).astype(np.float32) * np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
         self._last_light: LiveLight | None = None
         self._track_gain = 1.0

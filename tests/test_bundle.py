@@ -78,13 +78,35 @@ def test_foreign_and_wrong_version_files(tmp_path):
     data = bytearray(path.read_bytes())
     struct.pack_into("<I", data, 8, VERSION + 1)
     (tmp_path / "v.bundle").write_bytes(bytes(data))
-    with pytest.raises(InputError, match="version"):
+    with pytest.raises(InputError, match=f"version {VERSION + 1}.*reads versions 1, 2"):
         load_bundle(tmp_path / "v.bundle")
+    struct.pack_into("<I", data, 8, 1)  # the first format: a superset of the fields, still read
+    (tmp_path / "v1.bundle").write_bytes(bytes(data))
+    assert load_bundle(tmp_path / "v1.bundle").n_pixels == 50
     (tmp_path / "x.bundle").write_bytes(b"PK\x03\x04" + b"\0" * 100)
     with pytest.raises(InputError, match="not a relight bundle"):
         load_bundle(tmp_path / "x.bundle")
     with pytest.raises(InputError, match="no such"):
         load_bundle(tmp_path / "missing.bundle")
+
+
+def test_pixel_major_maps_come_from_the_rows_when_not_stored(tmp_path):
+    """A default bundle holds the maps once (texel-major); the pixel-major maps a --keep-maps
+    bundle stores are the same values, gathered on demand."""
+    arrays = _arrays()
+    t = arrays["map_texels"].size
+    arrays["maps"][:] = 0
+    arrays["maps"][:, :, :t] = arrays["maps_rows"].transpose(2, 1, 0)
+    kept = load_bundle(write_bundle(tmp_path / "k.bundle", META, arrays))
+    lean = load_bundle(write_bundle(tmp_path / "l.bundle", META,
+                                    {k: v for k, v in arrays.items() if k not in ("maps", "samples")}))
+    assert "maps" not in lean.arrays
+    np.testing.assert_array_equal(lean.pixel_maps(), kept.pixel_maps())
+    idx = np.array([3, 4, 5, 17, 40])
+    np.testing.assert_array_equal(lean.pixel_maps(idx), kept.pixel_maps(idx))
+    np.testing.assert_array_equal(lean.pixel_maps(slice(10, 30), padded=False), arrays["maps"][10:30, :, :t])
+    np.testing.assert_array_equal(lean.full_map(7), kept.full_map(7))
+    assert (tmp_path / "l.bundle").stat().st_size < (tmp_path / "k.bundle").stat().st_size
 
 
 def test_writes_are_atomic_and_checked(tmp_path):

@@ -19,6 +19,7 @@ from relight.video import VideoWriter
 from .tolerances import (
     DOME_FULL_PSNR,
     DOME_MARGIN_OVER_PTM,
+    DOWNSCALED_FACE_PIXELS,
     FACE_MARGIN_DB,
     FLASH_PRECISION,
     FLASH_RECALL,
@@ -58,9 +59,11 @@ def test_video_capture_meets_the_accuracy_goals(synth_capture, tmp_path):
     assert m["light_dir_mean_deg"] <= LIGHT_DIR_MEAN_DEG and m["light_dir_p95_deg"] <= LIGHT_DIR_P95_DEG, m
     assert m["normal_median_deg"] <= NORMAL_MEDIAN_DEG, m
     assert m["mask_iou"] > 0.85, m
-    assert np.isfinite(np.asarray(bundle.maps, dtype=np.float32)).all()
-    assert bundle.maps.shape[0] == bundle.pixels.size == bundle.normal.shape[0] == bundle.maps_rows.shape[2]
-    np.testing.assert_array_equal(np.asarray(bundle.maps_rows[5]), np.asarray(bundle.maps[:, :, 5]).T)
+    maps = bundle.pixel_maps()
+    assert np.isfinite(maps.astype(np.float32)).all()
+    assert "maps" not in bundle.arrays and "samples" not in bundle.arrays  # only with --keep-maps
+    assert maps.shape[0] == bundle.pixels.size == bundle.normal.shape[0] == bundle.maps_rows.shape[2]
+    np.testing.assert_array_equal(np.asarray(bundle.maps_rows[5]), maps[:, :, 5].T)
     assert bundle.landmarks.shape[0] > 20
 
 
@@ -127,6 +130,46 @@ def test_variable_frame_rate_video_captures_as_well(synth_capture_60fps, tmp_pat
     _meets_capture_goals(m)
 
 
+def test_downscaled_capture_meets_the_goals_and_relights_full_size_frames(synth_capture, tmp_path):
+    """--face-pixels below the head's size: the capture is worked on downscaled (face and sphere
+    found on scaled-down first seconds, the first seconds decoded again instead of held), meets
+    the goals against the full-size truth, records its scale, and the per-frame path relights
+    the video's full-size frames with it."""
+    from relight.pipeline import ingest as ingest_mod
+    from relight.service.frame_path import FramePath
+    from relight.video import read_frames
+
+    report_dir = tmp_path / "report"
+    opts = CaptureOptions(face_pixels=DOWNSCALED_FACE_PIXELS)
+    # As a 4K capture would: detection on a smaller copy, nothing of the first seconds held.
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ingest_mod, "DETECT_MAX_SIDE", 320)
+        mp.setattr(ingest_mod, "HOLD_HEAD_BYTES", 0)
+        capture(synth_capture.video, tmp_path / "s.bundle", opts, progress=False, report_dir=report_dir)
+    report = json.loads((report_dir / "report.json").read_text())
+    b = load_bundle(tmp_path / "s.bundle")
+    s = b.meta["capture_scale"]
+    assert 0.3 < s < 0.8 and b.meta["source_size"] == [480, 270]
+    assert b.frame_size == (round(480 * s), round(270 * s)) and b.background.shape[:2] == b.frame_size[::-1]
+    assert abs(b.pixels.size - DOWNSCALED_FACE_PIXELS) < 0.5 * DOWNSCALED_FACE_PIXELS
+    assert any("downscaled" in n for n in report["notes"])
+    m = evaluate_capture(report, b, synth_capture.truth)
+    _meets_capture_goals(m)
+    # The live side: full-size frames of the same video, the downscaled bundle.
+    from relight import load_environment
+
+    fp = FramePath(b, load_environment("builtin:sunset"))
+    dark = set(report["dark_frames"][:12])
+    frames = [f for i, f in enumerate(read_frames(synth_capture.video)) if i in dark]
+    found = 0
+    for k, rgb in enumerate(frames):
+        out, info = fp.process(rgb, k / 30.0)
+        assert out.shape == rgb.shape and out.dtype == np.uint8
+        found += info.face
+    assert found >= len(frames) - 1
+    assert np.abs(out.astype(int) - rgb.astype(int)).max() > 20  # relit, not passed through
+
+
 def test_stages_can_be_switched_off(synth_capture, tmp_path):
     from relight.pipeline.samples import SampleOptions
 
@@ -140,7 +183,7 @@ def test_stages_can_be_switched_off(synth_capture, tmp_path):
 
 def _psnr_on_test(bundle, test_dir):
     pix = np.asarray(bundle.pixels)
-    maps = np.asarray(bundle.maps, dtype=np.float32)
+    maps = bundle.pixel_maps().astype(np.float32)
     active = np.zeros(bundle.map_size[0] * bundle.map_size[1], dtype=bool)
     active[np.asarray(bundle.map_texels)] = True
     out = []
@@ -193,14 +236,19 @@ def test_image_set_transfer_and_room_light(tmp_path):
         lines.append(f"i{i}.png {d[0]:.5f} {d[1]:.5f} {d[2]:.5f}\n")
     write16(tmp_path / "ambient.png", ambient)
     (tmp_path / "dirs.lp").write_text(f"{len(lines)}\n" + "".join(lines))
-    res = capture(tmp_path, tmp_path / "lin.bundle", CaptureOptions(transfer="linear"), images=True, progress=False)
+    res = capture(tmp_path, tmp_path / "lin.bundle", CaptureOptions(transfer="linear", keep_maps=True), images=True,
+                  progress=False)
     b = load_bundle(res.bundle)
+    assert {"maps", "samples"} <= set(b.meta["stored"])  # --keep-maps: the pixel-major maps and the samples
+    t = b.map_texels.size
+    np.testing.assert_array_equal(np.asarray(b.maps)[:, :, :t], np.asarray(b.maps_rows).transpose(2, 1, 0))
     assert b.meta["transfer"] == "linear" and "ambient.png" in res.report["notes"][0]
     np.testing.assert_allclose(np.asarray(b.ambient), ambient, atol=2e-5)
     samples = np.asarray(b.samples, dtype=np.float32)
     np.testing.assert_allclose(samples[0], (linear["i0.png"] - ambient).reshape(-1, 3), atol=2e-3)
     assert b.room_light is None  # 1 % of the face's light is noise, not a reference
-    srgb = load_bundle(capture(tmp_path, tmp_path / "srgb.bundle", images=True, progress=False).bundle)
+    srgb = load_bundle(capture(tmp_path, tmp_path / "srgb.bundle", CaptureOptions(keep_maps=True), images=True,
+                               progress=False).bundle)
     assert np.asarray(srgb.samples, np.float32).mean() < 0.5 * samples.mean()  # read as sRGB: far darker
     with pytest.raises(InputError, match="--transfer"):
         CaptureOptions(transfer="gamma").validate()
@@ -271,7 +319,7 @@ def test_no_face_falls_back_to_the_whole_frame(synth_capture, tmp_path, monkeypa
     assert any("no face detected" in n for n in res.report["notes"])
     assert res.report["face_source"] == "none"
     b = load_bundle(res.bundle)
-    assert b.pixels.size > 1000 and np.isfinite(np.asarray(b.maps, dtype=np.float32)).all()
+    assert b.pixels.size > 1000 and np.isfinite(b.pixel_maps().astype(np.float32)).all()
 
 
 def test_user_mesh_and_mesh_export(synth_capture, tmp_path):
@@ -314,7 +362,7 @@ def test_saturated_and_black_images_stay_finite(tmp_path):
     (tmp_path / "dirs.lp").write_text(f"{len(lines)}\n" + "".join(lines))
     res = capture(tmp_path, tmp_path / "s.bundle", images=True, progress=False)
     b = load_bundle(res.bundle)
-    maps = np.asarray(b.maps, dtype=np.float32)
+    maps = b.pixel_maps().astype(np.float32)
     assert np.isfinite(maps).all() and maps.max() <= 10.0
     assert np.isfinite(np.asarray(b.normal)).all() and np.isfinite(np.asarray(b.depth)).all()
 

@@ -27,7 +27,7 @@ def estimator(small_bundle):
     b = small_bundle
     r = relight.Relighter(b, exact=True)
     idx = np.arange(0, np.asarray(b.pixels).size, 5)
-    maps = np.asarray(b.maps[idx], np.float32)[:, :, :r.texels.size]
+    maps = b.pixel_maps(idx, padded=False).astype(np.float32)
     return LightEstimator(maps, b.texel_dirs, b.solid_angle), r, idx
 
 

@@ -45,6 +45,8 @@ NORMAL_MEDIAN_DEG = 10.0
 #: capture's goals by this much (degrees; the portrait H.264 re-encode measured 0.53-0.54 mean
 #: against 0.54 unturned, once 1.67 in a full run).
 PHONE_CAPTURE_EXTRA_DEG = 1.0
+#: --face-pixels for the downscaled-capture test (the 480x270 synth's head has ~17k pixels).
+DOWNSCALED_FACE_PIXELS = 6000
 #: The variable-frame-rate test video: share of frames dropped, timestamp jitter (seconds).
 VFR_DROP_SHARE = 0.2
 VFR_JITTER_S = 0.003

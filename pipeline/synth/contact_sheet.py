@@ -148,7 +148,7 @@ def _bundle_row(bundle, meta, capture, mask, bb) -> list:
     truth = read_image(capture / meta["files"]["olat"][name])
     active = np.zeros(bundle.map_size[0] * bundle.map_size[1], dtype=bool)
     active[np.asarray(bundle.map_texels)] = True
-    pred_p = sample_map(np.asarray(bundle.maps, dtype=np.float32), active, bundle.map_size, meta["olat_dirs"][name])
+    pred_p = sample_map(bundle.pixel_maps().astype(np.float32), active, bundle.map_size, meta["olat_dirs"][name])
     pred = np.zeros((h, w, 3), dtype=np.float32)
     pc = np.zeros((ch * cw, 3), dtype=np.float32)
     pc[pix] = pred_p
