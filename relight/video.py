@@ -365,10 +365,12 @@ class FrameCrop:
         return FrameCrop(y=self.y[np.ix_(rows, cols)], u=self.u[np.ix_(cr, cc)], v=self.v[np.ix_(cr, cc)],
                          shift=0, colour=self.colour)
 
-    def resized(self, size: tuple[int, int]) -> FrameCrop:
-        """This crop resampled (area average) to ``size`` = (w, h) as displayed. Planes are kept
-        as coded, at 16 bits (the average of several codes has more precision than one code):
-        the result's colour is ``bits=16`` with the same curve, matrix and range."""
+    def resized(self, size: tuple[int, int], *, precise: bool = False) -> FrameCrop:
+        """This crop resampled (area average) to ``size`` = (w, h) as displayed, planes kept as
+        coded: 8-bit video stays 8-bit (a crop held for every frame of a capture: memory first)
+        unless ``precise``; 10/12-bit (and ``precise``) goes to 16 bits, keeping the precision
+        the average of several codes has (the result's colour: ``bits=16``, same curve, matrix
+        and range)."""
         import dataclasses
 
         import cv2
@@ -378,9 +380,12 @@ class FrameCrop:
             return FrameCrop(y=None, rgb_data=cv2.resize(self.rgb_data, (w, h), interpolation=cv2.INTER_AREA),
                              colour=self.colour)
         cw, ch = (h, w) if self.turns % 2 else (w, h)
-        up = float(1 << (16 - self.colour.bits))
+        eight = self.colour.bits == 8 and not precise
+        up = 1.0 if eight else float(1 << (16 - self.colour.bits))
 
         def area(plane, dsize):
+            if eight:
+                return cv2.resize(plane, dsize, interpolation=cv2.INTER_AREA)  # rounds, stays uint8
             out = cv2.resize(plane.astype(np.float32), dsize, interpolation=cv2.INTER_AREA)
             return np.clip(np.round(out * up), 0, 65535).astype(np.uint16)
 
@@ -393,7 +398,8 @@ class FrameCrop:
         # The chroma planes cover the crop plus at most one luma column/row before it (offset):
         # under a downscale that is under half an output pixel, left as is.
         return FrameCrop(y=area(self.y, (cw, ch)), u=area(self.u, csize), v=area(self.v, csize), shift=self.shift,
-                         colour=dataclasses.replace(self.colour, bits=16), turns=self.turns, mirror=self.mirror)
+                         colour=self.colour if eight else dataclasses.replace(self.colour, bits=16), turns=self.turns,
+                         mirror=self.mirror)
 
     def rgb_sparse(self, step: int) -> np.ndarray:
         """uint8 sRGB of every ``step``-th pixel each way (see :meth:`sparse`)."""
