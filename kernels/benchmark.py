@@ -80,7 +80,7 @@ class ReadProbe:
             a += b;
             out[g] = a.s0 + a.s5 + a.sa + a.sf; }"""
         self.kernel = cl.Kernel(cl.Program(self.rt.context, src).build(), "rd")
-        from .relighter import aligned_zeros
+        from .runtime import aligned_zeros
 
         self.items = 1024
         self.data = aligned_zeros((mb * (1 << 20) // 4,), np.float32)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .runtime import build_program, get_runtime
+from .runtime import aligned_zeros, build_program, get_runtime
 
 #: Pixels per launch (bounds the visibility scratch: PIXEL_CHUNK x texels floats, twice).
 PIXEL_CHUNK = 8192
@@ -108,8 +108,14 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     n_tex = w * h
     act = np.flatnonzero(active).astype(np.int32)
 
+    held = []  # host arrays the device reads in place: alive until the kernels are done
+
     def buf(a, dtype):
-        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a, dtype=dtype))
+        a = np.ascontiguousarray(a, dtype=dtype)
+        if a.nbytes < (1 << 20):
+            return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
+        held.append(a)  # large inputs (samples, horizons): no device copy on the CPU
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=a)
 
     def f4(a):
         out = np.zeros((len(a), 4), dtype=np.float32)
@@ -140,8 +146,10 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     b_tcoef = buf(f4(trend[1]) if use_trend else np.zeros(4), np.float32)
     b_tspec = buf(f4(trend[2]) if use_trend and len(trend) > 2 else np.zeros((max(p, 1), 4)), np.float32)
     t_pad = padded_texels(act.size)
-    out = np.empty((p, 3, t_pad), dtype=np.float16 if half else np.float32)
-    b_out = cl.Buffer(ctx, mf.WRITE_ONLY, max(out.nbytes, 4))
+    # The kernel writes straight into the result (host memory used in place by PoCL on the CPU):
+    # a device copy of the maps - the capture's largest array - would double its memory.
+    out = aligned_zeros((max(p, 1), 3, t_pad), np.float16 if half else np.float32)[:p]
+    b_out = cl.Buffer(ctx, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=out) if p else None
     for p0 in range(0, p, chunk):
         n = min(chunk, p - p0)
         if use_vis:
@@ -154,5 +162,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
         queue.finish()
         if progress is not None:
             progress(n)
-    cl.enqueue_copy(queue, out, b_out)
+    if b_out is not None:
+        mapped, _ = cl.enqueue_map_buffer(queue, b_out, cl.map_flags.READ, 0, out.shape, out.dtype)
+        mapped.base.release()  # the map is the sync: on the CPU the data are already in ``out``
     return out

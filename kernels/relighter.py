@@ -22,7 +22,7 @@ from relight.numerics import flush_subnormal_halves, read_halves
 
 from . import transport
 from .maps import padded_texels
-from .runtime import build_program, get_runtime
+from .runtime import aligned_zeros, build_program, get_runtime
 
 #: Largest accepted deviation of a rotation matrix from orthonormal.
 ROTATION_TOL = 1e-3
@@ -32,7 +32,6 @@ PIXEL_GROUP = 64
 #: Pixels per compact work item and texels per exact block (the kernels' 64-byte loads of 32 halves).
 LANES = 32
 #: Byte alignment of the arrays the kernels stream (one cache line).
-ALIGN = 64
 #: Largest total texel light accepted (radiance x exposure): keeps every result finite in float32
 #: (reflectance halves are at most 65504).
 MAX_LIGHT = 1e30
@@ -85,15 +84,6 @@ def _check_light(lp: np.ndarray) -> np.ndarray:
         raise InputError(f"environment radiance x exposure is too large (total {total:.3g}, at most {MAX_LIGHT:g}): "
                          "lower the exposure or rescale the environment map")
     return lp
-
-
-def aligned_zeros(shape, dtype, align: int = ALIGN) -> np.ndarray:
-    """A zeroed C-ordered array whose data start on an ``align``-byte boundary."""
-    dtype = np.dtype(dtype)
-    n = int(np.prod(shape)) * dtype.itemsize
-    raw = np.zeros(n + align, dtype=np.uint8)
-    off = (-raw.ctypes.data) % align
-    return raw[off:off + n].view(dtype).reshape(shape)
 
 
 def exact_light_blocks(lp: np.ndarray, padded: int) -> tuple[np.ndarray, np.ndarray]:

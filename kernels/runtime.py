@@ -116,3 +116,19 @@ def build_program(name: str, options: tuple[str, ...] = ()) -> object:
                 prg = cl.Program(rt.context, src).build(options=[*options, "-I", str(folder)])
             rt.programs[key] = prg
     return prg
+
+
+#: Alignment (bytes) of host arrays handed to the device with USE_HOST_PTR: PoCL on the CPU then
+#: uses them in place (no device copy).
+ALIGN = 64
+
+
+def aligned_zeros(shape, dtype, align: int = ALIGN):
+    """A zeroed C-ordered array whose data start on an ``align``-byte boundary."""
+    import numpy as np
+
+    dtype = np.dtype(dtype)
+    n = int(np.prod(shape)) * dtype.itemsize
+    raw = np.zeros(n + align, dtype=np.uint8)
+    off = (-raw.ctypes.data) % align
+    return raw[off:off + n].view(dtype).reshape(shape)

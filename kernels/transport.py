@@ -182,14 +182,21 @@ def validation_environments(map_size, texels: np.ndarray, seed: int = 0) -> list
     return out
 
 
-def gram(maps: np.ndarray, chunk: int = 4096) -> np.ndarray:
-    """(Tp, Tp) float64 texel Gram matrix of pixel-major maps (P, 3, Tp), in float32 blocks."""
-    p, c, t = maps.shape
+def gram(maps: np.ndarray, chunk: int = 4096, n_texels: int | None = None) -> np.ndarray:
+    """(T, T) float64 texel Gram matrix of pixel-major maps (P, 3, Tp) over their first
+    ``n_texels`` texels (default all Tp), accumulated in float32 blocks with BLAS's symmetric
+    rank-k update (half the multiplications of ``blk.T @ blk``)."""
+    from scipy.linalg.blas import ssyrk
+
+    p, c, t_pad = maps.shape
+    t = t_pad if n_texels is None else int(n_texels)
     g = np.zeros((t, t))
     for p0 in range(0, p, chunk):
-        blk = np.asarray(maps[p0:p0 + chunk], dtype=np.float32).reshape(-1, t)
-        g += blk.T @ blk
-    return g
+        blk = np.asarray(maps[p0:p0 + chunk, :, :t], dtype=np.float32).reshape(-1, t)
+        # blk.T is Fortran-ordered (no copy); ssyrk fills the upper triangle of blk.T @ blk.
+        g += ssyrk(1.0, blk.T, trans=0, lower=0)
+    upper = np.triu(g)
+    return upper + np.triu(upper, 1).T
 
 
 @dataclass
@@ -222,24 +229,29 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     Ranks are kept up to the first meeting ``keep_error`` on the validation set (at most
     ``max_rank``): enough for any sensible tolerance, small enough to store.
     """
+    from scipy.linalg import eigh
+
     from .maps import padded_texels
 
     n_t = texels.size
-    g = gram(maps)[:n_t, :n_t]
-    w, vecs = np.linalg.eigh(g)
+    g = gram(maps, n_texels=n_t)
+    k_all = min(max_rank, n_t)
+    # Only the k_all leading eigenpairs are ever used (LAPACK's MRRR driver computes just those).
+    w, vecs = eigh(g, subset_by_index=[n_t - k_all, n_t - 1], driver="evr")
     order = np.argsort(w)[::-1]
     sig2 = np.clip(w[order], 0.0, None)
     vecs = vecs[:, order]
-    k_all = min(max_rank, n_t)
     errors = np.zeros(k_all)
     for _, lp in validation_environments(map_size, texels):
-        total = np.sum(sig2[:, None] * (vecs.T @ lp) ** 2)
+        # Energies from the Gram itself (sum over channels of lp^T G lp): the components beyond
+        # k_all need not be known, the tail past k is the whole minus the first k.
+        total = float(np.sum(lp * (g @ lp)))
         if total <= 0:
             continue
         _, rest = split_direct(lp, direct)
-        a2 = np.sum(sig2[:, None] * (vecs.T @ rest) ** 2, axis=1)  # energy per component
-        tail = np.cumsum(a2[::-1])[::-1]  # tail[k] = energy of components k..
-        err = np.sqrt(np.append(tail, 0.0)[1:k_all + 1] / total)  # error keeping k+1 components
+        a2 = np.sum(sig2[:, None] * (vecs.T @ rest) ** 2, axis=1)  # energy per leading component
+        tail = max(float(np.sum(rest * (g @ rest))), 0.0) - np.cumsum(a2)  # energy left after k+1 components
+        err = np.sqrt(np.clip(tail, 0.0, None) / total)
         errors = np.maximum(errors, err)
     met = np.flatnonzero(errors <= keep_error)
     k = int(met[0]) + 1 if met.size else k_all

@@ -51,6 +51,7 @@ def _child(video: str, bundle: str, truth: str) -> None:
     peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     metrics = evaluate_capture(res.report, load_bundle(bundle), truth)
     print(json.dumps({"timings": res.timings, "peak_mb": peak_kb / 1024.0, "metrics": metrics,
+                      "peak_rss_mb": res.report.get("peak_rss_mb", {}),
                       "samples": int(res.arrays["light_dirs"].shape[0]), "pixels": int(res.arrays["pixels"].size),
                       "bundle_mb": Path(bundle).stat().st_size / 1e6}))
 
@@ -116,6 +117,10 @@ def table(doc: dict) -> str:
     lines.append(f"{'stage seconds':16s} " + " ".join(f"{s[:9]:>9s}" for s in stages))
     for r in doc["scenarios"]:
         lines.append(f"{r['scenario']['name']:16s} " + " ".join(f"{r['timings'].get(s, 0.0):9.2f}" for s in stages))
+    lines.append(f"{'peak MB after':16s} " + " ".join(f"{s[:9]:>9s}" for s in stages))
+    for r in doc["scenarios"]:
+        peaks = r.get("peak_rss_mb", {})
+        lines.append(f"{r['scenario']['name']:16s} " + " ".join(f"{peaks.get(s, float('nan')):9.0f}" for s in stages))
     return "\n".join(lines)
 
 

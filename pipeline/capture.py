@@ -489,11 +489,36 @@ def _landmarks(prep: Prepared, mask: np.ndarray) -> np.ndarray:
     return (pts.reshape(-1, 2) + np.asarray(prep.origin, dtype=np.float32)).astype(np.float32)
 
 
+class StageTimings(dict):
+    """Stage name -> seconds; each entry also notes the process's peak memory (RSS high-water
+    mark, MB) when the stage ended, in :attr:`peak_mb` (which stage made the peak)."""
+
+    def __init__(self):
+        super().__init__()
+        self.peak_mb: dict[str, float] = {}
+
+    def __setitem__(self, key, value):
+        super().__setitem__(key, value)
+        self.peak_mb[key] = _peak_rss_mb()
+
+    def update(self, other=(), **kw):
+        for k, v in dict(other, **kw).items():
+            self[k] = v
+
+
+def _peak_rss_mb() -> float:
+    try:
+        import resource
+    except ImportError:  # not on Windows
+        return float("nan")
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB on Linux
+
+
 def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = False, report_dir=None,
             progress: bool = True) -> CaptureResult:
     """Run the whole capture; write the bundle to ``out`` (and a report to ``report_dir``)."""
     opts = (opts or CaptureOptions()).validate()
-    timings: dict[str, float] = {}
+    timings = StageTimings()
     bar = _Progress(progress)
     t_all = time.perf_counter()
     try:
@@ -511,6 +536,7 @@ def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = F
     timings["total"] = time.perf_counter() - t_all
     report = {k: v for k, v in prep.report.items()}
     report["timings"] = {k: round(v, 3) for k, v in timings.items()}
+    report["peak_rss_mb"] = {k: round(v, 1) for k, v in timings.peak_mb.items()}
     result = CaptureResult(bundle=path, report=report, timings=timings, arrays=arrays, prepared=prep)
     if report_dir is not None:
         from .report import write_report
