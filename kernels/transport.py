@@ -222,9 +222,24 @@ class Transport:
         return int(ok[0]) + 1 if ok.size else None
 
 
+def gram_rows(rows: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """(T, T) float64 texel Gram matrix of texel-major maps (T, 3, P) (the same as :func:`gram`
+    of their pixel-major form), in float32 pixel blocks by symmetric rank-k update."""
+    from scipy.linalg.blas import ssyrk
+
+    t, c, p = rows.shape
+    g = np.zeros((t, t))
+    for p0 in range(0, p, chunk):
+        blk = np.ascontiguousarray(np.asarray(rows[:, :, p0:p0 + chunk], dtype=np.float32).reshape(t, -1))
+        g += ssyrk(1.0, blk, trans=0, lower=0)  # blk @ blk.T, upper triangle
+    upper = np.triu(g)
+    return upper + np.triu(upper, 1).T
+
+
 def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int = MAX_RANK,
-              direct: int = DIRECT_TEXELS, keep_error: float = KEEP_ERROR) -> Transport:
-    """The compact transport of pixel-major maps (P, 3, Tp) over ``texels`` (T <= Tp).
+              direct: int = DIRECT_TEXELS, keep_error: float = KEEP_ERROR, texel_major: bool = False) -> Transport:
+    """The compact transport of pixel-major maps (P, 3, Tp) over ``texels`` (T <= Tp), or of
+    texel-major maps (T, 3, P) with ``texel_major`` (a capture holds only those).
 
     Ranks are kept up to the first meeting ``keep_error`` on the validation set (at most
     ``max_rank``): enough for any sensible tolerance, small enough to store.
@@ -234,7 +249,7 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     from .maps import padded_texels
 
     n_t = texels.size
-    g = gram(maps, n_texels=n_t)
+    g = gram_rows(maps) if texel_major else gram(maps, n_texels=n_t)
     k_all = min(max_rank, n_t)
     # Only the k_all leading eigenpairs are ever used (LAPACK's MRRR driver computes just those).
     w, vecs = eigh(g, subset_by_index=[n_t - k_all, n_t - 1], driver="evr")
@@ -257,12 +272,16 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     k = int(met[0]) + 1 if met.size else k_all
     u = vecs[:, :k].astype(np.float32)
     kp = padded_texels(k)
-    p = maps.shape[0]
+    p = maps.shape[2] if texel_major else maps.shape[0]
     nb = -(-p // PIXEL_BLOCK)
     v = np.zeros((nb * PIXEL_BLOCK, 3, kp), dtype=np.float16)
     for p0 in range(0, p, 4096):
-        blk = np.asarray(maps[p0:p0 + 4096, :, :n_t], dtype=np.float32)
-        v[p0:p0 + blk.shape[0], :, :k] = (blk @ u).astype(np.float16)
+        if texel_major:
+            blk = np.asarray(maps[:, :, p0:p0 + 4096], dtype=np.float32)  # (T, 3, n)
+            v[p0:p0 + blk.shape[2], :, :k] = np.einsum("tcn,tk->nck", blk, u, optimize=True).astype(np.float16)
+        else:
+            blk = np.asarray(maps[p0:p0 + 4096, :, :n_t], dtype=np.float32)
+            v[p0:p0 + blk.shape[0], :, :k] = (blk @ u).astype(np.float16)
     flush_subnormal_halves(v)  # as the kernels read it (relight.numerics.HALF_TINY)
     # Blocked layout (P / 16, 3, Kp, 16): 16 pixels of one basis image contiguous (the
     # Relighter repacks the rank it uses into its kernel's 32-pixel blocks).

@@ -35,11 +35,6 @@ HALF_RES_PIXELS = 30000
 MAX_IMAGES = 2000
 MAX_LANDMARKS = 300
 
-#: Bundle fields written only with ``relight capture --keep-maps``: the pixel-major copy of the
-#: maps (the texel-major ``maps_rows`` hold the same values, and the exact path reads them from
-#: there) and the flash samples (for re-fitting; no reader of the bundle needs them).
-KEPT_ONLY_ON_REQUEST = ("maps", "samples")
-
 #: Transfer curves an image set's 8/16-bit files may be encoded with (``relight capture
 #: --transfer``): sRGB (phones, cameras' JPEGs, most RTI sets) or linear (a camera's raw response,
 #: e.g. the Extended Yale B faces). EXR/HDR files are always linear.
@@ -67,6 +62,8 @@ class CaptureOptions:
     export_mesh: str | None = None
     backend: str = "opencl"
     transfer: str = "srgb"
+    # --keep-maps: also the pixel-major copy of the maps (the texel-major ``maps_rows`` hold the
+    # same values; the exact path gathers from them) and the flash samples (for re-fitting).
     keep_maps: bool = False
     face_pixels: int | None = DEFAULT_FACE_PIXELS
 
@@ -357,7 +354,12 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
     t1 = time.perf_counter()
     from relight.kernels import transport
 
-    compact = transport.factorize(maps, opts.map_size, texels)
+    # The maps texel-major (what the bundle stores); the pixel-major copy only when kept: the two
+    # together were the capture's peak memory.
+    rows = texel_major(maps, texels.size)
+    if not opts.keep_maps:
+        maps = None
+    compact = transport.factorize(rows, opts.map_size, texels, texel_major=True)
     timings["transport"] = time.perf_counter() - t1
     t1 = time.perf_counter()
     landmarks = _landmarks(prep, geo.mask)
@@ -366,13 +368,14 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "background": prep.background, "normal": normals.astype(np.float32),
         "albedo": geo.albedo.reshape(-1, 3)[pix].astype(np.float32), "depth": geo.depth.astype(np.float32),
         "landmarks": landmarks, "light_dirs": prep.dirs.astype(np.float32),
-        "samples": samples.astype(np.float16), "maps": maps.astype(np.float16, copy=False),
-        "maps_rows": texel_major(maps, texels.size),
+        "maps_rows": rows,
         "map_texels": texels.astype(np.int32), "tri_vertices": tri.vertices.astype(np.float32),
         "tri_faces": tri.faces.astype(np.int32),
         "transport_u": compact.u, "transport_v": compact.v, "transport_errors": compact.rank_errors,
         "transport_sigma": compact.sigma,
     }
+    if opts.keep_maps:
+        arrays.update({"samples": samples.astype(np.float16), "maps": maps})
     meta = dict(prep.meta)
     meta.update({
         "relight_version": __version__, "frame_size": list(prep.frame_size), "crop_origin": list(prep.origin),
@@ -527,9 +530,8 @@ def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = F
         t0 = time.perf_counter()
         meta["timings"] = {k: round(v, 3) for k, v in timings.items()}
         meta["rejected"] = prep.report.get("rejected", {})
-        stored = arrays if opts.keep_maps else {k: v for k, v in arrays.items() if k not in KEPT_ONLY_ON_REQUEST}
-        meta["stored"] = sorted(stored)
-        path = write_bundle(out, meta, stored)
+        meta["stored"] = sorted(arrays)
+        path = write_bundle(out, meta, arrays)
         timings["write"] = time.perf_counter() - t0
     finally:
         bar.close()

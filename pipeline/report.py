@@ -115,7 +115,7 @@ def _directions(plt, tri, path):
 
 
 def _maps(plt, arrays, tri, geo, path):
-    maps = arrays["maps"]
+    rows = arrays["maps_rows"]  # (T, 3, P)
     texels = arrays["map_texels"]
     pix = arrays["pixels"]
     h, w = geo.mask.shape
@@ -128,7 +128,7 @@ def _maps(plt, arrays, tri, geo, path):
     fig, axes = plt.subplots(2, len(picks), figsize=(3.2 * len(picks), 4))
     for j, p in enumerate(picks):
         full = np.zeros((mh * mw, 3), dtype=np.float32)
-        full[texels] = np.asarray(maps[p, :, :texels.size], dtype=np.float32).T
+        full[texels] = np.asarray(rows[:, :, p], dtype=np.float32)
         img = full.reshape(mh, mw, 3)
         axes[0, j].imshow(np.clip(img / max(float(img.max()), 1e-6), 0, 1) ** (1 / 2.2))
         axes[0, j].set_title(f"pixel ({xs[p]}, {ys[p]})", fontsize=8)
