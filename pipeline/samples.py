@@ -113,7 +113,8 @@ def _one_per_run(frames) -> list[int]:
 
 def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
                     progress: Callable[[str, int, int], None] | None = None) -> Samples:
-    """Stages 1-3 on an ingested capture (see the module docstring)."""
+    """Stages 1-3 on an ingested capture (see the module docstring). Consumes ``ing.crops``: the
+    crops it no longer needs are set to None as it goes (all but the reference's at the end)."""
     opts = opts or SampleOptions()
     timings: dict[str, float] = {}
     rejected: dict[str, int] = {}
@@ -175,6 +176,12 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     core_s = core[::GAIN_STEP, ::GAIN_STEP]
     amb_mean = ambient[::GAIN_STEP, ::GAIN_STEP][core_s].mean(axis=0) + 1e-6
     gains = {d: ing.crops[d].sparse(GAIN_STEP).linear()[core_s].mean(axis=0) / amb_mean for d in dark_used}
+    # From here on only the flash frames' crops (and the reference's) are read: the others are
+    # let go (memory: a crop per frame of a long 1080p capture is about a gigabyte).
+    needed = {int(f) for f in fl.flash_frames} | {ref}
+    for i in range(len(ing.crops)):
+        if i not in needed:
+            ing.crops[i] = None
     gidx = np.array(sorted(gains), dtype=np.int64)
     gval = np.array([gains[int(i)] for i in gidx])
     times = ing.times if ing.times is not None else np.arange(ing.frame_count, dtype=np.float64)
@@ -233,6 +240,8 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
             acc += crop.linear()
             wsum += float(fl.level[f])
             clip |= crop.clipped(CLIP_LEVEL)
+            if f != ref:
+                ing.crops[f] = None  # used once
             dsum += light_dirs[f]
         gain = np.mean([gain_at(f) for f in frames], axis=0)
         img = acc / (gain * len(frames))  # mean frame at the reference exposure
