@@ -230,8 +230,9 @@ def gram_rows(rows: np.ndarray, chunk: int = 4096) -> np.ndarray:
     t, c, p = rows.shape
     g = np.zeros((t, t))
     for p0 in range(0, p, chunk):
-        blk = np.ascontiguousarray(np.asarray(rows[:, :, p0:p0 + chunk], dtype=np.float32).reshape(t, -1))
-        g += ssyrk(1.0, blk, trans=0, lower=0)  # blk @ blk.T, upper triangle
+        blk = np.asarray(rows[:, :, p0:p0 + chunk], dtype=np.float32).reshape(t, -1)
+        # blk.T is Fortran-ordered (no copy for BLAS); trans=1 gives (blk.T).T @ blk.T = blk @ blk.T.
+        g += ssyrk(1.0, blk.T, trans=1, lower=0)
     upper = np.triu(g)
     return upper + np.triu(upper, 1).T
 
@@ -281,7 +282,8 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
             v[p0:p0 + blk.shape[2], :, :k] = np.einsum("tcn,tk->nck", blk, u, optimize=True).astype(np.float16)
         else:
             blk = np.asarray(maps[p0:p0 + 4096, :, :n_t], dtype=np.float32)
-            v[p0:p0 + blk.shape[0], :, :k] = (blk @ u).astype(np.float16)
+            # One GEMM over (pixels x channels) rows (a 3-D matmul would be 4096 small ones).
+            v[p0:p0 + blk.shape[0], :, :k] = (blk.reshape(-1, n_t) @ u).reshape(blk.shape[0], 3, k).astype(np.float16)
     flush_subnormal_halves(v)  # as the kernels read it (relight.numerics.HALF_TINY)
     # Blocked layout (P / 16, 3, Kp, 16): 16 pixels of one basis image contiguous (the
     # Relighter repacks the rank it uses into its kernel's 32-pixel blocks).
