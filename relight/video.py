@@ -20,7 +20,16 @@ import numpy as np
 from .colour import decode_srgb8, encode_srgb8, luminance
 from .errors import InputError
 from .imageio import atomic_path
-from .video_colour import PLANAR_FORMATS, VideoColour, luma_table, signal_to_linear, tonemap, video_colour, ycbcr_matrix
+from .video_colour import (
+    PLANAR_FORMATS,
+    VideoColour,
+    frame_display_rgb,
+    luma_table,
+    signal_to_linear,
+    tonemap,
+    video_colour,
+    ycbcr_matrix,
+)
 
 #: Largest frame a reader accepts (8K UHD) and the longest video, in frames.
 MAX_VIDEO_DIM = 7680
@@ -563,6 +572,8 @@ def frame_to_rgb(frame) -> np.ndarray:
     colour = video_colour(frame)
     if colour.bits == 8 and colour.primaries == "bt709" and not colour.hdr:
         return np.ascontiguousarray(orient(_to_rgb(frame), *display_orientation(frame)))
+    if frame.format.name in PLANAR_FORMATS:
+        return np.ascontiguousarray(orient(frame_display_rgb(frame, colour), *display_orientation(frame)))
     turns, _ = display_orientation(frame)
     w, h = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)
     return crop_frame(frame, (0, 0, w, h)).rgb()

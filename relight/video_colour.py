@@ -246,14 +246,13 @@ def primaries_to_rec709(primaries: str) -> np.ndarray:
 def gamut_map(rgb: np.ndarray) -> np.ndarray:
     """Linear Rec.709 (..., 3) float32 with negative channels (colours outside Rec.709) moved
     toward their own luminance until the smallest channel is 0; in place, returned."""
-    low = rgb.min(axis=-1)
-    out = low < 0.0
-    if out.any():
+    low = np.minimum(np.minimum(rgb[..., 0], rgb[..., 1]), rgb[..., 2])  # (a reduction over the
+    out = np.nonzero(low < 0.0)  # last axis of three is several times slower)
+    if out[0].size:
         px = rgb[out]
         y = np.maximum(px @ LUMINANCE, 0.0)
-        t = y / np.maximum(y - px.min(axis=-1), EPS)  # y - min > 0 as min < 0 <= y
-        rgb[out] = y[:, None] + t[:, None] * (px - y[:, None])
-        np.maximum(rgb, 0.0, out=rgb)
+        t = y / np.maximum(y - low[out], EPS)  # y - min > 0 as min < 0 <= y
+        rgb[out] = np.maximum(y[:, None] + t[:, None] * (px - y[:, None]), 0.0)
     return rgb
 
 
@@ -300,10 +299,56 @@ def tonemap(linear: np.ndarray) -> np.ndarray:
     """Linear (reference white 1.0, HDR above) -> linear 0-1 for an SDR display: identity up to
     :data:`TONEMAP_KNEE`, then an exponential shoulder (continuous slope) approaching 1.0."""
     x = np.asarray(linear, dtype=FLOAT)
-    span = 1.0 - TONEMAP_KNEE
-    over = x > TONEMAP_KNEE
-    if not over.any():
+    span = np.float32(1.0 - TONEMAP_KNEE)
+    over = np.nonzero(x > TONEMAP_KNEE)
+    if not over[0].size:
         return x
     out = x.copy()
-    out[over] = TONEMAP_KNEE + span * (1.0 - np.exp(-(x[over] - TONEMAP_KNEE) / span))
+    out[over] = TONEMAP_KNEE + span * (1.0 - np.exp((TONEMAP_KNEE - x[over]) / span))
     return out
+
+
+#: Entries of the display table (HDR linear -> tone-mapped sRGB code): finer than half the
+#: darkest sRGB code step (3e-4 linear) up to PQ's peak (10000 / 203 = 49).
+DISPLAY_TABLE = 1 << 19
+
+
+@lru_cache(maxsize=8)
+def _display_table(peak: float) -> tuple[np.ndarray, float]:
+    from .colour import linear_to_srgb
+
+    x = np.arange(DISPLAY_TABLE, dtype=np.float64) * (peak / (DISPLAY_TABLE - 1))
+    codes = np.round(linear_to_srgb(tonemap(x.astype(FLOAT))) * 255.0).astype(np.uint8)
+    return codes, (DISPLAY_TABLE - 1) / peak
+
+
+def encode_display8(linear: np.ndarray, transfer: str) -> np.ndarray:
+    """Linear Rec.709 (reference white 1.0) -> uint8 sRGB for an SDR display: HDR tone-mapped
+    (:func:`tonemap`) and encoded through one table (up to the curve's peak)."""
+    peak = float(to_linear(np.array(1.0), transfer)) if transfer in HDR_TRANSFERS else 1.0
+    table, scale = _display_table(max(peak, 1.0))
+    idx = np.asarray(linear, dtype=FLOAT) * np.float32(scale)
+    np.clip(idx, 0, DISPLAY_TABLE - 1, out=idx)
+    idx += 0.5
+    return table[idx.astype(np.int32)]
+
+
+def frame_display_rgb(frame, colour: VideoColour) -> np.ndarray:
+    """A decoded 10/12-bit, HDR or wide-gamut frame -> (H, W, 3) uint8 sRGB as coded (not
+    turned), for display: FFmpeg's swscale does the matrix, range and chroma to 16-bit R'G'B'
+    (its ~2-code limited-range offset is below what 8-bit output shows), the curve is one
+    65536-entry table lookup, then primaries, gamut and :func:`encode_display8`."""
+    import cv2
+    from av.video.reformatter import ColorRange, Colorspace
+
+    cs = {"bt709": Colorspace.ITU709, "bt601": Colorspace.ITU601, "bt2020": Colorspace.BT2020,
+          "smpte240m": Colorspace.SMPTE240M, "fcc": Colorspace.FCC}[colour.matrix]
+    rng = ColorRange.JPEG if colour.full_range else ColorRange.MPEG
+    # swscale's default filter: its FULL_CHR_H_INT path was measured to zero two channels of
+    # 10-bit 4:2:0 -> rgb48 (FFmpeg in PyAV 18.1), so no extra flags here.
+    sig = frame.reformat(format="rgb48le", src_colorspace=cs, src_color_range=rng,
+                         dst_color_range=ColorRange.JPEG).to_ndarray()
+    lin = np.take(transfer_table(colour.transfer), sig)
+    if colour.primaries != "bt709":
+        lin = gamut_map(cv2.transform(lin, primaries_to_rec709(colour.primaries).astype(FLOAT)))
+    return encode_display8(lin, colour.transfer)
