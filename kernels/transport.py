@@ -182,21 +182,35 @@ def validation_environments(map_size, texels: np.ndarray, seed: int = 0) -> list
     return out
 
 
-def gram(maps: np.ndarray, chunk: int = 4096, n_texels: int | None = None) -> np.ndarray:
-    """(T, T) float64 texel Gram matrix of pixel-major maps (P, 3, Tp) over their first
-    ``n_texels`` texels (default all Tp), accumulated in float32 blocks with BLAS's symmetric
-    rank-k update (half the multiplications of ``blk.T @ blk``)."""
+def _syrk_sum(blocks, t: int) -> np.ndarray:
+    """(t, t) float64 sum of ``b.T @ b`` over float32 blocks ``b`` (n, t) by BLAS's symmetric
+    rank-k update (half the multiplications of a product). BLAS takes Fortran order: a block in
+    either order is handed over without a copy (C-ordered as its transpose)."""
     from scipy.linalg.blas import ssyrk
 
-    p, c, t_pad = maps.shape
-    t = t_pad if n_texels is None else int(n_texels)
     g = np.zeros((t, t))
-    for p0 in range(0, p, chunk):
-        blk = np.asarray(maps[p0:p0 + chunk, :, :t], dtype=np.float32).reshape(-1, t)
-        # blk.T is Fortran-ordered (no copy); ssyrk fills the upper triangle of blk.T @ blk.
-        g += ssyrk(1.0, blk.T, trans=0, lower=0)
+    for b in blocks:
+        # Upper triangle of b.T @ b: trans=1 on b itself, or trans=0 on b.T (Fortran-ordered).
+        g += ssyrk(1.0, b, trans=1, lower=0) if b.flags.f_contiguous else ssyrk(1.0, b.T, trans=0, lower=0)
     upper = np.triu(g)
     return upper + np.triu(upper, 1).T
+
+
+def gram(maps: np.ndarray, chunk: int = 4096, n_texels: int | None = None) -> np.ndarray:
+    """(T, T) float64 texel Gram matrix of pixel-major maps (P, 3, Tp) over their first
+    ``n_texels`` texels (default all Tp), accumulated in float32 pixel blocks."""
+    p, _, t_pad = maps.shape
+    t = t_pad if n_texels is None else int(n_texels)
+    return _syrk_sum((np.asarray(maps[p0:p0 + chunk, :, :t], dtype=np.float32).reshape(-1, t)
+                      for p0 in range(0, p, chunk)), t)
+
+
+def gram_rows(rows: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """(T, T) float64 texel Gram matrix of texel-major maps (T, 3, P) (the same as :func:`gram`
+    of their pixel-major form), accumulated in float32 pixel blocks."""
+    t, _, p = rows.shape
+    return _syrk_sum((np.asarray(rows[:, :, p0:p0 + chunk], dtype=np.float32).reshape(t, -1).T
+                      for p0 in range(0, p, chunk)), t)
 
 
 @dataclass
@@ -220,21 +234,6 @@ class Transport:
         """Smallest stored rank meeting ``tolerance`` on the validation set, or None."""
         ok = np.flatnonzero(self.rank_errors <= tolerance)
         return int(ok[0]) + 1 if ok.size else None
-
-
-def gram_rows(rows: np.ndarray, chunk: int = 4096) -> np.ndarray:
-    """(T, T) float64 texel Gram matrix of texel-major maps (T, 3, P) (the same as :func:`gram`
-    of their pixel-major form), in float32 pixel blocks by symmetric rank-k update."""
-    from scipy.linalg.blas import ssyrk
-
-    t, c, p = rows.shape
-    g = np.zeros((t, t))
-    for p0 in range(0, p, chunk):
-        blk = np.asarray(rows[:, :, p0:p0 + chunk], dtype=np.float32).reshape(t, -1)
-        # blk.T is Fortran-ordered (no copy for BLAS); trans=1 gives (blk.T).T @ blk.T = blk @ blk.T.
-        g += ssyrk(1.0, blk.T, trans=1, lower=0)
-    upper = np.triu(g)
-    return upper + np.triu(upper, 1).T
 
 
 def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int = MAX_RANK,

@@ -154,6 +154,7 @@ def prepare_video(path, opts: CaptureOptions, progress: _Progress, timings: dict
     if ing.face_box is not None:
         fx, fy, fw, fh = ing.face_box
         face_local = (fx - x0, fy - y0, fw, fh)
+    scale = {"capture_scale": ing.scale, "source_size": list(ing.source_size or ing.size)}
     report = {
         "flash_frames": [int(f) for f in smp.flash.flash_frames],
         "flash_peaks": [int(f) for f in smp.flash.peaks],
@@ -175,15 +176,12 @@ def prepare_video(path, opts: CaptureOptions, progress: _Progress, timings: dict
         "_level": smp.flash.level.tolist(),
         "_track_quality": {str(k): list(v) for k, v in smp.track_quality.items()},
         "fps": ing.fps,
-        "capture_scale": ing.scale,
-        "source_size": list(ing.source_size or ing.size),
+        **scale,
     }
     background = ing.still
     return Prepared(images=smp.images, dirs=smp.dirs, clipped=smp.clipped, ambient=smp.ambient,
                     background=background, origin=smp.origin, frame_size=ing.size, face_local=face_local,
-                    mask=None, meta={"source": str(path), "kind": "video", "fps": ing.fps,
-                                     "capture_scale": ing.scale, "source_size": list(ing.source_size or ing.size)},
-                    report=report)
+                    mask=None, meta={"source": str(path), "kind": "video", "fps": ing.fps, **scale}, report=report)
 
 
 def read_lp(path: Path) -> list[tuple[str, np.ndarray]]:

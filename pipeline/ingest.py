@@ -15,7 +15,7 @@ import numpy as np
 
 from relight.colour import decode_srgb8
 from relight.errors import InputError
-from relight.video import crop_frame, frame_to_rgb, probe_video, read_frames_raw
+from relight.video import crop_frame, frame_to_rgb, probe_video, read_frames_raw, whole_frame
 from relight.video_colour import PLANAR_FORMATS, VideoColour, luma_table, video_colour
 
 from . import registration, sphere
@@ -136,7 +136,7 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
     frames = read_frames_raw(path)
     head_n = max(int(round(HEAD_SECONDS * info.fps)), 8)
     # The first seconds, for detection: at most DETECT_MAX_SIDE pixels across, and the darkest
-    # frame (the background) kept whole, in its planes.
+    # frame (the background) kept as decoded.
     det = min(1.0, DETECT_MAX_SIDE / max(size))
     det_size = (max(int(round(size[0] * det)), 1), max(int(round(size[1] * det)), 1))
     hold = info.coded_size[0] * info.coded_size[1] * 3 * head_n <= HOLD_HEAD_BYTES
@@ -144,15 +144,13 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
     darkest, colour = None, None
     lut = decode_srgb8(np.arange(256, dtype=np.uint8))
     for f in frames:
-        whole = crop_frame(f, (0, 0, size[0], size[1]))
         if colour is None:
-            colour = whole.colour
-        small = whole if det == 1.0 else whole.resized(det_size)
-        rgb = frame_to_rgb(f) if det == 1.0 else small.rgb()
+            colour = video_colour(f)
+        rgb = frame_to_rgb(f) if det == 1.0 else whole_frame(f).resized(det_size).rgb()
         head_rgb.append(rgb)
         means.append(float(lut[_luma(rgb)].mean()))
         if darkest is None or means[-1] < means[darkest[0]]:
-            darkest = (len(means) - 1, whole)
+            darkest = (len(means) - 1, f)
         if hold:
             head_raw.append(f)
         if len(head_rgb) >= head_n:
@@ -189,7 +187,7 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
                 # Found on a scaled-down copy: its outline refined on the video's own pixels (left
                 # to the later, working-scale refinement, a guess 4 px off measured 2.2 deg mean
                 # light-direction error on a downscaled synth capture; refined here, 0.85).
-                sphere_hint = _refine_on(darkest[1], sphere_hint)
+                sphere_hint = _refine_on(darkest[1], sphere_hint, size)
     still_rgb = head_rgb[still_index] if det == 1.0 else None
     del head_rgb
 
@@ -215,9 +213,8 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
         sbox = _scaled_box(sbox_full, s, work)
     face_w = None if face is None else _scaled_box(face, s, work)
     guess_w = None if sphere_hint is None else tuple(float(v) * s for v in sphere_hint)
-    whole = darkest[1]
-    still = still_rgb if s == 1.0 and still_rgb is not None else whole.resized(work).rgb()
-    del darkest, whole
+    still = still_rgb if s == 1.0 and still_rgb is not None else whole_frame(darkest[1]).resized(work).rgb()
+    del darkest
 
     # The face's brightness trace is read from the luma as frames pass (decoded as if grey:
     # monotone in the brightness and exact on grey, which is all a trace needs).
@@ -254,15 +251,15 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
                     trace=np.asarray(trace), colour=colour, times=times, scale=s, source_size=size, notes=notes)
 
 
-def _refine_on(whole, circle, rounds: int = 2):
-    """``circle`` (cx, cy, r) refined on a whole-frame crop's luminance near it."""
+def _refine_on(frame, circle, size, rounds: int = 2):
+    """``circle`` (cx, cy, r) refined on a decoded frame's luminance near it (only that region
+    converted); ``size``: the frame as displayed."""
     from relight.colour import luminance
 
     cx, cy, r = circle
     pad = 0.8 * r + 4
-    x0, y0 = int(max(cx - r - pad, 0)), int(max(cy - r - pad, 0))
-    lum = luminance(whole.linear())
-    local = lum[y0:int(cy + r + pad) + 1, x0:int(cx + r + pad) + 1]
+    x0, y0, w, h = _clip_box((cx - r - pad, cy - r - pad, 2 * (r + pad) + 1, 2 * (r + pad) + 1), size)
+    local = luminance(crop_frame(frame, (x0, y0, w, h)).linear())
     guess = (cx - x0, cy - y0, r)
     for _ in range(rounds):
         guess = sphere.refine_circle(local, guess)

@@ -17,16 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .colour import decode_srgb8, encode_srgb8, luminance
+from .colour import decode_srgb8, luminance
 from .errors import InputError
 from .imageio import atomic_path
 from .video_colour import (
     PLANAR_FORMATS,
     VideoColour,
+    encode_display8,
     frame_display_rgb,
     luma_table,
     signal_to_linear,
-    tonemap,
     video_colour,
     ycbcr_matrix,
 )
@@ -270,7 +270,6 @@ def read_luma(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) ->
 
     probe_video(path)
     count = 0
-    lut = None
     try:
         with av.open(str(path)) as container:
             stream = container.streams.video[0]
@@ -285,12 +284,9 @@ def read_luma(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) ->
                         frame.height, frame.planes[0].line_size)[:, :frame.width]
                     full = name.startswith("yuvj") or int(frame.color_range) == 2
                     if not full:
-                        if lut is None:
-                            lut = np.clip(np.round((np.arange(256) - 16) * 255.0 / 219.0), 0, 255).astype(np.uint8)
-                        y = lut[y]
+                        y = _LIMITED_TO_FULL[y]
                 elif name in PLANAR_FORMATS:  # 10/12-bit: through linear light (HDR tone-mapped)
-                    yield crop_frame(frame, (0, 0, frame.width, frame.height) if display_orientation(frame)[0] % 2 == 0
-                                     else (0, 0, frame.height, frame.width)).luma()
+                    yield whole_frame(frame).luma()
                     continue
                 else:
                     y = frame.to_ndarray(format="gray")
@@ -346,7 +342,7 @@ class FrameCrop:
             return self._shown(y)
         if self.colour.plain_srgb8:
             return self._shown(self.y if self.colour.full_range else _LIMITED_TO_FULL[self.y])
-        return encode_srgb8(tonemap(self.luma_linear()) if self.colour.hdr else self.luma_linear())
+        return encode_display8(self.luma_linear(), self.colour.transfer)
 
     def luma_linear(self) -> np.ndarray:
         """(h, w) float32 linear grey of the luma codes (a brightness trace's input)."""
@@ -410,10 +406,6 @@ class FrameCrop:
                          colour=self.colour if eight else dataclasses.replace(self.colour, bits=16), turns=self.turns,
                          mirror=self.mirror)
 
-    def rgb_sparse(self, step: int) -> np.ndarray:
-        """uint8 sRGB of every ``step``-th pixel each way (see :meth:`sparse`)."""
-        return self.sparse(step).rgb()
-
     def _signal(self) -> np.ndarray:
         """(h, w, 3) float32 non-linear R'G'B' (0-1 nominal) in the stream's primaries, as coded."""
         import cv2
@@ -433,8 +425,8 @@ class FrameCrop:
 
     def rgb(self) -> np.ndarray:
         """(h, w, 3) uint8 sRGB as displayed, with the stream's matrix and range, chroma upsampled
-        bilinearly; other curves and primaries through linear light (HDR tone-mapped:
-        :func:`relight.video_colour.tonemap`)."""
+        bilinearly; other curves and primaries through linear light
+        (:func:`relight.video_colour.encode_display8`: HDR tone-mapped)."""
         import cv2
 
         if self.rgb_data is not None and self.rgb_data.dtype == np.uint8:
@@ -444,8 +436,7 @@ class FrameCrop:
             sig *= 255.0
             np.maximum(sig, 0.0, out=sig)
             return self._shown(cv2.convertScaleAbs(sig))  # rounds and saturates at 255
-        lin = self.linear()
-        return encode_srgb8(tonemap(lin) if self.colour.hdr else lin)
+        return encode_display8(self.linear(), self.colour.transfer)
 
     def linear(self) -> np.ndarray:
         """(h, w, 3) float32 linear Rec.709 as displayed, reference white 1.0 (HDR above it):
@@ -529,18 +520,14 @@ def crop_frame(frame, box: tuple[int, int, int, int]) -> FrameCrop:
                      mirror=mirror)
 
 
-def yuv_crop_to_rgb(frame, box: tuple[int, int, int, int]) -> np.ndarray:
-    """RGB uint8 of the region ``box`` (x, y, w, h, as displayed) of a decoded frame, converting only that region.
-
-    Planar YUV frames are converted in NumPy with the frame's matrix and range (untagged: BT.709
-    for HD, else BT.601; limited range), chroma upsampled bilinearly; other formats go through
-    the full-frame conversion of :func:`read_frames`.
-    """
-    return crop_frame(frame, box).rgb()
+def whole_frame(frame) -> FrameCrop:
+    """The whole of a decoded frame as a :class:`FrameCrop` (as displayed)."""
+    turns, _ = display_orientation(frame)
+    return crop_frame(frame, (0, 0, frame.height, frame.width) if turns % 2 else (0, 0, frame.width, frame.height))
 
 
 def read_frames_raw(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) -> Iterator:
-    """Decoded frames as PyAV frames (convert with :func:`yuv_crop_to_rgb` or :func:`frame_to_rgb`)."""
+    """Decoded frames as PyAV frames (convert with :func:`crop_frame` or :func:`frame_to_rgb`)."""
     import av
 
     info = probe_video(path)
@@ -574,9 +561,7 @@ def frame_to_rgb(frame) -> np.ndarray:
         return np.ascontiguousarray(orient(_to_rgb(frame), *display_orientation(frame)))
     if frame.format.name in PLANAR_FORMATS:
         return np.ascontiguousarray(orient(frame_display_rgb(frame, colour), *display_orientation(frame)))
-    turns, _ = display_orientation(frame)
-    w, h = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)
-    return crop_frame(frame, (0, 0, w, h)).rgb()
+    return whole_frame(frame).rgb()
 
 
 @dataclass(frozen=True)

@@ -109,25 +109,14 @@ def colour_from_tags(fmt: str, matrix: int, primaries: int, transfer: int, rng: 
     if fmt not in PLANAR_FORMATS:
         bits = 16 if any(s in fmt for s in ("10", "12", "16", "48", "64")) else 8
     full = fmt.startswith("yuvj") or rng == 2
-    m = _MATRIX_TAGS.get(matrix)
-    if m is None:
-        if matrix not in _UNSPECIFIED and fmt in PLANAR_FORMATS:
-            notes.append(f"colour matrix tag {matrix} is not supported; read as BT.709")
-        m = "bt2020" if primaries == 9 else ("bt709" if height >= 720 else "bt601")
+    m = _read_tag(_MATRIX_TAGS, matrix, "colour matrix", "bt2020" if primaries == 9 else
+                  ("bt709" if height >= 720 else "bt601"), notes if fmt in PLANAR_FORMATS else [])
     if matrix == 10:
         notes.append("BT.2020 constant-luminance matrix read as non-constant luminance")
-    p = _PRIMARY_TAGS.get(primaries)
-    if p is None:
-        if primaries not in _UNSPECIFIED:
-            notes.append(f"colour primaries tag {primaries} is not supported; read as BT.709")
-        p = "bt2020" if m == "bt2020" else "bt709"
+    p = _read_tag(_PRIMARY_TAGS, primaries, "colour primaries", "bt2020" if m == "bt2020" else "bt709", notes)
     if primaries == 11:
         notes.append("DCI-P3 primaries read with the D65 white point (Display P3)")
-    t = _TRANSFER_TAGS.get(transfer)
-    if t is None:
-        if transfer not in _UNSPECIFIED:
-            notes.append(f"transfer curve tag {transfer} is not supported; read as sRGB")
-        t = "srgb"
+    t = _read_tag(_TRANSFER_TAGS, transfer, "transfer curve", "srgb", notes)
     if transfer == 7:
         notes.append("SMPTE 240M transfer read as BT.709")
     if t in HDR_TRANSFERS and bits < 10:
@@ -137,6 +126,17 @@ def colour_from_tags(fmt: str, matrix: int, primaries: int, transfer: int, rng: 
     if m == "bt2020" and p != "bt2020" or p == "bt2020" and m != "bt2020":
         notes.append(f"the {m} matrix with {p} primaries is an unusual pairing: decoded as tagged")
     return VideoColour(matrix=m, primaries=p, transfer=t, full_range=full, bits=bits, notes=tuple(notes))
+
+
+def _read_tag(table: dict, value: int, what: str, default: str, notes: list) -> str:
+    """``table[value]``, or ``default`` when the tag is unspecified or not supported (then said
+    in ``notes``)."""
+    name = table.get(value)
+    if name is not None:
+        return name
+    if value not in _UNSPECIFIED:
+        notes.append(f"{what} tag {value} is not supported; read as {default}")
+    return default
 
 
 def video_colour(frame) -> VideoColour:
@@ -314,19 +314,20 @@ DISPLAY_TABLE = 1 << 19
 
 
 @lru_cache(maxsize=8)
-def _display_table(peak: float) -> tuple[np.ndarray, float]:
+def _display_table(transfer: str) -> tuple[np.ndarray, float]:
     from .colour import linear_to_srgb
 
-    x = np.arange(DISPLAY_TABLE, dtype=np.float64) * (peak / (DISPLAY_TABLE - 1))
-    codes = np.round(linear_to_srgb(tonemap(x.astype(FLOAT))) * 255.0).astype(np.uint8)
+    hdr = transfer in HDR_TRANSFERS
+    peak = max(float(to_linear(np.array(1.0), transfer)), 1.0) if hdr else 1.0
+    x = (np.arange(DISPLAY_TABLE, dtype=np.float64) * (peak / (DISPLAY_TABLE - 1))).astype(FLOAT)
+    codes = np.round(linear_to_srgb(tonemap(x) if hdr else x) * 255.0).astype(np.uint8)
     return codes, (DISPLAY_TABLE - 1) / peak
 
 
 def encode_display8(linear: np.ndarray, transfer: str) -> np.ndarray:
-    """Linear Rec.709 (reference white 1.0) -> uint8 sRGB for an SDR display: HDR tone-mapped
-    (:func:`tonemap`) and encoded through one table (up to the curve's peak)."""
-    peak = float(to_linear(np.array(1.0), transfer)) if transfer in HDR_TRANSFERS else 1.0
-    table, scale = _display_table(max(peak, 1.0))
+    """Linear Rec.709 (reference white 1.0) -> uint8 sRGB for an SDR display through one table:
+    HDR curves tone-mapped (:func:`tonemap`, up to the curve's peak), SDR clipped at 1."""
+    table, scale = _display_table(transfer)
     idx = np.asarray(linear, dtype=FLOAT) * np.float32(scale)
     np.clip(idx, 0, DISPLAY_TABLE - 1, out=idx)
     idx += 0.5
