@@ -13,6 +13,19 @@
 inline float3 unit3(float3 v) { return v * rsqrt(fmax(dot(v, v), 1e-30f)); }
 inline float pow5(float x) { float x2 = x * x; return x2 * x2 * x; }
 inline float len2(float x, float y) { return sqrt(x * x + y * y); }
+/* x ** n for a whole n >= 0 by squaring (pow() is a slow library call in PoCL 3.0: it made
+ * the specular lobe the cost of the maps kernels). */
+inline float ipow(float x, int n)
+{
+    float r = 1.0f;
+    while (n > 0) {
+        if (n & 1)
+            r *= x;
+        x *= x;
+        n >>= 1;
+    }
+    return r;
+}
 
 
 #endif

@@ -80,14 +80,14 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
                   texel_vertices: np.ndarray, texel_weights: np.ndarray, texel_dirs: np.ndarray,
                   active: np.ndarray, map_size: tuple[int, int], horizon: np.ndarray | None, n_az: int,
                   vis_soft: float, adaptation: bool = True, half: bool = False, trend=None,
-                  spec_exponent: float, progress=None) -> np.ndarray:
+                  spec_exponent: int, progress=None) -> np.ndarray:
     """(P, 3, T_pad) reflectance maps, pixel-major (T_pad: active texels rounded up to 16, zero
     padded): float32, or float16 with ``half`` (stored that way).
 
     samples : (K, P, 3) float32 linear sample colours. normals : (P, 3). vertices : (V, 3)
     directions (the K samples first, then black lights); vertex_texel : (V,) texel of each
     vertex (for its visibility). texel_vertices / texel_weights : (T, 3) each texel's triangle.
-    texel_dirs : (T, 3). active : (T,) bool texels to compute. horizon : (P, n_az) slopes, or None
+    texel_dirs : (T, 3). active : (T,) bool texels to compute. horizon : (P, n_az) elevations, or None
     to skip visibility. vis_soft : width (radians of elevation) of the visibility step.
     trend : None, or (offset (P, 3), coef (P, 3)[, spec (P, 3)]): each texel becomes
     ``interpolation - offset + (coef x max(n . l, 0) + spec x lobe(l)) x visibility(l)`` (the
@@ -156,7 +156,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
             _smoothed_visibility(queue, k_vis, k_box, b_hz, n_az, b_taz, map_size, vis_soft, p0, n, raw, smooth)
         k_maps(queue, (n,), None, b_samples, np.int32(k), np.int32(p), b_normal, b_vdir, b_vtex, b_tv, b_tw,
                b_tdir_act, b_tidx, np.int32(act.size), smooth, np.int32(n_tex), np.int32(use_vis),
-               np.int32(adaptation), b_toff, b_tcoef, b_tspec, np.float32(spec_exponent), np.int32(use_trend),
+               np.int32(adaptation), b_toff, b_tcoef, b_tspec, np.int32(spec_exponent), np.int32(use_trend),
                np.int32(p0), np.int32(n),
                np.int32(t_pad), b_out)
         queue.finish()

@@ -27,7 +27,7 @@ inline float fast_atan(float x)
 }
 
 __kernel void soft_visibility(
-    __global const float *horizon, int n_az,          /* (P, n_az) horizon slopes */
+    __global const float *horizon, int n_az,          /* (P, n_az) horizon elevations (radians) */
     __global const float4 *texel_az, int n_tex,       /* (T,) x, y = azimuth columns, z = blend, w = elevation */
     float inv_soft, int p0, int n_pix,                /* pixel range [p0, p0 + n_pix) */
     __global float *out)                              /* (n_pix, T) */
@@ -40,8 +40,7 @@ __kernel void soft_visibility(
     float v = 1.0f;
     if (ta.w < 4.0f) { /* elevation 4 marks "straight at the camera": always visible */
         __global const float *hz = horizon + (size_t)(p0 + i) * n_az;
-        float slope = mix(hz[(int)ta.x], hz[(int)ta.y], ta.z);
-        v = clamp(0.5f + (ta.w - fast_atan(slope)) * inv_soft, 0.0f, 1.0f);
+        v = clamp(0.5f + (ta.w - mix(hz[(int)ta.x], hz[(int)ta.y], ta.z)) * inv_soft, 0.0f, 1.0f);
     }
     out[(size_t)i * n_tex + t] = v;
 }
@@ -124,7 +123,7 @@ __kernel void build_maps(
     /* trend: out = interpolation - offset + (coef * max(n . l, 0) + spec * lobe(l)) * visibility
        (the shading model; lobe = max(n . h, 0)^spec_exp where n . l > 0, h the half vector of l and +Z) */
     __global const float4 *trend_offset, __global const float4 *trend_coef, __global const float4 *trend_spec,
-    float spec_exp, int use_trend,
+    int spec_exp, int use_trend,
     int p0, int n_pix, int t_pad,
 #ifdef OUT_HALF
     __global half *out)                                            /* (P_all, 3, t_pad): pixel-major */
@@ -183,7 +182,7 @@ __kernel void build_maps(
             float3 h = l + (float3)(0.0f, 0.0f, 1.0f);
             float hn = length(h);
             float nh = hn > 1e-6f ? fmax(dot(n, h) / hn, 0.0f) : 0.0f;
-            float lobe = nl > 0.0f ? pow(nh, spec_exp) : 0.0f;
+            float lobe = nl > 0.0f ? ipow(nh, spec_exp) : 0.0f;
             res += (trend_coef[p].xyz * fmax(nl, 0.0f) + trend_spec[p].xyz * lobe) * tv - trend_offset[p].xyz;
         }
         res = fmax(res, 0.0f);

@@ -41,17 +41,17 @@ def _round_up(n: int, m: int) -> int:
     return (n + m - 1) // m * m
 
 
-def relight_compact_numpy(v: np.ndarray, rank: int, coef: np.ndarray, rows: np.ndarray, direct_tex: np.ndarray,
-                          direct_lp: np.ndarray) -> np.ndarray:
+def relight_compact_numpy(v: np.ndarray, rank: int, coef: np.ndarray, direct_rows: np.ndarray,
+                          direct_lp: np.ndarray, n_pix: int) -> np.ndarray:
     """NumPy twin of ``relight_compact``: (P, 3) float32.
 
-    v : (P / 16, 3, Kp, 16) blocked basis images; coef : (rank, 3); rows : (T, 3, P) texel-major maps.
+    v : (P / 16, 3, Kp, 16) blocked basis images; coef : (rank, 3); direct_rows : (n, 3, P) the
+    maps of the exact texels, texel-major; direct_lp : (n, 3) their light.
     """
-    p = rows.shape[2]
     vv = read_halves(v[:, :, :rank])  # (B, 3, k, 16)
-    out = np.einsum("bcks,kc->bsc", vv, coef[:rank].astype(np.float32)).reshape(-1, 3)[:p]
-    for t, lp in zip(direct_tex, direct_lp, strict=True):
-        out += read_halves(rows[t]).T * lp.astype(np.float32)
+    out = np.einsum("bcks,kc->bsc", vv, coef[:rank].astype(np.float32)).reshape(-1, 3)[:n_pix]
+    for row, lp in zip(direct_rows, direct_lp, strict=True):
+        out += read_halves(row).T * lp.astype(np.float32)
     return out
 
 
@@ -110,6 +110,56 @@ def pack_basis(v: np.ndarray, kp: int, n_pix: int) -> np.ndarray:
     return flush_subnormal_halves(out)
 
 
+#: Texel rows a recipe bundle's Relighter keeps made (each 6 bytes per face pixel): a sun and a
+#: few point lights with room to turn the head.
+ROW_SLOTS = 64
+
+
+class RowCache:
+    """Texel rows (maps of single texels, all pixels) of a recipe bundle, made on first use.
+
+    ``rows`` (ROW_SLOTS, 3, P) float16 is the memory the compact kernel reads them from; slots
+    are reused least recently used first, never one the current call asked for.
+    """
+
+    def __init__(self, bundle, n_slots: int):
+        from .recipe import RecipeRows
+
+        self.bundle = bundle
+        self.rows = aligned_zeros((n_slots, 3, max(bundle.n_pixels, 1)), np.float16)
+        self.maker = RecipeRows(bundle.recipe, self.rows)
+        self.buf = self.maker.rows_buf  # what the compact kernel reads the rows from
+        self._slot_of: dict[int, int] = {}
+        self._texel_in = -np.ones(n_slots, dtype=np.int64)
+        self._used = np.zeros(n_slots, dtype=np.int64)
+        self._clock = 0
+        self.made = 0  # texel rows made so far (a figure for benchmarks)
+
+    def slots(self, index: np.ndarray) -> np.ndarray:
+        """(n,) slots holding the stored texels ``index`` (positions in ``map_texels``), made now if missing."""
+        index = np.asarray(index, dtype=np.int64).ravel()
+        if index.size > len(self._used):
+            raise InputError(f"{index.size} exact texels at once: at most {len(self._used)}")
+        self._clock += 1
+        missing = [int(t) for t in dict.fromkeys(index.tolist()) if int(t) not in self._slot_of]
+        if missing:
+            keep = {self._slot_of[int(t)] for t in index.tolist() if int(t) in self._slot_of}
+            free = [int(s) for s in np.argsort(self._used, kind="stable") if int(s) not in keep][:len(missing)]
+            for s in free:
+                old = int(self._texel_in[s])
+                if old >= 0:
+                    del self._slot_of[old]
+            tex = np.asarray(self.bundle.map_texels, dtype=np.int64)[np.asarray(missing)]
+            self.maker.make(tex, np.asarray(free))
+            for s, t in zip(free, missing, strict=True):
+                self._slot_of[t] = s
+                self._texel_in[s] = t
+            self.made += len(missing)
+        out = np.array([self._slot_of[int(t)] for t in index.tolist()], dtype=np.int64)
+        self._used[out] = self._clock
+        return out
+
+
 class Relighter:
     """Relights one bundle.
 
@@ -139,9 +189,8 @@ class Relighter:
         if not (np.isfinite(self.sample_scale) and self.sample_scale > 0):
             raise InputError(f"{bundle.path}: sample_scale {self.sample_scale} must be a positive number; "
                              "the bundle is damaged - capture it again")
-        self.rows = bundle.maps_rows
-        self.n_pix = int(self.rows.shape[2])
-        self.t_pad = padded_texels(int(self.rows.shape[0]))
+        self.n_pix = bundle.n_pixels
+        self.t_pad = padded_texels(int(self.texels.size))
         self._maps = None
         w, h = bundle.frame_size
         x0, y0 = bundle.crop_origin
@@ -163,7 +212,14 @@ class Relighter:
                 return cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=a)
             return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
 
-        self._rows_buf = shared(self.rows)
+        # The exact texels' maps: the bundle's own (memory-mapped) when it stores them, else a
+        # cache of texel rows made from its recipe on first use (least recently used reused).
+        if bundle.has_maps:
+            self.row_cache = None
+            self._rows_buf = shared(bundle.maps_rows)
+        else:
+            self.row_cache = RowCache(bundle, ROW_SLOTS)
+            self._rows_buf = self.row_cache.buf
         # Only the chosen rank of the basis, packed densely in the kernel's 32-pixel blocks (all
         # ranks of one block in one run of memory: one stream per work item, measured 1.5x faster
         # than a run per colour channel): the kernel streams nothing it does not use.
@@ -196,7 +252,12 @@ class Relighter:
     def _load_transport(bundle) -> transport.Transport:
         arrays = bundle.arrays
         if "transport_u" in arrays:
-            return transport.Transport(u=np.asarray(arrays["transport_u"]), v=arrays["transport_v"],
+            v = arrays["transport_v"]
+            if v.dtype == np.int8:  # 8-bit storage (format 3)
+                if "transport_v_scale" not in arrays:
+                    raise InputError("the bundle's 8-bit transport basis has no transport_v_scale: capture it again")
+                v = transport.dequantise_basis(v, arrays["transport_v_scale"])
+            return transport.Transport(u=np.asarray(arrays["transport_u"]), v=v,
                                        rank_errors=np.asarray(arrays["transport_errors"]),
                                        sigma=np.asarray(arrays.get("transport_sigma", np.zeros(1))),
                                        direct=int(bundle.meta.get("transport_direct", transport.DIRECT_TEXELS)))
@@ -339,7 +400,9 @@ class Relighter:
             cl.enqueue_copy(q, self._coef, c4, is_blocking=False)
         d4 = np.zeros((max(tex.size, 1), 4), dtype=np.float32)
         d4[:tex.size, :3] = light
-        d4[:tex.size, 3] = tex  # texel indices, exact in float32 (< 2^24)
+        # rows of the texels in the rows buffer (the bundle's maps, or the recipe's cache), exact
+        # in float32 (< 2^24)
+        d4[:tex.size, 3] = tex if self.row_cache is None else self.row_cache.slots(tex)
         cl.enqueue_copy(q, self._direct, d4, is_blocking=False)
         items = -(-self.n_pix // LANES)
         self._k_compact(q, (_round_up(items, COMPACT_GROUP),), (COMPACT_GROUP,), self._v_buf, np.int32(rank),
@@ -375,6 +438,13 @@ class Relighter:
             return
         self._launch_compact(0, None, lit, lp[lit])
 
+    def direct_rows(self, index: np.ndarray) -> np.ndarray:
+        """(n, 3, P) float16 maps of the stored texels ``index`` (as the compact kernel reads them)."""
+        index = np.asarray(index, dtype=np.int64)
+        if self.row_cache is None:
+            return np.asarray(self.bundle.maps_rows[index])
+        return self.row_cache.rows[self.row_cache.slots(index)]
+
     # ------------------------------------------------------------------ references
     def relight_numpy(self, env, rotation=None, *, exposure: float = 1.0, exact: bool | None = None) -> np.ndarray:
         """The same relight computed by the NumPy twins: (H, W, 3) float32 (for tests and benchmarks)."""
@@ -386,7 +456,7 @@ class Relighter:
             k = self.rank
             direct, rest = transport.split_direct(lp, self.transport.direct)
             coef = self.transport.u[:, :k].T.astype(np.float64) @ rest
-            vals = relight_compact_numpy(self.transport.v, k, coef, self.rows, direct, lp[direct])
+            vals = relight_compact_numpy(self.transport.v, k, coef, self.direct_rows(direct), lp[direct], self.n_pix)
         out = np.zeros_like(self.frame)
         out.reshape(-1, 3)[self.frame_index] = vals
         return out

@@ -26,7 +26,7 @@ import numpy as np
 from relight.colour import luminance
 from relight.directions import equirect_directions, rotation_matrix
 from relight.envmap import environment_to_lights, load_environment, validate_environment
-from relight.numerics import flush_subnormal_halves
+from relight.numerics import flush_subnormal_halves, read_halves
 
 #: Lat-long grid (columns, rows) on which environments become lights; their bright texels
 #: (over PEAK_FACTOR times the mean, at most MAX_PEAKS) stay lights of their own. The maps' own
@@ -39,9 +39,16 @@ MAX_PEAKS = 1024
 DIRECT_TEXELS = 8
 #: Pixels per block of the compact transport's layout (one work item each).
 PIXEL_BLOCK = 16
-#: Largest rank considered, and the validation error at which storing more ranks stops.
+#: Largest rank considered.
 MAX_RANK = 256
-KEEP_ERROR = 0.001
+#: The finest relight tolerance a bundle serves from its compact transport (``relight capture
+#: --store-tolerance``; the Relighter's default tolerance): ranks are stored up to the first whose
+#: validation error, 8-bit storage noise included, meets it. Finer tolerances use the exact maps.
+STORE_TOLERANCE = 0.01
+#: Ranks are chosen at this share of the tolerance before quantising (room for its noise).
+STORE_MARGIN = 0.85
+#: Steps of the 8-bit basis: values are stored as round(127 v / max|v|) per pixel and channel.
+V_LEVELS = 127
 
 
 @dataclass(frozen=True)
@@ -229,6 +236,8 @@ class Transport:
     rank_errors: np.ndarray
     sigma: np.ndarray
     direct: int = DIRECT_TEXELS
+    q: np.ndarray | None = None  # 8-bit storage of v (quantise_basis), when made so
+    q_scale: np.ndarray | None = None
 
     def rank_for(self, tolerance: float) -> int | None:
         """Smallest stored rank meeting ``tolerance`` on the validation set, or None."""
@@ -236,13 +245,43 @@ class Transport:
         return int(ok[0]) + 1 if ok.size else None
 
 
+def quantise_basis(v: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray]:
+    """8-bit storage of blocked basis images v (P / 16, 3, Kp, 16), first ``rank`` used:
+    (q int8 (P / 16, 3, Kp, 16), scale (P, 3) float16) with ``v ~ q x scale / V_LEVELS``."""
+    nb, _, kp, blk = v.shape
+    vf = read_halves(v[:, :, :rank]) if v.dtype == np.float16 else np.asarray(v[:, :, :rank], np.float32)
+    peak = np.abs(vf).max(axis=2) if rank else np.zeros((nb, 3, blk), np.float32)  # (nb, 3, 16)
+    scale = peak.astype(np.float16)
+    low = scale.astype(np.float32) < peak
+    scale[low] = np.nextafter(scale[low], np.float16(np.inf))
+    s = scale.astype(np.float32)
+    inv = np.where(s > 0, V_LEVELS / np.where(s > 0, s, 1.0), 0.0).astype(np.float32)
+    q = np.zeros((nb, 3, kp, blk), dtype=np.int8)
+    q[:, :, :rank] = np.clip(np.rint(vf * inv[:, :, None, :]), -V_LEVELS, V_LEVELS)
+    return q, np.ascontiguousarray(scale.transpose(0, 2, 1).reshape(nb * blk, 3))
+
+
+def dequantise_basis(q: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """float16 blocked basis images (P / 16, 3, Kp, 16) of :func:`quantise_basis` storage."""
+    nb, _, kp, blk = q.shape
+    s = np.asarray(scale, np.float32).reshape(nb, blk, 3).transpose(0, 2, 1) / V_LEVELS  # (nb, 3, 16)
+    out = np.empty(q.shape, dtype=np.float16)
+    for b0 in range(0, nb, 4096):
+        out[b0:b0 + 4096] = np.asarray(q[b0:b0 + 4096], np.float32) * s[b0:b0 + 4096, :, None, :]
+    return flush_subnormal_halves(out)
+
+
 def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int = MAX_RANK,
-              direct: int = DIRECT_TEXELS, keep_error: float = KEEP_ERROR, texel_major: bool = False) -> Transport:
+              direct: int = DIRECT_TEXELS, store_tolerance: float = STORE_TOLERANCE, texel_major: bool = False,
+              quantise: bool = True) -> Transport:
     """The compact transport of pixel-major maps (P, 3, Tp) over ``texels`` (T <= Tp), or of
     texel-major maps (T, 3, P) with ``texel_major`` (a capture holds only those).
 
-    Ranks are kept up to the first meeting ``keep_error`` on the validation set (at most
-    ``max_rank``): enough for any sensible tolerance, small enough to store.
+    Ranks are kept up to the first meeting ``STORE_MARGIN x store_tolerance`` on the validation
+    set (at most ``max_rank``). With ``quantise`` the basis images are rounded to 8 bits as a
+    bundle stores them (:func:`quantise_basis`; ``Transport.q`` / ``Transport.q_scale`` hold that
+    form) and ``rank_errors`` include that rounding's noise (its expected energy added to the
+    truncation's), so a rank meeting a tolerance meets it as stored.
     """
     from scipy.linalg import eigh
 
@@ -257,6 +296,7 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     sig2 = np.clip(w[order], 0.0, None)
     vecs = vecs[:, order]
     errors = np.zeros(k_all)
+    per_env = []
     for _, lp in validation_environments(map_size, texels):
         # Energies from the Gram itself (sum over channels of lp^T G lp): the components beyond
         # k_all need not be known, the tail past k is the whole minus the first k.
@@ -268,7 +308,8 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
         tail = max(float(np.sum(rest * (g @ rest))), 0.0) - np.cumsum(a2)  # energy left after k+1 components
         err = np.sqrt(np.clip(tail, 0.0, None) / total)
         errors = np.maximum(errors, err)
-    met = np.flatnonzero(errors <= keep_error)
+        per_env.append((total, tail, np.cumsum((vecs.T @ rest) ** 2, axis=0)))  # (k_all, 3) coefficient energy
+    met = np.flatnonzero(errors <= STORE_MARGIN * store_tolerance)
     k = int(met[0]) + 1 if met.size else k_all
     u = vecs[:, :k].astype(np.float32)
     kp = padded_texels(k)
@@ -287,5 +328,20 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     # Blocked layout (P / 16, 3, Kp, 16): 16 pixels of one basis image contiguous (the
     # Relighter repacks the rank it uses into its kernel's 32-pixel blocks).
     v = np.ascontiguousarray(v.reshape(nb, PIXEL_BLOCK, 3, kp).transpose(0, 2, 3, 1))
-    return Transport(u=u, v=v, rank_errors=errors[:k].astype(np.float32), sigma=np.sqrt(sig2[:k]).astype(np.float32),
-                     direct=direct)
+    q = q_scale = None
+    if quantise:
+        q, q_scale = quantise_basis(v, k)
+        v = dequantise_basis(q, q_scale)
+        # Rounding noise: uniform over a step (scale / V_LEVELS) per value, independent, so a
+        # relight's noise energy per channel is (sum of its squared coefficients) x (sum over
+        # pixels of step^2 / 12).
+        step2 = (np.asarray(q_scale, np.float64) / V_LEVELS) ** 2 / 12.0
+        noise_unit = step2.sum(axis=0)  # (3,)
+        errors = np.zeros(k)
+        for total, tail, coef2 in per_env:
+            noise = coef2[:k] @ noise_unit
+            errors = np.maximum(errors, np.sqrt(np.clip(tail[:k], 0.0, None) / total + noise / total))
+    tr = Transport(u=u, v=v, rank_errors=errors[:k].astype(np.float32), sigma=np.sqrt(sig2[:k]).astype(np.float32),
+                   direct=direct)
+    tr.q, tr.q_scale = q, q_scale
+    return tr

@@ -1,9 +1,9 @@
 """Stage 6: the reflectance bundle - one file with everything the online side needs.
 
-Format (version 2), little-endian::
+Format (version 3), little-endian::
 
     offset 0   8 bytes   magic b"RLBUNDLE"
-    offset 8   u32       format version (2; version 1 files load too: they hold a superset)
+    offset 8   u32       format version (3; versions 1 and 2 load too: they hold the maps themselves)
     offset 12  u32       CRC-32 of the header bytes
     offset 16  u64       header length H
     offset 24  H bytes   header: UTF-8 JSON {"format", "version", "meta", "arrays"}
@@ -31,22 +31,36 @@ albedo                  (P, 3) float32               Lambertian albedo, linear, 
 depth                   (h, w) float32               height toward the camera, pixels
 landmarks               (N, 2) float32               trackable points of the reference (frame px)
 light_dirs              (K, 3) float32               sample light directions (camera space)
+samples_code (r)        (K, P, 3) uint8              the light samples, 8-bit codes (:mod:`relight.pipeline.recipe`)
+samples_scale (r)       (P, 3) float16               their per-pixel, per-channel scale (linear, flash units)
+horizon_code (r)        (P, n_az) uint8              horizon elevations (visibility; absent without it)
+model_albedo (r)        (P, 3) float16               the shading model's albedo, linear, flash units
+model_spec (r)          (P, 3) float16               its specular lobe's weight
+model_trust (r)         (P,) float16                 its trust, 0-1
+spline_blend (r)        (P,) float16                 the model path's weight against the spline, 0-1
+tri_texel_vertices      (h_map * w_map, 3) int32     each map texel's triangle (vertex ids)
+tri_texel_weights       (h_map * w_map, 3) float32   its spherical barycentric weights
 samples (*)             (K, P, 3) float16            flash-only colour of each pixel per sample
 maps (*)                (P, 3, Tp) float16           reflectance maps, pixel-major: per pixel and channel
                                                      the T active texels, zero padded to Tp (multiple of 16)
-maps_rows               (T, 3, P) float16            the maps texel-major (single texels: point lights, suns;
-                                                     the exact path reads pixel-major blocks of it)
+maps_rows (*)           (T, 3, P) float16            the maps texel-major
 map_texels              (T,) int32                   map texel (row-major in the lat-long map) of each column
 transport_u             (T, K) float32               compact transport: orthonormal texel basis
-transport_v             (P, 3, Kp) float16           maps projected on it, pixel-major, zero padded to 16
+transport_v             (P / 16, 3, Kp, 16) int8     maps projected on it, 8-bit, in blocks of 16 pixels
+                                                     (float16 in bundles before version 3)
+transport_v_scale       (P, 3) float16               per pixel and channel: transport_v's unit
 transport_errors        (K,) float32                 largest validation error (relative L2) at each rank
 transport_sigma         (K,) float32                 singular values
-tri_vertices            (V, 3) float32               triangulation vertices (samples, then black lights)
+tri_vertices            (V, 3) float64               triangulation vertices (samples, then black lights)
 tri_faces               (F, 3) int32                 triangulation faces
 ======================  ===========================  ========================================
 
-(*) only in bundles captured with ``--keep-maps`` (:meth:`Bundle.pixel_maps` gives the pixel-major
-maps either way). ``meta["stored"]`` lists the fields a bundle holds.
+(r) the maps' recipe: a bundle stores what its maps are made of, not the maps (12 KB per face
+pixel); any texel of any map is made again from it exactly as the capture made it
+(:meth:`Bundle.texel_rows`, :meth:`Bundle.pixel_maps`). (*) only in bundles captured with
+``--keep-maps`` (the maps themselves) or by a method without a recipe (the classical fits,
+``--paper-adaptation``): those hold ``maps_rows`` instead of the recipe.
+``meta["stored"]`` lists the fields a bundle holds.
 
 Units: linear Rec.709; "flash units" means a pixel's value under a light as strong as the
 capture flash (a white Lambertian surface facing it reads 1). Relighting under an environment
@@ -70,16 +84,19 @@ from relight.errors import InputError
 from relight.imageio import atomic_path
 
 MAGIC = b"RLBUNDLE"
-VERSION = 2
-#: Format versions this relight reads (version 1 always stored the optional fields).
-READABLE_VERSIONS = (1, 2)
+VERSION = 3
+#: Format versions this relight reads (versions 1 and 2 store the maps, not their recipe).
+READABLE_VERSIONS = (1, 2, 3)
 ALIGN = 64
 _PREFIX = struct.Struct("<8sIIQ")
 #: Largest header accepted (a corrupt length must not make us allocate gigabytes).
 MAX_HEADER = 64 << 20
 REQUIRED = ("pixels", "mask_crop", "ambient", "background", "normal", "albedo", "depth", "light_dirs",
-            "maps_rows", "map_texels")
-_ALLOWED_DTYPES = {"|b1", "|u1", "<i4", "<i8", "<f2", "<f4", "<f8"}
+            "map_texels")
+#: A bundle holds its maps (``maps_rows``) or all of these (their recipe).
+RECIPE = ("samples_code", "samples_scale", "model_albedo", "model_spec", "model_trust", "spline_blend",
+          "tri_vertices", "tri_faces", "tri_texel_vertices", "tri_texel_weights")
+_ALLOWED_DTYPES = {"|b1", "|u1", "|i1", "<i4", "<i8", "<f2", "<f4", "<f8"}
 #: The ambient frame counts as a picture of the face under the room's light (:attr:`Bundle.room_light`)
 #: when its median over the face is at least this share of the reference frame's.
 ROOM_LIGHT_MIN_SHARE = 0.25
@@ -173,7 +190,37 @@ class Bundle:
 
     @property
     def n_pixels(self) -> int:
-        return int(self.arrays["maps_rows"].shape[2])
+        return int(self.arrays["pixels"].shape[0])
+
+    @property
+    def has_maps(self) -> bool:
+        """Whether the bundle stores its maps (else their recipe)."""
+        return "maps_rows" in self.arrays
+
+    @property
+    def recipe(self):
+        """The maps' :class:`relight.pipeline.recipe.Recipe` (None for a bundle that stores its maps)."""
+        if self.has_maps:
+            return None
+        cached = self.__dict__.get("_recipe")
+        if cached is not None:
+            return cached
+        from .recipe import Recipe, recipe_from_arrays
+
+        r: Recipe = recipe_from_arrays(self.arrays, self.meta, self.map_size)
+        self.__dict__["_recipe"] = r
+        return r
+
+    def texel_rows(self, index) -> np.ndarray:
+        """(n, 3, P) float16 maps of the stored texels ``index`` (positions in ``map_texels``)
+        for every head pixel: read from ``maps_rows``, or made from the recipe."""
+        idx = np.asarray(index, dtype=np.int64).ravel()
+        if self.has_maps:
+            return np.asarray(self.arrays["maps_rows"][idx])
+        from .recipe import texel_rows
+
+        tex = np.asarray(self.arrays["map_texels"], dtype=np.int64)[idx]
+        return _to_half(texel_rows(self.recipe, tex))
 
     def pixel_maps(self, index=None, *, padded: bool = True) -> np.ndarray:
         """(n, 3, Tp) float16 pixel-major maps of the head pixels ``index`` (an index array or
@@ -185,6 +232,13 @@ class Bundle:
         if "maps" in self.arrays:
             sel = self.arrays["maps"] if index is None else self.arrays["maps"][index]
             out = np.asarray(sel)
+            return out if padded else out[:, :, :self.arrays["map_texels"].shape[0]]
+        if not self.has_maps:
+            from .recipe import recipe_maps
+
+            r = self.recipe
+            whole = index is None
+            out = recipe_maps(r if whole else r.subset(np.arange(self.n_pixels)[index]), half=True)
             return out if padded else out[:, :, :self.arrays["map_texels"].shape[0]]
         rows = self.arrays["maps_rows"]
         t = rows.shape[0]
@@ -205,8 +259,15 @@ class Bundle:
         w, h = self.map_size
         tex = np.asarray(self.arrays["map_texels"])
         out = np.zeros((h * w, 3), dtype=np.float32)
-        out[tex] = np.asarray(self.arrays["maps_rows"][:, :, pixel], dtype=np.float32)
+        out[tex] = self.pixel_maps(np.array([int(pixel)]), padded=False)[0].T
         return out.reshape(h, w, 3)
+
+
+def _to_half(a: np.ndarray) -> np.ndarray:
+    """float16 of non-negative maps, halves below the normal range flushed to 0 (as the kernels read them)."""
+    from relight.numerics import flush_subnormal_halves
+
+    return flush_subnormal_halves(a.astype(np.float16))
 
 
 def _dtype_str(a: np.ndarray) -> str:
@@ -216,6 +277,8 @@ def _dtype_str(a: np.ndarray) -> str:
 def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray]) -> Path:
     """Write a bundle atomically. ``arrays`` values are converted to little-endian C order."""
     missing = [k for k in REQUIRED if k not in arrays]
+    if "maps_rows" not in arrays:
+        missing += [k for k in RECIPE if k not in arrays]
     if missing:
         raise ValueError(f"bundle is missing required field(s): {', '.join(missing)}")
     prepared = {}
@@ -297,7 +360,8 @@ def load_bundle(path: str | os.PathLike, *, verify: bool = True) -> Bundle:
     if not isinstance(doc, dict) or doc.get("format") != "relight-bundle" or not isinstance(doc.get("arrays"), dict):
         raise InputError(f"{path}: header does not describe a relight bundle")
     arrays = {}
-    for name in REQUIRED:
+    need = REQUIRED + (() if "maps_rows" in doc["arrays"] else RECIPE)
+    for name in need:
         if name not in doc["arrays"]:
             raise InputError(f"{path}: field {name!r} is missing; the bundle is incomplete")
     for name, spec in doc["arrays"].items():

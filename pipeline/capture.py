@@ -66,6 +66,8 @@ class CaptureOptions:
     # same values; the exact path gathers from them) and the flash samples (for re-fitting).
     keep_maps: bool = False
     face_pixels: int | None = DEFAULT_FACE_PIXELS
+    # --store-tolerance: the finest relight tolerance the compact transport is stored for.
+    store_tolerance: float = 0.01  # relight.kernels.transport.STORE_TOLERANCE
 
     def validate(self) -> CaptureOptions:
         methods.validate_method(self.method)
@@ -344,7 +346,10 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         done[0] += n
         progress("maps", done[0], pix.size)
 
-    maps, texels, scale, samples = reflectance_maps(samples, normals, tri, opts, horizon, progress=cb, grid=geo.mask)
+    made: dict = {}
+    maps, texels, scale, samples = reflectance_maps(samples, normals, tri, opts, horizon, progress=cb, grid=geo.mask,
+                                                    recipe_out=made)
+    recipe = made.get("recipe")
     timings["maps"] = time.perf_counter() - t1
     if not np.isfinite(maps).all():
         raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
@@ -357,7 +362,8 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
     rows = texel_major(maps, texels.size)
     if not opts.keep_maps:
         maps = None
-    compact = transport.factorize(rows, opts.map_size, texels, texel_major=True)
+    compact = transport.factorize(rows, opts.map_size, texels, texel_major=True,
+                                  store_tolerance=opts.store_tolerance)
     timings["transport"] = time.perf_counter() - t1
     t1 = time.perf_counter()
     landmarks = _landmarks(prep, geo.mask)
@@ -366,12 +372,19 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "background": prep.background, "normal": normals.astype(np.float32),
         "albedo": geo.albedo.reshape(-1, 3)[pix].astype(np.float32), "depth": geo.depth.astype(np.float32),
         "landmarks": landmarks, "light_dirs": prep.dirs.astype(np.float32),
-        "maps_rows": rows,
-        "map_texels": texels.astype(np.int32), "tri_vertices": tri.vertices.astype(np.float32),
+        "map_texels": texels.astype(np.int32), "tri_vertices": tri.vertices.astype(np.float64),
         "tri_faces": tri.faces.astype(np.int32),
-        "transport_u": compact.u, "transport_v": compact.v, "transport_errors": compact.rank_errors,
+        "transport_u": compact.u, "transport_v": compact.q, "transport_v_scale": compact.q_scale,
+        "transport_errors": compact.rank_errors,
         "transport_sigma": compact.sigma,
     }
+    if recipe is not None:  # what the maps are made of (~K + 100 bytes per pixel), not the maps
+        from .recipe import recipe_arrays
+
+        rec_arrays, rec_meta = recipe_arrays(recipe)
+        arrays.update(rec_arrays)
+    if recipe is None or opts.keep_maps:
+        arrays["maps_rows"] = rows
     if opts.keep_maps:
         arrays.update({"samples": samples.astype(np.float16), "maps": maps})
     meta = dict(prep.meta)
@@ -393,12 +406,14 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "transport_direct": compact.direct,
         "transport_rank_1pct": compact.rank_for(0.01),
     })
+    if recipe is not None:
+        meta["recipe"] = rec_meta
     timings["landmarks"] = time.perf_counter() - t1
     return arrays, meta, geo, tri
 
 
 def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: CaptureOptions, horizon, *,
-                     half: bool = True, progress=None, grid: np.ndarray | None = None):
+                     half: bool = True, progress=None, grid: np.ndarray | None = None, recipe_out: dict | None = None):
     """The maps stage of :func:`finish`: (maps (P, 3, T_pad) float16 (float32 unless ``half``),
     texels (T,) map texel ids, scale, stored samples (K, P, 3) float32).
 
@@ -406,12 +421,22 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     :func:`relight.pipeline.reflectance.storage_scale`) so that maps and samples fit float16;
     the bundle records it as ``sample_scale`` and the renderer multiplies its light by it.
     ``horizon``: the pixels' horizon table for visibility, or None.
+
+    Samples and horizons are quantised first, as the bundle stores them
+    (:mod:`relight.pipeline.recipe`), and everything is made from the stored values. With
+    ``recipe_out`` (a dict) and the shading-model method, it receives the
+    :class:`relight.pipeline.recipe.Recipe` the maps can be made again from.
     """
+    from . import recipe as rcp
+
     if not np.isfinite(samples).all():
         raise InputError("light samples hold NaN or infinite values; check the input images")
     scale = reflectance.storage_scale(samples)
     if scale != 1.0:
         samples = (samples / np.float32(scale)).astype(np.float32)
+    codes, code_scale = rcp.encode_samples(samples)
+    samples = rcp.decode_samples(codes, code_scale)
+    horizon = rcp.quantise_horizon(horizon)
     if opts.method in methods.FITTED:
         front = tri.texel_dirs[:, 2] > 0.0
         maps = methods.fit_and_evaluate(opts.method, tri.vertices[:tri.n_samples], samples, tri.texel_dirs[front])
@@ -420,10 +445,19 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     adapt = opts.adaptation and full
     trend = adapt and not opts.paper_adaptation
     if full and (trend or opts.extrapolation or opts.spline):
+        fit: dict = {}
         maps, map_tri = reflectance.model_maps(samples, normals, tri, horizon, HORIZON_DIRS, trend=trend,
                                                extrapolate=opts.extrapolation, paper_adaptation=adapt and not trend,
                                                spline=opts.spline, grid=grid, reach_deg=opts.model_reach,
-                                               backend=opts.backend, half=half, progress=progress)
+                                               backend=opts.backend, half=half, progress=progress, fit_out=fit)
+        if recipe_out is not None and not (adapt and not trend):  # the paper's adaptation: maps kept
+            sm = fit["model"]
+            recipe_out["recipe"] = rcp.Recipe(
+                codes=codes, scale=code_scale, normals=np.asarray(normals, np.float32), horizon=horizon,
+                albedo=sm.albedo.astype(np.float32), spec=sm.spec.astype(np.float32),
+                trust=sm.trust.astype(np.float32), blend=np.asarray(fit["blend"], np.float32), tri=tri,
+                active=map_tri.active, n_az=HORIZON_DIRS, trend=bool(trend), extrapolate=bool(opts.extrapolation),
+                spline=bool(opts.spline))
         return maps, np.flatnonzero(map_tri.active), scale, samples
     maps = reflectance.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS, adaptation=adapt,
                                     backend=opts.backend, half=half, progress=progress)
@@ -441,7 +475,8 @@ def texel_major(maps: np.ndarray, n_texels: int, chunk: int = 64) -> np.ndarray:
 
 
 def horizon_for(depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(P, HORIZON_DIRS) horizon slopes of the mask's pixels (row-major order).
+    """(P, HORIZON_DIRS) float32 horizon elevations (radians: the arctangent of the largest rise
+    per pixel toward each direction) of the mask's pixels (row-major order).
 
     Large heads are done on a half-resolution height field (heights halved too, so slopes are
     unchanged): visibility varies slowly across a face and this is about 8x cheaper.
@@ -451,7 +486,7 @@ def horizon_for(depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
     pix = np.flatnonzero(mask)
     if pix.size <= HALF_RES_PIXELS:
         hgt = np.where(mask, depth, NO_SURFACE).astype(np.float32)
-        return horizon_table(hgt, pix.astype(np.int32), HORIZON_DIRS)
+        return np.arctan(horizon_table(hgt, pix.astype(np.int32), HORIZON_DIRS))
     h, w = mask.shape
     h2, w2 = (h + 1) // 2, (w + 1) // 2
     m = np.zeros((h2 * 2, w2 * 2), dtype=np.float32)
@@ -465,7 +500,7 @@ def horizon_for(depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
     row_of = -np.ones(h2 * w2, dtype=np.int64)
     row_of[low_pix] = np.arange(low_pix.size)
     ys, xs = pix // w, pix % w
-    return table[row_of[(ys // 2) * w2 + xs // 2]]
+    return np.arctan(table[row_of[(ys // 2) * w2 + xs // 2]])
 
 
 def _landmarks(prep: Prepared, mask: np.ndarray) -> np.ndarray:

@@ -277,8 +277,8 @@ MODEL_R2_FULL = 0.5
 #: (``relight capture --model-reach``). 60: on the base synthetic scene the studio environment
 #: (key light from the side) gains 1.2 dB over 30 and 45; 180 adds 0.07 dB for 12 % more texels.
 MODEL_REACH_DEG = 60.0
-#: Horizon slope of a pixel that nothing shadows (a horizon table entry far below any light).
-OPEN_SKY = -1e4
+#: Horizon elevation (radians) of a pixel that nothing shadows: straight down, below any light.
+OPEN_SKY = -0.5 * np.pi
 
 
 #: The shading model's specular lobe: Blinn-Phong ``max(n . h, 0) ** SPEC_EXPONENT`` about the
@@ -287,7 +287,7 @@ OPEN_SKY = -1e4
 #: cheekbones, which moves with the light and which interpolation between samples 10-20 degrees
 #: apart draws as two half-bright ghosts. Its weight is fitted per pixel (0 where the pixel shows
 #: none); on the real faces of ../shared/data/faces-yale it is worth +0.15 dB over Lambert alone.
-SPEC_EXPONENT = 8.0
+SPEC_EXPONENT = 8  # a whole number: the kernels raise to it by squaring
 #: Beyond the captured hull the virtual lights carry, besides the model, the non-negative part of
 #: the residual (what the model does not explain: indirect light, subsurface glow, the room's
 #: light in an image set) of the nearest ``CARRY_NEAREST`` samples, weighted by a Gaussian of
@@ -391,10 +391,17 @@ def carry_weights(vertices: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]
     return ids, w * np.exp(-a[:, :1] / CARRY_FADE_DEG)
 
 
+def stored_precision(a: np.ndarray) -> np.ndarray:
+    """``a`` rounded to float16 (clipped to its range), in its own dtype: a fit as bundles store it."""
+    big = float(np.finfo(np.float16).max)
+    return np.clip(a, -big, big).astype(np.float16).astype(a.dtype)
+
+
 def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
                n_az: int, *, trend: bool = True, extrapolate: bool = True, paper_adaptation: bool = False,
                spline: bool = True, grid: np.ndarray | None = None, reach_deg: float = MODEL_REACH_DEG,
-               backend: str = "opencl", half: bool = False, progress=None) -> tuple[np.ndarray, Triangulation]:
+               backend: str = "opencl", half: bool = False, progress=None, fit_out: dict | None = None
+               ) -> tuple[np.ndarray, Triangulation]:
     """Reflectance maps with the shading model (:func:`shading_model`): (maps (P, 3, T_pad)
     float32, or float16 with ``half``; the triangulation whose ``active`` texels they hold).
 
@@ -413,24 +420,57 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     texel's triangle), by the weight that best predicts left-out samples (stacking, fitted over
     a window of neighbouring pixels when ``grid``, the (H, W) mask of the P pixels, is given).
     reach_deg : with ``extrapolate``, model light is kept only this far from a captured direction.
+    fit_out : a dict that receives the fits (``model``: the :class:`ShadingModel`, ``blend``) -
+    with the samples, normals, horizon and triangulation, all
+    :func:`maps_from_fit` (and :mod:`relight.pipeline.recipe`) needs to make the maps again.
     """
     if trend and paper_adaptation:
         raise InputError("the shading-model trend and the paper's light adaptation exclude each other")
     k, p = samples.shape[:2]
     if grid is not None and int(np.count_nonzero(grid)) != p:
         raise InputError(f"the pixel grid marks {int(np.count_nonzero(grid))} pixels for {p} pixels of samples")
-    verts = tri.vertices
-    b = len(verts) - k
-    # Model light is kept where it lights some pixel, within reach_deg of a captured direction:
-    # farther out (behind the head) it would cost map texels for light that reaches little.
-    near = (tri.texel_dirs @ verts[:k].T).max(axis=1) >= np.cos(np.radians(reach_deg))
     # Visibility at the vertices (the model at the texels is added by the maps kernel, which
     # has the texels' visibility at hand).
     if horizon is None:
-        vertex_vis = np.ones((p, len(verts)), dtype=np.float32)
+        vertex_vis = np.ones((p, len(tri.vertices)), dtype=np.float32)
     else:
         vertex_vis = visibility_at(horizon, n_az, tri.map_size, tri.vertex_texel, backend=backend)
     sm = shading_model(samples, normals, tri, vertex_vis)
+    # The fits at the precision a bundle stores them (float16), so its maps can be made again.
+    sm = ShadingModel(albedo=stored_precision(sm.albedo), spec=stored_precision(sm.spec),
+                      trust=stored_precision(sm.trust))
+    loo = None
+    if spline:
+        from .spline import leave_one_out
+
+        loo = leave_one_out(tri.vertices[:k])
+    maps, map_tri, blend = maps_from_fit(samples, normals, tri, horizon, n_az, sm, None, None, trend=trend,
+                                         extrapolate=extrapolate, paper_adaptation=paper_adaptation,
+                                         spline=spline, reach_deg=reach_deg, backend=backend, half=half,
+                                         progress=progress, vertex_vis=vertex_vis, loo=loo, grid=grid,
+                                         return_blend=True)
+    if fit_out is not None:
+        fit_out.update(model=sm, blend=blend)
+    return maps, map_tri
+
+
+def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
+                  n_az: int, sm: ShadingModel, blend: np.ndarray | None, active: np.ndarray | None, *,
+                  trend: bool = True, extrapolate: bool = True, paper_adaptation: bool = False,
+                  spline: bool = True, reach_deg: float = MODEL_REACH_DEG, backend: str = "opencl",
+                  half: bool = False, progress=None, vertex_vis: np.ndarray | None = None, loo=None,
+                  grid: np.ndarray | None = None, return_blend: bool = False):
+    """The maps of :func:`model_maps` from its fits: the shading model ``sm``, the spline
+    ``blend`` (P,) and the kept texels ``active`` (T,) bool; ``blend`` None with ``loo`` (the
+    spline's leave-one-out weights) fits it here (stacking), ``active`` None chooses the texels
+    the model lights (within ``reach_deg``). Returns (maps, the triangulation whose ``active``
+    texels they hold[, blend with ``return_blend``])."""
+    k, p = samples.shape[:2]
+    verts = tri.vertices
+    b = len(verts) - k
+    if vertex_vis is None:
+        vertex_vis = (np.ones((p, len(verts)), dtype=np.float32) if horizon is None else
+                      visibility_at(horizon, n_az, tri.map_size, tri.vertex_texel, backend=backend))
     trust = sm.trust
     open_sky = trust < 0.5
     if horizon is not None and open_sky.any():
@@ -446,13 +486,12 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     lit_vertex = np.zeros(len(verts), dtype=bool)
     lit_vertex[:k] = True
     peak = max(float(np.max(samples)) if samples.size else 0.0, 1e-30)
-    loo = None
-    blend = trust.copy()  # the model path's weight against the spline, per pixel
+    stacking = spline and blend is None and loo is not None
+    if blend is None:
+        blend = trust.copy()  # the model path's weight against the spline, per pixel
     num, den = np.zeros(p), np.zeros(p)
-    if spline:
-        from .spline import leave_one_out, stacking_terms, stacking_weight
-
-        loo = leave_one_out(verts[:k])
+    if stacking:
+        from .spline import stacking_terms
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
         vis = vertex_vis[ps]
@@ -464,7 +503,7 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
             left = np.maximum(chunk - model[:k], 0.0)
             carried = np.einsum("bn,bnpc->bpc", carry_w.astype(dt), left[carry_ids])
         tw = trust[ps][None, :, None].astype(dt)
-        if loo is not None:
+        if stacking:
             num[ps], den[ps] = stacking_terms(samples[:, ps], model[:k], trust[ps], loo)
         if trend:  # the trusted share of the model is taken out and added back at each texel
             chunk = chunk - tw * model[:k]
@@ -476,16 +515,27 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
         off = np.maximum(-both.min(axis=0), 0.0)  # (p, 3)
         offset[ps] = off
         vals[:both.shape[0], ps] = both + off[None]
-    if loo is not None:
-        blend = stacking_weight(num, den, trust, grid)
+    if stacking:
+        from .spline import stacking_weight
+
+        blend = stored_precision(stacking_weight(num, den, trust, grid))
     if extrapolate:
-        active = (lit_vertex[tri.texel_vertices].any(axis=1) & near) | tri.active
+        if active is None:
+            # Model light is kept where it lights some pixel, within reach_deg of a captured
+            # direction: farther out (behind the head) it would cost map texels for light that
+            # reaches little.
+            near = (tri.texel_dirs @ verts[:k].T).max(axis=1) >= np.cos(np.radians(reach_deg))
+            active = (lit_vertex[tri.texel_vertices].any(axis=1) & near) | tri.active
         map_tri = Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
                                 texel_vertices=tri.texel_vertices, texel_weights=tri.texel_weights,
-                                active=active, map_size=tri.map_size)
+                                active=np.asarray(active, dtype=bool), map_size=tri.map_size)
         ext = vals
     else:
         map_tri, ext = tri, vals[:k]
+        if active is not None:
+            map_tri = Triangulation(vertices=verts, n_samples=k, faces=tri.faces, texel_vertices=tri.texel_vertices,
+                                    texel_weights=tri.texel_weights, active=np.asarray(active, dtype=bool),
+                                    map_size=tri.map_size)
     # The kernel takes the offset off and adds the trusted model back at each texel in float32,
     # then stores float16 with ``half`` (the bundle's storage; keeps large captures' memory down).
     coef = trust[:, None] * sm.albedo if trend else np.zeros_like(sm.albedo)
@@ -511,7 +561,7 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
                 maps[ps, :, :act.size] = np.clip(m, 0.0, None)
     if not np.isfinite(maps).all():
         raise ArithmeticError("non-finite reflectance from the shading model; this is a bug, please report it")
-    return maps, map_tri
+    return (maps, map_tri, blend) if return_blend else (maps, map_tri)
 
 
 def _blend_spline(m: np.ndarray, samples: np.ndarray, weight: np.ndarray, inside: np.ndarray,
@@ -536,8 +586,10 @@ def _blend_spline(m: np.ndarray, samples: np.ndarray, weight: np.ndarray, inside
 def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *, smooth: bool = True) -> np.ndarray:
     """(P, h, w) float32 soft visibility of each map texel for each pixel.
 
-    horizon : (P, n_az) largest slope (rise per pixel of image-plane travel) toward each of
-    ``n_az`` image-plane directions (see :func:`relight.kernels.shading.grid_directions`).
+    horizon : (P, n_az) horizon elevation (radians above the image plane: the arctangent of the
+    largest rise per pixel of image-plane travel, :func:`relight.pipeline.capture.horizon_for`)
+    toward each of ``n_az`` image-plane directions (see
+    :func:`relight.kernels.shading.grid_directions`), interpolated linearly between them.
     """
     w, h = map_size
     tdirs = equirect_directions(w, h).reshape(-1, 3)
@@ -547,8 +599,7 @@ def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *
     i0 = np.floor(pos).astype(np.int64) % n_az
     i1 = (i0 + 1) % n_az
     f = (pos - np.floor(pos)).astype(np.float32)
-    hz = horizon[:, i0] * (1 - f) + horizon[:, i1] * f  # (P, T)
-    elev_h = np.arctan(hz)
+    elev_h = horizon[:, i0] * (1 - f) + horizon[:, i1] * f  # (P, T)
     elev = np.arctan2(tdirs[:, 2], np.maximum(s, 1e-9))
     soft = VIS_SOFT_TEXELS * np.pi / h
     vis = np.clip(0.5 + (elev[None, :] - elev_h) / soft, 0.0, 1.0).astype(np.float32)
@@ -711,7 +762,7 @@ def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *
                  trend=None, progress=None) -> np.ndarray:
     """Reflectance maps (P, 3, T_pad) of P pixels, pixel-major: OpenCL, or the NumPy reference (float32).
 
-    horizon : (P, n_az) horizon slopes for visibility, or None for none. half : OpenCL output
+    horizon : (P, n_az) horizon elevations for visibility, or None for none. half : OpenCL output
     in float16 (the bundle's storage; halves the peak memory of large captures). trend : see
     :func:`build_maps`.
     """

@@ -150,7 +150,7 @@ def _visibility(plt, arrays, tri, geo, picks, path):
     pix = arrays["pixels"]
     hgt = np.where(geo.mask, geo.depth, NO_SURFACE).astype(np.float32)
     sel = pix[picks].astype(np.int32)
-    vis = visibility_maps(horizon_table(hgt, sel, HORIZON_DIRS), HORIZON_DIRS, tri.map_size)
+    vis = visibility_maps(np.arctan(horizon_table(hgt, sel, HORIZON_DIRS)), HORIZON_DIRS, tri.map_size)
     h, w = geo.mask.shape
     fig, axes = plt.subplots(1, len(picks), figsize=(3.2 * len(picks), 2.2))
     for j, p in enumerate(sel):

@@ -89,7 +89,7 @@ SEED = 7
 @dataclass
 class MapProblem:
     """One map-building input. dirs : (K, 3) float64 unit; samples : (K, P, 3) float32 linear;
-    normals : (P, 3) float64 unit; horizon : (P, n_az) float32 slopes (used with visibility)."""
+    normals : (P, 3) float64 unit; horizon : (P, n_az) float32 elevations (used with visibility)."""
 
     label: str
     dirs: np.ndarray

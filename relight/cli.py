@@ -7,6 +7,7 @@ Every error a user can cause ends in one line saying what to change, exit status
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -151,6 +152,7 @@ def _circle(text: str) -> tuple[float, float, float]:
 
 def _add_capture(sub) -> None:
     from .pipeline.capture import TRANSFERS
+    from .kernels.transport import STORE_TOLERANCE
     from .pipeline.ingest import DEFAULT_FACE_PIXELS
     from .pipeline.methods import METHODS
 
@@ -207,8 +209,14 @@ def _add_capture(sub) -> None:
                    help="work on the head at about N pixels: larger captures (1080p, 4K) are downscaled as they "
                         "are decoded, bounding time and memory; the bundle records the scale (0: never downscale)")
     p.add_argument("--keep-maps", action="store_true",
-                   help="also store the maps pixel-major and the flash samples (twice the size; the exact path "
-                        "starts faster and the samples can be re-fitted); without it the bundle holds the maps once")
+                   help="also store the maps themselves, texel- and pixel-major, and the flash samples in float16 "
+                        "(~25 KB per face pixel: the exact path and the accuracy bench start at once); without it "
+                        "the bundle holds what the maps are made of (~1 KB per face pixel) and makes any texel "
+                        "on demand")
+    p.add_argument("--store-tolerance", type=float, default=STORE_TOLERANCE, metavar="TOL",
+                   help="finest relight tolerance (relative L2) the bundle serves from its compact transport: "
+                        "ranks are stored until their validation error, 8-bit storage included, meets it (finer "
+                        "tolerances build the exact maps on load)")
     p.add_argument("--report", type=Path, metavar="DIR", help="write report.json and PNG plots here")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run_capture)
@@ -223,7 +231,10 @@ def _run_capture(args) -> int:
         raise InputError("give either a capture video or --images DIR (not both)")
     if args.images is None and args.transfer != "srgb":
         raise InputError("--transfer applies to --images sets; a video's transfer curve is read from its tags")
+    if not (math.isfinite(args.store_tolerance) and 0 < args.store_tolerance < 1):
+        raise InputError(f"--store-tolerance {args.store_tolerance}: use a relative error such as 0.01 (1 %)")
     opts = CaptureOptions(transfer=args.transfer, keep_maps=args.keep_maps, face_pixels=args.face_pixels or None,
+        store_tolerance=args.store_tolerance,
         method=args.method, visibility=not args.no_visibility, adaptation=not args.no_adaptation,
         extrapolation=not args.no_extrapolation, paper_adaptation=args.paper_adaptation,
         spline=not args.no_spline, model_reach=args.model_reach,

@@ -97,7 +97,7 @@ def test_opencl_maps_match_numpy_with_visibility_and_adaptation():
     z = (15 * np.exp(-((x - 20) ** 2 + (y - 20) ** 2) / 60.0) + 0.1 * x).astype(np.float32)
     mask = np.ones((h, w), dtype=bool)
     pix = np.flatnonzero(mask)[::7].astype(np.int32)
-    horizon = horizon_table(np.where(mask, z, NO_SURFACE).astype(np.float32), pix, 64)
+    horizon = np.arctan(horizon_table(np.where(mask, z, NO_SURFACE).astype(np.float32), pix, 64))
     dirs = front_directions(45, seed=2)
     tri = triangulate(dirs)
     samples = rng.uniform(0.05, 1.0, (45, pix.size, 3)).astype(np.float32)
@@ -132,7 +132,7 @@ def test_opencl_visibility_at_texels_matches_numpy():
     y, x = np.mgrid[0:h, 0:w]
     z = (12 * np.exp(-((x - 15) ** 2 + (y - 14) ** 2) / 40.0)).astype(np.float32)
     pix = np.arange(h * w, dtype=np.int32)[::5]
-    horizon = horizon_table(z, pix, 64)
+    horizon = np.arctan(horizon_table(z, pix, 64))
     cols = np.array([0, 5, 700, 1023, 2047, 1500, 5])
     a = visibility_at(horizon, 64, (64, 32), cols, backend="opencl")
     b = visibility_at(horizon, 64, (64, 32), cols, backend="numpy")
