@@ -28,8 +28,8 @@ class RecipeRows:
     def __init__(self, recipe, rows: np.ndarray, rows_buf=None):
         import pyopencl as cl
 
-        from relight.pipeline import reflectance as rf
         from relight.pipeline import recipe as rcp
+        from relight.pipeline import reflectance as rf
 
         self.recipe = recipe
         rt = get_runtime()
@@ -176,8 +176,9 @@ class RecipeRows:
             a = np.ascontiguousarray(a)
             return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
 
-        self.kernel(self.queue, (-(-self.n_pix // GROUP) * GROUP,), (GROUP,), self._codes, np.int32(k), np.int32(self.n_pix), self._scale,
-                    self._decode, self._normal, self._horizon, np.int32(r.n_az), np.int32(self.use_vis), self._elevation,
+        self.kernel(self.queue, (-(-self.n_pix // GROUP) * GROUP,), (GROUP,), self._codes, np.int32(k),
+                    np.int32(self.n_pix), self._scale, self._decode, self._normal, self._horizon, np.int32(r.n_az),
+                    np.int32(self.use_vis), self._elevation,
                     self._albedo, self._spec, self._trust, self._blend, buf(az), np.int32(len(positions)),
                     buf(mv_dir), buf(mv_kind), buf(mv_carry), np.int32(len(verts)), buf(t_dir), buf(t_vert),
                     buf(t_wt), buf(t_corner), np.int32(n), buf(sw), np.int32(r.trend),

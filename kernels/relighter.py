@@ -268,7 +268,8 @@ class Relighter:
         """(P, 3, Tp) float16 pixel-major maps (the bundle's, or gathered from its texel-major rows
         once: :meth:`relight.pipeline.bundle.Bundle.pixel_maps`)."""
         if self._maps is None:
-            self._maps = self.bundle.pixel_maps()
+            self._maps = self.bundle.pixel_maps() if self.bundle.has_maps else \
+                self._exact_maps_host()[:, :, :self.t_pad]
         return self._maps
 
     # ------------------------------------------------------------------ direction space
@@ -376,8 +377,11 @@ class Relighter:
 
         if self._maps_buf is None:
             maps = aligned_zeros((self.n_pix, 3, self.t_exact), np.float16)
+            # A recipe bundle's maps are made once, all pixels together (the per-call set-up of
+            # the maps - the spline's weights, the vertices' visibility - is not repeated).
+            made = None if self.bundle.has_maps else self.bundle.pixel_maps()
             for p0 in range(0, self.n_pix, 8192):
-                blk = self.bundle.pixel_maps(slice(p0, p0 + 8192))
+                blk = made[p0:p0 + 8192] if made is not None else self.bundle.pixel_maps(slice(p0, p0 + 8192))
                 if not np.isfinite(blk).all():
                     raise InputError("the bundle's reflectance maps hold non-finite values: capture the bundle again")
                 maps[p0:p0 + 8192, :, :self.t_pad] = flush_subnormal_halves(blk.copy())
@@ -385,6 +389,10 @@ class Relighter:
             self._maps_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR,
                                        hostbuf=maps)
         return self._maps_buf
+
+    def _exact_maps_host(self) -> np.ndarray:
+        self._exact_maps()
+        return self._maps_exact
 
     def _launch_compact(self, rank: int, coef: np.ndarray | None, tex: np.ndarray, light: np.ndarray,
                         buf=None, frame=None) -> None:

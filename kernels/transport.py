@@ -26,6 +26,7 @@ import numpy as np
 from relight.colour import luminance
 from relight.directions import equirect_directions, rotation_matrix
 from relight.envmap import environment_to_lights, load_environment, validate_environment
+from relight.errors import InputError
 from relight.numerics import flush_subnormal_halves, read_halves
 
 #: Lat-long grid (columns, rows) on which environments become lights; their bright texels
@@ -247,7 +248,7 @@ class Transport:
 
 def quantise_basis(v: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray]:
     """8-bit storage of blocked basis images v (P / 16, 3, Kp, 16), first ``rank`` used:
-    (q int8 (P / 16, 3, Kp, 16), scale (P, 3) float16) with ``v ~ q x scale / V_LEVELS``."""
+    (q int8 (P / 16, 3, rank, 16), scale (P, 3) float16) with ``v ~ q x scale / V_LEVELS``."""
     nb, _, kp, blk = v.shape
     vf = read_halves(v[:, :, :rank]) if v.dtype == np.float16 else np.asarray(v[:, :, :rank], np.float32)
     peak = np.abs(vf).max(axis=2) if rank else np.zeros((nb, 3, blk), np.float32)  # (nb, 3, 16)
@@ -256,18 +257,23 @@ def quantise_basis(v: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray]:
     scale[low] = np.nextafter(scale[low], np.float16(np.inf))
     s = scale.astype(np.float32)
     inv = np.where(s > 0, V_LEVELS / np.where(s > 0, s, 1.0), 0.0).astype(np.float32)
-    q = np.zeros((nb, 3, kp, blk), dtype=np.int8)
-    q[:, :, :rank] = np.clip(np.rint(vf * inv[:, :, None, :]), -V_LEVELS, V_LEVELS)
+    q = np.clip(np.rint(vf * inv[:, :, None, :]), -V_LEVELS, V_LEVELS).astype(np.int8)
     return q, np.ascontiguousarray(scale.transpose(0, 2, 1).reshape(nb * blk, 3))
 
 
 def dequantise_basis(q: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """float16 blocked basis images (P / 16, 3, Kp, 16) of :func:`quantise_basis` storage."""
-    nb, _, kp, blk = q.shape
+    """float16 blocked basis images (P / 16, 3, Kp, 16) (ranks zero padded to a multiple of 16)
+    of :func:`quantise_basis` storage."""
+    from .maps import padded_texels
+
+    nb, _, k, blk = q.shape
+    if scale.shape != (nb * blk, 3):
+        raise InputError(f"transport_v_scale of shape {scale.shape}: expected ({nb * blk}, 3); capture the "
+                         "bundle again")
     s = np.asarray(scale, np.float32).reshape(nb, blk, 3).transpose(0, 2, 1) / V_LEVELS  # (nb, 3, 16)
-    out = np.empty(q.shape, dtype=np.float16)
+    out = np.zeros((nb, 3, padded_texels(k), blk), dtype=np.float16)
     for b0 in range(0, nb, 4096):
-        out[b0:b0 + 4096] = np.asarray(q[b0:b0 + 4096], np.float32) * s[b0:b0 + 4096, :, None, :]
+        out[b0:b0 + 4096, :, :k] = np.asarray(q[b0:b0 + 4096], np.float32) * s[b0:b0 + 4096, :, None, :]
     return flush_subnormal_halves(out)
 
 
@@ -284,8 +290,6 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     truncation's), so a rank meeting a tolerance meets it as stored.
     """
     from scipy.linalg import eigh
-
-    from .maps import padded_texels
 
     n_t = texels.size
     g = gram_rows(maps) if texel_major else gram(maps, n_texels=n_t)
@@ -309,9 +313,21 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
         err = np.sqrt(np.clip(tail, 0.0, None) / total)
         errors = np.maximum(errors, err)
         per_env.append((total, tail, np.cumsum((vecs.T @ rest) ** 2, axis=0)))  # (k_all, 3) coefficient energy
-    met = np.flatnonzero(errors <= STORE_MARGIN * store_tolerance)
-    k = int(met[0]) + 1 if met.size else k_all
-    u = vecs[:, :k].astype(np.float32)
+    for margin in (STORE_MARGIN, 0.7, 0.5, 0.0):  # more ranks while 8-bit noise keeps the tolerance out of reach
+        met = np.flatnonzero(errors <= margin * store_tolerance)
+        k = int(met[0]) + 1 if met.size else k_all
+        tr = _project(maps, u_all=vecs, k=k, n_t=n_t, texel_major=texel_major, sig2=sig2, errors=errors,
+                      direct=direct, quantise=quantise, per_env=per_env)
+        if not quantise or k == k_all or tr.rank_for(store_tolerance) is not None:
+            return tr
+    return tr
+
+
+def _project(maps, *, u_all, k, n_t, texel_major, sig2, errors, direct, quantise, per_env) -> Transport:
+    """The transport of rank ``k`` (see :func:`factorize`)."""
+    from .maps import padded_texels
+
+    u = u_all[:, :k].astype(np.float32)
     kp = padded_texels(k)
     p = maps.shape[2] if texel_major else maps.shape[0]
     nb = -(-p // PIXEL_BLOCK)

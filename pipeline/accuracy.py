@@ -85,6 +85,9 @@ QUICK_FACES = ("yaleB01",)
 FACE_GOAL_MEAN_DB = 2.0
 FACE_GOAL_EACH_DB = 1.0
 #: ``--quick`` builds these variants for its one subject (the others cost ~20 s each).
+#: The default bundle (recipe, compact transport) against its exact maps: goals of issue 14.
+DEFAULT_BUNDLE_DB = 0.1
+DEFAULT_BUNDLE_KB = 1.0
 QUICK_FACE_VARIANTS = ("full", "barycentric", "ptm", "hsh")
 
 
@@ -133,7 +136,9 @@ def build_variants(source, out_dir: Path, *, images: bool = False, variants=None
     rows = {}
     try:
         for name, kw in variants.items():
-            opts = CaptureOptions(**kw).validate()
+            # The maps kept (the exact path starts at once); the default bundle, its recipe, is
+            # measured from the same file (Bundle.default).
+            opts = CaptureOptions(**(kw | {"keep_maps": True})).validate()
             mine = copy.copy(prep)
             mine.images = prep.images.copy()  # finish() releases the images it was given
             t1 = time.perf_counter()
@@ -268,8 +273,13 @@ def evaluate_scene(cfg, cap: Path, bundles: dict, envs: dict, out: Path, name: s
         ol = olat_errors(exact, o_truth, o_pix, keep, dirs, weight, inside)
         heat[variant] = (keep, ol.pop("pixel_rmse_whole"), ol.pop("pixel_rmse_hull"))
         ol["direction_rel_err"] = ol["direction_rel_err"].tolist()
-        compact = relight.Relighter(b)
+        compact = relight.Relighter(b.default() if b.recipe_stored else b)
+        default_envs = {}
+        if b.recipe_stored:  # the default bundle's relight (its recipe's texels, the 8-bit basis)
+            for env_name, env in env_arrays.items():
+                default_envs[env_name] = env_metrics(np.array(compact.relight(env)), truths[env_name], mask)["psnr"]
         rows[variant] = {"envs": per_env, "olat": ol, "relight_ms": relight_ms(compact, env_arrays["studio"]),
+                         "default_psnr": default_envs, "default_kb_per_px": _kb_per_px(b),
                          "rank": int(compact.rank) if getattr(compact, "rank", None) is not None else None,
                          "samples": int(b.light_dirs.shape[0]), "pixels": int(b.pixels.size),
                          "hull_share": float((weight * inside).sum() / weight.sum())} | \
@@ -370,16 +380,20 @@ def evaluate_dome(dome: Path, test: Path, out: Path, progress: bool, *, scale: i
     for variant, info in bundles.items():
         b = relight.load_bundle(info["bundle"])
         rl = relight.Relighter(b, exact=True)
+        dflt = relight.Relighter(b.default()) if b.recipe_stored else None
         mask = np.asarray(b.mask)
-        ps, ss = [], []
+        ps, ss, pd = [], [], []
         for d, photo in held:
             pred = np.clip(linear_to_srgb(np.clip(np.array(rl.relight_light(d)), 0, None)), 0, 1)
-            mse = float(((pred[mask] - photo[mask]) ** 2).mean())
-            ps.append(10 * np.log10(1.0 / max(mse, 1e-30)))
+            ps.append(_psnr(pred[mask], photo[mask]))
             ss.append(masked_ssim(pred, photo, mask))
-        rows[variant] = {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "psnr_per_light": ps} | \
+            if dflt is not None:
+                pred = np.clip(linear_to_srgb(np.clip(np.array(dflt.relight_light(d)), 0, None)), 0, 1)
+                pd.append(_psnr(pred[mask], photo[mask]))
+        rows[variant] = {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "psnr_per_light": ps,
+                         "default_psnr": float(np.mean(pd)) if pd else None, "default_kb_per_px": _kb_per_px(b)} | \
             {k: info[k] for k in ("capture_s", "maps_s", "bundle_mb")}
-        del rl, b
+        del rl, dflt, b
         Path(info["bundle"]).unlink()  # ~1 GB each at full size; the size is recorded
     h, w = held[0][1].shape[:2]  # both sets share one size (a bundle renders the Dome frame)
     return {"lights_in": lights_in, "held_out": len(held), "variants": rows, "image_size": [w, h], "scale": scale}
@@ -404,6 +418,11 @@ def split_rti(folder: Path, out: Path, every: int = FACE_HOLDOUT) -> list[tuple[
     (out / "dirs.lp").write_text(f"{len(train)}\n" + "".join(f"{n} {d[0]:.6f} {d[1]:.6f} {d[2]:.6f}\n"
                                                               for n, d in train))
     return held
+
+
+def _kb_per_px(b) -> float | None:
+    """KB per face pixel of the bundle as written by default (its recipe, no maps), or None."""
+    return b.default_nbytes / 1e3 / max(b.n_pixels, 1) if b.recipe_stored else None
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -434,16 +453,21 @@ def evaluate_face(folder: Path, out: Path, progress: bool, *, variants=None, tra
     for variant, info in bundles.items():
         b = relight.load_bundle(info["bundle"])
         rl = relight.Relighter(b, exact=True)
+        dflt = relight.Relighter(b.default()) if b.recipe_stored else None
         mask = np.asarray(b.mask)
         room = b.ambient_frame()
-        ps, ss = [], []
+        ps, ss, pd = [], [], []
         for d, photo in photos:
             pred = np.clip(linear_to_srgb(np.clip(np.array(rl.relight_light(d)) + room, 0, None)), 0, 1)
             ps.append(_psnr(pred[mask], photo[mask]))
             ss.append(masked_ssim(pred, photo, mask))
-        rows[variant] = {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "psnr_per_light": ps} | \
+            if dflt is not None:
+                pred = np.clip(linear_to_srgb(np.clip(np.array(dflt.relight_light(d)) + room, 0, None)), 0, 1)
+                pd.append(_psnr(pred[mask], photo[mask]))
+        rows[variant] = {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "psnr_per_light": ps,
+                         "default_psnr": float(np.mean(pd)) if pd else None, "default_kb_per_px": _kb_per_px(b)} | \
             {k: info[k] for k in ("capture_s", "maps_s", "bundle_mb")}
-        del rl, b
+        del rl, dflt, b
         Path(info["bundle"]).unlink()
     ps, ss = [], []
     for d, photo in photos:  # the nearest captured photo, as it is
@@ -494,7 +518,37 @@ def summarise(doc: dict) -> dict:
         best = max(((out[b][key], b) for b in BASELINES if out[b][key] is not None), default=(None, None))
         goal[key] = {"full": full, "best_baseline": best[1], "best_baseline_value": best[0],
                      "margin_db": None if full is None or best[0] is None else full - best[0]}
-    return {"variants": out, "goal": goal}
+    return {"variants": out, "goal": goal, "default_bundle": default_bundle(doc)}
+
+
+def default_bundle(doc: dict) -> dict:
+    """The ``full`` variant as ``relight capture`` writes it by default (its maps' recipe, the
+    8-bit compact transport) against its exact maps: mean PSNR of both per source (synthetic
+    scenes x environments, Dome, each real face), the difference (goal: within
+    ``DEFAULT_BUNDLE_DB``) and its size per face pixel (goal: <= ``DEFAULT_BUNDLE_KB``)."""
+    rows = []
+    for sc in doc.get("scenes", []):
+        v = sc["variants"].get("full")
+        if v and v.get("default_psnr"):
+            exact = _mean(v["envs"][k]["psnr"] for k in v["default_psnr"])
+            rows.append({"source": f"synthetic {sc['name']}", "exact": exact,
+                         "default": _mean(v["default_psnr"].values()), "kb_per_px": v.get("default_kb_per_px")})
+    dome = (doc.get("dome") or {}).get("variants", {}).get("full")
+    if dome and dome.get("default_psnr") is not None:
+        rows.append({"source": "rti-dome", "exact": dome["psnr"], "default": dome["default_psnr"],
+                     "kb_per_px": dome.get("default_kb_per_px")})
+    for f in doc.get("faces") or []:
+        v = f["variants"].get("full")
+        if v and v.get("default_psnr") is not None:
+            rows.append({"source": f"face {f['subject']}", "exact": v["psnr"], "default": v["default_psnr"],
+                         "kb_per_px": v.get("default_kb_per_px")})
+    for r in rows:
+        r["difference_db"] = None if r["exact"] is None or r["default"] is None else r["default"] - r["exact"]
+    diffs = [abs(r["difference_db"]) for r in rows if r["difference_db"] is not None]
+    kbs = [r["kb_per_px"] for r in rows if r["kb_per_px"] is not None]
+    return {"rows": rows, "worst_difference_db": max(diffs) if diffs else None,
+            "largest_kb_per_px": max(kbs) if kbs else None,
+            "goal_met": bool(diffs) and max(diffs) <= DEFAULT_BUNDLE_DB and bool(kbs) and max(kbs) <= DEFAULT_BUNDLE_KB}
 
 
 def face_subjects(faces: Path | None) -> list[Path]:
@@ -652,6 +706,22 @@ def report_markdown(doc: dict) -> str:
                      f"{_f(v['olat whole'], '{:.3f}')} | {_f(v['olat hull'], '{:.3f}')} | {_f(v['dome psnr'])} | "
                      f"{_f(v['dome ssim'], '{:.4f}')} | {_f(v['capture s'], '{:.1f}')} | {_f(v['maps s'], '{:.2f}')} | "
                      f"{_f(v['bundle MB'], '{:.1f}')} | {_f(v['relight ms'])} |")
+    db = s.get("default_bundle") or {}
+    if db.get("rows"):
+        lines += ["", f"## The default bundle: recipe + 8-bit compact transport against the exact maps (goal: "
+                  f"within {DEFAULT_BUNDLE_DB} dB, <= {DEFAULT_BUNDLE_KB:g} KB per face pixel)", "",
+                  "`full` relit from the bundle `relight capture` writes by default (the maps' recipe: texels "
+                  "made on demand, the compact transport at the default tolerance) and from its exact maps "
+                  "(`--keep-maps`, `--exact`); mean PSNR as in the tables below.", "",
+                  "| source | exact maps dB | default bundle dB | difference dB | KB per face pixel |",
+                  "|---|---|---|---|---|"]
+        for r in db["rows"]:
+            lines.append(f"| {r['source']} | {_f(r['exact'])} | {_f(r['default'])} | "
+                         f"{_f(r['difference_db'], '{:+.3f}')} | {_f(r['kb_per_px'], '{:.3f}')} |")
+        lines.append("")
+        lines.append(f"Worst difference {_f(db['worst_difference_db'], '{:.3f}')} dB, largest bundle "
+                     f"{_f(db['largest_kb_per_px'], '{:.3f}')} KB per face pixel: goal "
+                     + ("met" if db["goal_met"] else "**not met**") + ".")
     lines += ["", "![error against run time](error_vs_time.png)", "",
               "## Method x scene (PSNR dB: in hull / whole sphere)", ""]
     lines.append("| variant | " + " | ".join(sc["name"] for sc in doc["scenes"]) + " |")
@@ -754,6 +824,14 @@ def table(doc: dict) -> str:
                          f"margin {f['margin_db']:+.2f} dB (need >= +{FACE_GOAL_EACH_DB:g})")
         lines.append(f"real faces: mean margin {fs['mean_margin_db']:+.2f} dB (need >= +{FACE_GOAL_MEAN_DB:g}): "
                      + ("met" if fs["goal_met"] else "not met"))
+    db = s.get("default_bundle") or {}
+    for r in db.get("rows", []):
+        lines.append(f"default bundle, {r['source']}: {_f(r['default'])} dB vs exact maps {_f(r['exact'])} dB "
+                     f"({_f(r['difference_db'], '{:+.3f}')}), {_f(r['kb_per_px'], '{:.3f}')} KB per face pixel")
+    if db.get("rows"):
+        lines.append(f"default bundle: worst {_f(db['worst_difference_db'], '{:.3f}')} dB (need <= {DEFAULT_BUNDLE_DB}), "
+                     f"largest {_f(db['largest_kb_per_px'], '{:.3f}')} KB/px (need <= {DEFAULT_BUNDLE_KB:g}): "
+                     + ("met" if db["goal_met"] else "not met"))
     bad = [r for r in doc["stability"] if not r["finite"]]
     lines.append(f"stability: {len(doc['stability'])} case x variant runs, non-finite: {len(bad)}")
     return "\n".join(lines)

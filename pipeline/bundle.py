@@ -96,7 +96,11 @@ REQUIRED = ("pixels", "mask_crop", "ambient", "background", "normal", "albedo", 
 #: A bundle holds its maps (``maps_rows``) or all of these (their recipe).
 RECIPE = ("samples_code", "samples_scale", "model_albedo", "model_spec", "model_trust", "spline_blend",
           "tri_vertices", "tri_faces", "tri_texel_vertices", "tri_texel_weights")
+#: Fields only ``--keep-maps`` bundles hold (the maps themselves, the float16 samples).
+MAPS_ONLY = ("maps", "maps_rows", "samples")
 _ALLOWED_DTYPES = {"|b1", "|u1", "|i1", "<i4", "<i8", "<f2", "<f4", "<f8"}
+#: Maps made from a recipe bundle for all its pixels are kept by the Bundle up to this size.
+KEEP_MADE_MAPS_BYTES = 512 << 20
 #: The ambient frame counts as a picture of the face under the room's light (:attr:`Bundle.room_light`)
 #: when its median over the face is at least this share of the reference frame's.
 ROOM_LIGHT_MIN_SHARE = 0.25
@@ -193,6 +197,11 @@ class Bundle:
         return int(self.arrays["pixels"].shape[0])
 
     @property
+    def recipe_stored(self) -> bool:
+        """Whether the bundle stores its maps' recipe (every default bundle; with --keep-maps also the maps)."""
+        return all(k in self.arrays for k in RECIPE)
+
+    @property
     def has_maps(self) -> bool:
         """Whether the bundle stores its maps (else their recipe)."""
         return "maps_rows" in self.arrays
@@ -210,6 +219,20 @@ class Bundle:
         r: Recipe = recipe_from_arrays(self.arrays, self.meta, self.map_size)
         self.__dict__["_recipe"] = r
         return r
+
+    def default(self) -> Bundle:
+        """The bundle as ``relight capture`` writes it without ``--keep-maps``: this one without
+        its stored maps (its recipe then makes them). Raises InputError for a bundle with no recipe."""
+        missing = [k for k in RECIPE if k not in self.arrays]
+        if missing:
+            raise InputError(f"{self.path}: no recipe stored (missing {', '.join(missing)}); the maps are all it has")
+        arrays = {k: v for k, v in self.arrays.items() if k not in MAPS_ONLY}
+        return Bundle(path=self.path, meta=self.meta, arrays=arrays)
+
+    @property
+    def default_nbytes(self) -> int:
+        """Bytes of the arrays :meth:`default` keeps (its file size but for the header and alignment)."""
+        return int(sum(a.nbytes for k, a in self.arrays.items() if k not in MAPS_ONLY))
 
     def texel_rows(self, index) -> np.ndarray:
         """(n, 3, P) float16 maps of the stored texels ``index`` (positions in ``map_texels``)
@@ -237,8 +260,17 @@ class Bundle:
             from .recipe import recipe_maps
 
             r = self.recipe
-            whole = index is None
-            out = recipe_maps(r if whole else r.subset(np.arange(self.n_pixels)[index]), half=True)
+            if index is None:
+                # Made once per loaded bundle while small enough to keep (exact relighters, the
+                # accuracy bench); larger ones are made again on each call.
+                out = self.__dict__.get("_made_maps")
+                if out is None:
+                    out = recipe_maps(r, half=True)
+                    if out.nbytes <= KEEP_MADE_MAPS_BYTES:
+                        out.flags.writeable = False
+                        self.__dict__["_made_maps"] = out
+            else:
+                out = recipe_maps(r.subset(np.arange(self.n_pixels)[index]), half=True)
             return out if padded else out[:, :, :self.arrays["map_texels"].shape[0]]
         rows = self.arrays["maps_rows"]
         t = rows.shape[0]

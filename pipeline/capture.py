@@ -107,6 +107,7 @@ class CaptureResult:
     timings: dict
     arrays: dict = field(repr=False, default_factory=dict)
     prepared: Prepared | None = field(repr=False, default=None)
+    meta: dict = field(repr=False, default_factory=dict)
 
 
 class _Progress:
@@ -572,7 +573,7 @@ def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = F
     report = {k: v for k, v in prep.report.items()}
     report["timings"] = {k: round(v, 3) for k, v in timings.items()}
     report["peak_rss_mb"] = {k: round(v, 1) for k, v in timings.peak_mb.items()}
-    result = CaptureResult(bundle=path, report=report, timings=timings, arrays=arrays, prepared=prep)
+    result = CaptureResult(bundle=path, report=report, timings=timings, arrays=arrays, prepared=prep, meta=meta)
     if report_dir is not None:
         from .report import write_report
 

@@ -114,9 +114,10 @@ class Recipe:
     """Everything :func:`relight.pipeline.reflectance.model_maps` needs to make any texel again.
 
     codes (K, P, 3) uint8 / scale (P, 3): the samples (:func:`encode_samples`). normals (P, 3).
-    horizon (P, n_az) float32 elevations (or their uint8 codes), or None (no visibility). albedo, spec (P, 3), trust (P,):
-    the shading model (:class:`relight.pipeline.reflectance.ShadingModel`). blend (P,): the model
-    path's weight against the spline (1: no spline). tri: the samples' triangulation;
+    horizon (P, n_az) float32 elevations (or their uint8 codes), or None (no visibility).
+    albedo, spec (P, 3), trust (P,): the shading model
+    (:class:`relight.pipeline.reflectance.ShadingModel`). blend (P,): the model path's weight
+    against the spline (1: no spline). tri: the samples' triangulation;
     active (T,) bool the map texels kept. trend / extrapolate / spline: model_maps' options.
     """
 

@@ -52,7 +52,7 @@ def write_report(folder, result, geo, tri) -> Path:
     _directions(plt, tri, folder / "directions.png")
     n = geo.normal
     write_image(folder / "normals.png", np.round((n * 0.5 + 0.5) * 255 * geo.mask[..., None]).astype(np.uint8))
-    picks = _maps(plt, result.arrays, tri, geo, folder / "maps.png")
+    picks = _maps(plt, result.arrays, result.meta, tri, geo, folder / "maps.png")
     _visibility(plt, result.arrays, tri, geo, picks, folder / "visibility.png")
     return folder
 
@@ -114,8 +114,7 @@ def _directions(plt, tri, path):
     _save(fig, path)
 
 
-def _maps(plt, arrays, tri, geo, path):
-    rows = arrays["maps_rows"]  # (T, 3, P)
+def _maps(plt, arrays, meta, tri, geo, path):
     texels = arrays["map_texels"]
     pix = arrays["pixels"]
     h, w = geo.mask.shape
@@ -125,10 +124,17 @@ def _maps(plt, arrays, tri, geo, path):
         tx, ty = xs.min() + qx * np.ptp(xs), ys.min() + qy * np.ptp(ys)
         picks.append(int(np.argmin((xs - tx) ** 2 + (ys - ty) ** 2)))
     mw, mh = tri.map_size
+    if "maps_rows" in arrays:
+        maps = np.asarray(arrays["maps_rows"][:, :, picks], dtype=np.float32).transpose(2, 1, 0)  # (n, 3, T)
+    else:  # made again from the bundle's recipe, as a user's bundle would
+        from .recipe import recipe_from_arrays, recipe_maps
+
+        rec = recipe_from_arrays(arrays, meta, tri.map_size).subset(np.asarray(picks))
+        maps = recipe_maps(rec, half=False)[:, :, :texels.size]
     fig, axes = plt.subplots(2, len(picks), figsize=(3.2 * len(picks), 4))
     for j, p in enumerate(picks):
         full = np.zeros((mh * mw, 3), dtype=np.float32)
-        full[texels] = np.asarray(rows[:, :, p], dtype=np.float32)
+        full[texels] = maps[j].T
         img = full.reshape(mh, mw, 3)
         axes[0, j].imshow(np.clip(img / max(float(img.max()), 1e-6), 0, 1) ** (1 / 2.2))
         axes[0, j].set_title(f"pixel ({xs[p]}, {ys[p]})", fontsize=8)

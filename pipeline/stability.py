@@ -363,14 +363,28 @@ def production_maps(variant: str, problem: MapProblem, tri: reflectance.Triangul
 
 def reference_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulation) -> np.ndarray:
     """(P, 3, T) float64-computed maps of the same method (see the module docstring)."""
-    from .capture import HORIZON_DIRS
+    from . import recipe
 
     opts = VARIANTS[variant]
     method = opts["method"]
-    samples = problem.samples.astype(np.float64)
+    # The samples and horizons as a bundle stores them (production makes its maps from those:
+    # 8-bit codes are the measurement, not the arithmetic under test), in the production's
+    # storage units (divided by its power-of-two scale, multiplied back at the end).
+    unit = reflectance.storage_scale(problem.samples)
+    codes, code_scale = recipe.encode_samples((problem.samples / unit).astype(np.float32))
+    samples = (codes / 255.0) ** (1.0 / recipe.SAMPLE_GAMMA) * code_scale.astype(np.float64)[None]
+    return unit * _reference_maps(opts, method, samples, problem, tri)
+
+
+def _reference_maps(opts, method, samples, problem, tri):
+    from . import recipe
+    from .capture import HORIZON_DIRS
+
     if method not in methods.FITTED:
         vis = None
         horizon = problem.horizon if opts["visibility"] else None
+        if horizon is not None:
+            horizon = recipe.quantise_horizon(horizon).astype(np.float64)
         if horizon is not None:
             vis = reflectance.visibility_maps(horizon.astype(np.float64), HORIZON_DIRS, tri.map_size)
         trend = opts["adaptation"] and not opts["paper_adaptation"]

@@ -151,8 +151,8 @@ def _circle(text: str) -> tuple[float, float, float]:
 
 
 def _add_capture(sub) -> None:
-    from .pipeline.capture import TRANSFERS
     from .kernels.transport import STORE_TOLERANCE
+    from .pipeline.capture import TRANSFERS
     from .pipeline.ingest import DEFAULT_FACE_PIXELS
     from .pipeline.methods import METHODS
 

@@ -61,9 +61,12 @@ def test_video_capture_meets_the_accuracy_goals(synth_capture, tmp_path):
     assert m["mask_iou"] > 0.85, m
     maps = bundle.pixel_maps()
     assert np.isfinite(maps.astype(np.float32)).all()
-    assert "maps" not in bundle.arrays and "samples" not in bundle.arrays  # only with --keep-maps
-    assert maps.shape[0] == bundle.pixels.size == bundle.normal.shape[0] == bundle.maps_rows.shape[2]
-    np.testing.assert_array_equal(np.asarray(bundle.maps_rows[5]), maps[:, :, 5].T)
+    # The default bundle holds the maps' recipe (maps only with --keep-maps); its two makers -
+    # every texel on the device, a few texels in NumPy - agree.
+    assert not {"maps", "maps_rows", "samples"} & set(bundle.arrays) and bundle.recipe is not None
+    assert maps.shape[0] == bundle.pixels.size == bundle.normal.shape[0]
+    np.testing.assert_allclose(bundle.texel_rows([5])[0].astype(np.float32), maps[:, :, 5].T.astype(np.float32),
+                               rtol=2e-3, atol=1e-5)
     assert bundle.landmarks.shape[0] > 20
 
 
