@@ -361,3 +361,121 @@ def _project(maps, *, u_all, k, n_t, texel_major, sig2, errors, direct, quantise
                    direct=direct)
     tr.q, tr.q_scale = q, q_scale
     return tr
+
+
+#: Pixels whose maps make the basis of a streamed factorisation (:func:`factorize_stream`): a
+#: face's maps are highly redundant across neighbouring pixels, and the ranks are then judged on
+#: every pixel.
+GRAM_PIXELS = 16384
+#: Pixels per chunk of the streamed factorisation (each chunk's maps are made, used, dropped).
+STREAM_CHUNK = 8192
+
+
+def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank: int = MAX_RANK,
+                     direct: int = DIRECT_TEXELS, store_tolerance: float = STORE_TOLERANCE,
+                     gram_pixels: int = GRAM_PIXELS, chunk: int = STREAM_CHUNK, progress=None) -> Transport:
+    """The compact transport of maps made chunk by chunk - ``make(index)`` returns the
+    pixel-major maps (n, 3, Tp) of the pixels ``index`` - without ever holding all of them.
+
+    The basis comes from the texel Gram matrix of an even subsample of at most ``gram_pixels``
+    pixels; then every pixel's maps are projected on it, and each rank's validation error (the
+    environments of :func:`validation_environments`, ``direct`` texels exact) is measured on all
+    pixels as the residual of the projection, the 8-bit storage's noise added as in
+    :func:`factorize`. Ranks are stored up to the first meeting ``store_tolerance``.
+    ``progress(n)`` is called with the pixels done in the second pass.
+    """
+    from scipy.linalg import eigh
+
+    n_t = texels.size
+    step = max(1, -(-n_pix // max(gram_pixels, 1)))
+    sub = np.arange(0, n_pix, step)
+
+    def blocks(index):
+        for c0 in range(0, index.size, chunk):
+            yield np.asarray(make(index[c0:c0 + chunk])[:, :, :n_t], dtype=np.float32)
+
+    g = _syrk_sum((m.reshape(-1, n_t) for m in blocks(sub)), n_t)
+    k_all = min(max_rank, n_t)
+    w, vecs = eigh(g, subset_by_index=[n_t - k_all, n_t - 1], driver="evr")
+    order = np.argsort(w)[::-1]
+    sig2 = np.clip(w[order], 0.0, None)
+    vecs = vecs[:, order]
+    envs = [lp for _, lp in validation_environments(map_size, texels)]
+    rests = [split_direct(lp, direct)[1] for lp in envs]
+    # The subsample's own errors bound the ranks worth projecting on (with room: the whole face
+    # may need more than its subsample).
+    est = np.zeros(k_all)
+    for lp, rest in zip(envs, rests, strict=True):
+        total = float(np.sum(lp * (g @ lp)))
+        if total > 0:
+            a2 = np.sum(sig2[:, None] * (vecs.T @ rest) ** 2, axis=1)
+            tail = max(float(np.sum(rest * (g @ rest))), 0.0) - np.cumsum(a2)
+            est = np.maximum(est, np.sqrt(np.clip(tail, 0.0, None) / total))
+    met = np.flatnonzero(est <= 0.5 * store_tolerance)
+    cap = min(k_all, (int(met[0]) + 1 if met.size else k_all) + 16)
+    u = vecs[:, :cap].astype(np.float32)
+    lights = np.stack(envs, axis=2).astype(np.float32)  # (T, 3, E)
+    rest_l = np.stack(rests, axis=2).astype(np.float32)
+    coef = np.einsum("tk,tce->kce", u.astype(np.float64), rest_l.astype(np.float64))  # (cap, 3, E)
+    n_env = len(envs)
+    v = np.zeros((n_pix, 3, cap), dtype=np.float32)
+    total = np.zeros(n_env)
+    rr = np.zeros((3, n_env))
+    vtr = np.zeros((cap, 3, n_env))
+    vtv = np.zeros((3, cap, cap))
+    everything = np.arange(n_pix)
+    for c0, m in zip(range(0, n_pix, chunk), blocks(everything), strict=True):
+        n = m.shape[0]
+        vc = (m.reshape(-1, n_t) @ u).reshape(n, 3, cap)
+        v[c0:c0 + n] = vc
+        full = np.einsum("pct,tce->pce", m, lights)  # the exact relights of this chunk
+        total += np.einsum("pce,pce->e", full, full, dtype=np.float64)
+        r = np.einsum("pct,tce->pce", m, rest_l)  # what the rank part must relight
+        rr += np.einsum("pce,pce->ce", r, r, dtype=np.float64)
+        vtr += np.einsum("pck,pce->kce", vc, r, dtype=np.float64)
+        for c in range(3):
+            vtv[c] += vc[:, c].T.astype(np.float64) @ vc[:, c]
+        if progress is not None:
+            progress(n)
+    # Residual energy of each rank: ||r||^2 - 2 c.(V^T r) + c^T (V^T V) c over the first k ranks.
+    resid = np.zeros((cap, n_env))
+    for e in range(n_env):
+        for c in range(3):
+            cc = coef[:, c, e]
+            cross = np.cumsum(cc * vtr[:, c, e])
+            quad = np.diag(np.cumsum(np.cumsum(cc[:, None] * vtv[c] * cc[None, :], axis=0), axis=1))
+            resid[:, e] += rr[c, e] - 2.0 * cross + quad
+    ok = total > 0
+    for margin in (STORE_MARGIN, 0.7, 0.5, 0.0):
+        err0 = np.sqrt(np.clip(resid[:, ok], 0.0, None) / total[ok]).max(axis=1) if ok.any() else np.zeros(cap)
+        met = np.flatnonzero(err0 <= margin * store_tolerance)
+        k = int(met[0]) + 1 if met.size else cap
+        tr = _stream_transport(v, u, k, sig2, resid, total, coef, direct)
+        if k == cap or tr.rank_for(store_tolerance) is not None:
+            return tr
+    return tr
+
+
+def _stream_transport(v_all: np.ndarray, u: np.ndarray, k: int, sig2, resid, total, coef, direct) -> Transport:
+    """The stored transport of rank k from :func:`factorize_stream`'s projections (P, 3, cap)."""
+    from .maps import padded_texels
+
+    p = v_all.shape[0]
+    kp = padded_texels(k)
+    nb = -(-p // PIXEL_BLOCK)
+    v = np.zeros((nb * PIXEL_BLOCK, 3, kp), dtype=np.float16)
+    v[:p, :, :k] = v_all[:, :, :k]
+    flush_subnormal_halves(v)
+    v = np.ascontiguousarray(v.reshape(nb, PIXEL_BLOCK, 3, kp).transpose(0, 2, 3, 1))
+    q, q_scale = quantise_basis(v, k)
+    v = dequantise_basis(q, q_scale)
+    step2 = (np.asarray(q_scale, np.float64) / V_LEVELS) ** 2 / 12.0
+    noise_unit = step2.sum(axis=0)  # (3,) see factorize
+    errors = np.zeros(k)
+    for e in np.flatnonzero(total > 0):
+        noise = np.cumsum(coef[:k, :, e] ** 2, axis=0) @ noise_unit
+        errors = np.maximum(errors, np.sqrt(np.clip(resid[:k, e], 0.0, None) / total[e] + noise / total[e]))
+    tr = Transport(u=np.ascontiguousarray(u[:, :k]), v=v, rank_errors=errors.astype(np.float32),
+                   sigma=np.sqrt(sig2[:k]).astype(np.float32), direct=direct)
+    tr.q, tr.q_scale = q, q_scale
+    return tr

@@ -829,8 +829,9 @@ def table(doc: dict) -> str:
         lines.append(f"default bundle, {r['source']}: {_f(r['default'])} dB vs exact maps {_f(r['exact'])} dB "
                      f"({_f(r['difference_db'], '{:+.3f}')}), {_f(r['kb_per_px'], '{:.3f}')} KB per face pixel")
     if db.get("rows"):
-        lines.append(f"default bundle: worst {_f(db['worst_difference_db'], '{:.3f}')} dB (need <= {DEFAULT_BUNDLE_DB}), "
-                     f"largest {_f(db['largest_kb_per_px'], '{:.3f}')} KB/px (need <= {DEFAULT_BUNDLE_KB:g}): "
+        lines.append(f"default bundle: worst {_f(db['worst_difference_db'], '{:.3f}')} dB "
+                     f"(need <= {DEFAULT_BUNDLE_DB}), largest {_f(db['largest_kb_per_px'], '{:.3f}')} KB/px "
+                     f"(need <= {DEFAULT_BUNDLE_KB:g}): "
                      + ("met" if db["goal_met"] else "not met"))
     bad = [r for r in doc["stability"] if not r["finite"]]
     lines.append(f"stability: {len(doc['stability'])} case x variant runs, non-finite: {len(bad)}")

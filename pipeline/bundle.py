@@ -23,11 +23,11 @@ field                   shape, dtype                 meaning
 ======================  ===========================  ========================================
 pixels                  (P,) int32                   flat row-major indices of the head pixels in the crop
 mask_crop               (h, w) bool                  head pixels in the crop
-ambient                 (h, w, 3) float32            registered no-flash average (image sets: their
-                                                     ambient frame, or 0), linear
+ambient                 (h, w, 3) float16            registered no-flash average (image sets: their
+                                                     ambient frame, or 0), linear (float32 before version 3)
 background              (H, W, 3) uint8              a full no-flash frame, sRGB
 normal                  (P, 3) float32               camera-space unit normals
-albedo                  (P, 3) float32               Lambertian albedo, linear, flash units
+albedo                  (P, 3) float16               Lambertian albedo, linear, flash units (float32 before 3)
 depth                   (h, w) float32               height toward the camera, pixels
 landmarks               (N, 2) float32               trackable points of the reference (frame px)
 light_dirs              (K, 3) float32               sample light directions (camera space)

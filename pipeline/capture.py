@@ -349,29 +349,49 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
 
     made: dict = {}
     maps, texels, scale, samples = reflectance_maps(samples, normals, tri, opts, horizon, progress=cb, grid=geo.mask,
-                                                    recipe_out=made)
+                                                    recipe_out=made, recipe_only=not opts.keep_maps)
     recipe = made.get("recipe")
-    timings["maps"] = time.perf_counter() - t1
-    if not np.isfinite(maps).all():
-        raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
-    maps = flush_subnormal_halves(maps.astype(np.float16, copy=False))
-    t1 = time.perf_counter()
     from relight.kernels import transport
 
-    # The maps texel-major (what the bundle stores); the pixel-major copy only when kept: the two
-    # together were the capture's peak memory.
-    rows = texel_major(maps, texels.size)
-    if not opts.keep_maps:
-        maps = None
-    compact = transport.factorize(rows, opts.map_size, texels, texel_major=True,
-                                  store_tolerance=opts.store_tolerance)
+    from .reflectance import stored_precision
+
+    rows = None
+    if maps is None:
+        # The default bundle stores the maps' recipe: the maps are made chunk by chunk for the
+        # compact transport and dropped (no array of every pixel's maps is ever held).
+        from .recipe import recipe_maps
+
+        timings["maps"] = time.perf_counter() - t1  # the fits; making the maps counts as transport
+        t1 = time.perf_counter()
+        done[0] = 0
+
+        def make(index):
+            return recipe_maps(recipe.subset(index), backend=opts.backend)
+
+        compact = transport.factorize_stream(make, pix.size, opts.map_size, texels,
+                                             store_tolerance=opts.store_tolerance, progress=cb)
+    else:
+        timings["maps"] = time.perf_counter() - t1
+        if not np.isfinite(maps).all():
+            raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
+        maps = flush_subnormal_halves(maps.astype(np.float16, copy=False))
+        t1 = time.perf_counter()
+        # The maps texel-major (what the bundle stores); the pixel-major copy only when kept: the
+        # two together were the capture's peak memory.
+        rows = texel_major(maps, texels.size)
+        if not opts.keep_maps:
+            maps = None
+        compact = transport.factorize(rows, opts.map_size, texels, texel_major=True,
+                                      store_tolerance=opts.store_tolerance)
     timings["transport"] = time.perf_counter() - t1
     t1 = time.perf_counter()
     landmarks = _landmarks(prep, geo.mask)
     arrays = {
-        "pixels": pix.astype(np.int32), "mask_crop": geo.mask, "ambient": prep.ambient.astype(np.float32),
+        "pixels": pix.astype(np.int32), "mask_crop": geo.mask,
+        "ambient": stored_precision(prep.ambient.astype(np.float32)).astype(np.float16),
         "background": prep.background, "normal": normals.astype(np.float32),
-        "albedo": geo.albedo.reshape(-1, 3)[pix].astype(np.float32), "depth": geo.depth.astype(np.float32),
+        "albedo": stored_precision(geo.albedo.reshape(-1, 3)[pix].astype(np.float32)).astype(np.float16),
+        "depth": geo.depth.astype(np.float32),
         "landmarks": landmarks, "light_dirs": prep.dirs.astype(np.float32),
         "map_texels": texels.astype(np.int32), "tri_vertices": tri.vertices.astype(np.float64),
         "tri_faces": tri.faces.astype(np.int32),
@@ -414,7 +434,8 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
 
 
 def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: CaptureOptions, horizon, *,
-                     half: bool = True, progress=None, grid: np.ndarray | None = None, recipe_out: dict | None = None):
+                     half: bool = True, progress=None, grid: np.ndarray | None = None, recipe_out: dict | None = None,
+                     recipe_only: bool = False):
     """The maps stage of :func:`finish`: (maps (P, 3, T_pad) float16 (float32 unless ``half``),
     texels (T,) map texel ids, scale, stored samples (K, P, 3) float32).
 
@@ -426,7 +447,9 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     Samples and horizons are quantised first, as the bundle stores them
     (:mod:`relight.pipeline.recipe`), and everything is made from the stored values. With
     ``recipe_out`` (a dict) and the shading-model method, it receives the
-    :class:`relight.pipeline.recipe.Recipe` the maps can be made again from.
+    :class:`relight.pipeline.recipe.Recipe` the maps can be made again from; with
+    ``recipe_only`` too the maps are then not made here (None is returned for them: the caller
+    makes them chunk by chunk, :func:`relight.pipeline.recipe.recipe_maps`).
     """
     from . import recipe as rcp
 
@@ -446,19 +469,23 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     adapt = opts.adaptation and full
     trend = adapt and not opts.paper_adaptation
     if full and (trend or opts.extrapolation or opts.spline):
-        fit: dict = {}
-        maps, map_tri = reflectance.model_maps(samples, normals, tri, horizon, HORIZON_DIRS, trend=trend,
-                                               extrapolate=opts.extrapolation, paper_adaptation=adapt and not trend,
-                                               spline=opts.spline, grid=grid, reach_deg=opts.model_reach,
-                                               backend=opts.backend, half=half, progress=progress, fit_out=fit)
+        sm, blend, active = reflectance.fit_model(samples, normals, tri, horizon, HORIZON_DIRS,
+                                                  extrapolate=opts.extrapolation, spline=opts.spline, grid=grid,
+                                                  reach_deg=opts.model_reach, backend=opts.backend)
+        recipe = None
         if recipe_out is not None and not (adapt and not trend):  # the paper's adaptation: maps kept
-            sm = fit["model"]
-            recipe_out["recipe"] = rcp.Recipe(
+            recipe = recipe_out["recipe"] = rcp.Recipe(
                 codes=codes, scale=code_scale, normals=np.asarray(normals, np.float32), horizon=horizon,
                 albedo=sm.albedo.astype(np.float32), spec=sm.spec.astype(np.float32),
-                trust=sm.trust.astype(np.float32), blend=np.asarray(fit["blend"], np.float32), tri=tri,
-                active=map_tri.active, n_az=HORIZON_DIRS, trend=bool(trend), extrapolate=bool(opts.extrapolation),
+                trust=sm.trust.astype(np.float32), blend=np.asarray(blend, np.float32), tri=tri,
+                active=active, n_az=HORIZON_DIRS, trend=bool(trend), extrapolate=bool(opts.extrapolation),
                 spline=bool(opts.spline))
+        if recipe is not None and recipe_only:
+            return None, np.flatnonzero(active), scale, samples
+        maps, map_tri = reflectance.maps_from_fit(samples, normals, tri, horizon, HORIZON_DIRS, sm, blend, active,
+                                                  trend=trend, extrapolate=opts.extrapolation,
+                                                  paper_adaptation=adapt and not trend, spline=opts.spline,
+                                                  backend=opts.backend, half=half, progress=progress)
         return maps, np.flatnonzero(map_tri.active), scale, samples
     maps = reflectance.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS, adaptation=adapt,
                                     backend=opts.backend, half=half, progress=progress)

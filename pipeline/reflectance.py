@@ -426,121 +426,139 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     """
     if trend and paper_adaptation:
         raise InputError("the shading-model trend and the paper's light adaptation exclude each other")
+    sm, blend, active = fit_model(samples, normals, tri, horizon, n_az, extrapolate=extrapolate, spline=spline,
+                                  grid=grid, reach_deg=reach_deg, backend=backend)
+    if fit_out is not None:
+        fit_out.update(model=sm, blend=blend, active=active)
+    return maps_from_fit(samples, normals, tri, horizon, n_az, sm, blend, active, trend=trend,
+                         extrapolate=extrapolate, paper_adaptation=paper_adaptation, spline=spline,
+                         backend=backend, half=half, progress=progress)
+
+
+def _vertex_model(sm: ShadingModel, normals: np.ndarray, verts: np.ndarray, vis: np.ndarray,
+                  horizon: np.ndarray | None) -> np.ndarray:
+    """(V, p, 3) the shading model at the vertices for a chunk of pixels (sm, normals, vis of the
+    chunk): open-sky pixels (trust < 0.5) see every vertex."""
+    if horizon is not None:
+        open_sky = sm.trust < 0.5
+        if open_sky.any():
+            vis = np.where(open_sky[:, None], np.float32(1.0), vis)
+    return sm.at(normals, verts, vis)
+
+
+def fit_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
+              n_az: int, *, extrapolate: bool = True, spline: bool = True, grid: np.ndarray | None = None,
+              reach_deg: float = MODEL_REACH_DEG, backend: str = "opencl"
+              ) -> tuple[ShadingModel, np.ndarray, np.ndarray]:
+    """The fits of :func:`model_maps`, pixel chunk by chunk (no array of all pixels x vertices):
+    (the shading model, at the precision a bundle stores it; the model path's weight against the
+    spline (P,) (stacking; the trust without a spline); the kept map texels (T,) bool)."""
     k, p = samples.shape[:2]
     if grid is not None and int(np.count_nonzero(grid)) != p:
         raise InputError(f"the pixel grid marks {int(np.count_nonzero(grid))} pixels for {p} pixels of samples")
-    # Visibility at the vertices (the model at the texels is added by the maps kernel, which
-    # has the texels' visibility at hand).
-    if horizon is None:
-        vertex_vis = np.ones((p, len(tri.vertices)), dtype=np.float32)
-    else:
-        vertex_vis = visibility_at(horizon, n_az, tri.map_size, tri.vertex_texel, backend=backend)
-    sm = shading_model(samples, normals, tri, vertex_vis)
-    # The fits at the precision a bundle stores them (float16), so its maps can be made again.
-    sm = ShadingModel(albedo=stored_precision(sm.albedo), spec=stored_precision(sm.spec),
-                      trust=stored_precision(sm.trust))
+    verts = tri.vertices
+    b = len(verts) - k
+    dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
+    verts_dt = verts.astype(dt)
     loo = None
     if spline:
-        from .spline import leave_one_out
+        from .spline import leave_one_out, stacking_terms, stacking_weight
 
-        loo = leave_one_out(tri.vertices[:k])
-    maps, map_tri, blend = maps_from_fit(samples, normals, tri, horizon, n_az, sm, None, None, trend=trend,
-                                         extrapolate=extrapolate, paper_adaptation=paper_adaptation,
-                                         spline=spline, reach_deg=reach_deg, backend=backend, half=half,
-                                         progress=progress, vertex_vis=vertex_vis, loo=loo, grid=grid,
-                                         return_blend=True)
-    if fit_out is not None:
-        fit_out.update(model=sm, blend=blend)
-    return maps, map_tri
+        loo = leave_one_out(verts[:k])
+    carry_ids, carry_w = carry_weights(verts, k) if b else (None, None)
+    albedo, spec, trust = np.zeros((p, 3)), np.zeros((p, 3)), np.zeros(p)
+    num, den = np.zeros(p), np.zeros(p)
+    lit_vertex = np.zeros(len(verts), dtype=bool)
+    lit_vertex[:k] = True
+    peak = max(float(np.max(samples)) if samples.size else 0.0, 1e-30)
+    for p0 in range(0, p, PIXEL_CHUNK):
+        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
+        vis = (np.ones((ps.stop - p0, len(verts)), dtype=np.float32) if horizon is None else
+               visibility_at(horizon[ps], n_az, tri.map_size, tri.vertex_texel, backend=backend))
+        fit = shading_model(samples[:, ps], normals[ps], tri, vis)
+        # The fits at the precision a bundle stores them (float16), so its maps can be made again.
+        fit = ShadingModel(albedo=stored_precision(fit.albedo), spec=stored_precision(fit.spec),
+                           trust=stored_precision(fit.trust))
+        albedo[ps], spec[ps], trust[ps] = fit.albedo, fit.spec, fit.trust
+        if loo is None and not b:
+            continue
+        model = _vertex_model(fit, np.asarray(normals[ps], dtype=dt), verts_dt, vis, horizon)  # (V, p, 3)
+        if loo is not None:
+            num[ps], den[ps] = stacking_terms(samples[:, ps], model[:k], fit.trust, loo)
+        if b:  # where the model (and what it leaves of the nearest samples) lights some pixel
+            left = np.maximum(samples[:, ps].astype(dt) - model[:k], 0.0)
+            carried = np.einsum("bn,bnpc->bpc", carry_w.astype(dt), left[carry_ids])
+            lit_vertex[k:] |= (model[k:] + carried).max(axis=(1, 2)) > MODEL_KEEP * peak
+    sm = ShadingModel(albedo=albedo, spec=spec, trust=trust)
+    blend = stored_precision(stacking_weight(num, den, trust, grid)) if loo is not None else trust.copy()
+    if extrapolate:
+        # Model light is kept where it lights some pixel, within reach_deg of a captured direction:
+        # farther out (behind the head) it would cost map texels for light that reaches little.
+        near = (tri.texel_dirs @ verts[:k].T).max(axis=1) >= np.cos(np.radians(reach_deg))
+        active = (lit_vertex[tri.texel_vertices].any(axis=1) & near) | tri.active
+    else:
+        active = tri.active.copy()
+    return sm, blend, active
 
 
 def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
-                  n_az: int, sm: ShadingModel, blend: np.ndarray | None, active: np.ndarray | None, *,
+                  n_az: int, sm: ShadingModel, blend: np.ndarray, active: np.ndarray, *,
                   trend: bool = True, extrapolate: bool = True, paper_adaptation: bool = False,
-                  spline: bool = True, reach_deg: float = MODEL_REACH_DEG, backend: str = "opencl",
-                  half: bool = False, progress=None, vertex_vis: np.ndarray | None = None, loo=None,
-                  grid: np.ndarray | None = None, return_blend: bool = False):
-    """The maps of :func:`model_maps` from its fits: the shading model ``sm``, the spline
-    ``blend`` (P,) and the kept texels ``active`` (T,) bool; ``blend`` None with ``loo`` (the
-    spline's leave-one-out weights) fits it here (stacking), ``active`` None chooses the texels
-    the model lights (within ``reach_deg``). Returns (maps, the triangulation whose ``active``
-    texels they hold[, blend with ``return_blend``])."""
+                  spline: bool = True, backend: str = "opencl", half: bool = False, progress=None):
+    """The maps of :func:`model_maps` from its fits (:func:`fit_model`: the shading model ``sm``,
+    the spline ``blend`` (P,), the kept texels ``active`` (T,) bool), for these pixels (any
+    subset of the fitted ones, with their fits). Returns (maps, the triangulation whose
+    ``active`` texels they hold)."""
     k, p = samples.shape[:2]
     verts = tri.vertices
     b = len(verts) - k
-    if vertex_vis is None:
-        vertex_vis = (np.ones((p, len(verts)), dtype=np.float32) if horizon is None else
-                      visibility_at(horizon, n_az, tri.map_size, tri.vertex_texel, backend=backend))
     trust = sm.trust
-    open_sky = trust < 0.5
-    if horizon is not None and open_sky.any():
-        # Where the model does not explain the samples, neither does its geometry's shadowing:
-        # those pixels interpolate without visibility (an open sky: every light visible).
-        horizon = np.where(open_sky[:, None], np.float32(OPEN_SKY), horizon).astype(np.float32)
     dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
     n = np.asarray(normals, dtype=dt)
     verts_dt = verts.astype(dt)
     carry_ids, carry_w = carry_weights(verts, k) if b else (None, None)
-    vals = np.zeros((len(verts), p, 3), dtype=dt)
+    n_vals = len(verts) if extrapolate else k
+    vals = np.zeros((n_vals, p, 3), dtype=dt)
     offset = np.zeros((p, 3), dtype=np.float64)
-    lit_vertex = np.zeros(len(verts), dtype=bool)
-    lit_vertex[:k] = True
-    peak = max(float(np.max(samples)) if samples.size else 0.0, 1e-30)
-    stacking = spline and blend is None and loo is not None
-    if blend is None:
-        blend = trust.copy()  # the model path's weight against the spline, per pixel
-    num, den = np.zeros(p), np.zeros(p)
-    if stacking:
-        from .spline import stacking_terms
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
-        vis = vertex_vis[ps]
-        if horizon is not None and open_sky[ps].any():
-            vis = np.where(open_sky[ps, None], np.float32(1.0), vis)
-        model = sm.at(n[ps], verts_dt, vis, ps)  # (V, p, 3)
+        vis = (np.ones((ps.stop - p0, len(verts)), dtype=np.float32) if horizon is None else
+               visibility_at(horizon[ps], n_az, tri.map_size, tri.vertex_texel, backend=backend))
+        chunk_sm = ShadingModel(albedo=sm.albedo[ps], spec=sm.spec[ps], trust=trust[ps])
+        model = _vertex_model(chunk_sm, n[ps], verts_dt, vis, horizon)  # (V, p, 3)
         chunk = samples[:, ps].astype(dt)
-        if b:  # what the model leaves of the nearest samples, carried beyond the hull
+        tw = trust[ps][None, :, None].astype(dt)
+        if trend:  # the trusted share of the model is taken out and added back at each texel
+            both = chunk - tw * model[:k]
+        else:
+            both = chunk
+        if extrapolate and b:
+            # beyond the hull: the model (its untrusted share with the trend) plus what it leaves
+            # of the nearest samples
             left = np.maximum(chunk - model[:k], 0.0)
             carried = np.einsum("bn,bnpc->bpc", carry_w.astype(dt), left[carry_ids])
-        tw = trust[ps][None, :, None].astype(dt)
-        if stacking:
-            num[ps], den[ps] = stacking_terms(samples[:, ps], model[:k], trust[ps], loo)
-        if trend:  # the trusted share of the model is taken out and added back at each texel
-            chunk = chunk - tw * model[:k]
-        virt = (1.0 - tw) * model[k:] if trend else model[k:]  # beyond the hull: the whole model
-        if b:
-            virt = virt + carried
-            lit_vertex[k:] |= (model[k:] + carried).max(axis=(1, 2)) > MODEL_KEEP * peak
-        both = np.concatenate([chunk, virt]) if extrapolate else chunk
+            virt = ((1.0 - tw) * model[k:] if trend else model[k:]) + carried
+            both = np.concatenate([both, virt])
         off = np.maximum(-both.min(axis=0), 0.0)  # (p, 3)
         offset[ps] = off
-        vals[:both.shape[0], ps] = both + off[None]
-    if stacking:
-        from .spline import stacking_weight
-
-        blend = stored_precision(stacking_weight(num, den, trust, grid))
+        vals[:, ps] = both + off[None]
+    if horizon is not None and (trust < 0.5).any():
+        # Where the model does not explain the samples, neither does its geometry's shadowing:
+        # those pixels interpolate without visibility (an open sky: every light visible).
+        horizon = np.where((trust < 0.5)[:, None], np.float32(OPEN_SKY), horizon).astype(np.float32)
     if extrapolate:
-        if active is None:
-            # Model light is kept where it lights some pixel, within reach_deg of a captured
-            # direction: farther out (behind the head) it would cost map texels for light that
-            # reaches little.
-            near = (tri.texel_dirs @ verts[:k].T).max(axis=1) >= np.cos(np.radians(reach_deg))
-            active = (lit_vertex[tri.texel_vertices].any(axis=1) & near) | tri.active
         map_tri = Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
                                 texel_vertices=tri.texel_vertices, texel_weights=tri.texel_weights,
                                 active=np.asarray(active, dtype=bool), map_size=tri.map_size)
-        ext = vals
     else:
-        map_tri, ext = tri, vals[:k]
-        if active is not None:
-            map_tri = Triangulation(vertices=verts, n_samples=k, faces=tri.faces, texel_vertices=tri.texel_vertices,
-                                    texel_weights=tri.texel_weights, active=np.asarray(active, dtype=bool),
-                                    map_size=tri.map_size)
+        map_tri = Triangulation(vertices=verts, n_samples=k, faces=tri.faces, texel_vertices=tri.texel_vertices,
+                                texel_weights=tri.texel_weights, active=np.asarray(active, dtype=bool),
+                                map_size=tri.map_size)
     # The kernel takes the offset off and adds the trusted model back at each texel in float32,
     # then stores float16 with ``half`` (the bundle's storage; keeps large captures' memory down).
     coef = trust[:, None] * sm.albedo if trend else np.zeros_like(sm.albedo)
     spec = trust[:, None] * sm.spec if trend else np.zeros_like(sm.spec)
-    maps = compute_maps(ext, normals, map_tri, horizon=horizon, n_az=n_az, adaptation=paper_adaptation,
+    maps = compute_maps(vals, normals, map_tri, horizon=horizon, n_az=n_az, adaptation=paper_adaptation,
                         backend=backend, half=half, trend=(offset, coef, spec), progress=progress)
     act = np.flatnonzero(map_tri.active)
     tdirs = map_tri.texel_dirs[act]
@@ -561,7 +579,7 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
                 maps[ps, :, :act.size] = np.clip(m, 0.0, None)
     if not np.isfinite(maps).all():
         raise ArithmeticError("non-finite reflectance from the shading model; this is a bug, please report it")
-    return (maps, map_tri, blend) if return_blend else (maps, map_tri)
+    return maps, map_tri
 
 
 def _blend_spline(m: np.ndarray, samples: np.ndarray, weight: np.ndarray, inside: np.ndarray,

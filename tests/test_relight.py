@@ -181,9 +181,8 @@ def test_half_decode_matches_numpy_for_every_finite_half():
 
 
 def test_bundles_store_no_subnormal_halves(small_bundle):
-    from relight.numerics import HALF_TINY
-
     from relight.kernels.transport import dequantise_basis
+    from relight.numerics import HALF_TINY
 
     arrays = small_bundle.arrays
     assert "maps_rows" not in arrays and arrays["transport_v"].dtype == np.int8  # the default: a recipe
