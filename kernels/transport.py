@@ -414,8 +414,8 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
     met = np.flatnonzero(est <= 0.5 * store_tolerance)
     cap = min(k_all, (int(met[0]) + 1 if met.size else k_all) + 16)
     u = vecs[:, :cap].astype(np.float32)
-    lights = np.stack(envs, axis=2).astype(np.float32)  # (T, 3, E)
-    rest_l = np.stack(rests, axis=2).astype(np.float32)
+    lights = np.ascontiguousarray(np.stack(envs, axis=2).astype(np.float32))  # (T, 3, E)
+    rest_l = np.ascontiguousarray(np.stack(rests, axis=2).astype(np.float32))
     coef = np.einsum("tk,tce->kce", u.astype(np.float64), rest_l.astype(np.float64))  # (cap, 3, E)
     n_env = len(envs)
     v = np.zeros((n_pix, 3, cap), dtype=np.float32)
@@ -428,13 +428,15 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
         n = m.shape[0]
         vc = (m.reshape(-1, n_t) @ u).reshape(n, 3, cap)
         v[c0:c0 + n] = vc
-        full = np.einsum("pct,tce->pce", m, lights)  # the exact relights of this chunk
-        total += np.einsum("pce,pce->e", full, full, dtype=np.float64)
-        r = np.einsum("pct,tce->pce", m, rest_l)  # what the rank part must relight
-        rr += np.einsum("pce,pce->ce", r, r, dtype=np.float64)
-        vtr += np.einsum("pck,pce->kce", vc, r, dtype=np.float64)
-        for c in range(3):
-            vtv[c] += vc[:, c].T.astype(np.float64) @ vc[:, c]
+        for c in range(3):  # per channel, as BLAS products
+            mc = np.ascontiguousarray(m[:, c])  # (n, T)
+            full = mc @ lights[:, c]  # (n, E) the exact relights of this chunk
+            total += np.einsum("pe,pe->e", full, full, dtype=np.float64)
+            r = mc @ rest_l[:, c]  # what the rank part must relight
+            rr[c] += np.einsum("pe,pe->e", r, r, dtype=np.float64)
+            vcc = np.ascontiguousarray(vc[:, c])  # (n, cap)
+            vtr[:, c] += vcc.T @ r
+            vtv[c] += vcc.T @ vcc
         if progress is not None:
             progress(n)
     # Residual energy of each rank: ||r||^2 - 2 c.(V^T r) + c^T (V^T V) c over the first k ranks.

@@ -65,8 +65,10 @@ def test_video_capture_meets_the_accuracy_goals(synth_capture, tmp_path):
     # every texel on the device, a few texels in NumPy - agree.
     assert not {"maps", "maps_rows", "samples"} & set(bundle.arrays) and bundle.recipe is not None
     assert maps.shape[0] == bundle.pixels.size == bundle.normal.shape[0]
+    from relight.numerics import HALF_TINY  # rows are flushed below it, as the kernels read them
+
     np.testing.assert_allclose(bundle.texel_rows([5])[0].astype(np.float32), maps[:, :, 5].T.astype(np.float32),
-                               rtol=2e-3, atol=1e-5)
+                               rtol=2e-3, atol=HALF_TINY)
     assert bundle.landmarks.shape[0] > 20
 
 
