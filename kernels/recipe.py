@@ -61,6 +61,8 @@ class RecipeRows:
             h = np.asarray(recipe.horizon)
             if h.dtype != np.uint8:
                 h = rcp.encode_horizon(h)
+            if recipe.horizon_index is not None:
+                h = h[np.asarray(recipe.horizon_index)]  # a row per pixel on the device
             self._horizon = dev(h, np.uint8)
         else:
             self._horizon = dev(np.zeros(4, np.uint8))

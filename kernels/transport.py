@@ -46,8 +46,9 @@ MAX_RANK = 256
 #: --store-tolerance``; the Relighter's default tolerance): ranks are stored up to the first whose
 #: validation error, 8-bit storage noise included, meets it. Finer tolerances use the exact maps.
 STORE_TOLERANCE = 0.01
-#: Ranks are chosen at this share of the tolerance before quantising (room for its noise).
-STORE_MARGIN = 0.85
+#: Ranks are projected up to the one meeting this share of the tolerance (plus 16) before the
+#: 8-bit noise is measured and only the ranks the tolerance needs are kept.
+STORE_MARGIN = 0.5
 #: Steps of the 8-bit basis: values are stored as round(127 v / max|v|) per pixel and channel.
 V_LEVELS = 127
 
@@ -283,8 +284,8 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     """The compact transport of pixel-major maps (P, 3, Tp) over ``texels`` (T <= Tp), or of
     texel-major maps (T, 3, P) with ``texel_major`` (a capture holds only those).
 
-    Ranks are kept up to the first meeting ``STORE_MARGIN x store_tolerance`` on the validation
-    set (at most ``max_rank``). With ``quantise`` the basis images are rounded to 8 bits as a
+    Ranks are kept up to the first meeting ``store_tolerance`` on the validation set (at most
+    ``max_rank``). With ``quantise`` the basis images are rounded to 8 bits as a
     bundle stores them (:func:`quantise_basis`; ``Transport.q`` / ``Transport.q_scale`` hold that
     form) and ``rank_errors`` include that rounding's noise (its expected energy added to the
     truncation's), so a rank meeting a tolerance meets it as stored.
@@ -313,14 +314,15 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
         err = np.sqrt(np.clip(tail, 0.0, None) / total)
         errors = np.maximum(errors, err)
         per_env.append((total, tail, np.cumsum((vecs.T @ rest) ** 2, axis=0)))  # (k_all, 3) coefficient energy
-    for margin in (STORE_MARGIN, 0.7, 0.5, 0.0):  # more ranks while 8-bit noise keeps the tolerance out of reach
-        met = np.flatnonzero(errors <= margin * store_tolerance)
-        k = int(met[0]) + 1 if met.size else k_all
-        tr = _project(maps, u_all=vecs, k=k, n_t=n_t, texel_major=texel_major, sig2=sig2, errors=errors,
-                      direct=direct, quantise=quantise, per_env=per_env)
-        if not quantise or k == k_all or tr.rank_for(store_tolerance) is not None:
-            return tr
-    return tr
+    met = np.flatnonzero(errors <= STORE_MARGIN * store_tolerance)
+    cap = min(k_all, (int(met[0]) + 1 if met.size else k_all) + 16)  # room for the 8-bit noise
+    tr = _project(maps, u_all=vecs, k=cap, n_t=n_t, texel_major=texel_major, sig2=sig2, errors=errors,
+                  direct=direct, quantise=quantise, per_env=per_env)
+    k = tr.rank_for(store_tolerance)
+    if not quantise or k is None or k == cap:
+        return tr
+    return _project(maps, u_all=vecs, k=k, n_t=n_t, texel_major=texel_major, sig2=sig2, errors=errors,
+                    direct=direct, quantise=quantise, per_env=per_env)
 
 
 def _project(maps, *, u_all, k, n_t, texel_major, sig2, errors, direct, quantise, per_env) -> Transport:
@@ -411,7 +413,7 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
             a2 = np.sum(sig2[:, None] * (vecs.T @ rest) ** 2, axis=1)
             tail = max(float(np.sum(rest * (g @ rest))), 0.0) - np.cumsum(a2)
             est = np.maximum(est, np.sqrt(np.clip(tail, 0.0, None) / total))
-    met = np.flatnonzero(est <= 0.5 * store_tolerance)
+    met = np.flatnonzero(est <= STORE_MARGIN * store_tolerance)
     cap = min(k_all, (int(met[0]) + 1 if met.size else k_all) + 16)
     u = vecs[:, :cap].astype(np.float32)
     lights = np.ascontiguousarray(np.stack(envs, axis=2).astype(np.float32))  # (T, 3, E)
@@ -447,15 +449,13 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
             cross = np.cumsum(cc * vtr[:, c, e])
             quad = np.diag(np.cumsum(np.cumsum(cc[:, None] * vtv[c] * cc[None, :], axis=0), axis=1))
             resid[:, e] += rr[c, e] - 2.0 * cross + quad
-    ok = total > 0
-    for margin in (STORE_MARGIN, 0.7, 0.5, 0.0):
-        err0 = np.sqrt(np.clip(resid[:, ok], 0.0, None) / total[ok]).max(axis=1) if ok.any() else np.zeros(cap)
-        met = np.flatnonzero(err0 <= margin * store_tolerance)
-        k = int(met[0]) + 1 if met.size else cap
-        tr = _stream_transport(v, u, k, sig2, resid, total, coef, direct)
-        if k == cap or tr.rank_for(store_tolerance) is not None:
-            return tr
-    return tr
+    # Every projected rank stored 8-bit, its noise in the errors; then only the ranks the
+    # tolerance needs (fewer ranks: a smaller unit per pixel, so no more noise).
+    tr = _stream_transport(v, u, cap, sig2, resid, total, coef, direct)
+    k = tr.rank_for(store_tolerance)
+    if k is None or k == cap:
+        return tr
+    return _stream_transport(v, u, k, sig2, resid, total, coef, direct)
 
 
 def _stream_transport(v_all: np.ndarray, u: np.ndarray, k: int, sig2, resid, total, coef, direct) -> Transport:

@@ -33,7 +33,9 @@ landmarks               (N, 2) float32               trackable points of the ref
 light_dirs              (K, 3) float32               sample light directions (camera space)
 samples_code (r)        (K, P, 3) uint8              the light samples, 8-bit codes (:mod:`relight.pipeline.recipe`)
 samples_scale (r)       (P, 3) float16               their per-pixel, per-channel scale (linear, flash units)
-horizon_code (r)        (P, n_az) uint8              horizon elevations (visibility; absent without it)
+horizon_code (r)        (R, n_az) uint8              horizon elevations (visibility; absent without it)
+horizon_index (r)       (P,) int32                   each pixel's row of horizon_code (large heads share a row
+                                                     per 2x2 pixels; absent: a row per pixel)
 model_albedo (r)        (P, 3) float16               the shading model's albedo, linear, flash units
 model_spec (r)          (P, 3) float16               its specular lobe's weight
 model_trust (r)         (P,) float16                 its trust, 0-1
@@ -91,8 +93,11 @@ ALIGN = 64
 _PREFIX = struct.Struct("<8sIIQ")
 #: Largest header accepted (a corrupt length must not make us allocate gigabytes).
 MAX_HEADER = 64 << 20
-REQUIRED = ("pixels", "mask_crop", "ambient", "background", "normal", "albedo", "depth", "light_dirs",
-            "map_texels")
+REQUIRED = ("pixels", "mask_crop", "ambient", "normal", "albedo", "depth", "light_dirs", "map_texels")
+#: The reference frame: a JPEG (format 3) or raw pixels (before).
+BACKGROUND = ("background_jpeg", "background")
+#: JPEG quality of the stored reference frame (sRGB, display and tracking only: never relit).
+BACKGROUND_QUALITY = 95
 #: A bundle holds its maps (``maps_rows``) or all of these (their recipe).
 RECIPE = ("samples_code", "samples_scale", "model_albedo", "model_spec", "model_trust", "spline_blend",
           "tri_vertices", "tri_faces", "tri_texel_vertices", "tri_texel_weights")
@@ -187,10 +192,22 @@ class Bundle:
         if not m.any():
             return None
         x, y = self.crop_origin
-        bg = decode_srgb8(np.asarray(self.arrays["background"])[y:y + m.shape[0], x:x + m.shape[1]])
+        bg = decode_srgb8(self.background[y:y + m.shape[0], x:x + m.shape[1]])
         amb = float(np.median(luminance(a[m])))
         ref = float(np.median(luminance(bg[m])))
         return a if amb > 0.0 and amb >= ROOM_LIGHT_MIN_SHARE * ref else None
+
+    @property
+    def background(self) -> np.ndarray:
+        """(H, W, 3) uint8 sRGB reference frame (decoded once from the stored JPEG)."""
+        if "background" in self.arrays:
+            return self.arrays["background"]
+        cached = self.__dict__.get("_background")
+        if cached is None:
+            cached = decode_background(np.asarray(self.arrays["background_jpeg"]), self.frame_size)
+            cached.flags.writeable = False
+            self.__dict__["_background"] = cached
+        return cached
 
     @property
     def n_pixels(self) -> int:
@@ -295,6 +312,56 @@ class Bundle:
         return out.reshape(h, w, 3)
 
 
+def encode_background(rgb: np.ndarray) -> np.ndarray:
+    """(N,) uint8 JPEG of an (H, W, 3) uint8 sRGB frame (quality BACKGROUND_QUALITY, 4:4:4)."""
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]),
+                           [cv2.IMWRITE_JPEG_QUALITY, BACKGROUND_QUALITY,
+                            cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444])
+    if not ok:
+        raise ArithmeticError("could not encode the reference frame as JPEG; this is a bug, please report it")
+    return buf.reshape(-1)
+
+
+def jpeg_size(data: np.ndarray) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's frame header (SOFn), or None when there is none."""
+    b = memoryview(np.ascontiguousarray(data, dtype=np.uint8)).tobytes()
+    if b[:2] != b"\xff\xd8":
+        return None
+    i = 2
+    while i + 4 <= len(b):
+        if b[i] != 0xFF:
+            return None
+        marker = b[i + 1]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            i += 2
+            continue
+        length = int.from_bytes(b[i + 2:i + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            if i + 9 > len(b):
+                return None
+            return int.from_bytes(b[i + 7:i + 9], "big"), int.from_bytes(b[i + 5:i + 7], "big")
+        i += 2 + length
+    return None
+
+
+def decode_background(data: np.ndarray, frame_size: tuple[int, int]) -> np.ndarray:
+    """The (H, W, 3) uint8 sRGB frame of :func:`encode_background` data; its header must say
+    ``frame_size`` (width, height) before anything is decoded (a hostile file cannot make us
+    allocate more)."""
+    import cv2
+
+    size = jpeg_size(data)
+    if size is None or tuple(size) != tuple(frame_size):
+        raise InputError(f"the bundle's reference frame is not a {frame_size[0]}x{frame_size[1]} JPEG "
+                         f"(header: {size}); the bundle is damaged - capture it again")
+    img = cv2.imdecode(np.ascontiguousarray(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    if img is None or img.shape[:2] != (frame_size[1], frame_size[0]):
+        raise InputError("the bundle's reference frame does not decode; the bundle is damaged - capture it again")
+    return np.ascontiguousarray(img[..., ::-1])
+
+
 def _to_half(a: np.ndarray) -> np.ndarray:
     """float16 of non-negative maps, halves below the normal range flushed to 0 (as the kernels read them)."""
     from relight.numerics import flush_subnormal_halves
@@ -309,6 +376,8 @@ def _dtype_str(a: np.ndarray) -> str:
 def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray]) -> Path:
     """Write a bundle atomically. ``arrays`` values are converted to little-endian C order."""
     missing = [k for k in REQUIRED if k not in arrays]
+    if not any(k in arrays for k in BACKGROUND):
+        missing.append("background_jpeg")
     if "maps_rows" not in arrays:
         missing += [k for k in RECIPE if k not in arrays]
     if missing:
@@ -393,6 +462,8 @@ def load_bundle(path: str | os.PathLike, *, verify: bool = True) -> Bundle:
         raise InputError(f"{path}: header does not describe a relight bundle")
     arrays = {}
     need = REQUIRED + (() if "maps_rows" in doc["arrays"] else RECIPE)
+    if not any(k in doc["arrays"] for k in BACKGROUND):
+        need = need + ("background_jpeg",)
     for name in need:
         if name not in doc["arrays"]:
             raise InputError(f"{path}: field {name!r} is missing; the bundle is incomplete")

@@ -334,11 +334,14 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
     pix = np.flatnonzero(geo.mask)
     samples = np.ascontiguousarray(prep.images.reshape(k, -1, 3)[:, pix])
     prep.images = None  # the full sample images are the largest thing held: the head's pixels suffice now
-    normals = geo.normal.reshape(-1, 3)[pix]
+    from .reflectance import stored_precision
+
+    # The normals as the bundle stores them (float16): its recipe makes the maps from those.
+    normals = stored_precision(geo.normal.reshape(-1, 3)[pix].astype(np.float32))
     tri = reflectance.triangulate(prep.dirs, opts.map_size)
     horizon = None
     if opts.visibility and opts.method == "full":
-        horizon = horizon_for(geo.depth, geo.mask)
+        horizon = horizon_rows(geo.depth, geo.mask)
         timings["horizon"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     done = [0]
@@ -353,7 +356,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
     recipe = made.get("recipe")
     from relight.kernels import transport
 
-    from .reflectance import stored_precision
+    from .bundle import encode_background
 
     rows = None
     if maps is None:
@@ -389,9 +392,9 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
     arrays = {
         "pixels": pix.astype(np.int32), "mask_crop": geo.mask,
         "ambient": stored_precision(prep.ambient.astype(np.float32)).astype(np.float16),
-        "background": prep.background, "normal": normals.astype(np.float32),
+        "background_jpeg": encode_background(prep.background), "normal": normals.astype(np.float16),
         "albedo": stored_precision(geo.albedo.reshape(-1, 3)[pix].astype(np.float32)).astype(np.float16),
-        "depth": geo.depth.astype(np.float32),
+        "depth": stored_precision(geo.depth.astype(np.float32)).astype(np.float16),
         "landmarks": landmarks, "light_dirs": prep.dirs.astype(np.float32),
         "map_texels": texels.astype(np.int32), "tri_vertices": tri.vertices.astype(np.float64),
         "tri_faces": tri.faces.astype(np.int32),
@@ -442,7 +445,8 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     The samples are divided by ``scale``, a power of two (1 for ordinary captures; see
     :func:`relight.pipeline.reflectance.storage_scale`) so that maps and samples fit float16;
     the bundle records it as ``sample_scale`` and the renderer multiplies its light by it.
-    ``horizon``: the pixels' horizon table for visibility, or None.
+    ``horizon``: the pixels' horizon table for visibility (P, n_az), or (table, index) as
+    :func:`horizon_rows` gives it, or None.
 
     Samples and horizons are quantised first, as the bundle stores them
     (:mod:`relight.pipeline.recipe`), and everything is made from the stored values. With
@@ -460,7 +464,13 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
         samples = (samples / np.float32(scale)).astype(np.float32)
     codes, code_scale = rcp.encode_samples(samples)
     samples = rcp.decode_samples(codes, code_scale)
+    horizon_index = None
+    if isinstance(horizon, tuple):
+        horizon, horizon_index = horizon
     horizon = rcp.quantise_horizon(horizon)
+    horizon_table = horizon
+    if horizon is not None and horizon_index is not None:
+        horizon = horizon[horizon_index]  # a row per pixel for the fits and maps
     if opts.method in methods.FITTED:
         front = tri.texel_dirs[:, 2] > 0.0
         maps = methods.fit_and_evaluate(opts.method, tri.vertices[:tri.n_samples], samples, tri.texel_dirs[front])
@@ -475,7 +485,8 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
         recipe = None
         if recipe_out is not None and not (adapt and not trend):  # the paper's adaptation: maps kept
             recipe = recipe_out["recipe"] = rcp.Recipe(
-                codes=codes, scale=code_scale, normals=np.asarray(normals, np.float32), horizon=horizon,
+                codes=codes, scale=code_scale, normals=np.asarray(normals, np.float32), horizon=horizon_table,
+                horizon_index=horizon_index,
                 albedo=sm.albedo.astype(np.float32), spec=sm.spec.astype(np.float32),
                 trust=sm.trust.astype(np.float32), blend=np.asarray(blend, np.float32), tri=tri,
                 active=active, n_az=HORIZON_DIRS, trend=bool(trend), extrapolate=bool(opts.extrapolation),
@@ -509,12 +520,20 @@ def horizon_for(depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
     Large heads are done on a half-resolution height field (heights halved too, so slopes are
     unchanged): visibility varies slowly across a face and this is about 8x cheaper.
     """
+    table, index = horizon_rows(depth, mask)
+    return table if index is None else table[index]
+
+
+def horizon_rows(depth: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`horizon_for` as (table (R, HORIZON_DIRS) float32, index (P,) int32 of each pixel's
+    row, or None when there is a row per pixel): large heads share a row per 2x2 pixels (what a
+    bundle stores: a quarter of the bytes)."""
     from relight.kernels.heightfield import NO_SURFACE, horizon_table
 
     pix = np.flatnonzero(mask)
     if pix.size <= HALF_RES_PIXELS:
         hgt = np.where(mask, depth, NO_SURFACE).astype(np.float32)
-        return np.arctan(horizon_table(hgt, pix.astype(np.int32), HORIZON_DIRS))
+        return np.arctan(horizon_table(hgt, pix.astype(np.int32), HORIZON_DIRS)), None
     h, w = mask.shape
     h2, w2 = (h + 1) // 2, (w + 1) // 2
     m = np.zeros((h2 * 2, w2 * 2), dtype=np.float32)
@@ -528,7 +547,7 @@ def horizon_for(depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
     row_of = -np.ones(h2 * w2, dtype=np.int64)
     row_of[low_pix] = np.arange(low_pix.size)
     ys, xs = pix // w, pix % w
-    return np.arctan(table[row_of[(ys // 2) * w2 + xs // 2]])
+    return np.arctan(table), row_of[(ys // 2) * w2 + xs // 2].astype(np.int32)
 
 
 def _landmarks(prep: Prepared, mask: np.ndarray) -> np.ndarray:

@@ -135,6 +135,7 @@ class Recipe:
     trend: bool = True
     extrapolate: bool = True
     spline: bool = True
+    horizon_index: np.ndarray | None = None  # (P,) row of ``horizon`` per pixel (None: a row each)
 
     @property
     def n_pixels(self) -> int:
@@ -151,14 +152,18 @@ class Recipe:
         """(p, n_az) float32 horizon elevations (decoded when stored as codes), or None."""
         if self.horizon is None:
             return None
-        h = np.asarray(self.horizon[pixels])
+        rows = pixels if self.horizon_index is None else np.asarray(self.horizon_index)[pixels]
+        h = np.asarray(self.horizon)[rows]
         return decode_horizon(h) if h.dtype == np.uint8 else h.astype(np.float32, copy=False)
 
     def subset(self, pixels: np.ndarray) -> Recipe:
         """The recipe of some pixels (an index array or slice)."""
         return Recipe(codes=np.asarray(self.codes)[:, pixels], scale=np.asarray(self.scale)[pixels],
                       normals=np.asarray(self.normals)[pixels],
-                      horizon=None if self.horizon is None else np.asarray(self.horizon)[pixels],
+                      horizon=(None if self.horizon is None else self.horizon if self.horizon_index is not None
+                               else np.asarray(self.horizon)[pixels]),
+                      horizon_index=(None if self.horizon_index is None
+                                     else np.asarray(self.horizon_index)[pixels]),
                       albedo=np.asarray(self.albedo)[pixels], spec=np.asarray(self.spec)[pixels],
                       trust=np.asarray(self.trust)[pixels], blend=np.asarray(self.blend)[pixels], tri=self.tri,
                       active=self.active, n_az=self.n_az, trend=self.trend, extrapolate=self.extrapolate,
@@ -199,11 +204,23 @@ def recipe_from_arrays(arrays: dict, meta: dict, map_size) -> Recipe:
     tri = rf.Triangulation(vertices=verts, n_samples=k, faces=np.asarray(arrays["tri_faces"], dtype=np.int64),
                            texel_vertices=tv, texel_weights=tw, active=(tv < k).any(axis=1), map_size=(w, h))
     opts = meta.get("recipe", {}) if isinstance(meta.get("recipe"), dict) else {}
+    hz, hidx = arrays.get("horizon_code"), arrays.get("horizon_index")
+    if hz is not None and not _horizon_fits(hz, hidx, p):
+        raise InputError("the bundle's horizon fields do not fit its pixels; the bundle is damaged - capture it again")
     return Recipe(codes=codes, scale=arrays["samples_scale"], normals=arrays["normal"],
-                  horizon=arrays.get("horizon_code"), albedo=arrays["model_albedo"], spec=arrays["model_spec"],
+                  horizon=hz, horizon_index=None if hz is None else hidx, albedo=arrays["model_albedo"],
+                  spec=arrays["model_spec"],
                   trust=arrays["model_trust"], blend=arrays["spline_blend"], tri=tri, active=active,
                   n_az=int(opts.get("n_az", 64)), trend=bool(opts.get("trend", True)),
                   extrapolate=bool(opts.get("extrapolate", True)), spline=bool(opts.get("spline", True)))
+
+
+def _horizon_fits(hz: np.ndarray, hidx: np.ndarray | None, p: int) -> bool:
+    if hz.ndim != 2:
+        return False
+    if hidx is None:
+        return hz.shape[0] == p
+    return hidx.shape == (p,) and (p == 0 or (int(np.min(hidx)) >= 0 and int(np.max(hidx)) < hz.shape[0]))
 
 
 def recipe_arrays(recipe: Recipe) -> tuple[dict, dict]:
@@ -223,6 +240,8 @@ def recipe_arrays(recipe: Recipe) -> tuple[dict, dict]:
     if recipe.horizon is not None:
         h = np.asarray(recipe.horizon)
         arrays["horizon_code"] = h if h.dtype == np.uint8 else encode_horizon(h)
+        if recipe.horizon_index is not None:
+            arrays["horizon_index"] = np.asarray(recipe.horizon_index, dtype=np.int32)
     meta = {"n_az": int(recipe.n_az), "trend": bool(recipe.trend), "extrapolate": bool(recipe.extrapolate),
             "spline": bool(recipe.spline), "sample_gamma": SAMPLE_GAMMA}
     return arrays, meta
