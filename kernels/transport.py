@@ -396,7 +396,15 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
         for c0 in range(0, index.size, chunk):
             yield np.asarray(make(index[c0:c0 + chunk])[:, :, :n_t], dtype=np.float32)
 
-    g = _syrk_sum((m.reshape(-1, n_t) for m in blocks(sub)), n_t)
+    # The subsample's maps are kept (float16, at most gram_pixels of them) for the second pass.
+    sub_maps = np.empty((sub.size, 3, n_t), dtype=np.float16)
+
+    def keep(index):
+        for c0, m in zip(range(0, index.size, chunk), blocks(index), strict=True):
+            sub_maps[c0:c0 + m.shape[0]] = m
+            yield m.reshape(-1, n_t)
+
+    g = _syrk_sum(keep(sub), n_t)
     k_all = min(max_rank, n_t)
     w, vecs = eigh(g, subset_by_index=[n_t - k_all, n_t - 1], driver="evr")
     order = np.argsort(w)[::-1]
@@ -425,11 +433,18 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
     rr = np.zeros((3, n_env))
     vtr = np.zeros((cap, 3, n_env))
     vtv = np.zeros((3, cap, cap))
-    everything = np.arange(n_pix)
-    for c0, m in zip(range(0, n_pix, chunk), blocks(everything), strict=True):
+    rest_pix = np.setdiff1d(np.arange(n_pix), sub, assume_unique=True)
+
+    def second_pass():
+        for c0 in range(0, sub.size, chunk):
+            yield sub[c0:c0 + chunk], np.asarray(sub_maps[c0:c0 + chunk], dtype=np.float32)
+        for c0, m in zip(range(0, rest_pix.size, chunk), blocks(rest_pix), strict=True):
+            yield rest_pix[c0:c0 + m.shape[0]], m
+
+    for index, m in second_pass():
         n = m.shape[0]
         vc = (m.reshape(-1, n_t) @ u).reshape(n, 3, cap)
-        v[c0:c0 + n] = vc
+        v[index] = vc
         for c in range(3):  # per channel, as BLAS products
             mc = np.ascontiguousarray(m[:, c])  # (n, T)
             full = mc @ lights[:, c]  # (n, E) the exact relights of this chunk
