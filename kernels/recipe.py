@@ -95,7 +95,7 @@ class RecipeRows:
             dirs = r.tri.texel_dirs[todo]
             res: list[np.ndarray | None] = [None] * len(todo)
             if r.spline:
-                inside = np.flatnonzero(rf.inside_hull(r.tri.vertices[:k], dirs))
+                inside = np.flatnonzero(rf.spline_texels(r.tri.texel_vertices[todo], k))
                 if inside.size:
                     w_ = spline_weights(r.tri.vertices[:k], dirs[inside])
                     if w_ is not None:

@@ -311,7 +311,7 @@ def texel_rows(recipe: Recipe, texels: np.ndarray, *, pixels=None) -> np.ndarray
     # The spline part: texels inside the samples' hull, for pixels whose blend is below 1.
     spl_w = None
     if recipe.spline:
-        inside = np.flatnonzero(rf.inside_hull(verts[:k], tdirs))
+        inside = np.flatnonzero(rf.spline_texels(tv, k))
         if inside.size:
             w_ = spline_weights(verts[:k], tdirs[inside])
             if w_ is not None:

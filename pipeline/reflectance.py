@@ -35,7 +35,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import ConvexHull
 
 from relight.directions import direction_to_equirect_uv, equirect_directions, equirect_solid_angles
 from relight.errors import InputError
@@ -55,6 +54,14 @@ VIS_SOFT_TEXELS = 1.0
 #: Pixels and texels per chunk of the NumPy reference (memory bound).
 PIXEL_CHUNK = 4096
 TEXEL_CHUNK = 256
+
+
+def _convex_hull(points: np.ndarray, **kw):
+    """scipy's ConvexHull, imported on first use (scipy.spatial takes ~0.9 s to import: a
+    bundle's first frame does not need it)."""
+    from scipy.spatial import ConvexHull
+
+    return ConvexHull(points, **kw)
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -135,7 +142,7 @@ def inside_hull(dirs: np.ndarray, query: np.ndarray) -> np.ndarray:
 
     pts = np.vstack([np.zeros(3), dirs])
     try:
-        hull = ConvexHull(pts)
+        hull = _convex_hull(pts)
     except QhullError:
         return np.zeros(len(query), dtype=bool)
     at_origin = np.any(hull.simplices == 0, axis=1)
@@ -172,7 +179,7 @@ def triangulate(dirs: np.ndarray, map_size: tuple[int, int] = DEFAULT_MAP_SIZE) 
     if len(verts) < 4:
         raise InputError("the light directions cover the whole sphere too densely to triangulate; "
                          "this should not happen - report it")
-    faces = ConvexHull(verts, qhull_options="Qt QJ").simplices.astype(np.int64)
+    faces = _convex_hull(verts, qhull_options="Qt QJ").simplices.astype(np.int64)
     w, h = map_size
     tdirs = equirect_directions(w, h).reshape(-1, 3)
     tv, wts = _locate(verts, faces, tdirs)
@@ -196,7 +203,7 @@ def _cap_faces(dirs: np.ndarray) -> np.ndarray | None:
     from scipy.spatial import QhullError
 
     try:
-        hull = ConvexHull(np.vstack([np.zeros(3), dirs]), qhull_options="Qt QJ")
+        hull = _convex_hull(np.vstack([np.zeros(3), dirs]), qhull_options="Qt QJ")
     except QhullError:
         return None
     keep = ~np.any(hull.simplices == 0, axis=1)
@@ -566,7 +573,7 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     if spline and (blend < 1.0).any():
         from .spline import spline_weights
 
-        inside = np.flatnonzero(inside_hull(verts[:k], tdirs))
+        inside = np.flatnonzero(spline_texels(map_tri.texel_vertices[act], k))
         sw = spline_weights(verts[:k], tdirs[inside]) if inside.size else None
         if sw is not None:
             smooth = (inside, sw, map_tri.texel_vertices[act[inside]])
@@ -580,6 +587,13 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     if not np.isfinite(maps).all():
         raise ArithmeticError("non-finite reflectance from the shading model; this is a bug, please report it")
     return maps, map_tri
+
+
+def spline_texels(texel_vertices: np.ndarray, k: int) -> np.ndarray:
+    """(n,) bool: the texels the spline blends into - those whose triangle is made of samples
+    (vertex ids < k), i.e. inside the samples' hull (:func:`triangulate` gives those texels the
+    samples' own cap triangles; a triangle of three samples lies inside their hull)."""
+    return (np.asarray(texel_vertices) < k).all(axis=1)
 
 
 def _blend_spline(m: np.ndarray, samples: np.ndarray, weight: np.ndarray, inside: np.ndarray,

@@ -39,18 +39,41 @@ def spline_weights(dirs: np.ndarray, query: np.ndarray) -> np.ndarray | None:
     """(Q, K) float64 weights of the thin-plate spline through K unit light directions at Q
     query directions (rows sum to 1; weights may be negative). None when the directions do not
     determine one (fewer than 4, or all on one plane) - callers keep linear interpolation."""
-    from scipy.interpolate import RBFInterpolator
-
     dirs = np.asarray(dirs, dtype=np.float64)
+    query = np.asarray(query, dtype=np.float64).reshape(-1, 3)
     k = len(dirs)
     if k < 4:
         return None
+    # The interpolant scipy's RBFInterpolator(kernel="thin_plate_spline", degree=1) builds,
+    # written out (scipy.interpolate takes ~0.4 s to import; a bundle's first frame needs this):
+    # [[Phi, P], [P^T, 0]] [c; a] = [I; 0], the polynomial's domain shifted and scaled to [-1, 1].
+    lo, hi = dirs.min(axis=0), dirs.max(axis=0)
+    shift, scale = (hi + lo) / 2, (hi - lo) / 2
+    scale[scale == 0.0] = 1.0
+
+    def poly(x):
+        return np.hstack([np.ones((len(x), 1)), (x - shift) / scale])
+
+    system = np.zeros((k + 4, k + 4))
+    system[:k, :k] = _tps(np.linalg.norm(dirs[:, None] - dirs[None], axis=2))
+    system[:k, k:] = poly(dirs)
+    system[k:, :k] = system[:k, k:].T
+    rhs = np.zeros((k + 4, k))
+    rhs[:k] = np.eye(k)
     try:
-        w = RBFInterpolator(dirs, np.eye(k), kernel="thin_plate_spline", degree=1)(
-            np.asarray(query, dtype=np.float64))
-    except (np.linalg.LinAlgError, ValueError):
+        coef = np.linalg.solve(system, rhs)
+    except np.linalg.LinAlgError:
         return None
+    w = np.hstack([_tps(np.linalg.norm(query[:, None] - dirs[None], axis=2)), poly(query)]) @ coef
     return w if np.isfinite(w).all() else None
+
+
+def _tps(r: np.ndarray) -> np.ndarray:
+    """The thin-plate kernel r^2 log r (0 at r = 0)."""
+    out = np.zeros_like(r)
+    pos = r > 0
+    out[pos] = r[pos] ** 2 * np.log(r[pos])
+    return out
 
 
 def spline_values(samples: np.ndarray, weights: np.ndarray, gamma: float = SPLINE_GAMMA) -> np.ndarray:
