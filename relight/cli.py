@@ -287,7 +287,9 @@ def _add_render(sub) -> None:
     acc = p.add_mutually_exclusive_group()
     acc.add_argument("--tolerance", type=float, default=0.01,
                      help="relative L2 error allowed against the exact sum (picks the compact rank)")
-    acc.add_argument("--exact", action="store_true", help="sum over the full reflectance maps")
+    acc.add_argument("--exact", action="store_true",
+                     help="sum over the full reflectance maps (a bundle captured without --keep-maps makes "
+                          "them from its recipe first: about as long as the capture's maps stage)")
     p.add_argument("--background", choices=("none", "reference"), default="none",
                    help="outside the face: black, or the bundle's no-flash reference frame")
     p.add_argument("--ambient", action="store_true",
