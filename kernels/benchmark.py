@@ -264,7 +264,7 @@ def _bench_compact(tol, rl, env, e_img, rots, mask, truth, p, probe, quick) -> d
     v32 = np.ascontiguousarray(per_pixel)
     coef = np.random.default_rng(0).random((3, k)).astype(np.float32)
     direct, _ = split_direct(lp, rl.transport.direct)
-    rows32 = read_halves(rl.rows[direct])  # (n, 3, P)
+    rows32 = read_halves(rl.direct_rows(direct))  # (n, 3, P)
     dl = lp[direct].astype(np.float32)
     frame = np.zeros_like(rl.frame)
     flat = frame.reshape(-1, 3)
