@@ -116,6 +116,7 @@ class RecipeRows:
     def _launch(self, texels: np.ndarray, slots: np.ndarray) -> None:
         import pyopencl as cl
 
+        from relight.pipeline import recipe as rcp
         from relight.pipeline.reflectance import SPEC_EXPONENT
         from relight.pipeline.spline import SPLINE_GAMMA
 
@@ -141,7 +142,7 @@ class RecipeRows:
         pos_of = {t: i for i, t in enumerate(positions)}
         if len(positions) > MAX_POS or len(verts) > MAX_MV:
             raise RuntimeError("texel_rows: too many vertices for one launch; this is a bug, please report it")
-        az = _neighbour_azimuths(self._taz, tri.map_size, np.asarray(positions))
+        az = np.ascontiguousarray(self._taz[rcp.neighbourhoods(tri.map_size, np.asarray(positions)).ravel()])
         mv_dir = np.zeros((len(verts), 4), np.float32)
         mv_kind = -np.ones((len(verts), 4), np.int32)
         mv_carry = np.zeros((len(verts), 4), np.float32)
@@ -188,11 +189,3 @@ class RecipeRows:
                     np.float32(self.open_elev), buf(slots.astype(np.int32)),
                     self.rows_buf)
 
-
-def _neighbour_azimuths(taz: np.ndarray, map_size, positions: np.ndarray) -> np.ndarray:
-    """(n_pos * 9, 4) float32: the texel azimuth records (:func:`relight.kernels.maps._texel_azimuths`)
-    of each position's 3x3 neighbourhood (wrapping in azimuth, clamped at the poles)."""
-    w, h = map_size
-    y, x = np.divmod(positions.astype(np.int64), w)
-    ids = np.stack([np.clip(y + dy, 0, h - 1) * w + (x + dx) % w for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=1)
-    return np.ascontiguousarray(taz[ids.ravel()], dtype=np.float32)

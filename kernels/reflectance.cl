@@ -12,20 +12,6 @@
 
 #define MIN_COS 0.1f
 
-/* atan() is a slow library call in PoCL 3.0; this odd rational approximation is within
- * 1e-5 rad, far below the visibility step's softness (a texel, ~5 degrees). */
-inline float fast_atan(float x)
-{
-    float ax = fabs(x);
-    int inv = ax > 1.0f;
-    float z = inv ? 1.0f / ax : ax;
-    float z2 = z * z;
-    float r = z * (0.99997726f + z2 * (-0.33262347f + z2 * (0.19354346f + z2 * (-0.11643287f
-              + z2 * (0.05265332f - z2 * 0.01172120f)))));
-    r = inv ? 0.5f * PI_F - r : r;
-    return copysign(r, x);
-}
-
 __kernel void soft_visibility(
     __global const float *horizon, int n_az,          /* (P, n_az) horizon elevations (radians) */
     __global const float4 *texel_az, int n_tex,       /* (T,) x, y = azimuth columns, z = blend, w = elevation */

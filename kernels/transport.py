@@ -27,7 +27,7 @@ from relight.colour import luminance
 from relight.directions import equirect_directions, rotation_matrix
 from relight.envmap import environment_to_lights, load_environment, validate_environment
 from relight.errors import InputError
-from relight.numerics import flush_subnormal_halves, read_halves
+from relight.numerics import flush_subnormal_halves, half_ceil, read_halves
 
 #: Lat-long grid (columns, rows) on which environments become lights; their bright texels
 #: (over PEAK_FACTOR times the mean, at most MAX_PEAKS) stay lights of their own. The maps' own
@@ -253,9 +253,7 @@ def quantise_basis(v: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray]:
     nb, _, kp, blk = v.shape
     vf = read_halves(v[:, :, :rank]) if v.dtype == np.float16 else np.asarray(v[:, :, :rank], np.float32)
     peak = np.abs(vf).max(axis=2) if rank else np.zeros((nb, 3, blk), np.float32)  # (nb, 3, 16)
-    scale = peak.astype(np.float16)
-    low = scale.astype(np.float32) < peak
-    scale[low] = np.nextafter(scale[low], np.float16(np.inf))
+    scale = half_ceil(peak)
     s = scale.astype(np.float32)
     inv = np.where(s > 0, V_LEVELS / np.where(s > 0, s, 1.0), 0.0).astype(np.float32)
     q = np.clip(np.rint(vf * inv[:, :, None, :]), -V_LEVELS, V_LEVELS).astype(np.int8)
@@ -279,15 +277,15 @@ def dequantise_basis(q: np.ndarray, scale: np.ndarray) -> np.ndarray:
 
 
 def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int = MAX_RANK,
-              direct: int = DIRECT_TEXELS, store_tolerance: float = STORE_TOLERANCE, texel_major: bool = False,
-              quantise: bool = True) -> Transport:
+              direct: int = DIRECT_TEXELS, store_tolerance: float = STORE_TOLERANCE,
+              texel_major: bool = False) -> Transport:
     """The compact transport of pixel-major maps (P, 3, Tp) over ``texels`` (T <= Tp), or of
     texel-major maps (T, 3, P) with ``texel_major`` (a capture holds only those).
 
     Ranks are kept up to the first meeting ``store_tolerance`` on the validation set (at most
-    ``max_rank``). With ``quantise`` the basis images are rounded to 8 bits as a
-    bundle stores them (:func:`quantise_basis`; ``Transport.q`` / ``Transport.q_scale`` hold that
-    form) and ``rank_errors`` include that rounding's noise (its expected energy added to the
+    ``max_rank``). The basis images are rounded to 8 bits as a bundle stores them
+    (:func:`quantise_basis`; ``Transport.q`` / ``Transport.q_scale`` hold that form) and
+    ``rank_errors`` include that rounding's noise (its expected energy added to the
     truncation's), so a rank meeting a tolerance meets it as stored.
     """
     from scipy.linalg import eigh
@@ -300,69 +298,39 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     order = np.argsort(w)[::-1]
     sig2 = np.clip(w[order], 0.0, None)
     vecs = vecs[:, order]
-    errors = np.zeros(k_all)
-    per_env = []
-    for _, lp in validation_environments(map_size, texels):
+    envs = [lp for _, lp in validation_environments(map_size, texels)]
+    total = np.zeros(len(envs))
+    resid = np.zeros((k_all, len(envs)))
+    coef = np.zeros((k_all, 3, len(envs)))
+    for e, lp in enumerate(envs):
         # Energies from the Gram itself (sum over channels of lp^T G lp): the components beyond
         # k_all need not be known, the tail past k is the whole minus the first k.
-        total = float(np.sum(lp * (g @ lp)))
-        if total <= 0:
-            continue
+        total[e] = float(np.sum(lp * (g @ lp)))
         _, rest = split_direct(lp, direct)
-        a2 = np.sum(sig2[:, None] * (vecs.T @ rest) ** 2, axis=1)  # energy per leading component
-        tail = max(float(np.sum(rest * (g @ rest))), 0.0) - np.cumsum(a2)  # energy left after k+1 components
-        err = np.sqrt(np.clip(tail, 0.0, None) / total)
-        errors = np.maximum(errors, err)
-        per_env.append((total, tail, np.cumsum((vecs.T @ rest) ** 2, axis=0)))  # (k_all, 3) coefficient energy
+        coef[:, :, e] = vecs.T @ rest
+        a2 = np.sum(sig2[:, None] * coef[:, :, e] ** 2, axis=1)  # energy per leading component
+        resid[:, e] = max(float(np.sum(rest * (g @ rest))), 0.0) - np.cumsum(a2)  # left after k+1 components
+    ok = total > 0
+    errors = (np.sqrt(np.clip(resid[:, ok], 0.0, None) / total[ok]).max(axis=1) if ok.any()
+              else np.zeros(k_all))
     met = np.flatnonzero(errors <= STORE_MARGIN * store_tolerance)
     cap = min(k_all, (int(met[0]) + 1 if met.size else k_all) + 16)  # room for the 8-bit noise
-    tr = _project(maps, u_all=vecs, k=cap, n_t=n_t, texel_major=texel_major, sig2=sig2, errors=errors,
-                  direct=direct, quantise=quantise, per_env=per_env)
-    k = tr.rank_for(store_tolerance)
-    if not quantise or k is None or k == cap:
-        return tr
-    return _project(maps, u_all=vecs, k=k, n_t=n_t, texel_major=texel_major, sig2=sig2, errors=errors,
-                    direct=direct, quantise=quantise, per_env=per_env)
-
-
-def _project(maps, *, u_all, k, n_t, texel_major, sig2, errors, direct, quantise, per_env) -> Transport:
-    """The transport of rank ``k`` (see :func:`factorize`)."""
-    from .maps import padded_texels
-
-    u = u_all[:, :k].astype(np.float32)
-    kp = padded_texels(k)
+    u = vecs[:, :cap].astype(np.float32)
     p = maps.shape[2] if texel_major else maps.shape[0]
-    nb = -(-p // PIXEL_BLOCK)
-    v = np.zeros((nb * PIXEL_BLOCK, 3, kp), dtype=np.float16)
+    v = np.zeros((p, 3, cap), dtype=np.float32)
     for p0 in range(0, p, 4096):
         if texel_major:
             blk = np.asarray(maps[:, :, p0:p0 + 4096], dtype=np.float32)  # (T, 3, n)
-            v[p0:p0 + blk.shape[2], :, :k] = np.einsum("tcn,tk->nck", blk, u, optimize=True).astype(np.float16)
+            v[p0:p0 + blk.shape[2]] = np.einsum("tcn,tk->nck", blk, u, optimize=True)
         else:
             blk = np.asarray(maps[p0:p0 + 4096, :, :n_t], dtype=np.float32)
             # One GEMM over (pixels x channels) rows (a 3-D matmul would be 4096 small ones).
-            v[p0:p0 + blk.shape[0], :, :k] = (blk.reshape(-1, n_t) @ u).reshape(blk.shape[0], 3, k).astype(np.float16)
-    flush_subnormal_halves(v)  # as the kernels read it (relight.numerics.HALF_TINY)
-    # Blocked layout (P / 16, 3, Kp, 16): 16 pixels of one basis image contiguous (the
-    # Relighter repacks the rank it uses into its kernel's 32-pixel blocks).
-    v = np.ascontiguousarray(v.reshape(nb, PIXEL_BLOCK, 3, kp).transpose(0, 2, 3, 1))
-    q = q_scale = None
-    if quantise:
-        q, q_scale = quantise_basis(v, k)
-        v = dequantise_basis(q, q_scale)
-        # Rounding noise: uniform over a step (scale / V_LEVELS) per value, independent, so a
-        # relight's noise energy per channel is (sum of its squared coefficients) x (sum over
-        # pixels of step^2 / 12).
-        step2 = (np.asarray(q_scale, np.float64) / V_LEVELS) ** 2 / 12.0
-        noise_unit = step2.sum(axis=0)  # (3,)
-        errors = np.zeros(k)
-        for total, tail, coef2 in per_env:
-            noise = coef2[:k] @ noise_unit
-            errors = np.maximum(errors, np.sqrt(np.clip(tail[:k], 0.0, None) / total + noise / total))
-    tr = Transport(u=u, v=v, rank_errors=errors[:k].astype(np.float32), sigma=np.sqrt(sig2[:k]).astype(np.float32),
-                   direct=direct)
-    tr.q, tr.q_scale = q, q_scale
-    return tr
+            v[p0:p0 + blk.shape[0]] = (blk.reshape(-1, n_t) @ u).reshape(blk.shape[0], 3, cap)
+    tr = _stored_transport(v, u, cap, sig2, resid, total, coef, direct)
+    k = tr.rank_for(store_tolerance)
+    if k is None or k == cap:
+        return tr
+    return _stored_transport(v, u, k, sig2, resid, total, coef, direct)
 
 
 #: Pixels whose maps make the basis of a streamed factorisation (:func:`factorize_stream`): a
@@ -466,15 +434,18 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
             resid[:, e] += rr[c, e] - 2.0 * cross + quad
     # Every projected rank stored 8-bit, its noise in the errors; then only the ranks the
     # tolerance needs (fewer ranks: a smaller unit per pixel, so no more noise).
-    tr = _stream_transport(v, u, cap, sig2, resid, total, coef, direct)
+    tr = _stored_transport(v, u, cap, sig2, resid, total, coef, direct)
     k = tr.rank_for(store_tolerance)
     if k is None or k == cap:
         return tr
-    return _stream_transport(v, u, k, sig2, resid, total, coef, direct)
+    return _stored_transport(v, u, k, sig2, resid, total, coef, direct)
 
 
-def _stream_transport(v_all: np.ndarray, u: np.ndarray, k: int, sig2, resid, total, coef, direct) -> Transport:
-    """The stored transport of rank k from :func:`factorize_stream`'s projections (P, 3, cap)."""
+def _stored_transport(v_all: np.ndarray, u: np.ndarray, k: int, sig2, resid, total, coef, direct) -> Transport:
+    """The transport of rank k as a bundle stores it, from projections v_all (P, 3, >= k) on the
+    basis u (T, >= k): basis images in 8 bits, and each rank's error with their rounding noise
+    (resid (ranks, E) the truncation's residual energy, total (E,) each validation relight's
+    energy, coef (ranks, 3, E) its coefficients; see :func:`factorize`)."""
     from .maps import padded_texels
 
     p = v_all.shape[0]

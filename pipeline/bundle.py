@@ -324,35 +324,15 @@ def encode_background(rgb: np.ndarray) -> np.ndarray:
     return buf.reshape(-1)
 
 
-def jpeg_size(data: np.ndarray) -> tuple[int, int] | None:
-    """(width, height) from a JPEG's frame header (SOFn), or None when there is none."""
-    b = memoryview(np.ascontiguousarray(data, dtype=np.uint8)).tobytes()
-    if b[:2] != b"\xff\xd8":
-        return None
-    i = 2
-    while i + 4 <= len(b):
-        if b[i] != 0xFF:
-            return None
-        marker = b[i + 1]
-        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
-            i += 2
-            continue
-        length = int.from_bytes(b[i + 2:i + 4], "big")
-        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
-            if i + 9 > len(b):
-                return None
-            return int.from_bytes(b[i + 7:i + 9], "big"), int.from_bytes(b[i + 5:i + 7], "big")
-        i += 2 + length
-    return None
-
-
 def decode_background(data: np.ndarray, frame_size: tuple[int, int]) -> np.ndarray:
     """The (H, W, 3) uint8 sRGB frame of :func:`encode_background` data; its header must say
     ``frame_size`` (width, height) before anything is decoded (a hostile file cannot make us
     allocate more)."""
     import cv2
 
-    size = jpeg_size(data)
+    from relight.imageio import image_size
+
+    size = image_size(memoryview(np.ascontiguousarray(data, dtype=np.uint8)).tobytes())
     if size is None or tuple(size) != tuple(frame_size):
         raise InputError(f"the bundle's reference frame is not a {frame_size[0]}x{frame_size[1]} JPEG "
                          f"(header: {size}); the bundle is damaged - capture it again")

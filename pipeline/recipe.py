@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.errors import InputError
+from relight.numerics import half_ceil
 
 from . import reflectance as rf
 from .spline import SPLINE_GAMMA, spline_weights
@@ -55,9 +56,7 @@ def encode_samples(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     peak = np.maximum(x.max(axis=0), 0.0) if x.shape[0] else np.zeros(x.shape[1:], np.float32)
     if float(peak.max(initial=0.0)) > float(np.finfo(np.float16).max):
         raise InputError("light samples above the float16 range: scale them first (reflectance.storage_scale)")
-    scale = peak.astype(np.float16)
-    low = scale.astype(np.float32) < peak
-    scale[low] = np.nextafter(scale[low], np.float16(np.inf))  # rounded up: x / scale <= 1
+    scale = half_ceil(peak)  # x / scale <= 1
     s = scale.astype(np.float32)
     inv = np.where(s > 0, 1.0 / np.where(s > 0, s, 1.0), 0.0).astype(np.float32)
     codes = np.empty(x.shape, dtype=np.uint8)
@@ -248,7 +247,7 @@ def recipe_arrays(recipe: Recipe) -> tuple[dict, dict]:
 
 
 # ---------------------------------------------------------------------- a few texels
-def _neighbours(map_size, texels: np.ndarray) -> np.ndarray:
+def neighbourhoods(map_size, texels: np.ndarray) -> np.ndarray:
     """(n, 9) texel ids of each texel's 3x3 neighbourhood (wrapping in azimuth, clamped at the poles)."""
     w, h = map_size
     y, x = np.divmod(np.asarray(texels, dtype=np.int64), w)
@@ -266,7 +265,7 @@ def smoothed_visibility(horizon: np.ndarray, n_az: int, map_size, texels: np.nda
     """(p, n) the smoothed visibility (:func:`relight.pipeline.reflectance.visibility_maps`) of
     the map texels ``texels`` for each pixel of a horizon table (p, n_az) of elevations, float32."""
     w, h = map_size
-    nb = _neighbours(map_size, texels)
+    nb = neighbourhoods(map_size, texels)
     uniq, inv = np.unique(nb, return_inverse=True)
     d = rf.equirect_directions(w, h).reshape(-1, 3)[uniq]
     s = np.hypot(d[:, 0], d[:, 1])

@@ -70,6 +70,16 @@ def flush_subnormal_halves(array: np.ndarray, chunk: int = 4096) -> np.ndarray:
     return array
 
 
+def half_ceil(values: np.ndarray) -> np.ndarray:
+    """float16 of non-negative float32 ``values``, rounded up (never below the value: a scale
+    dividing by it keeps the quotient <= 1)."""
+    values = np.asarray(values, dtype=np.float32)
+    out = values.astype(np.float16)
+    low = out.astype(np.float32) < values
+    out[low] = np.nextafter(out[low], np.float16(np.inf))
+    return out
+
+
 def read_halves(array: np.ndarray) -> np.ndarray:
     """float16 -> float32 as the relighting kernels read it: subnormals as zero."""
     out = np.asarray(array, dtype=np.float32)
