@@ -27,5 +27,13 @@ inline float ipow(float x, int n)
     return r;
 }
 
+/* PoCL (3.x, the pyopencl wheel's) calls its builtins out of line - fmax, fmin, clamp, mix, dot,
+ * select, min, length - and a call stops the vectoriser that runs a work-group's items as SIMD
+ * lanes (POCL_VECTORIZER_REMARKS=1 shows it). Kernels that should vectorise use these scalar
+ * forms instead (and no vector types: a float3 in the body stops it too). */
+inline float mxf(float a, float b) { return a > b ? a : b; }
+inline float mnf(float a, float b) { return a < b ? a : b; }
+inline float clamp01(float x) { return mnf(mxf(x, 0.0f), 1.0f); }
+inline float lerpf(float a, float b, float t) { return a + (b - a) * t; }
 
 #endif

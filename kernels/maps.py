@@ -32,13 +32,15 @@ def _texel_azimuths(texel_dirs: np.ndarray, n_az: int) -> np.ndarray:
                      np.where(s_xy < 1e-6, 8.0, np.arctan2(texel_dirs[:, 2], np.maximum(s_xy, 1e-9)))], axis=1)
 
 
-def _smoothed_visibility(queue, k_vis, k_box, b_hz, n_az: int, b_taz, map_size, vis_soft: float, p0: int, n: int,
-                         raw, smooth) -> None:
-    """Enqueue soft_visibility then box3 for pixels [p0, p0 + n): ``smooth`` gets (n, T)."""
+def _smoothed_visibility(queue, k_vis, k_box, b_hz, p_all: int, b_taz, map_size, vis_soft: float, p0: int, n: int,
+                         raw, smooth, n_valid: int | None = None) -> None:
+    """Enqueue soft_visibility then box3 for pixels [p0, p0 + n): ``smooth`` gets (T, n)
+    (b_hz: the horizons planar, (n_az, p_all)); only the first ``n_valid`` are computed (the
+    rest are padding, left as they are)."""
     w, h = map_size
-    k_vis(queue, (w * h, n), None, b_hz, np.int32(n_az), b_taz, np.int32(w * h), np.float32(1.0 / vis_soft),
-          np.int32(p0), np.int32(n), raw)
-    k_box(queue, (w, h, n), None, raw, np.int32(w), np.int32(h), np.int32(n), smooth)
+    k_vis(queue, (n, w * h), None, b_hz, np.int32(p_all), b_taz, np.int32(w * h), np.float32(1.0 / vis_soft),
+          np.int32(p0), np.int32(n if n_valid is None else n_valid), raw, np.int32(n))
+    k_box(queue, (n, w, h), None, raw, np.int32(w), np.int32(h), np.int32(n), smooth)
 
 
 def visibility_at_cl(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], texel_dirs: np.ndarray,
@@ -62,27 +64,58 @@ def visibility_at_cl(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], 
     if p == 0 or cols.size == 0:
         return out
     chunk = min(PIXEL_CHUNK, p)
-    b_hz = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(horizon, dtype=np.float32))
+    b_hz = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(horizon.T, dtype=np.float32))
     b_taz = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                       hostbuf=np.ascontiguousarray(_texel_azimuths(texel_dirs, n_az), dtype=np.float32))
     raw = cl.Buffer(ctx, mf.READ_WRITE, chunk * n_tex * 4)
     smooth = cl.Buffer(ctx, mf.READ_WRITE, chunk * n_tex * 4)
-    host = np.empty((chunk, n_tex), dtype=np.float32)
+    host = np.empty(chunk * n_tex, dtype=np.float32)
     for p0 in range(0, p, chunk):
         n = min(chunk, p - p0)
-        _smoothed_visibility(queue, k_vis, k_box, b_hz, n_az, b_taz, map_size, vis_soft, p0, n, raw, smooth)
-        cl.enqueue_copy(queue, host[:n], smooth)
-        out[p0:p0 + n] = host[:n][:, cols]
+        _smoothed_visibility(queue, k_vis, k_box, b_hz, p, b_taz, map_size, vis_soft, p0, n, raw, smooth)
+        cl.enqueue_copy(queue, host[:n * n_tex], smooth)
+        out[p0:p0 + n] = host[:n * n_tex].reshape(n_tex, n)[cols].T
     return out
+
+
+#: Pixels per work-item of build_maps (its LANES: one float16 vector) and per work-group.
+LANES = 16
+GROUP_PIXELS = 64
+
+
+def _texel_tables(vertices, vertex_texel, texel_vertices, texel_weights, texel_dirs, act,
+                  k: int, spline_rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per active texel what build_maps reads (the same for a work-group's pixels): (A, 8) int32
+    - its triangle's rows of the vertex values (K past the samples), its row of spline values
+    (-1: none), its vertices' texels, its own texel - and (A, 20) float32 - barycentric weights,
+    0, its vertices' directions, its direction, its half vector with the view +Z (0 straight
+    away from the camera), 0."""
+    tv = np.asarray(texel_vertices, np.int64)[act]
+    ints = np.zeros((act.size, 8), np.int32)
+    ints[:, :3] = np.minimum(tv, k)
+    ints[:, 3] = -1
+    if spline_rows is not None:
+        ints[spline_rows, 3] = np.arange(len(spline_rows))
+    ints[:, 4:7] = np.asarray(vertex_texel, np.int64)[tv]
+    ints[:, 7] = act
+    d = np.asarray(texel_dirs, np.float64)[act]
+    hv = d + np.array([0.0, 0.0, 1.0])
+    hn = np.linalg.norm(hv, axis=1, keepdims=True)
+    floats = np.zeros((act.size, 20), np.float32)
+    floats[:, :3] = np.asarray(texel_weights)[act]
+    floats[:, 4:13] = np.asarray(vertices)[tv].reshape(-1, 9)
+    floats[:, 13:16] = d
+    floats[:, 16:19] = np.where(hn > 1e-6, hv / np.maximum(hn, 1e-6), 0.0)  # as lobe()
+    return ints, floats
 
 
 def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndarray, vertex_texel: np.ndarray,
                   texel_vertices: np.ndarray, texel_weights: np.ndarray, texel_dirs: np.ndarray,
                   active: np.ndarray, map_size: tuple[int, int], horizon: np.ndarray | None, n_az: int,
                   vis_soft: float, adaptation: bool = True, half: bool = False, trend=None,
-                  spec_exponent: int, progress=None) -> np.ndarray:
+                  spec_exponent: int, texel_major: bool = False, spline=None, progress=None) -> np.ndarray:
     """(P, 3, T_pad) reflectance maps, pixel-major (T_pad: active texels rounded up to 16, zero
-    padded): float32, or float16 with ``half`` (stored that way).
+    padded), or with ``texel_major`` (T_pad, 3, P): float32, or float16 with ``half``.
 
     samples : (K, P, 3) float32 linear sample colours. normals : (P, 3). vertices : (V, 3)
     directions (the K samples first, then black lights); vertex_texel : (V,) texel of each
@@ -93,13 +126,26 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     ``interpolation - offset + (coef x max(n . l, 0) + spec x lobe(l)) x visibility(l)`` (the
     shading model added back; lobe: ``max(n . h, 0) ** spec_exponent`` where ``n . l > 0``, h the
     half vector of l and the view +Z, as :func:`relight.pipeline.reflectance.lobe`), then clipped at 0.
+    spline : None, or (raw (K', P, 3) the samples themselves, rows (Q,) indices into the active
+    texels, weights (Q, K') their spline weights, blend (P,)): at those texels each map becomes
+    ``blend x map + (1 - blend) x min(spline, brightest of the triangle's samples)``, clipped at
+    0 (:func:`relight.pipeline.reflectance._blend_spline`; spline values from
+    :func:`relight.pipeline.spline.spline_values`, by BLAS per chunk).
     """
     import pyopencl as cl
+
+    from relight.pipeline.spline import spline_values
 
     rt = get_runtime()
     ctx, queue = rt.context, rt.queue
     mf = cl.mem_flags
-    prg = build_program("reflectance", ("-DOUT_HALF",) if half else ())
+    use_vis = horizon is not None
+    use_trend = trend is not None
+    if not 0 <= int(spec_exponent) < 256:
+        raise ValueError(f"spec_exponent {spec_exponent}: a whole number in [0, 256)")
+    opts = (f"-DSPEC_EXP={int(spec_exponent)}", f"-DADAPT={int(bool(adaptation))}", f"-DUSE_VIS={int(use_vis)}",
+            f"-DUSE_TREND={int(use_trend)}", f"-DUSE_SPLINE={int(spline is not None)}")
+    prg = build_program("reflectance", opts)
     k_vis = cl.Kernel(prg, "soft_visibility")
     k_box = cl.Kernel(prg, "box3")
     k_maps = cl.Kernel(prg, "build_maps")
@@ -107,59 +153,75 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     w, h = map_size
     n_tex = w * h
     act = np.flatnonzero(active).astype(np.int32)
-
-    held = []  # host arrays the device reads in place: alive until the kernels are done
-
-    def buf(a, dtype):
-        a = np.ascontiguousarray(a, dtype=dtype)
-        if a.nbytes < (1 << 20):
-            return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
-        held.append(a)  # large inputs (samples, horizons): no device copy on the CPU
-        return cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=a)
-
-    def f4(a):
-        out = np.zeros((len(a), 4), dtype=np.float32)
-        out[:, :3] = a
-        return out
-
-    def i4(a):
-        out = np.zeros((len(a), 4), dtype=np.int32)
-        out[:, :3] = a
-        return out
-
-    b_samples = buf(samples, np.float32)
-    b_normal = buf(f4(normals), np.float32)
-    b_vdir = buf(f4(vertices), np.float32)
-    b_vtex = buf(vertex_texel, np.int32)
-    b_tv = buf(i4(texel_vertices[act]), np.int32)
-    b_tw = buf(f4(texel_weights[act]), np.float32)
-    b_tdir_act = buf(f4(texel_dirs[act]), np.float32)
-    b_tidx = buf(act, np.int32)
-    b_taz = buf(_texel_azimuths(texel_dirs, n_az), np.float32)
-    use_vis = horizon is not None
-    chunk = min(PIXEL_CHUNK, p)
-    raw = cl.Buffer(ctx, mf.READ_WRITE, max(chunk * n_tex * 4, 4))
-    smooth = cl.Buffer(ctx, mf.READ_WRITE, max(chunk * n_tex * 4, 4))
-    b_hz = buf(horizon if use_vis else np.zeros(1), np.float32)
-    use_trend = trend is not None
-    b_toff = buf(f4(trend[0]) if use_trend else np.zeros(4), np.float32)
-    b_tcoef = buf(f4(trend[1]) if use_trend else np.zeros(4), np.float32)
-    b_tspec = buf(f4(trend[2]) if use_trend and len(trend) > 2 else np.zeros((max(p, 1), 4)), np.float32)
     t_pad = padded_texels(act.size)
-    # The kernel writes straight into the result (host memory used in place by PoCL on the CPU):
-    # a device copy of the maps - the capture's largest array - would double its memory.
-    out = aligned_zeros((max(p, 1), 3, t_pad), np.float16 if half else np.float32)[:p]
-    b_out = cl.Buffer(ctx, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=out) if p else None
+    out = aligned_zeros((t_pad, 3, p) if texel_major else (p, 3, t_pad), np.float16 if half else np.float32)
+    if p == 0:
+        return out
+
+    def buf(a, dtype=None):
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a, dtype=dtype))
+
+    tables = [buf(t) for t in _texel_tables(vertices, vertex_texel, texel_vertices, texel_weights, texel_dirs,
+                                             act, k, None if spline is None else spline[1])]
+    b_taz = buf(_texel_azimuths(texel_dirs, n_az), np.float32)
+    wg = GROUP_PIXELS
+    chunk = min(PIXEL_CHUNK, -(-p // wg) * wg)  # a whole number of work-groups
+    raw = cl.Buffer(ctx, mf.READ_WRITE, chunk * n_tex * 4)
+    smooth = cl.Buffer(ctx, mf.READ_WRITE, chunk * n_tex * 4)
+    b_hz = buf(np.asarray(horizon, np.float32).T if use_vis else np.zeros(1), np.float32)
+    # Per chunk, planar with the pixels innermost (padded to whole work-groups, the padding
+    # zero): the vertex values (K + 1, 3, m) (the last row zero: black lights read it), normals
+    # (3, m), trend (9, m); the maps come back as (A, 3, m).
+    b_vals = cl.Buffer(ctx, mf.READ_ONLY, (k + 1) * 3 * chunk * 4)
+    b_norm = cl.Buffer(ctx, mf.READ_ONLY, 3 * chunk * 4)
+    b_trend = cl.Buffer(ctx, mf.READ_ONLY, 9 * chunk * 4)
+    n_q = 0 if spline is None else len(spline[1])
+    k_raw = 0 if spline is None else int(spline[0].shape[0])
+    b_spl = cl.Buffer(ctx, mf.READ_ONLY, max(n_q * 3 * chunk * 4, 4))
+    b_raw = cl.Buffer(ctx, mf.READ_ONLY, max((k_raw + 1) * 3 * chunk * 4, 4))
+    b_wt = cl.Buffer(ctx, mf.READ_ONLY, chunk * 4)
+    host = aligned_zeros((max(act.size, 1) * 3 * chunk,), np.float32)
+    b_host = cl.Buffer(ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=host)
+    b_out = None if texel_major else cl.Buffer(ctx, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=out)
+    k_pm = None if texel_major else cl.Kernel(prg, "pixel_major_f16" if half else "pixel_major_f32")
     for p0 in range(0, p, chunk):
         n = min(chunk, p - p0)
-        if use_vis:
-            _smoothed_visibility(queue, k_vis, k_box, b_hz, n_az, b_taz, map_size, vis_soft, p0, n, raw, smooth)
-        k_maps(queue, (n,), None, b_samples, np.int32(k), np.int32(p), b_normal, b_vdir, b_vtex, b_tv, b_tw,
-               b_tdir_act, b_tidx, np.int32(act.size), smooth, np.int32(n_tex), np.int32(use_vis),
-               np.int32(adaptation), b_toff, b_tcoef, b_tspec, np.int32(spec_exponent), np.int32(use_trend),
-               np.int32(p0), np.int32(n),
-               np.int32(t_pad), b_out)
-        queue.finish()
+        m = -(-n // wg) * wg
+        ps = slice(p0, p0 + n)
+        vals = np.zeros((k + 1, 3, m), dtype=np.float32)
+        vals[:k, :, :n] = np.asarray(samples[:, ps], np.float32).transpose(0, 2, 1)
+        cl.enqueue_copy(queue, b_vals, vals)
+        norm = np.zeros((3, m), dtype=np.float32)
+        norm[:, :n] = np.asarray(normals[ps], np.float32).T
+        cl.enqueue_copy(queue, b_norm, norm)
+        if use_trend:
+            tr = np.zeros((9, m), dtype=np.float32)
+            for j, part in enumerate(trend[:3]):
+                tr[3 * j:3 * j + 3, :n] = np.asarray(part[ps], np.float32).T
+            cl.enqueue_copy(queue, b_trend, tr)
+        if spline is not None:
+            own = np.zeros((k_raw + 1, 3, m), dtype=np.float32)
+            own[:k_raw, :, :n] = np.asarray(spline[0][:, ps], np.float32).transpose(0, 2, 1)
+            wt = np.ones(m, dtype=np.float32)
+            wt[:n] = spline[3][ps]
+            spl = spline_values(own[:k_raw].reshape(k_raw, 3 * m, 1), spline[2]).reshape(n_q, 3, m)
+            cl.enqueue_copy(queue, b_spl, np.ascontiguousarray(spl))
+            cl.enqueue_copy(queue, b_raw, own)
+            cl.enqueue_copy(queue, b_wt, wt)
+        if use_vis:  # (the padding pixels read the next ones' horizons or are cut off: never used)
+            _smoothed_visibility(queue, k_vis, k_box, b_hz, p, b_taz, map_size, vis_soft, p0, m, raw, smooth,
+                                 n_valid=n)
+        if act.size:
+            k_maps(queue, (m // LANES, act.size), (wg // LANES, 1), b_vals, b_norm, *tables, smooth, b_trend,
+                   b_spl, b_raw, b_wt, np.int32(m), b_host)
+        if texel_major:
+            mapped, _ = cl.enqueue_map_buffer(queue, b_host, cl.map_flags.READ, 0, host.shape, host.dtype)
+            mapped.base.release()  # the map is the sync: on the CPU the maps are already in ``host``
+            out[:act.size, :, ps] = host[:act.size * 3 * m].reshape(act.size, 3, m)[:, :, :n]
+        else:  # transposed on the device (a NumPy transpose of this size is ~5x slower)
+            k_pm(queue, (n, t_pad // 16, 3), None, b_host, np.int32(act.size), np.int32(m), np.int32(p0),
+                 np.int32(t_pad), b_out)
+            queue.finish()
         if progress is not None:
             progress(n)
     if b_out is not None:

@@ -1,199 +1,234 @@
 /* Reflectance maps from light samples (relight.kernels.maps; NumPy twin:
  * relight.pipeline.reflectance.visibility_maps / build_maps).
  *
+ * Every per-pixel array is planar with the pixels innermost - (rows, n_pix) - and one work-item
+ * is one (pixel, texel) pair with the pixels fastest, so PoCL vectorises across pixels
+ * (contiguous loads and stores, branch-free bodies).
+ *
  * soft_visibility: per (pixel, texel), whether the texel's direction clears the pixel's horizon
  *   (soft over VIS_SOFT of elevation), from a horizon table over image-plane directions.
  * box3: the paper's 3x3 box filter of those maps (wrapping in azimuth, clamped at the poles).
- * build_maps: per pixel, every active texel interpolated from its triangle's vertices with
- *   visibility-aware blending and light adaptation (paper Eq. 1-3); written pixel-major
- *   (P, 3, T padded to 16), the layout relighting reads fastest.
+ * build_maps: per pixel and active texel, the value interpolated from its triangle's vertices with
+ *   visibility-aware blending and light adaptation (paper Eq. 1-3); written texel-major
+ *   (T_pad, 3, n) float32 (the host makes other layouts and halves).
+ *
+ * Build options (constants, so their branches fold away): ADAPT (light adaptation), USE_VIS
+ * (visibility), USE_TREND (the shading model added back), USE_SPLINE (the thin-plate spline
+ * blended in), each 0/1; SPEC_EXP (the specular lobe's whole exponent).
  */
 #include "common.h"
 
 #define MIN_COS 0.1f
-
+#ifndef SPEC_EXP
+#define SPEC_EXP 8
+#endif
+#ifndef ADAPT
+#define ADAPT 1
+#endif
+#ifndef USE_VIS
+#define USE_VIS 1
+#endif
+#ifndef USE_TREND
+#define USE_TREND 1
+#endif
+#ifndef USE_SPLINE
+#define USE_SPLINE 0
+#endif
 __kernel void soft_visibility(
-    __global const float *horizon, int n_az,          /* (P, n_az) horizon elevations (radians) */
-    __global const float4 *texel_az, int n_tex,       /* (T,) x, y = azimuth columns, z = blend, w = elevation */
+    __global const float *restrict horizon, int n_pix_all, /* (n_az, P_all) horizon elevations (radians) */
+    __global const float *restrict texel_az, int n_tex, /* (T, 4) azimuth columns x, y; blend; elevation */
     float inv_soft, int p0, int n_pix,                /* pixel range [p0, p0 + n_pix) */
-    __global float *out)                              /* (n_pix, T) */
+    __global float *restrict out, int stride)         /* (T, stride >= n_pix): texel-major */
 {
-    int t = get_global_id(0); /* texels fastest: neighbouring work items share a pixel's row */
-    int i = get_global_id(1);
+    int i = get_global_id(0); /* pixels fastest: contiguous reads and writes */
+    int t = get_global_id(1);
     if (i >= n_pix || t >= n_tex)
         return;
-    float4 ta = texel_az[t];
-    float v = 1.0f;
-    if (ta.w < 4.0f) { /* elevation 4 marks "straight at the camera": always visible */
-        __global const float *hz = horizon + (size_t)(p0 + i) * n_az;
-        v = clamp(0.5f + (ta.w - mix(hz[(int)ta.x], hz[(int)ta.y], ta.z)) * inv_soft, 0.0f, 1.0f);
-    }
-    out[(size_t)i * n_tex + t] = v;
+    int c0 = (int)texel_az[4 * t], c1 = (int)texel_az[4 * t + 1];
+    float blend = texel_az[4 * t + 2], elev = texel_az[4 * t + 3];
+    float h0 = horizon[(size_t)c0 * n_pix_all + p0 + i];
+    float h1 = horizon[(size_t)c1 * n_pix_all + p0 + i];
+    /* elevation >= 4 marks "straight at the camera": always visible */
+    out[(size_t)t * stride + i] = elev < 4.0f ? clamp01(0.5f + (elev - lerpf(h0, h1, blend)) * inv_soft) : 1.0f;
 }
 
-__kernel void box3(__global const float *in, int w, int h, int n_pix, __global float *out)
+__kernel void box3(__global const float *restrict in, int w, int h, int n_pix, __global float *restrict out)
 {
-    int x = get_global_id(0); /* texel column fastest */
-    int y = get_global_id(1);
-    int i = get_global_id(2);
+    int i = get_global_id(0); /* pixels fastest; maps texel-major (T, n_pix) */
+    int x = get_global_id(1);
+    int y = get_global_id(2);
     if (i >= n_pix || x >= w || y >= h)
         return;
-    __global const float *m = in + (size_t)i * w * h;
     int xl = x == 0 ? w - 1 : x - 1, xr = x == w - 1 ? 0 : x + 1;
+    int ya = y == 0 ? 0 : y - 1, yb = y == h - 1 ? h - 1 : y + 1;
     float acc = 0.0f;
-    for (int dy = -1; dy <= 1; ++dy) {
-        __global const float *row = m + clamp(y + dy, 0, h - 1) * w;
-        acc += row[xl] + row[x] + row[xr];
-    }
-    out[(size_t)i * w * h + y * w + x] = acc * (1.0f / 9.0f);
+    __global const float *r0 = in + (size_t)(ya * w) * n_pix + i;
+    __global const float *r1 = in + (size_t)(y * w) * n_pix + i;
+    __global const float *r2 = in + (size_t)(yb * w) * n_pix + i;
+    acc += r0[(size_t)xl * n_pix] + r0[(size_t)x * n_pix] + r0[(size_t)xr * n_pix];
+    acc += r1[(size_t)xl * n_pix] + r1[(size_t)x * n_pix] + r1[(size_t)xr * n_pix];
+    acc += r2[(size_t)xl * n_pix] + r2[(size_t)x * n_pix] + r2[(size_t)xr * n_pix];
+    out[(size_t)(y * w + x) * n_pix + i] = acc * (1.0f / 9.0f);
 }
 
-/* Light-adapted interpolation with vertex weights wv * use (paper Eq. 1-3). */
-inline float3 adapt(const float3 *c, const float *wv, const float *dv, float dp, const float *use, int adaptation)
+/* build_maps works on LANES pixels per work-item as explicit vectors (PoCL's own vectoriser of
+ * a work-group's items gives up on this body: its SLP pass pairs lines first). */
+#define LANES 16
+typedef float16 vf;
+inline vf vmx(vf a, vf b) { return a > b ? a : b; }
+inline vf vmn(vf a, vf b) { return a < b ? a : b; }
+inline vf vclamp01(vf x) { return vmn(vmx(x, (vf)(0.0f)), (vf)(1.0f)); }
+#define LOADV(ptr) (*(__global const vf *)(ptr))
+
+/* Light-adapted interpolation (paper Eq. 1-3) with vertex weights w (times a use share), as the
+ * three coefficients k of the vertex values: the result is k0 c0 + k1 c1 + k2 c2 in every channel.
+ * The included unlit vertices give the indirect light c_ind; the lit ones their light less it,
+ * cosine-adapted, and c_ind is added back (no lit vertex: the plain interpolation; all lit: the
+ * cosine adaptation alone - special cases of this one form, so no branch). d: n . vertex. */
+inline void adapt_k(vf w0, vf w1, vf w2, vf d0, vf d1, vf d2, vf dps, vf *k0, vf *k1, vf *k2)
 {
-    float w[3], wsum = 0.0f;
-    for (int v = 0; v < 3; ++v) {
-        w[v] = wv[v] * use[v];
-        wsum += w[v];
-    }
-    float inv = 1.0f / fmax(wsum, 1e-12f);
-    float3 plain = (float3)(0.0f);
-    for (int v = 0; v < 3; ++v) {
-        w[v] *= inv;
-        plain += w[v] * c[v];
-    }
-    if (!adaptation)
-        return plain;
-    int n_use = 0, n_lit = 0;
-    float w_lit = 0.0f, w_ind = 0.0f;
-    float3 c_ind = (float3)(0.0f);
-    int lit[3];
-    for (int v = 0; v < 3; ++v) {
-        int inc = w[v] > 0.0f;
-        lit[v] = inc && dv[v] > MIN_COS;
-        n_use += inc;
-        n_lit += lit[v];
-        if (lit[v])
-            w_lit += w[v];
-        else if (inc) {
-            w_ind += w[v];
-            c_ind += w[v] * c[v];
-        }
-    }
-    if (n_lit == 0)
-        return plain;
-    float dps = fmax(dp, 0.0f);
-    if (n_lit == n_use) {
-        float3 acc = (float3)(0.0f);
-        for (int v = 0; v < 3; ++v)
-            if (lit[v])
-                acc += (w[v] / fmax(dv[v], MIN_COS)) * c[v];
-        return acc * dps;
-    }
-    /* c_ind above is already the weighted sum w_ind * (normalised indirect estimate). */
-    float3 acc = (float3)(0.0f);
-    for (int v = 0; v < 3; ++v)
-        if (lit[v])
-            acc += (w[v] / fmax(dv[v], MIN_COS)) * (c[v] - c_ind);
-    float3 c_dir = acc * dps / fmax(w_lit, 1e-12f) + c_ind;
-    return w_lit * c_dir + c_ind;
+    vf inv = 1.0f / vmx(w0 + w1 + w2, (vf)(1e-12f));
+    w0 *= inv;
+    w1 *= inv;
+    w2 *= inv;
+#if ADAPT
+    vf zero = (vf)(0.0f), mc = (vf)(MIN_COS);
+    vf l0 = d0 > mc ? w0 : zero, l1 = d1 > mc ? w1 : zero, l2 = d2 > mc ? w2 : zero;
+    vf i0 = w0 - l0, i1 = w1 - l1, i2 = w2 - l2;
+    vf w_lit = l0 + l1 + l2;
+    vf a0 = l0 / vmx(d0, mc), a1 = l1 / vmx(d1, mc), a2 = l2 / vmx(d2, mc);
+    vf scale = dps * w_lit / vmx(w_lit, (vf)(1e-12f));
+    vf b = w_lit + 1.0f - scale * (a0 + a1 + a2);
+    *k0 = scale * a0 + b * i0;
+    *k1 = scale * a1 + b * i1;
+    *k2 = scale * a2 + b * i2;
+#else
+    *k0 = w0;
+    *k1 = w1;
+    *k2 = w2;
+#endif
 }
 
 __kernel void build_maps(
-    __global const float *samples, int n_samples, int n_pix_all,   /* (K, P_all, 3) */
-    __global const float4 *normal,                                 /* (P_all,) */
-    __global const float4 *vertex_dir, __global const int *vertex_texel,
-    __global const int4 *tex_vertices, __global const float4 *tex_weights,
-    __global const float4 *tex_dir, __global const int *tex_index, int n_active,
-    __global const float *vis, int n_tex, int use_vis, int adaptation,  /* (n_pix, T) smoothed */
+    __global const float *restrict vals,               /* (K + 1, 3, n_pix) vertex values, the last row 0 */
+    __global const float *restrict normal,             /* (3, n_pix) */
+    __global const int *restrict tex_int,              /* (A, 8) rows of vals of its triangle (black lights:
+                                                          K), its spline row (-1: none), its vertices'
+                                                          texels, its own texel */
+    __global const float *restrict tex_f,              /* (A, 20) barycentric weights, 0, its vertices'
+                                                          directions (3 x 3), its direction, its half
+                                                          vector with +Z (0: none), 0 */
+    __global const float *restrict vis,                /* (T, n_pix) smoothed visibility (USE_VIS) */
     /* trend: out = interpolation - offset + (coef * max(n . l, 0) + spec * lobe(l)) * visibility
-       (the shading model; lobe = max(n . h, 0)^spec_exp where n . l > 0, h the half vector of l and +Z) */
-    __global const float4 *trend_offset, __global const float4 *trend_coef, __global const float4 *trend_spec,
-    int spec_exp, int use_trend,
-    int p0, int n_pix, int t_pad,
-#ifdef OUT_HALF
-    __global half *out)                                            /* (P_all, 3, t_pad): pixel-major */
-#else
-    __global float *out)                                           /* (P_all, 3, t_pad): pixel-major */
-#endif
+       (the shading model; lobe = max(n . h, 0)^SPEC_EXP where n . l > 0, h the half vector of l and +Z) */
+    __global const float *restrict trend,              /* (9, n_pix): offset, coef, spec (USE_TREND) */
+    /* spline (USE_SPLINE): out = w * out + (1 - w) * min(spline, the brightest of the triangle's
+       three samples) at texels inside the samples' hull, w the pixel's weight */
+    __global const float *restrict spline,             /* (Q, 3, n_pix) spline values */
+    __global const float *restrict raw,                /* (K + 1, 3, n_pix) the samples themselves */
+    __global const float *restrict weight,             /* (n_pix,) */
+    int n_pix, __global float *restrict out)           /* (T_pad, 3, n_pix) */
 {
-    int i = get_global_id(0);
-    if (i >= n_pix)
-        return;
-    int p = p0 + i;
-    float3 n = normal[p].xyz;
-    __global const float *pv = vis + (size_t)i * n_tex;
-    for (int a = 0; a < n_active; ++a) {
-        int4 tv = tex_vertices[a];
-        float4 tw = tex_weights[a];
-        int ids[3] = {tv.x, tv.y, tv.z};
-        float wv[3] = {tw.x, tw.y, tw.z};
-        float3 c[3];
-        float dv[3], vv[3];
-        for (int v = 0; v < 3; ++v) {
-            int id = ids[v];
-            if (id < n_samples) {
-                __global const float *s = samples + ((size_t)id * n_pix_all + p) * 3;
-                c[v] = (float3)(s[0], s[1], s[2]);
-            } else {
-                c[v] = (float3)(0.0f);
-            }
-            dv[v] = adaptation ? dot(n, vertex_dir[id].xyz) : 1.0f;
-            vv[v] = use_vis ? pv[vertex_texel[id]] : 1.0f;
-        }
-        float dp = adaptation ? dot(n, tex_dir[a].xyz) : 1.0f;
-        float every[3] = {1.0f, 1.0f, 1.0f};
-        float3 res = adapt(c, wv, dv, dp, every, adaptation);
-        if (use_vis) {
-            float vmin = fmin(vv[0], fmin(vv[1], vv[2]));
-            float vmax = fmax(vv[0], fmax(vv[1], vv[2]));
-            float spread = vmax - vmin;
-            if (spread > 0.0f) {
-                float is_lit[3], is_sh[3];
-                for (int v = 0; v < 3; ++v) {
-                    is_lit[v] = clamp((vv[v] - vmin) / fmax(spread, 1e-6f), 0.0f, 1.0f);
-                    is_sh[v] = 1.0f - is_lit[v];
-                }
-                float vp = pv[tex_index[a]];
-                float tl = clamp((vp - vmin) / fmax(spread, 1e-6f), 0.0f, 1.0f);
-                float3 cl = adapt(c, wv, dv, dp, is_lit, adaptation);
-                float3 cs = adapt(c, wv, dv, dp, is_sh, adaptation);
-                res = (1.0f - spread) * res + spread * (tl * cl + (1.0f - tl) * cs);
-            }
-        }
-        if (use_trend) {
-            float3 l = tex_dir[a].xyz;
-            float tv = use_vis ? pv[tex_index[a]] : 1.0f;
-            float nl = dot(n, l);
-            float3 h = l + (float3)(0.0f, 0.0f, 1.0f);
-            float hn = length(h);
-            float nh = hn > 1e-6f ? fmax(dot(n, h) / hn, 0.0f) : 0.0f;
-            float lobe = nl > 0.0f ? ipow(nh, spec_exp) : 0.0f;
-            res += (trend_coef[p].xyz * fmax(nl, 0.0f) + trend_spec[p].xyz * lobe) * tv - trend_offset[p].xyz;
-        }
-        res = fmax(res, 0.0f);
-        size_t o = (size_t)p * 3 * t_pad + a;
-#ifdef OUT_HALF
-        /* Storage as half (what the bundle keeps): no float32 copy of maps that can be huge. */
-        vstore_half_rte(res.x, o, out);
-        vstore_half_rte(res.y, o + t_pad, out);
-        vstore_half_rte(res.z, o + 2 * t_pad, out);
-#else
-        out[o] = res.x;
-        out[o + t_pad] = res.y;
-        out[o + 2 * t_pad] = res.z;
+    /* The range is (n_pix / LANES, n_active): the host pads the pixels to whole vectors and
+       aligns every row to 64 bytes. */
+    int i = get_global_id(0) * LANES;
+    int a = get_global_id(1);
+    vf zero = (vf)(0.0f);
+    vf nx = LOADV(normal + i), ny = LOADV(normal + n_pix + i), nz = LOADV(normal + 2 * n_pix + i);
+    __global const int *ti = tex_int + 8 * a;
+    __global const float *tf = tex_f + 20 * a;
+    vf tw0 = (vf)(tf[0]), tw1 = (vf)(tf[1]), tw2 = (vf)(tf[2]);
+    vf d0 = (vf)(1.0f), d1 = (vf)(1.0f), d2 = (vf)(1.0f);
+#if ADAPT
+    d0 = nx * tf[4] + ny * tf[5] + nz * tf[6];
+    d1 = nx * tf[7] + ny * tf[8] + nz * tf[9];
+    d2 = nx * tf[10] + ny * tf[11] + nz * tf[12];
 #endif
+    vf nl = nx * tf[13] + ny * tf[14] + nz * tf[15];
+    vf dps = ADAPT ? vmx(nl, zero) : (vf)(1.0f);
+    vf k0, k1, k2;
+    adapt_k(tw0, tw1, tw2, d0, d1, d2, dps, &k0, &k1, &k2);
+    vf vp = (vf)(1.0f);
+#if USE_VIS
+    {
+        vf v0 = LOADV(vis + (size_t)ti[4] * n_pix + i), v1 = LOADV(vis + (size_t)ti[5] * n_pix + i);
+        vf v2 = LOADV(vis + (size_t)ti[6] * n_pix + i);
+        vp = LOADV(vis + (size_t)ti[7] * n_pix + i);
+        vf vmin = vmn(v0, vmn(v1, v2));
+        vf spread = vmx(v0, vmx(v1, v2)) - vmin;
+        /* The least visible vertex is shadowed, the most lit, the third by its share; the texel's
+           own visibility chooses between the two interpolations (no spread: unchanged). */
+        vf inv = 1.0f / vmx(spread, (vf)(1e-6f));
+        vf s0 = vclamp01((v0 - vmin) * inv), s1 = vclamp01((v1 - vmin) * inv), s2 = vclamp01((v2 - vmin) * inv);
+        vf tl = vclamp01((vp - vmin) * inv);
+        vf c0, c1, c2, e0, e1, e2;
+        adapt_k(tw0 * s0, tw1 * s1, tw2 * s2, d0, d1, d2, dps, &c0, &c1, &c2);
+        adapt_k(tw0 * (1.0f - s0), tw1 * (1.0f - s1), tw2 * (1.0f - s2), d0, d1, d2, dps, &e0, &e1, &e2);
+        vf keep = 1.0f - spread, lit = spread * tl, shade = spread * (1.0f - tl);
+        k0 = keep * k0 + lit * c0 + shade * e0;
+        k1 = keep * k1 + lit * c1 + shade * e1;
+        k2 = keep * k2 + lit * c2 + shade * e2;
     }
-    for (int a = n_active; a < t_pad; ++a) { /* zero padding */
-        size_t o = (size_t)p * 3 * t_pad + a;
-#ifdef OUT_HALF
-        vstore_half(0.0f, o, out);
-        vstore_half(0.0f, o + t_pad, out);
-        vstore_half(0.0f, o + 2 * t_pad, out);
-#else
-        out[o] = 0.0f;
-        out[o + t_pad] = 0.0f;
-        out[o + 2 * t_pad] = 0.0f;
 #endif
+    vf tr_c = zero, tr_s = zero;
+#if USE_TREND
+    {
+        vf nh = vmx(nx * tf[16] + ny * tf[17] + nz * tf[18], zero);
+        /* nh ** SPEC_EXP by squaring (as ipow), unrolled: SPEC_EXP < 256 */
+        vf r = (vf)(1.0f), x = nh;
+#define SQ_STEP(bit) if ((SPEC_EXP >> (bit)) & 1) r *= x; x *= x;
+        SQ_STEP(0) SQ_STEP(1) SQ_STEP(2) SQ_STEP(3) SQ_STEP(4) SQ_STEP(5) SQ_STEP(6) SQ_STEP(7)
+#undef SQ_STEP
+        tr_c = vmx(nl, zero) * vp;
+        tr_s = (nl > zero ? r : zero) * vp;
     }
+#endif
+    size_t s3 = (size_t)3 * n_pix;
+    __global const float *p0 = vals + ti[0] * s3 + i, *p1 = vals + ti[1] * s3 + i, *p2 = vals + ti[2] * s3 + i;
+    __global float *o = out + (size_t)a * s3 + i;
+    for (int c = 0; c < 3; ++c) {
+        size_t off = (size_t)c * n_pix;
+        vf res = k0 * LOADV(p0 + off) + k1 * LOADV(p1 + off) + k2 * LOADV(p2 + off);
+#if USE_TREND
+        res += LOADV(trend + 3 * n_pix + off + i) * tr_c + LOADV(trend + 6 * n_pix + off + i) * tr_s
+               - LOADV(trend + off + i);
+#endif
+        res = vmx(res, zero);
+#if USE_SPLINE
+        if (ti[3] >= 0) {
+            vf cap = vmx(LOADV(raw + ti[0] * s3 + off + i), vmx(LOADV(raw + ti[1] * s3 + off + i),
+                                                                 LOADV(raw + ti[2] * s3 + off + i)));
+            vf sp = vmn(LOADV(spline + ti[3] * s3 + off + i), cap);
+            vf w = LOADV(weight + i);
+            res = vmx(w * res + (1.0f - w) * sp, zero);
+        }
+#endif
+        *(__global vf *)(o + off) = res;
+    }
+}
+
+/* The maps of a chunk texel-major (A, 3, n_pix) -> pixel-major rows (P, 3, t_pad) from pixel
+ * p0 on, 16 texels per work-item (the padding texels past A written as 0), float32 or halves
+ * (round to nearest even). Range: (n_valid, t_pad / 16, 3). */
+#define PM_GATHER                                                                               \
+    int i = get_global_id(0), b = get_global_id(1) * 16, c = get_global_id(2);                  \
+    float v[16];                                                                                \
+    for (int j = 0; j < 16; ++j)                                                                \
+        v[j] = b + j < n_active ? in[((size_t)(b + j) * 3 + c) * n_pix + i] : 0.0f;             \
+    float16 x = (float16)(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], v[10],    \
+                          v[11], v[12], v[13], v[14], v[15]);                                   \
+    size_t o = ((size_t)(p0 + i) * 3 + c) * t_pad + b;
+
+__kernel void pixel_major_f32(__global const float *restrict in, int n_active, int n_pix, int p0, int t_pad,
+                              __global float *restrict out)
+{
+    PM_GATHER
+    vstore16(x, 0, out + o);
+}
+
+__kernel void pixel_major_f16(__global const float *restrict in, int n_active, int n_pix, int p0, int t_pad,
+                              __global half *restrict out)
+{
+    PM_GATHER
+    vstore_half16_rte(x, 0, out + o);
 }

@@ -345,7 +345,8 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
                      direct: int = DIRECT_TEXELS, store_tolerance: float = STORE_TOLERANCE,
                      gram_pixels: int = GRAM_PIXELS, chunk: int = STREAM_CHUNK, progress=None) -> Transport:
     """The compact transport of maps made chunk by chunk - ``make(index)`` returns the
-    pixel-major maps (n, 3, Tp) of the pixels ``index`` - without ever holding all of them.
+    texel-major maps (Tp, 3, n) float32 of the pixels ``index`` (the layout the maps kernel
+    writes and the projections read) - without ever holding all of them.
 
     The basis comes from the texel Gram matrix of an even subsample of at most ``gram_pixels``
     pixels; then every pixel's maps are projected on it, and each rank's validation error (the
@@ -362,15 +363,15 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
 
     def blocks(index):
         for c0 in range(0, index.size, chunk):
-            yield np.asarray(make(index[c0:c0 + chunk])[:, :, :n_t], dtype=np.float32)
+            yield np.asarray(make(index[c0:c0 + chunk])[:n_t], dtype=np.float32)  # (T, 3, n)
 
     # The subsample's maps are kept (float16, at most gram_pixels of them) for the second pass.
-    sub_maps = np.empty((sub.size, 3, n_t), dtype=np.float16)
+    sub_maps = np.empty((n_t, 3, sub.size), dtype=np.float16)
 
     def keep(index):
         for c0, m in zip(range(0, index.size, chunk), blocks(index), strict=True):
-            sub_maps[c0:c0 + m.shape[0]] = m
-            yield m.reshape(-1, n_t)
+            sub_maps[:, :, c0:c0 + m.shape[2]] = m
+            yield m.reshape(n_t, -1).T  # (3n, T) Fortran-ordered: no copy for BLAS
 
     g = _syrk_sum(keep(sub), n_t)
     k_all = min(max_rank, n_t)
@@ -405,23 +406,26 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
 
     def second_pass():
         for c0 in range(0, sub.size, chunk):
-            yield sub[c0:c0 + chunk], np.asarray(sub_maps[c0:c0 + chunk], dtype=np.float32)
+            yield sub[c0:c0 + chunk], np.asarray(sub_maps[:, :, c0:c0 + chunk], dtype=np.float32)
         for c0, m in zip(range(0, rest_pix.size, chunk), blocks(rest_pix), strict=True):
-            yield rest_pix[c0:c0 + m.shape[0]], m
+            yield rest_pix[c0:c0 + m.shape[2]], m
 
+    ut = np.ascontiguousarray(u.T)
+    lights_t = np.ascontiguousarray(lights.transpose(1, 2, 0))  # (3, E, T)
+    rest_t = np.ascontiguousarray(rest_l.transpose(1, 2, 0))
     for index, m in second_pass():
-        n = m.shape[0]
-        vc = (m.reshape(-1, n_t) @ u).reshape(n, 3, cap)
-        v[index] = vc
-        for c in range(3):  # per channel, as BLAS products
-            mc = np.ascontiguousarray(m[:, c])  # (n, T)
-            full = mc @ lights[:, c]  # (n, E) the exact relights of this chunk
-            total += np.einsum("pe,pe->e", full, full, dtype=np.float64)
-            r = mc @ rest_l[:, c]  # what the rank part must relight
-            rr[c] += np.einsum("pe,pe->e", r, r, dtype=np.float64)
-            vcc = np.ascontiguousarray(vc[:, c])  # (n, cap)
-            vtr[:, c] += vcc.T @ r
-            vtv[c] += vcc.T @ vcc
+        n = m.shape[2]
+        vc = (ut @ m.reshape(n_t, 3 * n)).reshape(cap, 3, n)
+        v[index] = vc.transpose(2, 1, 0)
+        for c in range(3):  # per channel, as BLAS products (m[:, c] a strided view BLAS reads)
+            mc = m[:, c]  # (T, n)
+            full = lights_t[c] @ mc  # (E, n) the exact relights of this chunk
+            total += np.einsum("ep,ep->e", full, full, dtype=np.float64)
+            r = rest_t[c] @ mc  # what the rank part must relight
+            rr[c] += np.einsum("ep,ep->e", r, r, dtype=np.float64)
+            vcc = vc[:, c]  # (cap, n)
+            vtr[:, c] += vcc @ r.T
+            vtv[c] += vcc @ vcc.T
         if progress is not None:
             progress(n)
     # Residual energy of each rank: ||r||^2 - 2 c.(V^T r) + c^T (V^T V) c over the first k ranks.

@@ -368,8 +368,10 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         t1 = time.perf_counter()
         done[0] = 0
 
-        def make(index):
-            return recipe_maps(recipe.subset(index), backend=opts.backend)
+        def make(index):  # texel-major float32 maps (the NumPy backend's transposed)
+            if opts.backend == "opencl":
+                return recipe_maps(recipe.subset(index), texel_major=True)
+            return recipe_maps(recipe.subset(index), backend=opts.backend, half=False).transpose(2, 1, 0)
 
         compact = transport.factorize_stream(make, pix.size, opts.map_size, texels,
                                              store_tolerance=opts.store_tolerance, progress=cb)

@@ -169,15 +169,17 @@ class Recipe:
                       spline=self.spline)
 
 
-def recipe_maps(recipe: Recipe, *, backend: str = "opencl", half: bool = True, progress=None) -> np.ndarray:
-    """(P, 3, T_pad) maps of every active texel, as the capture made them (float16 with ``half``)."""
+def recipe_maps(recipe: Recipe, *, backend: str = "opencl", half: bool = True, texel_major: bool = False,
+                progress=None) -> np.ndarray:
+    """(P, 3, T_pad) maps of every active texel, as the capture made them (float16 with
+    ``half``), or with ``texel_major`` (T_pad, 3, P) float32 (OpenCL)."""
     sm = rf.ShadingModel(albedo=np.asarray(recipe.albedo, np.float64), spec=np.asarray(recipe.spec, np.float64),
                          trust=np.asarray(recipe.trust, np.float64))
     maps, _ = rf.maps_from_fit(recipe.samples(), np.asarray(recipe.normals, np.float32), recipe.tri,
                                recipe.horizon_elevations(),
                                recipe.n_az, sm, np.asarray(recipe.blend, np.float64), recipe.active,
                                trend=recipe.trend, extrapolate=recipe.extrapolate, spline=recipe.spline,
-                               backend=backend, half=half, progress=progress)
+                               backend=backend, half=half, texel_major=texel_major, progress=progress)
     return maps
 
 

@@ -511,11 +511,13 @@ def fit_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hori
 def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
                   n_az: int, sm: ShadingModel, blend: np.ndarray, active: np.ndarray, *,
                   trend: bool = True, extrapolate: bool = True, paper_adaptation: bool = False,
-                  spline: bool = True, backend: str = "opencl", half: bool = False, progress=None):
+                  spline: bool = True, backend: str = "opencl", half: bool = False, texel_major: bool = False,
+                  progress=None):
     """The maps of :func:`model_maps` from its fits (:func:`fit_model`: the shading model ``sm``,
     the spline ``blend`` (P,), the kept texels ``active`` (T,) bool), for these pixels (any
     subset of the fitted ones, with their fits). Returns (maps, the triangulation whose
-    ``active`` texels they hold)."""
+    ``active`` texels they hold); maps (P, 3, T_pad), or with ``texel_major`` (T_pad, 3, P)
+    float32 (what the transport's projections read; OpenCL only)."""
     k, p = samples.shape[:2]
     verts = tri.vertices
     b = len(verts) - k
@@ -565,26 +567,32 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     # then stores float16 with ``half`` (the bundle's storage; keeps large captures' memory down).
     coef = trust[:, None] * sm.albedo if trend else np.zeros_like(sm.albedo)
     spec = trust[:, None] * sm.spec if trend else np.zeros_like(sm.spec)
-    maps = compute_maps(vals, normals, map_tri, horizon=horizon, n_az=n_az, adaptation=paper_adaptation,
-                        backend=backend, half=half, trend=(offset, coef, spec), progress=progress)
+    if texel_major and backend != "opencl":
+        raise InputError("texel-major maps are made by the OpenCL backend only")
     act = np.flatnonzero(map_tri.active)
-    tdirs = map_tri.texel_dirs[act]
     smooth = None
     if spline and (blend < 1.0).any():
         from .spline import spline_weights
 
         inside = np.flatnonzero(spline_texels(map_tri.texel_vertices[act], k))
-        sw = spline_weights(verts[:k], tdirs[inside]) if inside.size else None
+        sw = spline_weights(verts[:k], map_tri.texel_dirs[act][inside]) if inside.size else None
         if sw is not None:
             smooth = (inside, sw, map_tri.texel_vertices[act[inside]])
-    if smooth is not None:
+    # The OpenCL kernel blends the spline in itself (its values from BLAS, chunk by chunk).
+    blend_in = None
+    if smooth is not None and backend == "opencl":
+        blend_in = (samples, smooth[0], smooth[1], np.asarray(blend, dtype=np.float32))
+    maps = compute_maps(vals, normals, map_tri, horizon=horizon, n_az=n_az, adaptation=paper_adaptation,
+                        backend=backend, half=half and not texel_major, trend=(offset, coef, spec),
+                        texel_major=texel_major, spline=blend_in, progress=progress)
+    if smooth is not None and blend_in is None:
         for p0 in range(0, p, PIXEL_CHUNK):
             ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
             if (blend[ps] < 1.0).any():
                 m = maps[ps, :, :act.size].astype(dt)
                 _blend_spline(m, samples[:, ps], blend[ps], *smooth)
                 maps[ps, :, :act.size] = np.clip(m, 0.0, None)
-    if not np.isfinite(maps).all():
+    if not np.isfinite(np.sum(maps, dtype=np.float64)):  # one fast pass: the maps are >= 0
         raise ArithmeticError("non-finite reflectance from the shading model; this is a bug, please report it")
     return maps, map_tri
 
@@ -791,12 +799,13 @@ def sample_map(maps: np.ndarray, tri_active: np.ndarray, map_size: tuple[int, in
 
 def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *, horizon: np.ndarray | None,
                  n_az: int, adaptation: bool = True, backend: str = "opencl", half: bool = False,
-                 trend=None, progress=None) -> np.ndarray:
+                 trend=None, texel_major: bool = False, spline=None, progress=None) -> np.ndarray:
     """Reflectance maps (P, 3, T_pad) of P pixels, pixel-major: OpenCL, or the NumPy reference (float32).
 
     horizon : (P, n_az) horizon elevations for visibility, or None for none. half : OpenCL output
     in float16 (the bundle's storage; halves the peak memory of large captures). trend : see
-    :func:`build_maps`.
+    :func:`build_maps`. spline (OpenCL): see :func:`relight.kernels.maps.build_maps_cl` (the
+    NumPy path blends it afterwards, :func:`_blend_spline`).
     """
     if backend == "numpy":
         vis = None if horizon is None else visibility_maps(horizon, n_az, tri.map_size)
@@ -810,4 +819,5 @@ def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *
                          texel_weights=tri.texel_weights, texel_dirs=tri.texel_dirs, active=tri.active,
                          map_size=tri.map_size, horizon=horizon, n_az=n_az,
                          vis_soft=VIS_SOFT_TEXELS * np.pi / tri.map_size[1], adaptation=adaptation,
-                         half=half, trend=trend, spec_exponent=SPEC_EXPONENT, progress=progress)
+                         half=half, trend=trend, spec_exponent=SPEC_EXPONENT, texel_major=texel_major,
+                         spline=spline, progress=progress)

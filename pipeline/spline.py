@@ -86,7 +86,12 @@ def spline_values(samples: np.ndarray, weights: np.ndarray, gamma: float = SPLIN
     np.power(s, dt(gamma), out=s)
     out = weights.astype(dt) @ s
     np.clip(out, 0.0, None, out=out)
-    np.power(out, dt(1.0 / gamma), out=out)
+    if gamma == 0.4:  # x ** 2.5 as x * x * sqrt(x): ~10x faster than a general power
+        root = np.sqrt(out)
+        out *= out
+        out *= root
+    else:
+        np.power(out, dt(1.0 / gamma), out=out)
     return out.reshape(len(weights), p, c)
 
 
