@@ -172,42 +172,43 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     # Per chunk, planar with the pixels innermost (padded to whole work-groups, the padding
     # zero): the vertex values (K + 1, 3, m) (the last row zero: black lights read it), normals
     # (3, m), trend (9, m); the maps come back as (A, 3, m).
-    b_vals = cl.Buffer(ctx, mf.READ_ONLY, (k + 1) * 3 * chunk * 4)
-    b_norm = cl.Buffer(ctx, mf.READ_ONLY, 3 * chunk * 4)
-    b_trend = cl.Buffer(ctx, mf.READ_ONLY, 9 * chunk * 4)
     n_q = 0 if spline is None else len(spline[1])
     k_raw = 0 if spline is None else int(spline[0].shape[0])
-    b_spl = cl.Buffer(ctx, mf.READ_ONLY, max(n_q * 3 * chunk * 4, 4))
-    b_raw = cl.Buffer(ctx, mf.READ_ONLY, max((k_raw + 1) * 3 * chunk * 4, 4))
-    b_wt = cl.Buffer(ctx, mf.READ_ONLY, chunk * 4)
-    host = aligned_zeros((max(act.size, 1) * 3 * chunk,), np.float32)
+    direct = texel_major and p <= chunk and p % wg == 0  # the kernel writes the result itself
+    host = out.reshape(-1) if direct else aligned_zeros((max(act.size, 1) * 3 * chunk,), np.float32)
     b_host = cl.Buffer(ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=host)
     b_out = None if texel_major else cl.Buffer(ctx, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=out)
     k_pm = None if texel_major else cl.Kernel(prg, "pixel_major_f16" if half else "pixel_major_f32")
+
+    def planar(rows, m, fill=0.0):
+        """An aligned (rows, m) array and a buffer the device reads in place (no copy)."""
+        a = aligned_zeros((rows, m), np.float32)
+        if fill:
+            a[:] = fill
+        return a, cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=a)
+
     for p0 in range(0, p, chunk):
         n = min(chunk, p - p0)
         m = -(-n // wg) * wg
         ps = slice(p0, p0 + n)
-        vals = np.zeros((k + 1, 3, m), dtype=np.float32)
-        vals[:k, :, :n] = np.asarray(samples[:, ps], np.float32).transpose(0, 2, 1)
-        cl.enqueue_copy(queue, b_vals, vals)
-        norm = np.zeros((3, m), dtype=np.float32)
+        # Per chunk, planar with the pixels innermost (padded to whole work-groups, the padding
+        # zero): the vertex values (K + 1, 3, m) (the last row zero: black lights read it),
+        # normals (3, m), trend (9, m); the maps come back as (A, 3, m).
+        vals, b_vals = planar((k + 1) * 3, m)
+        vals.reshape(k + 1, 3, m)[:k, :, :n] = np.asarray(samples[:, ps], np.float32).transpose(0, 2, 1)
+        norm, b_norm = planar(3, m)
         norm[:, :n] = np.asarray(normals[ps], np.float32).T
-        cl.enqueue_copy(queue, b_norm, norm)
+        tr, b_trend = planar(9 if use_trend else 1, m)
         if use_trend:
-            tr = np.zeros((9, m), dtype=np.float32)
             for j, part in enumerate(trend[:3]):
                 tr[3 * j:3 * j + 3, :n] = np.asarray(part[ps], np.float32).T
-            cl.enqueue_copy(queue, b_trend, tr)
+        spl, b_spl = planar(max(n_q * 3, 1), m)
+        own, b_raw = planar((k_raw + 1) * 3, m)
+        wt, b_wt = planar(1, m, fill=1.0)
         if spline is not None:
-            own = np.zeros((k_raw + 1, 3, m), dtype=np.float32)
-            own[:k_raw, :, :n] = np.asarray(spline[0][:, ps], np.float32).transpose(0, 2, 1)
-            wt = np.ones(m, dtype=np.float32)
-            wt[:n] = spline[3][ps]
-            spl = spline_values(own[:k_raw].reshape(k_raw, 3 * m, 1), spline[2]).reshape(n_q, 3, m)
-            cl.enqueue_copy(queue, b_spl, np.ascontiguousarray(spl))
-            cl.enqueue_copy(queue, b_raw, own)
-            cl.enqueue_copy(queue, b_wt, wt)
+            own.reshape(k_raw + 1, 3, m)[:k_raw, :, :n] = np.asarray(spline[0][:, ps], np.float32).transpose(0, 2, 1)
+            wt[0, :n] = spline[3][ps]
+            spl[:] = spline_values(own[:3 * k_raw].reshape(k_raw, 3 * m, 1), spline[2]).reshape(n_q * 3, m)
         if use_vis:  # (the padding pixels read the next ones' horizons or are cut off: never used)
             _smoothed_visibility(queue, k_vis, k_box, b_hz, p, b_taz, map_size, vis_soft, p0, m, raw, smooth,
                                  n_valid=n)
@@ -217,11 +218,13 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
         if texel_major:
             mapped, _ = cl.enqueue_map_buffer(queue, b_host, cl.map_flags.READ, 0, host.shape, host.dtype)
             mapped.base.release()  # the map is the sync: on the CPU the maps are already in ``host``
-            out[:act.size, :, ps] = host[:act.size * 3 * m].reshape(act.size, 3, m)[:, :, :n]
+            if not direct:
+                out[:act.size, :, ps] = host[:act.size * 3 * m].reshape(act.size, 3, m)[:, :, :n]
         else:  # transposed on the device (a NumPy transpose of this size is ~5x slower)
             k_pm(queue, (n, t_pad // 16, 3), None, b_host, np.int32(act.size), np.int32(m), np.int32(p0),
                  np.int32(t_pad), b_out)
             queue.finish()
+        queue.finish()  # the chunk's host arrays are read in place until here
         if progress is not None:
             progress(n)
     if b_out is not None:
