@@ -89,6 +89,23 @@ def test_maps_of_a_subset_are_the_subset_of_the_maps(recipe):
     np.testing.assert_array_equal(rcp.recipe_maps(shared.subset(idx)), whole[idx])
 
 
+def test_texel_major_maps_are_the_maps_transposed_and_match_numpy(recipe):
+    """The capture's transport reads the maps texel-major in float32 (the kernel's own layout,
+    spline blended in on the device); the exact path pixel-major halves; the NumPy backend
+    (interpolation and spline blend in NumPy) is the twin of both."""
+    from relight.numerics import HALF_TINY
+
+    sub = recipe.subset(np.arange(3, recipe.n_pixels, max(1, recipe.n_pixels // 300)))
+    assert (np.asarray(sub.blend) < 1.0).any()  # the spline is blended in somewhere
+    tm = rcp.recipe_maps(sub, texel_major=True)
+    pm = rcp.recipe_maps(sub)
+    assert tm.dtype == np.float32 and tm.shape == pm.shape[::-1]
+    np.testing.assert_allclose(pm.astype(np.float32), tm.transpose(2, 1, 0), rtol=HALF_RTOL, atol=HALF_TINY)
+    ref = rcp.recipe_maps(sub, backend="numpy", half=False)
+    scale = float(ref.max())
+    np.testing.assert_allclose(tm.transpose(2, 1, 0), ref, rtol=1e-3, atol=1e-5 * scale)
+
+
 def test_a_damaged_recipe_is_refused(small_bundle):
     from relight.pipeline.recipe import recipe_from_arrays
 
