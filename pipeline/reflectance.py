@@ -377,9 +377,11 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation,
         sp = np.where(two, s2, 0.0)
         albedo[ps], spec[ps] = a, sp
         cnt = use.sum(axis=1)
-        w = use.T[..., None]  # (K, p, 1)
+        # (K, p, 1) in C order: transposed views would make every (K, p, 3) pass below strided
+        w = np.ascontiguousarray(use.T, dtype=dt)[..., None]
         mean = (y * w).sum(axis=0, dtype=np.float64) / np.maximum(cnt, 1)[:, None]
-        pred = (c.T[..., None] * a[None] + s.T[..., None] * sp[None]).astype(dt)
+        pred = np.ascontiguousarray(c.T, dtype=dt)[..., None] * a[None].astype(dt) + \
+            np.ascontiguousarray(s.T, dtype=dt)[..., None] * sp[None].astype(dt)
         ss_tot = (((y - mean[None].astype(dt)) ** 2) * w).sum(axis=(0, 2), dtype=np.float64)
         ss_res = (((y - pred) ** 2) * w).sum(axis=(0, 2), dtype=np.float64)
         r2 = 1.0 - ss_res / np.maximum(ss_tot, 1e-30)

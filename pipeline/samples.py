@@ -236,10 +236,10 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
         wsum = 0.0
         dsum = np.zeros(3)
         for f in frames:
-            crop = ing.crops[f]
-            acc += crop.linear()
+            lin, clipped_f = ing.crops[f].linear_and_clipped(CLIP_LEVEL)
+            acc += lin
             wsum += float(fl.level[f])
-            clip |= crop.clipped(CLIP_LEVEL)
+            clip |= clipped_f
             if f != ref:
                 ing.crops[f] = None  # used once
             dsum += light_dirs[f]

@@ -58,13 +58,16 @@ def spline_weights(dirs: np.ndarray, query: np.ndarray) -> np.ndarray | None:
     system[:k, :k] = _tps(np.linalg.norm(dirs[:, None] - dirs[None], axis=2))
     system[:k, k:] = poly(dirs)
     system[k:, :k] = system[:k, k:].T
-    rhs = np.zeros((k + 4, k))
-    rhs[:k] = np.eye(k)
+    basis = np.hstack([_tps(np.linalg.norm(query[:, None] - dirs[None], axis=2)), poly(query)])  # (Q, K + 4)
     try:
-        coef = np.linalg.solve(system, rhs)
+        if len(query) < k:  # the system is symmetric: w = (S^-1 basis^T)^T, Q right-hand sides
+            w = np.linalg.solve(system, basis.T)[:k].T
+        else:
+            rhs = np.zeros((k + 4, k))
+            rhs[:k] = np.eye(k)
+            w = basis @ np.linalg.solve(system, rhs)
     except np.linalg.LinAlgError:
         return None
-    w = np.hstack([_tps(np.linalg.norm(query[:, None] - dirs[None], axis=2)), poly(query)]) @ coef
     return w if np.isfinite(w).all() else None
 
 
