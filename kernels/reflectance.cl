@@ -14,7 +14,8 @@
  *
  * Build options (constants, so their branches fold away): ADAPT (light adaptation), USE_VIS
  * (visibility), USE_TREND (the shading model added back), USE_SPLINE (the thin-plate spline
- * blended in), each 0/1; SPEC_EXP (the specular lobe's whole exponent).
+ * blended in), each 0/1; SPEC_EXP (the specular lobe's whole exponent); SPLINE_ROOT25 (the
+ * spline values come in its power domain of exponent 0.4: clipped at 0 and raised to 2.5 here).
  */
 #include "common.h"
 
@@ -33,6 +34,9 @@
 #endif
 #ifndef USE_SPLINE
 #define USE_SPLINE 0
+#endif
+#ifndef SPLINE_ROOT25
+#define SPLINE_ROOT25 0
 #endif
 __kernel void soft_visibility(
     __global const float *restrict horizon, int n_pix_all, /* (n_az, P_all) horizon elevations (radians) */
@@ -198,7 +202,12 @@ __kernel void build_maps(
         if (ti[3] >= 0) {
             vf cap = vmx(LOADV(raw + ti[0] * s3 + off + i), vmx(LOADV(raw + ti[1] * s3 + off + i),
                                                                  LOADV(raw + ti[2] * s3 + off + i)));
-            vf sp = vmn(LOADV(spline + ti[3] * s3 + off + i), cap);
+            vf sv = LOADV(spline + ti[3] * s3 + off + i);
+#if SPLINE_ROOT25
+            sv = vmx(sv, zero);
+            sv = sv * sv * sqrt(sv);
+#endif
+            vf sp = vmn(sv, cap);
             vf w = LOADV(weight + i);
             res = vmx(w * res + (1.0f - w) * sp, zero);
         }
@@ -231,4 +240,30 @@ __kernel void pixel_major_f16(__global const float *restrict in, int n_active, i
 {
     PM_GATHER
     vstore_half16_rte(x, 0, out + o);
+}
+
+/* The smoothed visibility (soft_visibility then box3) at a few texels only - the triangulation's
+ * vertices - for LANES pixels per work-item: the mean of the soft visibility over each texel's
+ * 3x3 neighbourhood. Range (n_pix / LANES, n_cols); out (n_cols, n_pix). */
+__kernel void visibility_at(
+    __global const float *restrict horizon, int n_pix_all, int p0,  /* (n_az, >= P_all) padded to LANES */
+    __global const float *restrict texel_az,                       /* (T, 4) as soft_visibility */
+    __global const int *restrict nb,                               /* (n_cols, 9) neighbourhood texels */
+    float inv_soft, int n_pix, __global float *restrict out)
+{
+    int i = get_global_id(0) * LANES;
+    int col = get_global_id(1);
+    vf acc = (vf)(0.0f);
+    for (int j = 0; j < 9; ++j) {
+        int t = nb[9 * col + j];
+        float elev = texel_az[4 * t + 3];
+        if (elev < 4.0f) { /* (uniform over the lanes) elevation >= 4: straight at the camera */
+            vf h0 = LOADV(horizon + (size_t)(int)texel_az[4 * t] * n_pix_all + p0 + i);
+            vf h1 = LOADV(horizon + (size_t)(int)texel_az[4 * t + 1] * n_pix_all + p0 + i);
+            acc += vclamp01(0.5f + (elev - (h0 + (h1 - h0) * texel_az[4 * t + 2])) * inv_soft);
+        } else {
+            acc += 1.0f;
+        }
+    }
+    *(__global vf *)(out + (size_t)col * n_pix + i) = acc * (1.0f / 9.0f);
 }
