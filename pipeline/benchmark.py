@@ -56,6 +56,18 @@ def _child(video: str, bundle: str, truth: str) -> None:
                       "bundle_mb": Path(bundle).stat().st_size / 1e6}))
 
 
+def _cpu_times() -> tuple[int, int] | None:
+    """(steal, total) CPU ticks of the machine from /proc/stat (Linux), or None."""
+    try:
+        fields = Path("/proc/stat").read_text().splitlines()[0].split()
+    except (OSError, IndexError):
+        return None
+    if fields[0] != "cpu" or len(fields) < 9:
+        return None
+    ticks = [int(v) for v in fields[1:]]
+    return ticks[7], sum(ticks[:8])
+
+
 def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool = False,
         only: list[str] | None = None) -> dict:
     from relight.errors import InputError
@@ -80,14 +92,19 @@ def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool =
         code = (f"from relight.pipeline.benchmark import _child; _child({str(cap / 'capture.mp4')!r}, "
                 f"{str(out / (key + '.bundle'))!r}, {str(cap / 'truth')!r})")
         t0 = time.perf_counter()
+        cpu0 = _cpu_times()
         proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         wall = time.perf_counter() - t0
+        cpu1 = _cpu_times()
         if proc.returncode != 0:
             raise RuntimeError(f"capture of {sc['name']} failed:\n{proc.stderr[-2000:]}")
         fig = json.loads(proc.stdout.strip().splitlines()[-1])
         fig["scenario"] = sc
         fig["wall_s"] = wall
         fig["realtime_x"] = wall / sc["duration"]
+        # The hypervisor's steal over the run (share of all CPU time): a shared host's noise.
+        fig["steal_share"] = (None if cpu0 is None or cpu1 is None or cpu1[1] <= cpu0[1]
+                              else (cpu1[0] - cpu0[0]) / (cpu1[1] - cpu0[1]))
         rows.append(fig)
         (out / (key + ".bundle")).unlink(missing_ok=True)
     doc = {"scenarios": rows, "memory_goal_mb": MEMORY_GOAL_MB}
@@ -102,7 +119,7 @@ def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool =
 def table(doc: dict) -> str:
     head = (f"{'scenario':16s} {'wall s':>7s} {'x real':>6s} {'goal':>5s} {'peak MB':>8s} {'bundle MB':>9s} "
             f"{'face px':>8s} {'flash P/R':>11s} {'reg px':>7s} {'dir mean/p95 deg':>17s} {'normal med':>10s} "
-            f"{'samples':>7s}")
+            f"{'samples':>7s} {'steal':>5s}")
     lines = [head, "-" * len(head)]
     for r in doc["scenarios"]:
         m = r["metrics"]
@@ -111,7 +128,8 @@ def table(doc: dict) -> str:
                      f"{(f'{goal:.0f}x' if goal else '-'):>5s} {r['peak_mb']:8.0f} {r['bundle_mb']:9.1f} "
                      f"{r['pixels']:8d} {m['flash_precision']:5.3f}/{m['flash_recall']:5.3f} "
                      f"{m['registration_rms_px']:7.3f} {m['light_dir_mean_deg']:8.2f}/{m['light_dir_p95_deg']:6.2f} "
-                     f"{m['normal_median_deg']:10.2f} {r['samples']:7d}")
+                     f"{m['normal_median_deg']:10.2f} {r['samples']:7d} "
+                     + (f"{100 * r['steal_share']:4.1f}%" if r.get("steal_share") is not None else "    -"))
     stages = [k for k in doc["scenarios"][0]["timings"] if k not in ("total",)]
     lines.append("")
     lines.append(f"{'stage seconds':16s} " + " ".join(f"{s[:9]:>9s}" for s in stages))
