@@ -110,6 +110,37 @@ def pack_basis(v: np.ndarray, kp: int, n_pix: int) -> np.ndarray:
     return flush_subnormal_halves(out)
 
 
+def pack_quantised(q: np.ndarray, scale: np.ndarray, kp: int, n_pix: int, chunk: int = 2048) -> np.ndarray:
+    """:func:`pack_basis` of :func:`relight.kernels.transport.dequantise_basis` (q, scale) in one
+    pass per chunk of blocks (a bundle's first frame waited for the two passes and their copies)."""
+    units = transport.basis_units(q, scale)  # (nb, 3, 16)
+    nb, _, k, blk = q.shape
+    half = LANES // blk  # 16-pixel storage blocks per 32-pixel kernel block
+    k = min(k, kp)
+    blocks = -(-n_pix // LANES)
+    out = aligned_zeros((blocks, kp, 3, LANES), np.float16)
+    for b0 in range(0, blocks, chunk):
+        b1 = min(blocks, b0 + chunk)
+        n0, n1 = b0 * half, min(b1 * half, nb)
+        full = (n1 - n0) // half  # kernel blocks whose storage blocks are all there
+        if full:
+            # One pass: int8 x unit in float32, rounded to halves straight into the kernel's layout.
+            dest = out[b0:b0 + full, :k].reshape(full, k, 3, half, blk).transpose(0, 3, 2, 1, 4)
+            np.multiply(q[n0:n0 + full * half, :, :k].reshape(full, half, 3, k, blk),
+                        units[n0:n0 + full * half, None, :, None, :].reshape(full, half, 3, 1, blk), out=dest,
+                        dtype=np.float32, casting="same_kind")
+        if n0 + full * half < n1:  # a last kernel block with part of its storage
+            v = np.zeros((half, 3, k, blk), dtype=np.float16)
+            rest = n1 - (n0 + full * half)
+            v[:rest] = np.asarray(q[n1 - rest:n1, :, :k], np.float32) * units[n1 - rest:n1, :, None, :]
+            out[b0 + full, :k] = v.transpose(2, 1, 0, 3).reshape(k, 3, LANES)
+        flush_subnormal_halves(out[b0:b1])
+    if n_pix % LANES:  # the storage's padding pixels are zero; past n_pix the kernel reads zeros
+        tail = out[-1].reshape(kp, 3, LANES)
+        tail[:, :, n_pix % LANES:] = 0
+    return out
+
+
 #: Texel rows a recipe bundle's Relighter keeps made (each 6 bytes per face pixel): a sun and a
 #: few point lights with room to turn the head.
 ROW_SLOTS = 64
@@ -224,7 +255,10 @@ class Relighter:
         # ranks of one block in one run of memory: one stream per work item, measured 1.5x faster
         # than a run per colour channel): the kernel streams nothing it does not use.
         kp = max(self.rank or 1, 1)
-        self._v = pack_basis(self.transport.v, kp, self.n_pix)
+        if self.transport.v is None:  # 8-bit storage: packed from it directly
+            self._v = pack_quantised(self.transport.q, self.transport.q_scale, kp, self.n_pix)
+        else:
+            self._v = pack_basis(self.transport.v, kp, self.n_pix)
         if not np.isfinite(self._v).all():
             raise InputError("the bundle's transport basis holds non-finite values: capture the bundle again")
         self._v_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._v)
@@ -253,14 +287,18 @@ class Relighter:
         arrays = bundle.arrays
         if "transport_u" in arrays:
             v = arrays["transport_v"]
-            if v.dtype == np.int8:  # 8-bit storage (format 3)
+            q = q_scale = None
+            if v.dtype == np.int8:  # 8-bit storage (format 3): dequantised only where needed
                 if "transport_v_scale" not in arrays:
                     raise InputError("the bundle's 8-bit transport basis has no transport_v_scale: capture it again")
-                v = transport.dequantise_basis(v, arrays["transport_v_scale"])
+                q, q_scale = v, np.asarray(arrays["transport_v_scale"])
+                transport.basis_units(q, q_scale)  # its shape checked now
+                v = None
             return transport.Transport(u=np.asarray(arrays["transport_u"]), v=v,
                                        rank_errors=np.asarray(arrays["transport_errors"]),
                                        sigma=np.asarray(arrays.get("transport_sigma", np.zeros(1))),
-                                       direct=int(bundle.meta.get("transport_direct", transport.DIRECT_TEXELS)))
+                                       direct=int(bundle.meta.get("transport_direct", transport.DIRECT_TEXELS)),
+                                       q=q, q_scale=q_scale)
         return transport.factorize(bundle.pixel_maps(), bundle.map_size, np.asarray(bundle.map_texels))
 
     @property
@@ -464,7 +502,8 @@ class Relighter:
             k = self.rank
             direct, rest = transport.split_direct(lp, self.transport.direct)
             coef = self.transport.u[:, :k].T.astype(np.float64) @ rest
-            vals = relight_compact_numpy(self.transport.v, k, coef, self.direct_rows(direct), lp[direct], self.n_pix)
+            vals = relight_compact_numpy(self.transport.basis(), k, coef, self.direct_rows(direct), lp[direct],
+                                         self.n_pix)
         out = np.zeros_like(self.frame)
         out.reshape(-1, 3)[self.frame_index] = vals
         return out

@@ -234,12 +234,19 @@ class Transport:
     """
 
     u: np.ndarray
-    v: np.ndarray
+    v: np.ndarray | None  # None: only the 8-bit storage is held (see basis())
     rank_errors: np.ndarray
     sigma: np.ndarray
     direct: int = DIRECT_TEXELS
     q: np.ndarray | None = None  # 8-bit storage of v (quantise_basis), when made so
     q_scale: np.ndarray | None = None
+
+    def basis(self) -> np.ndarray:
+        """v, dequantised from the 8-bit storage on first use (a Relighter packs its kernel's
+        layout straight from that storage: :func:`relight.kernels.relighter.pack_quantised`)."""
+        if self.v is None:
+            self.v = dequantise_basis(self.q, self.q_scale)
+        return self.v
 
     def rank_for(self, tolerance: float) -> int | None:
         """Smallest stored rank meeting ``tolerance`` on the validation set, or None."""
@@ -260,16 +267,23 @@ def quantise_basis(v: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray]:
     return q, np.ascontiguousarray(scale.transpose(0, 2, 1).reshape(nb * blk, 3))
 
 
+def basis_units(q: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """(P / 16, 3, 16) float32 value of one step of the 8-bit basis ``q`` (P / 16, 3, K, 16) per
+    pixel and channel, from its stored ``scale`` (P, 3) (checked against q's shape)."""
+    nb, _, _, blk = q.shape
+    if scale.shape != (nb * blk, 3):
+        raise InputError(f"transport_v_scale of shape {scale.shape}: expected ({nb * blk}, 3); capture the "
+                         "bundle again")
+    return np.asarray(scale, np.float32).reshape(nb, blk, 3).transpose(0, 2, 1) / V_LEVELS
+
+
 def dequantise_basis(q: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """float16 blocked basis images (P / 16, 3, Kp, 16) (ranks zero padded to a multiple of 16)
     of :func:`quantise_basis` storage."""
     from .maps import padded_texels
 
     nb, _, k, blk = q.shape
-    if scale.shape != (nb * blk, 3):
-        raise InputError(f"transport_v_scale of shape {scale.shape}: expected ({nb * blk}, 3); capture the "
-                         "bundle again")
-    s = np.asarray(scale, np.float32).reshape(nb, blk, 3).transpose(0, 2, 1) / V_LEVELS  # (nb, 3, 16)
+    s = basis_units(q, scale)
     out = np.zeros((nb, 3, padded_texels(k), blk), dtype=np.float16)
     for b0 in range(0, nb, 4096):
         out[b0:b0 + 4096, :, :k] = np.asarray(q[b0:b0 + 4096], np.float32) * s[b0:b0 + 4096, :, None, :]

@@ -225,3 +225,27 @@ def test_pocl_worker_threads_are_pinned_unless_the_user_chose(monkeypatch):
     full = os.sched_getaffinity(0) == set(range(os.cpu_count()))
     assert pin_pocl_threads() == full
     assert os.environ.get("POCL_AFFINITY") == ("1" if full else None)
+
+
+@pytest.mark.parametrize("n_pix", [31, 32 * 5 + 16 + 3, 32 * 4])
+def test_basis_packed_from_its_8bit_storage_is_the_dequantised_one_packed(n_pix):
+    """A bundle's first frame packs the kernel's basis straight from the 8-bit storage: bit for
+    bit what dequantising then packing gives (odd and even storage blocks, ranks cut)."""
+    from relight.kernels import transport
+    from relight.kernels.relighter import pack_basis, pack_quantised
+
+    rng = np.random.default_rng(3)
+    rank = 21
+    nb = -(-n_pix // 16)
+    v = np.zeros((nb * 16, 3, rank), dtype=np.float32)
+    v[:n_pix] = rng.normal(0, 1, (n_pix, 3, rank)) * rng.uniform(1e-6, 2.0, (n_pix, 3, 1))
+    v[:n_pix, 1, :] *= 1e-4  # tiny values: their halves flushed to zero alike
+    blocked = np.zeros((nb * 16, 3, 32), dtype=np.float16)
+    blocked[:, :, :rank] = v
+    blocked = np.ascontiguousarray(blocked.reshape(nb, 16, 3, 32).transpose(0, 2, 3, 1))
+    q, scale = transport.quantise_basis(blocked, rank)
+    for kp in (rank, 16, 32):
+        ref = pack_basis(transport.dequantise_basis(q, scale), kp, n_pix)
+        got = pack_quantised(q, scale, kp, n_pix, chunk=2)
+        assert got.shape == ref.shape
+        np.testing.assert_array_equal(got.view(np.uint16), ref.view(np.uint16))
