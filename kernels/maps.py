@@ -141,18 +141,19 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     """
     import pyopencl as cl
 
-    from relight.pipeline.spline import SPLINE_GAMMA
+    from relight.pipeline.spline import SPLINE_GAMMA, spline_power_sum, spline_root
 
     rt = get_runtime()
     ctx, queue = rt.context, rt.queue
     mf = cl.mem_flags
     use_vis = horizon is not None
     use_trend = trend is not None
+    root25 = SPLINE_GAMMA == 0.4  # the kernel takes the spline's root as x * x * sqrt(x)
     if not 0 <= int(spec_exponent) < 256:
         raise ValueError(f"spec_exponent {spec_exponent}: a whole number in [0, 256)")
     opts = (f"-DSPEC_EXP={int(spec_exponent)}", f"-DADAPT={int(bool(adaptation))}", f"-DUSE_VIS={int(use_vis)}",
             f"-DUSE_TREND={int(use_trend)}", f"-DUSE_SPLINE={int(spline is not None)}",
-            f"-DSPLINE_ROOT25={int(SPLINE_GAMMA == 0.4)}")
+            f"-DSPLINE_ROOT25={int(root25)}")
     prg = build_program("reflectance", opts)
     k_vis = cl.Kernel(prg, "soft_visibility")
     k_box = cl.Kernel(prg, "box3")
@@ -177,12 +178,10 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     raw = cl.Buffer(ctx, mf.READ_WRITE, chunk * n_tex * 4)
     smooth = cl.Buffer(ctx, mf.READ_WRITE, chunk * n_tex * 4)
     b_hz = buf(np.asarray(horizon, np.float32).T if use_vis else np.zeros(1), np.float32)
-    # Per chunk, planar with the pixels innermost (padded to whole work-groups, the padding
-    # zero): the vertex values (K + 1, 3, m) (the last row zero: black lights read it), normals
-    # (3, m), trend (9, m); the maps come back as (A, 3, m).
     n_q = 0 if spline is None else len(spline[1])
     k_raw = 0 if spline is None else int(spline[0].shape[0])
-    direct = texel_major and p <= chunk and p % wg == 0  # the kernel writes the result itself
+    # the kernel writes the (float32, texel-major, one-chunk) result itself
+    direct = texel_major and not half and p <= chunk and p % wg == 0
     host = out.reshape(-1) if direct else aligned_zeros((max(act.size, 1) * 3 * chunk,), np.float32)
     b_host = cl.Buffer(ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=host)
     b_out = None if texel_major else cl.Buffer(ctx, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=out)
@@ -201,7 +200,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
         ps = slice(p0, p0 + n)
         # Per chunk, planar with the pixels innermost (padded to whole work-groups, the padding
         # zero): the vertex values (K + 1, 3, m) (the last row zero: black lights read it),
-        # normals (3, m), trend (9, m); the maps come back as (A, 3, m).
+        # normals (3, m), trend (9, m), the spline's inputs; the maps come back as (A, 3, m).
         vals, b_vals = planar((k + 1) * 3, m)
         vals.reshape(k + 1, 3, m)[:k, :, :n] = np.asarray(samples[:, ps], np.float32).transpose(0, 2, 1)
         norm, b_norm = planar(3, m)
@@ -216,12 +215,11 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
         if spline is not None:
             own.reshape(k_raw + 1, 3, m)[:k_raw, :, :n] = np.asarray(spline[0][:, ps], np.float32).transpose(0, 2, 1)
             wt[0, :n] = spline[3][ps]
-            # The spline in its power domain by BLAS (spline_values' product); the kernel clips
-            # it and raises it to 1 / SPLINE_GAMMA (2.5: x x sqrt(x), ~10x faster than a power).
-            pw = np.power(np.maximum(own[:3 * k_raw], 0.0), np.float32(SPLINE_GAMMA)).reshape(k_raw, 3 * m)
-            np.matmul(np.asarray(spline[2], np.float32), pw, out=spl.reshape(n_q, 3 * m))
-            if SPLINE_GAMMA != 0.4:
-                np.power(np.maximum(spl, 0.0), np.float32(1.0 / SPLINE_GAMMA), out=spl)
+            # The spline in its power domain by BLAS; the kernel clips it and raises it to 2.5
+            # (SPLINE_ROOT25), or it is done here for another exponent.
+            spline_power_sum(own[:3 * k_raw].reshape(k_raw, 3 * m), spline[2], out=spl.reshape(n_q, 3 * m))
+            if not root25:
+                spline_root(spl)
         if use_vis:  # (the padding pixels read the next ones' horizons or are cut off: never used)
             _smoothed_visibility(queue, k_vis, k_box, b_hz, p, b_taz, map_size, vis_soft, p0, m, raw, smooth,
                                  n_valid=n)
@@ -236,7 +234,6 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
         else:  # transposed on the device (a NumPy transpose of this size is ~5x slower)
             k_pm(queue, (n, t_pad // 16, 3), None, b_host, np.int32(act.size), np.int32(m), np.int32(p0),
                  np.int32(t_pad), b_out)
-            queue.finish()
         queue.finish()  # the chunk's host arrays are read in place until here
         if progress is not None:
             progress(n)

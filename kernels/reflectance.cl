@@ -1,16 +1,19 @@
 /* Reflectance maps from light samples (relight.kernels.maps; NumPy twin:
  * relight.pipeline.reflectance.visibility_maps / build_maps).
  *
- * Every per-pixel array is planar with the pixels innermost - (rows, n_pix) - and one work-item
- * is one (pixel, texel) pair with the pixels fastest, so PoCL vectorises across pixels
- * (contiguous loads and stores, branch-free bodies).
+ * Every per-pixel array is planar with the pixels innermost - (rows, n_pix) - so neighbouring
+ * pixels are neighbouring lanes: soft_visibility and box3 are one (pixel, texel) per work-item
+ * (PoCL vectorises their work-groups), build_maps and visibility_at 16 pixels per work-item as
+ * explicit vectors (PoCL's own vectoriser gives up on their bodies).
  *
  * soft_visibility: per (pixel, texel), whether the texel's direction clears the pixel's horizon
  *   (soft over VIS_SOFT of elevation), from a horizon table over image-plane directions.
  * box3: the paper's 3x3 box filter of those maps (wrapping in azimuth, clamped at the poles).
+ * visibility_at: the two above at a few texels only (the triangulation's vertices).
  * build_maps: per pixel and active texel, the value interpolated from its triangle's vertices with
  *   visibility-aware blending and light adaptation (paper Eq. 1-3); written texel-major
- *   (T_pad, 3, n) float32 (the host makes other layouts and halves).
+ *   (T_pad, 3, n) float32.
+ * pixel_major_f32 / _f16: that layout transposed to the pixel-major rows relighting reads.
  *
  * Build options (constants, so their branches fold away): ADAPT (light adaptation), USE_VIS
  * (visibility), USE_TREND (the shading model added back), USE_SPLINE (the thin-plate spline
@@ -75,8 +78,8 @@ __kernel void box3(__global const float *restrict in, int w, int h, int n_pix, _
     out[(size_t)(y * w + x) * n_pix + i] = acc * (1.0f / 9.0f);
 }
 
-/* build_maps works on LANES pixels per work-item as explicit vectors (PoCL's own vectoriser of
- * a work-group's items gives up on this body: its SLP pass pairs lines first). */
+/* build_maps and visibility_at work on LANES pixels per work-item as explicit vectors (PoCL's own
+ * vectoriser of a work-group's items gives up on such bodies: its SLP pass pairs lines first). */
 #define LANES 16
 typedef float16 vf;
 inline vf vmx(vf a, vf b) { return a > b ? a : b; }

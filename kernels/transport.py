@@ -229,7 +229,8 @@ class Transport:
     """The compact light transport of a bundle.
 
     u : (T, K) float32 orthonormal texel basis. v : (P / 16, 3, Kp, 16) float16, the maps
-    projected on it in blocks of 16 pixels (pixels and ranks zero padded to multiples of 16).
+    projected on it in blocks of 16 pixels (pixels and ranks zero padded to multiples of 16), or
+    None when only their 8-bit storage ``q`` / ``q_scale`` is held (:meth:`basis` makes v).
     rank_errors : (K,) float32, the largest
     relative L2 error over the validation environments at each rank (with ``direct`` exact
     texels). sigma : (K,) singular values.
@@ -476,14 +477,12 @@ def _stored_transport(v_all: np.ndarray, u: np.ndarray, k: int, sig2, resid, tot
     flush_subnormal_halves(v)
     v = np.ascontiguousarray(v.reshape(nb, PIXEL_BLOCK, 3, kp).transpose(0, 2, 3, 1))
     q, q_scale = quantise_basis(v, k)
-    v = dequantise_basis(q, q_scale)
     step2 = (np.asarray(q_scale, np.float64) / V_LEVELS) ** 2 / 12.0
     noise_unit = step2.sum(axis=0)  # (3,) see factorize
     errors = np.zeros(k)
     for e in np.flatnonzero(total > 0):
         noise = np.cumsum(coef[:k, :, e] ** 2, axis=0) @ noise_unit
         errors = np.maximum(errors, np.sqrt(np.clip(resid[:k, e], 0.0, None) / total[e] + noise / total[e]))
-    tr = Transport(u=np.ascontiguousarray(u[:, :k]), v=v, rank_errors=errors.astype(np.float32),
-                   sigma=np.sqrt(sig2[:k]).astype(np.float32), direct=direct)
-    tr.q, tr.q_scale = q, q_scale
-    return tr
+    # Only the storage: the basis images are dequantised where something reads them (basis()).
+    return Transport(u=np.ascontiguousarray(u[:, :k]), v=None, rank_errors=errors.astype(np.float32),
+                     sigma=np.sqrt(sig2[:k]).astype(np.float32), direct=direct, q=q, q_scale=q_scale)

@@ -59,13 +59,8 @@ def spline_weights(dirs: np.ndarray, query: np.ndarray) -> np.ndarray | None:
     system[:k, k:] = poly(dirs)
     system[k:, :k] = system[:k, k:].T
     basis = np.hstack([_tps(np.linalg.norm(query[:, None] - dirs[None], axis=2)), poly(query)])  # (Q, K + 4)
-    try:
-        if len(query) < k:  # the system is symmetric: w = (S^-1 basis^T)^T, Q right-hand sides
-            w = np.linalg.solve(system, basis.T)[:k].T
-        else:
-            rhs = np.zeros((k + 4, k))
-            rhs[:k] = np.eye(k)
-            w = basis @ np.linalg.solve(system, rhs)
+    try:  # the system is symmetric: w = (S^-1 basis^T)^T, one right-hand side per query
+        w = np.linalg.solve(system, basis.T)[:k].T
     except np.linalg.LinAlgError:
         return None
     return w if np.isfinite(w).all() else None
@@ -84,18 +79,31 @@ def spline_values(samples: np.ndarray, weights: np.ndarray, gamma: float = SPLIN
     weights (Q, K) from :func:`spline_weights`: ``(W @ s**gamma) ** (1/gamma)``, negative
     overshoot clipped to 0; float64 for float64 samples (the stability reference), else float32."""
     k, p, c = samples.shape
+    out = spline_power_sum(samples.reshape(k, p * c), weights, gamma)
+    return spline_root(out, gamma).reshape(len(weights), p, c)
+
+
+def spline_power_sum(samples: np.ndarray, weights: np.ndarray, gamma: float = SPLINE_GAMMA, *,
+                     out: np.ndarray | None = None) -> np.ndarray:
+    """(Q, n) ``W @ max(s, 0) ** gamma`` for samples (K, n): the spline in its power domain (the
+    maps kernel takes it so and applies :func:`spline_root` itself); float64 for float64 samples,
+    else float32; into ``out`` when given."""
     dt = np.float64 if samples.dtype == np.float64 else np.float32
-    s = np.clip(samples.reshape(k, p * c).astype(dt), 0.0, None)
+    s = np.clip(np.asarray(samples).astype(dt), 0.0, None)
     np.power(s, dt(gamma), out=s)
-    out = weights.astype(dt) @ s
-    np.clip(out, 0.0, None, out=out)
+    return np.matmul(np.asarray(weights, dtype=dt), s, out=out)
+
+
+def spline_root(values: np.ndarray, gamma: float = SPLINE_GAMMA) -> np.ndarray:
+    """In place: power-domain spline values clipped at 0 and raised to ``1 / gamma``; returns them."""
+    np.clip(values, 0.0, None, out=values)
     if gamma == 0.4:  # x ** 2.5 as x * x * sqrt(x): ~10x faster than a general power
-        root = np.sqrt(out)
-        out *= out
-        out *= root
+        root = np.sqrt(values)
+        values *= values
+        values *= root
     else:
-        np.power(out, dt(1.0 / gamma), out=out)
-    return out.reshape(len(weights), p, c)
+        np.power(values, values.dtype.type(1.0 / gamma), out=values)
+    return values
 
 
 def leave_one_out(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

@@ -454,21 +454,28 @@ class FrameCrop:
     def clipped(self, level: float) -> np.ndarray:
         """(h, w) bool: pixels with a channel at or above ``level`` of the code range's top
         (sensor saturation), as displayed."""
-        return self.linear_and_clipped(level)[1]
+        return self._clipped(level)[0]
 
     def linear_and_clipped(self, level: float) -> tuple[np.ndarray, np.ndarray]:
         """(:meth:`linear`, :meth:`clipped` at ``level``) from one colour conversion (a flash
         frame needs both: converting twice was most of the capture's per-sample time)."""
+        clipped, converted = self._clipped(level)
+        if self.rgb_data is not None:
+            return self.linear(), clipped
+        if self.colour.plain_srgb8:
+            return decode_srgb8(converted), clipped
+        return self._shown(signal_to_linear(converted, self.colour)), clipped
+
+    def _clipped(self, level: float) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`clipped`, the values it was read from: the codes as displayed, or for video
+        converted through linear light the signal as coded)."""
         if self.rgb_data is not None and self.rgb_data.dtype == np.float32:
             raise ValueError("a linear crop has no code range to be clipped at")
         if self.rgb_data is not None or self.colour.plain_srgb8:
             codes = self.rgb() if self.rgb_data is None else self.rgb_data
-            top = 255.0 if codes.dtype == np.uint8 else 65535.0
-            return self.linear() if self.rgb_data is not None else decode_srgb8(codes), \
-                _channel_max(codes) >= level * top
+            return _channel_max(codes) >= level * (255.0 if codes.dtype == np.uint8 else 65535.0), codes
         sig = self._signal()
-        clipped = self._shown(_channel_max(sig) >= level)  # before the curve (which may work in place)
-        return self._shown(signal_to_linear(sig, self.colour)), clipped
+        return self._shown(_channel_max(sig) >= level), sig
 
 
 def _channel_max(img: np.ndarray) -> np.ndarray:
