@@ -1,16 +1,22 @@
 /* Relighting: reflectance maps x environment (relight.kernels.relighter; NumPy twins there).
  *
- * relight_compact: out[p, c] = sum_j V[p, c, j] coef[j, c]        (the rank-k part)
- *                            + sum_s rows[t_s, c, p] light_s[c]   (the brightest texels, exact)
+ * relight_compact: out[p, c] = unit[p, c] sum_j q[p, c, j] coef[j, c]   (the rank-k part, 8-bit)
+ *                            + sum_s rows[t_s, c, p] light_s[c]          (the brightest texels, exact)
  *                  32 pixels a work item; with rank 0 it is the single-light path (render --light).
  * relight_exact:   out[p, c] = sum_t maps[p, c, t] lp[c, t]       (every 32-texel block with light)
  *
- * Data are half floats read as pairs packed in 32-bit words and widened with integer ops;
- * every sum accumulates in float.
- * Why: PoCL 3.0 compiles vload_half16 (and vload16) into an out-of-line call around which every vector register is spilled to the stack - measured 12
- * GB/s for a plain read of half data, against 16 GB/s with this decode and 21 GB/s for float
- * data on the development machine. The pairs split into even and odd lanes: pixels (2i, 2i+1)
- * in the compact layout, texels (2i, 2i+1) in the exact one; the host lays out the light the same way.
+ * The compact basis is read as the bundle stores it - signed bytes, one step size per pixel
+ * and channel - so a call streams 3k + 6n bytes per pixel (rank k, n exact texels) instead of
+ * 6k + 6n as halves: the kernel is bound by memory reads. Bytes are widened with
+ * __builtin_convertvector (clang's inline sign extension and conversion: vpmovsxbd + vcvtdq2ps,
+ * no library call).
+ *
+ * Half floats are read as words and widened with integer ops; every sum accumulates in float.
+ * Why: PoCL 3.0 compiles vload_half16 (and vload16) into an out-of-line call around which every
+ * vector register is spilled to the stack - measured 12 GB/s for a plain read of half data,
+ * against 16 GB/s with this decode and 21 GB/s for float data on the development machine. The
+ * exact path's pairs split into even and odd lanes (texels 2i, 2i+1); the host lays out the
+ * light the same way. The compact path's direct rows widen 16 halves at a time, in pixel order.
  *
  * Each work item writes its pixels' RGB into the frame at frame_index[p] (the rest of the frame
  * is left as it is).
@@ -18,7 +24,7 @@
 
 /* 64-byte loads at any 2-byte alignment (clang lowers a dereference through this type to an
    unaligned vector load, inline). */
-typedef uint16 uint16_u __attribute__((aligned(2)));
+typedef ushort16 ushort16_u __attribute__((aligned(2)));
 
 /* The low / high half of each word as float: the sign and magnitude bits moved into a float's
    place, then scaled by 2^112 to rebias the exponent. Exact for every normal half; subnormal
@@ -35,22 +41,32 @@ inline float16 half_hi(uint16 w)
     return as_float16((w & 0x80000000u) | ((w >> 3) & 0x0fffe000u)) * 0x1p112f;
 }
 
-typedef union { float16 v; float s[16]; } f16_lanes;
-
-/* 32 halves starting at x[0], or fewer (zeros after n): the last, partial pixel block. */
-inline uint16 load_tail(__global const ushort *x, int n)
+/* 16 halves (as ushort) -> float: the half's sign and magnitude bits moved into a float's
+   place and rescaled (see half_lo); the natural pixel order. */
+inline float16 halves16(ushort16 h)
 {
-    union { uint16 v; uint s[16]; } w;
-    for (int i = 0; i < 16; ++i) {
-        uint lo = 2 * i < n ? x[2 * i] : 0u;
-        uint hi = 2 * i + 1 < n ? x[2 * i + 1] : 0u;
-        w.s[i] = lo | (hi << 16);
+    uint16 x = __builtin_convertvector(h, uint16);
+    return as_float16(((x & 0x8000u) << 16) | ((x & 0x7fffu) << 13)) * 0x1p112f;
+}
+
+/* 32 halves of one direct row from x[0] (fewer at the face's last block: zeros after n). */
+inline void load_row(__global const ushort *x, int n, float16 *lo, float16 *hi)
+{
+    if (n == 32) {
+        *lo = halves16(*(__global const ushort16_u *)x);
+        *hi = halves16(*(__global const ushort16_u *)(x + 16));
+        return;
     }
-    return w.v;
+    union { ushort16 v[2]; ushort s[32]; } w;
+    for (int i = 0; i < 32; ++i)
+        w.s[i] = i < n ? x[i] : (ushort)0;
+    *lo = halves16(w.v[0]);
+    *hi = halves16(w.v[1]);
 }
 
 __kernel void relight_compact(
-    __global const uint16 *v, int rank, int kp,          /* (P / 32, kp, 3, 32) halves: the first `rank` used */
+    __global const char16 *q, int rank, int kp,          /* (P / 32, kp, 3, 32) int8 basis: the first `rank` used */
+    __global const float16 *unit,                        /* (P / 32, 3, 32) value of one step, per pixel and channel */
     __constant float4 *coef,                             /* (rank,) rgb coefficients */
     __global const ushort *rows, int plane,              /* (T, 3, plane) halves: texel-major maps */
     __constant float4 *direct, int n_direct,             /* (n,) rgb light of texel (int)w */
@@ -61,56 +77,48 @@ __kernel void relight_compact(
     int p0 = g * 32;
     if (p0 >= n_pix)
         return;
-    __global const uint16 *blk = v + (size_t)g * 3 * kp;
-    float16 re = 0.0f, ro = 0.0f, ge = 0.0f, go = 0.0f, be = 0.0f, bo = 0.0f;
+    /* The rank-k part in steps of the 8-bit storage: each pixel's step multiplies its sum once. */
+    __global const char16 *blk = q + (size_t)g * 6 * kp;
+    float16 r0 = 0.0f, r1 = 0.0f, g0 = 0.0f, g1 = 0.0f, b0 = 0.0f, b1 = 0.0f;
     for (int j = 0; j < rank; ++j) {
         float4 c = coef[j];
-        uint16 w = blk[3 * j];
-        re += half_lo(w) * c.x;
-        ro += half_hi(w) * c.x;
-        w = blk[3 * j + 1];
-        ge += half_lo(w) * c.y;
-        go += half_hi(w) * c.y;
-        w = blk[3 * j + 2];
-        be += half_lo(w) * c.z;
-        bo += half_hi(w) * c.z;
+        __global const char16 *x = blk + 6 * j;
+        r0 += __builtin_convertvector(x[0], float16) * c.x;
+        r1 += __builtin_convertvector(x[1], float16) * c.x;
+        g0 += __builtin_convertvector(x[2], float16) * c.y;
+        g1 += __builtin_convertvector(x[3], float16) * c.y;
+        b0 += __builtin_convertvector(x[4], float16) * c.z;
+        b1 += __builtin_convertvector(x[5], float16) * c.z;
     }
+    __global const float16 *u = unit + (size_t)g * 6;
+    r0 *= u[0];
+    r1 *= u[1];
+    g0 *= u[2];
+    g1 *= u[3];
+    b0 *= u[4];
+    b1 *= u[5];
     int n_here = min(32, plane - p0);
     for (int s = 0; s < n_direct; ++s) {
         float4 l = direct[s];
         __global const ushort *row = rows + (size_t)(int)l.w * 3 * plane + p0;
-        uint16 wr, wg, wb;
-        if (n_here == 32) {
-            wr = *(__global const uint16_u *)row;
-            wg = *(__global const uint16_u *)(row + plane);
-            wb = *(__global const uint16_u *)(row + 2 * (size_t)plane);
-        } else {
-            wr = load_tail(row, n_here);
-            wg = load_tail(row + plane, n_here);
-            wb = load_tail(row + 2 * (size_t)plane, n_here);
-        }
-        re += half_lo(wr) * l.x;
-        ro += half_hi(wr) * l.x;
-        ge += half_lo(wg) * l.y;
-        go += half_hi(wg) * l.y;
-        be += half_lo(wb) * l.z;
-        bo += half_hi(wb) * l.z;
+        float16 lo, hi;
+        load_row(row, n_here, &lo, &hi);
+        r0 += lo * l.x;
+        r1 += hi * l.x;
+        load_row(row + plane, n_here, &lo, &hi);
+        g0 += lo * l.y;
+        g1 += hi * l.y;
+        load_row(row + 2 * (size_t)plane, n_here, &lo, &hi);
+        b0 += lo * l.z;
+        b1 += hi * l.z;
     }
-    f16_lanes r_e = {re}, r_o = {ro}, g_e = {ge}, g_o = {go}, b_e = {be}, b_o = {bo};
+    union { float16 v[2]; float s[32]; } R = {{r0, r1}}, G = {{g0, g1}}, B = {{b0, b1}};
     int n = min(32, n_pix - p0);
-    for (int i = 0; i < 16; ++i) {
-        if (2 * i < n) {
-            size_t o = (size_t)frame_index[p0 + 2 * i] * 3;
-            frame[o] = r_e.s[i];
-            frame[o + 1] = g_e.s[i];
-            frame[o + 2] = b_e.s[i];
-        }
-        if (2 * i + 1 < n) {
-            size_t o = (size_t)frame_index[p0 + 2 * i + 1] * 3;
-            frame[o] = r_o.s[i];
-            frame[o + 1] = g_o.s[i];
-            frame[o + 2] = b_o.s[i];
-        }
+    for (int i = 0; i < n; ++i) {
+        size_t o = (size_t)frame_index[p0 + i] * 3;
+        frame[o] = R.s[i];
+        frame[o + 1] = G.s[i];
+        frame[o + 2] = B.s[i];
     }
 }
 

@@ -41,15 +41,20 @@ def _round_up(n: int, m: int) -> int:
     return (n + m - 1) // m * m
 
 
-def relight_compact_numpy(v: np.ndarray, rank: int, coef: np.ndarray, direct_rows: np.ndarray,
-                          direct_lp: np.ndarray, n_pix: int) -> np.ndarray:
+def relight_compact_numpy(q8: np.ndarray, units: np.ndarray, rank: int, coef: np.ndarray,
+                          direct_rows: np.ndarray, direct_lp: np.ndarray, n_pix: int) -> np.ndarray:
     """NumPy twin of ``relight_compact``: (P, 3) float32.
 
-    v : (P / 16, 3, Kp, 16) blocked basis images; coef : (rank, 3); direct_rows : (n, 3, P) the
-    maps of the exact texels, texel-major; direct_lp : (n, 3) their light.
+    q8 : (P / 32, Kp, 3, 32) int8 basis images in the kernel's blocks (:func:`pack_quantised`);
+    units : (P / 32, 3, 32) float32 value of one step per pixel and channel; coef : (rank, 3);
+    direct_rows : (n, 3, P) the maps of the exact texels, texel-major; direct_lp : (n, 3) their light.
     """
-    vv = read_halves(v[:, :, :rank])  # (B, 3, k, 16)
-    out = np.einsum("bcks,kc->bsc", vv, coef[:rank].astype(np.float32)).reshape(-1, 3)[:n_pix]
+    c = coef[:rank].astype(np.float32)
+    out = np.empty((q8.shape[0], 3, LANES), dtype=np.float32)
+    for b0 in range(0, q8.shape[0], 1024):
+        blk = q8[b0:b0 + 1024, :rank].astype(np.float32)
+        out[b0:b0 + 1024] = np.einsum("bkcs,kc->bcs", blk, c) * units[b0:b0 + 1024]
+    out = out.transpose(0, 2, 1).reshape(-1, 3)[:n_pix].copy()
     for row, lp in zip(direct_rows, direct_lp, strict=True):
         out += read_halves(row).T * lp.astype(np.float32)
     return out
@@ -98,47 +103,33 @@ def exact_light_blocks(lp: np.ndarray, padded: int) -> tuple[np.ndarray, np.ndar
     return out.reshape(3, -1, LANES // 2, 2).transpose(0, 1, 3, 2).ravel(), lit
 
 
-def pack_basis(v: np.ndarray, kp: int, n_pix: int) -> np.ndarray:
-    """Blocked basis (P / 16, 3, Kp, 16) -> (ceil(P / 32), kp, 3, 32) halves, 64-byte aligned:
-    one compact work item's 32 pixels of one basis image contiguous, its whole block one stream."""
-    per_pixel = np.asarray(v[:, :, :kp]).transpose(0, 3, 1, 2).reshape(-1, 3, kp)[:n_pix]
-    blocks = -(-n_pix // LANES)
-    out = aligned_zeros((blocks, kp, 3, LANES), np.float16)
-    flat = np.zeros((blocks * LANES, 3, kp), dtype=np.float16)
-    flat[:n_pix] = per_pixel
-    out[...] = flat.reshape(blocks, LANES, 3, kp).transpose(0, 3, 2, 1)
-    return flush_subnormal_halves(out)
+def pack_quantised(q: np.ndarray, scale: np.ndarray, kp: int, n_pix: int) -> tuple[np.ndarray, np.ndarray]:
+    """The compact kernel's operands from a bundle's 8-bit basis storage (q (P / 16, 3, K, 16)
+    int8, scale (P, 3): :func:`relight.kernels.transport.quantise_basis`), by moving bytes only:
 
-
-def pack_quantised(q: np.ndarray, scale: np.ndarray, kp: int, n_pix: int, chunk: int = 2048) -> np.ndarray:
-    """:func:`pack_basis` of :func:`relight.kernels.transport.dequantise_basis` (q, scale) in one
-    pass per chunk of blocks (a bundle's first frame waited for the two passes and their copies)."""
-    units = transport.basis_units(q, scale)  # (nb, 3, 16)
+    q8 : (ceil(P / 32), kp, 3, 32) int8, 64-byte aligned - one work item's 32 pixels of one basis
+    image contiguous, its whole block one stream (ranks past K and pixels past P zero);
+    units : (ceil(P / 32), 3, 32) float32, the value of one step of each pixel and channel.
+    """
+    units16 = transport.basis_units(q, scale)  # (nb, 3, 16), shape checked
     nb, _, k, blk = q.shape
     half = LANES // blk  # 16-pixel storage blocks per 32-pixel kernel block
     k = min(k, kp)
     blocks = -(-n_pix // LANES)
-    out = aligned_zeros((blocks, kp, 3, LANES), np.float16)
-    for b0 in range(0, blocks, chunk):
-        b1 = min(blocks, b0 + chunk)
-        n0, n1 = b0 * half, min(b1 * half, nb)
-        full = (n1 - n0) // half  # kernel blocks whose storage blocks are all there
-        if full:
-            # One pass: int8 x unit in float32, rounded to halves straight into the kernel's layout.
-            dest = out[b0:b0 + full, :k].reshape(full, k, 3, half, blk).transpose(0, 3, 2, 1, 4)
-            np.multiply(q[n0:n0 + full * half, :, :k].reshape(full, half, 3, k, blk),
-                        units[n0:n0 + full * half, None, :, None, :].reshape(full, half, 3, 1, blk), out=dest,
-                        dtype=np.float32, casting="same_kind")
-        if n0 + full * half < n1:  # a last kernel block with part of its storage
-            v = np.zeros((half, 3, k, blk), dtype=np.float16)
-            rest = n1 - (n0 + full * half)
-            v[:rest] = np.asarray(q[n1 - rest:n1, :, :k], np.float32) * units[n1 - rest:n1, :, None, :]
-            out[b0 + full, :k] = v.transpose(2, 1, 0, 3).reshape(k, 3, LANES)
-        flush_subnormal_halves(out[b0:b1])
-    if n_pix % LANES:  # the storage's padding pixels are zero; past n_pix the kernel reads zeros
-        tail = out[-1].reshape(kp, 3, LANES)
-        tail[:, :, n_pix % LANES:] = 0
-    return out
+    if not n_pix <= nb * blk <= blocks * LANES:
+        raise InputError(f"the 8-bit basis holds {nb * blk} pixels for a face of {n_pix}: capture the bundle again")
+    q8 = aligned_zeros((blocks, kp, 3, LANES), np.int8)
+    units = aligned_zeros((blocks, 3, LANES), np.float32)
+    dest, udest = q8.reshape(blocks, kp, 3, half, blk), units.reshape(blocks, 3, half, blk)
+    full, rem = divmod(nb, half)
+    dest[:full, :k] = np.asarray(q[:full * half, :, :k]).reshape(full, half, 3, k, blk).transpose(0, 3, 2, 1, 4)
+    udest[:full] = units16[:full * half].reshape(full, half, 3, blk).transpose(0, 2, 1, 3)
+    if rem:  # a last kernel block with part of its storage
+        dest[full, :k, :, :rem] = np.asarray(q[full * half:, :, :k]).transpose(2, 1, 0, 3)
+        udest[full, :, :rem] = units16[full * half:].transpose(1, 0, 2)
+    if n_pix % LANES:  # the storage's padding pixels: zero steps (their bytes are zero too)
+        units[-1, :, n_pix % LANES:] = 0
+    return q8, units
 
 
 #: Texel rows a recipe bundle's Relighter keeps made (each 6 bytes per face pixel): a sun and a
@@ -251,17 +242,20 @@ class Relighter:
         else:
             self.row_cache = RowCache(bundle, ROW_SLOTS)
             self._rows_buf = self.row_cache.buf
-        # Only the chosen rank of the basis, packed densely in the kernel's 32-pixel blocks (all
-        # ranks of one block in one run of memory: one stream per work item, measured 1.5x faster
-        # than a run per colour channel): the kernel streams nothing it does not use.
+        # Only the chosen rank of the basis, in the kernel's 32-pixel blocks (all ranks of one
+        # block in one run of memory: one stream per work item, measured 1.5x faster than a run
+        # per colour channel), as the bundle stores it - 8 bits and a step per pixel and channel:
+        # the kernel streams nothing it does not use. A bundle of format 1-2 (float16 basis) is
+        # rounded to 8 bits here as format 3 stores it (its rank errors did not count that noise).
         kp = max(self.rank or 1, 1)
-        if self.transport.v is None:  # 8-bit storage: packed from it directly
-            self._v = pack_quantised(self.transport.q, self.transport.q_scale, kp, self.n_pix)
-        else:
-            self._v = pack_basis(self.transport.v, kp, self.n_pix)
-        if not np.isfinite(self._v).all():
-            raise InputError("the bundle's transport basis holds non-finite values: capture the bundle again")
-        self._v_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._v)
+        q, q_scale = self.transport.q, self.transport.q_scale
+        if q is None:
+            q, q_scale = transport.quantise_basis(self.transport.v, min(kp, self.transport.v.shape[2]))
+        self._q8, self._units = pack_quantised(q, q_scale, kp, self.n_pix)
+        if not np.isfinite(self._units).all():
+            raise InputError("the bundle's transport basis has non-finite step sizes: capture the bundle again")
+        self._q8_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._q8)
+        self._units_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._units)
         self._fidx = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.frame_index)
         # The frame lives in host memory the device writes into directly (no copy back). More
         # frames ("slots", e.g. the face under the live light beside the target) on request.
@@ -451,9 +445,10 @@ class Relighter:
         d4[:tex.size, 3] = tex if self.row_cache is None else self.row_cache.slots(tex)
         cl.enqueue_copy(q, self._direct, d4, is_blocking=False)
         items = -(-self.n_pix // LANES)
-        self._k_compact(q, (_round_up(items, COMPACT_GROUP),), (COMPACT_GROUP,), self._v_buf, np.int32(rank),
-                        np.int32(self._v.shape[1]), self._coef, self._rows_buf, np.int32(self.n_pix), self._direct,
-                        np.int32(tex.size), self._fidx, np.int32(self.n_pix), self._frame_buf if buf is None else buf)
+        self._k_compact(q, (_round_up(items, COMPACT_GROUP),), (COMPACT_GROUP,), self._q8_buf, np.int32(rank),
+                        np.int32(self._q8.shape[1]), self._units_buf, self._coef, self._rows_buf,
+                        np.int32(self.n_pix), self._direct, np.int32(tex.size), self._fidx, np.int32(self.n_pix),
+                        self._frame_buf if buf is None else buf)
         self._finish(buf, frame)
 
     def _run_compact(self, lp: np.ndarray, buf=None, frame=None) -> None:
@@ -502,7 +497,7 @@ class Relighter:
             k = self.rank
             direct, rest = transport.split_direct(lp, self.transport.direct)
             coef = self.transport.u[:, :k].T.astype(np.float64) @ rest
-            vals = relight_compact_numpy(self.transport.basis(), k, coef, self.direct_rows(direct), lp[direct],
+            vals = relight_compact_numpy(self._q8, self._units, k, coef, self.direct_rows(direct), lp[direct],
                                          self.n_pix)
         out = np.zeros_like(self.frame)
         out.reshape(-1, 3)[self.frame_index] = vals

@@ -227,25 +227,31 @@ def test_pocl_worker_threads_are_pinned_unless_the_user_chose(monkeypatch):
     assert os.environ.get("POCL_AFFINITY") == ("1" if full else None)
 
 
-@pytest.mark.parametrize("n_pix", [31, 32 * 5 + 16 + 3, 32 * 4])
-def test_basis_packed_from_its_8bit_storage_is_the_dequantised_one_packed(n_pix):
-    """A bundle's first frame packs the kernel's basis straight from the 8-bit storage: bit for
-    bit what dequantising then packing gives (odd and even storage blocks, ranks cut)."""
+@pytest.mark.parametrize("n_pix", [17, 31, 32 * 5 + 3, 32 * 4])
+def test_kernel_basis_is_the_8bit_storage_rearranged(n_pix):
+    """The compact kernel reads the bundle's 8-bit basis in its own blocks: every pixel's bytes
+    times its step are the stored basis dequantised (odd and even storage blocks, ranks cut or
+    padded), and the padding reads as zero."""
     from relight.kernels import transport
-    from relight.kernels.relighter import pack_basis, pack_quantised
+    from relight.kernels.relighter import LANES, pack_quantised
 
     rng = np.random.default_rng(3)
     rank = 21
     nb = -(-n_pix // 16)
     v = np.zeros((nb * 16, 3, rank), dtype=np.float32)
     v[:n_pix] = rng.normal(0, 1, (n_pix, 3, rank)) * rng.uniform(1e-6, 2.0, (n_pix, 3, 1))
-    v[:n_pix, 1, :] *= 1e-4  # tiny values: their halves flushed to zero alike
     blocked = np.zeros((nb * 16, 3, 32), dtype=np.float16)
     blocked[:, :, :rank] = v
     blocked = np.ascontiguousarray(blocked.reshape(nb, 16, 3, 32).transpose(0, 2, 3, 1))
     q, scale = transport.quantise_basis(blocked, rank)
+    ref = transport.dequantise_basis(q, scale).astype(np.float32)  # (nb, 3, Kp, 16)
+    ref = ref.transpose(0, 3, 1, 2).reshape(-1, 3, ref.shape[2])[:n_pix]  # (P, 3, Kp)
     for kp in (rank, 16, 32):
-        ref = pack_basis(transport.dequantise_basis(q, scale), kp, n_pix)
-        got = pack_quantised(q, scale, kp, n_pix, chunk=2)
-        assert got.shape == ref.shape
-        np.testing.assert_array_equal(got.view(np.uint16), ref.view(np.uint16))
+        q8, units = pack_quantised(q, scale, kp, n_pix)
+        assert q8.shape == (-(-n_pix // LANES), kp, 3, LANES) and q8.dtype == np.int8
+        assert q8.ctypes.data % 64 == 0 and units.ctypes.data % 64 == 0
+        got = (q8.astype(np.float32) * units[:, None]).transpose(0, 3, 2, 1).reshape(-1, 3, kp)
+        k = min(kp, rank)
+        # dequantise_basis rounds to halves: the kernel's operands are the exact stored values
+        np.testing.assert_allclose(got[:n_pix, :, :k], ref[:, :, :k], rtol=1e-3, atol=1e-7)
+        assert not got[n_pix:].any() and not got[:, :, k:].any()
