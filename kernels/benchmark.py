@@ -260,9 +260,8 @@ def _bench_compact(tol, rl, env, e_img, rots, mask, truth, p, probe, quick) -> d
     k = rl.rank
     # What a user would write instead: the same rank-k product with NumPy/BLAS on float32 data
     # (basis images (3, k, P), the brightest texels' rows (n, 3, P)), written into a frame.
-    # (the bundle's 8-bit basis dequantised to float32, as a NumPy user would hold it)
-    per_pixel = (rl._q8[:, :k].astype(np.float32) * rl._units[:, None]).transpose(2, 1, 0, 3).reshape(3, k, -1)
-    v32 = np.ascontiguousarray(per_pixel[:, :, :p])
+    # (the bundle's basis dequantised to float32, as a NumPy user would hold it)
+    v32 = np.ascontiguousarray(rl.basis_f32().transpose(1, 2, 0))  # (3, k, P)
     coef = np.random.default_rng(0).random((3, k)).astype(np.float32)
     direct, _ = split_direct(lp, rl.transport.direct)
     rows32 = read_halves(rl.direct_rows(direct))  # (n, 3, P)
@@ -281,8 +280,10 @@ def _bench_compact(tol, rl, env, e_img, rots, mask, truth, p, probe, quick) -> d
                       "blas": blas, "blas_product": blas_product,
                       "direction": lambda i: rl.texel_light(env, rots[i])},
                      rounds=3 if quick else ROUNDS)
-    # bytes read and written: the 8-bit basis, the step sizes, the exact texels' half rows, frame index + RGB out
-    c_bytes = (-(-p // LANES)) * LANES * 3 * (k + 4) + rl.transport.direct * 3 * p * 2 + p * 16
+    # bytes read and written: the basis (8 and 4 bits), the step sizes, the exact texels' half
+    # rows, frame index + RGB out
+    c_bytes = ((-(-p // LANES)) * LANES * 3 * (rl.rank8 + rl.rank4 / 2 + 2 + (2 if rl.rank4 else 0))
+               + rl.transport.direct * 3 * p * 2 + p * 16)
     c_np = _median_ms(lambda i: rl.relight_numpy(env, rots[i]), n=3, warmup=1)
     ent = {"path": f"compact tol {tol:g}", "tolerance": tol, "rank": k, "rel_l2_vs_exact": rel,
            "rel_l2_vs_exact_rotated": rel_rot, "ms_call": ms["call"], "ms_kernel": ms["kernel"],

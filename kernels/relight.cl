@@ -1,15 +1,17 @@
 /* Relighting: reflectance maps x environment (relight.kernels.relighter; NumPy twins there).
  *
- * relight_compact: out[p, c] = unit[p, c] sum_j q[p, c, j] coef[j, c]   (the rank-k part, 8-bit)
- *                            + sum_s rows[t_s, c, p] light_s[c]          (the brightest texels, exact)
+ * relight_compact: out[p, c] = peak8[p, c] sum_j<k8 q8[p, c, j] coef[j, c]     (the first ranks, 8-bit)
+ *                            + peak4[p, c] sum_j<k4 q4[p, c, j] coef[k8 + j, c] (the rest, 4-bit)
+ *                            + sum_s rows[t_s, c, p] light_s[c]                  (the brightest texels, exact)
  *                  32 pixels a work item; with rank 0 it is the single-light path (render --light).
  * relight_exact:   out[p, c] = sum_t maps[p, c, t] lp[c, t]       (every 32-texel block with light)
  *
- * The compact basis is read as the bundle stores it - signed bytes, one step size per pixel
- * and channel - so a call streams 3k + 6n bytes per pixel (rank k, n exact texels) instead of
- * 6k + 6n as halves: the kernel is bound by memory reads. Bytes are widened with
- * __builtin_convertvector (clang's inline sign extension and conversion: vpmovsxbd + vcvtdq2ps,
- * no library call).
+ * The compact basis is read as the bundle stores it - signed bytes for the first ranks, signed
+ * 4-bit steps for the rest, each with a peak (a half) per pixel and channel (the host divides
+ * the coefficients by the levels, 127 and 7) - so a call streams 3 k8 + 1.5 k4 + 12 + 6n bytes
+ * per pixel (n exact texels) instead of 6k + 6n as halves: the kernel
+ * is bound by memory reads. Steps are widened with __builtin_convertvector (clang's inline sign
+ * extension and conversion: vpmovsxbd + vcvtdq2ps, no library call); nibbles by two shifts.
  *
  * Half floats are read as words and widened with integer ops; every sum accumulates in float.
  * Why: PoCL 3.0 compiles vload_half16 (and vload16) into an out-of-line call around which every
@@ -65,9 +67,11 @@ inline void load_row(__global const ushort *x, int n, float16 *lo, float16 *hi)
 }
 
 __kernel void relight_compact(
-    __global const char16 *q, int rank, int kp,          /* (P / 32, kp, 3, 32) int8 basis: the first `rank` used */
-    __global const float16 *unit,                        /* (P / 32, 3, 32) value of one step, per pixel and channel */
-    __constant float4 *coef,                             /* (rank,) rgb coefficients */
+    __global const char16 *q8, int rank8, int kp8,       /* (P / 32, kp8, 3, 32) int8: the first ranks */
+    __global const ushort16 *unit8,                     /* (P / 32, 3, 32) halves: their peak (step x 127) per pixel, channel */
+    __global const char16 *q4, int rank4, int kp4,       /* (P / 32, kp4, 3, 16) two 4-bit steps a byte: the rest */
+    __global const ushort16 *unit4,                     /* (P / 32, 3, 32) halves: their peak (step x 7) */
+    __constant float4 *coef,                             /* (rank8 + rank4,) rgb coefficients / 127 or / 7 */
     __global const ushort *rows, int plane,              /* (T, 3, plane) halves: texel-major maps */
     __constant float4 *direct, int n_direct,             /* (n,) rgb light of texel (int)w */
     __global const int *frame_index, int n_pix,          /* (P,) pixel -> index in the frame */
@@ -77,10 +81,10 @@ __kernel void relight_compact(
     int p0 = g * 32;
     if (p0 >= n_pix)
         return;
-    /* The rank-k part in steps of the 8-bit storage: each pixel's step multiplies its sum once. */
-    __global const char16 *blk = q + (size_t)g * 6 * kp;
+    /* The rank-k part in steps of the storage: each pixel's step multiplies its sum once. */
     float16 r0 = 0.0f, r1 = 0.0f, g0 = 0.0f, g1 = 0.0f, b0 = 0.0f, b1 = 0.0f;
-    for (int j = 0; j < rank; ++j) {
+    __global const char16 *blk = q8 + (size_t)g * 6 * kp8;
+    for (int j = 0; j < rank8; ++j) {
         float4 c = coef[j];
         __global const char16 *x = blk + 6 * j;
         r0 += __builtin_convertvector(x[0], float16) * c.x;
@@ -90,13 +94,38 @@ __kernel void relight_compact(
         b0 += __builtin_convertvector(x[4], float16) * c.z;
         b1 += __builtin_convertvector(x[5], float16) * c.z;
     }
-    __global const float16 *u = unit + (size_t)g * 6;
-    r0 *= u[0];
-    r1 *= u[1];
-    g0 *= u[2];
-    g1 *= u[3];
-    b0 *= u[4];
-    b1 *= u[5];
+    __global const ushort16 *u = unit8 + (size_t)g * 6;
+    r0 *= halves16(u[0]);
+    r1 *= halves16(u[1]);
+    g0 *= halves16(u[2]);
+    g1 *= halves16(u[3]);
+    b0 *= halves16(u[4]);
+    b1 *= halves16(u[5]);
+    if (rank4 > 0) {
+        /* byte i: pixel i in the low four bits, pixel i + 16 in the high four (both signed) */
+        float16 s0 = 0.0f, s1 = 0.0f, t0 = 0.0f, t1 = 0.0f, v0 = 0.0f, v1 = 0.0f;
+        __global const char16 *nb = q4 + (size_t)g * 3 * kp4;
+        for (int j = 0; j < rank4; ++j) {
+            float4 c = coef[rank8 + j];
+            __global const char16 *x = nb + 3 * j;
+            int16 w = __builtin_convertvector(x[0], int16);
+            s0 += __builtin_convertvector((w << 28) >> 28, float16) * c.x;
+            s1 += __builtin_convertvector(w >> 4, float16) * c.x;
+            w = __builtin_convertvector(x[1], int16);
+            t0 += __builtin_convertvector((w << 28) >> 28, float16) * c.y;
+            t1 += __builtin_convertvector(w >> 4, float16) * c.y;
+            w = __builtin_convertvector(x[2], int16);
+            v0 += __builtin_convertvector((w << 28) >> 28, float16) * c.z;
+            v1 += __builtin_convertvector(w >> 4, float16) * c.z;
+        }
+        u = unit4 + (size_t)g * 6;
+        r0 += s0 * halves16(u[0]);
+        r1 += s1 * halves16(u[1]);
+        g0 += t0 * halves16(u[2]);
+        g1 += t1 * halves16(u[3]);
+        b0 += v0 * halves16(u[4]);
+        b1 += v1 * halves16(u[5]);
+    }
     int n_here = min(32, plane - p0);
     for (int s = 0; s < n_direct; ++s) {
         float4 l = direct[s];

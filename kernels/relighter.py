@@ -41,19 +41,38 @@ def _round_up(n: int, m: int) -> int:
     return (n + m - 1) // m * m
 
 
-def relight_compact_numpy(q8: np.ndarray, units: np.ndarray, rank: int, coef: np.ndarray,
-                          direct_rows: np.ndarray, direct_lp: np.ndarray, n_pix: int) -> np.ndarray:
+def compact_coefficients(coef: np.ndarray, rank8: int, rank4: int) -> np.ndarray:
+    """(rank8 + rank4, 3) float32: the basis coefficients as the compact kernel takes them -
+    divided by the levels of their storage (a step is the stored peak over V_LEVELS, or over
+    V4_LEVELS for the 4-bit ranks), so the kernel multiplies by the peak, a stored half, exactly."""
+    c = np.asarray(coef[:rank8 + rank4], dtype=np.float64).copy()
+    c[:rank8] /= transport.V_LEVELS
+    c[rank8:] /= transport.V4_LEVELS
+    return c.astype(np.float32)
+
+
+def relight_compact_numpy(q8: np.ndarray, units: np.ndarray, rank8: int, q4: np.ndarray, units4: np.ndarray,
+                          rank4: int, coef: np.ndarray, direct_rows: np.ndarray, direct_lp: np.ndarray,
+                          n_pix: int) -> np.ndarray:
     """NumPy twin of ``relight_compact``: (P, 3) float32.
 
-    q8 : (P / 32, Kp, 3, 32) int8 basis images in the kernel's blocks (:func:`pack_quantised`);
-    units : (P / 32, 3, 32) float32 value of one step per pixel and channel; coef : (rank, 3);
-    direct_rows : (n, 3, P) the maps of the exact texels, texel-major; direct_lp : (n, 3) their light.
+    q8 : (P / 32, Kp, 3, 32) int8 leading basis images in the kernel's blocks, units (P / 32, 3,
+    32) float16 their peak per pixel and channel (:func:`pack_quantised`); q4 : (P / 32, Kp4, 3,
+    16) uint8 the later ones, two pixels a byte, units4 theirs (:func:`pack_nibbles`); coef :
+    (rank8 + rank4, 3) the basis coefficients; direct_rows : (n, 3, P) the maps of the exact
+    texels, texel-major; direct_lp : (n, 3) their light.
     """
-    c = coef[:rank].astype(np.float32)
-    out = np.empty((q8.shape[0], 3, LANES), dtype=np.float32)
+    c = compact_coefficients(coef, rank8, rank4)
+    out = np.zeros((q8.shape[0], 3, LANES), dtype=np.float32)
     for b0 in range(0, q8.shape[0], 1024):
-        blk = q8[b0:b0 + 1024, :rank].astype(np.float32)
-        out[b0:b0 + 1024] = np.einsum("bkcs,kc->bcs", blk, c) * units[b0:b0 + 1024]
+        if rank8:
+            blk = q8[b0:b0 + 1024, :rank8].astype(np.float32)
+            out[b0:b0 + 1024] = np.einsum("bkcs,kc->bcs", blk, c[:rank8]) * read_halves(units[b0:b0 + 1024])
+        if rank4:
+            b = q4[b0:b0 + 1024, :rank4].view(np.int8)
+            steps = np.concatenate([(b << 4).astype(np.int8) >> 4, b >> 4], axis=-1).astype(np.float32)
+            out[b0:b0 + 1024] += (np.einsum("bkcs,kc->bcs", steps, c[rank8:])
+                                  * read_halves(units4[b0:b0 + 1024]))
     out = out.transpose(0, 2, 1).reshape(-1, 3)[:n_pix].copy()
     for row, lp in zip(direct_rows, direct_lp, strict=True):
         out += read_halves(row).T * lp.astype(np.float32)
@@ -103,33 +122,73 @@ def exact_light_blocks(lp: np.ndarray, padded: int) -> tuple[np.ndarray, np.ndar
     return out.reshape(3, -1, LANES // 2, 2).transpose(0, 1, 3, 2).ravel(), lit
 
 
-def pack_quantised(q: np.ndarray, scale: np.ndarray, kp: int, n_pix: int) -> tuple[np.ndarray, np.ndarray]:
-    """The compact kernel's operands from a bundle's 8-bit basis storage (q (P / 16, 3, K, 16)
-    int8, scale (P, 3): :func:`relight.kernels.transport.quantise_basis`), by moving bytes only:
-
-    q8 : (ceil(P / 32), kp, 3, 32) int8, 64-byte aligned - one work item's 32 pixels of one basis
-    image contiguous, its whole block one stream (ranks past K and pixels past P zero);
-    units : (ceil(P / 32), 3, 32) float32, the value of one step of each pixel and channel.
-    """
-    units16 = transport.basis_units(q, scale)  # (nb, 3, 16), shape checked
-    nb, _, k, blk = q.shape
+def _kernel_blocks(steps: np.ndarray, kp: int, n_pix: int) -> np.ndarray:
+    """(ceil(P / 32), kp, 3, 2, 16) int8, 64-byte aligned: stored steps (P / 16, 3, K, 16) in the
+    compact kernel's 32-pixel blocks (ranks past K and pixels past P zero)."""
+    nb, _, k, blk = steps.shape
     half = LANES // blk  # 16-pixel storage blocks per 32-pixel kernel block
     k = min(k, kp)
     blocks = -(-n_pix // LANES)
     if not n_pix <= nb * blk <= blocks * LANES:
-        raise InputError(f"the 8-bit basis holds {nb * blk} pixels for a face of {n_pix}: capture the bundle again")
-    q8 = aligned_zeros((blocks, kp, 3, LANES), np.int8)
-    units = aligned_zeros((blocks, 3, LANES), np.float32)
-    dest, udest = q8.reshape(blocks, kp, 3, half, blk), units.reshape(blocks, 3, half, blk)
+        raise InputError(f"the stored basis holds {nb * blk} pixels for a face of {n_pix}: capture the bundle again")
+    out = aligned_zeros((blocks, kp, 3, half, blk), np.int8)
     full, rem = divmod(nb, half)
-    dest[:full, :k] = np.asarray(q[:full * half, :, :k]).reshape(full, half, 3, k, blk).transpose(0, 3, 2, 1, 4)
-    udest[:full] = units16[:full * half].reshape(full, half, 3, blk).transpose(0, 2, 1, 3)
+    out[:full, :k] = np.asarray(steps[:full * half, :, :k]).reshape(full, half, 3, k, blk).transpose(0, 3, 2, 1, 4)
     if rem:  # a last kernel block with part of its storage
-        dest[full, :k, :, :rem] = np.asarray(q[full * half:, :, :k]).transpose(2, 1, 0, 3)
-        udest[full, :, :rem] = units16[full * half:].transpose(1, 0, 2)
-    if n_pix % LANES:  # the storage's padding pixels: zero steps (their bytes are zero too)
+        out[full, :k, :, :rem] = np.asarray(steps[full * half:, :, :k]).transpose(2, 1, 0, 3)
+    return out
+
+
+def _kernel_units(scale16: np.ndarray, n_pix: int) -> np.ndarray:
+    """(ceil(P / 32), 3, 32) float16, 64-byte aligned: the stored peak of each pixel and channel
+    (``scale16`` (P / 16, 3, 16), :func:`relight.kernels.transport.basis_scale`) in the kernel's
+    blocks; zero past P and for subnormal halves (the kernel reads those as zero)."""
+    nb, _, blk = scale16.shape
+    half = LANES // blk
+    blocks = -(-n_pix // LANES)
+    units = aligned_zeros((blocks, 3, LANES), np.float16)
+    udest = units.reshape(blocks, 3, half, blk)
+    full, rem = divmod(nb, half)
+    udest[:full] = scale16[:full * half].reshape(full, half, 3, blk).transpose(0, 2, 1, 3)
+    if rem:
+        udest[full, :, :rem] = scale16[full * half:].transpose(1, 0, 2)
+    if n_pix % LANES:  # the storage's padding pixels: zero (their bytes are zero too)
         units[-1, :, n_pix % LANES:] = 0
-    return q8, units
+    if not np.isfinite(units).all():
+        raise InputError("the bundle's transport basis has non-finite step sizes: capture the bundle again")
+    return flush_subnormal_halves(units)
+
+
+def pack_quantised(q: np.ndarray, scale: np.ndarray, kp: int, n_pix: int) -> tuple[np.ndarray, np.ndarray]:
+    """The compact kernel's 8-bit operands from a bundle's storage of the leading ranks (q
+    (P / 16, 3, K, 16) int8, scale (P, 3): :func:`relight.kernels.transport.quantise_basis`), by
+    moving bytes only:
+
+    q8 : (ceil(P / 32), kp, 3, 32) int8, 64-byte aligned - one work item's 32 pixels of one basis
+    image contiguous, its whole block one stream (ranks past K and pixels past P zero);
+    peaks : (ceil(P / 32), 3, 32) float16, each pixel's and channel's stored peak (a step is
+    peak / V_LEVELS: the kernel's coefficients carry the division).
+    """
+    peaks = _kernel_units(transport.basis_scale(q, scale), n_pix)  # shape checked
+    q8 = _kernel_blocks(q, kp, n_pix)
+    return q8.reshape(q8.shape[0], kp, 3, LANES), peaks
+
+
+def pack_nibbles(q4: np.ndarray, scale4: np.ndarray, kp: int, n_pix: int) -> tuple[np.ndarray, np.ndarray]:
+    """The compact kernel's 4-bit operands from a bundle's storage of the later ranks (q4
+    (P / 16, 3, K, 8) uint8, scale4 (P, 3)):
+
+    q4k : (ceil(P / 32), kp, 3, 16) uint8 - byte i of a block's basis image holds pixel i in its
+    low four bits and pixel i + 16 in its high four (two's complement);
+    peaks : (ceil(P / 32), 3, 32) float16, each pixel's and channel's stored peak (a step is
+    peak / V4_LEVELS).
+    """
+    peaks = _kernel_units(transport.basis_scale(q4, scale4), n_pix)
+    steps = _kernel_blocks(transport.unpack_nibbles(q4), kp, n_pix)  # (B, kp, 3, 2, 16)
+    out = aligned_zeros(steps.shape[:3] + (LANES // 2,), np.uint8)
+    lo, hi = steps[:, :, :, 0].view(np.uint8), steps[:, :, :, 1].view(np.uint8)
+    np.bitwise_or(lo & 0x0F, hi << 4, out=out)
+    return out, peaks
 
 
 #: Texel rows a recipe bundle's Relighter keeps made (each 6 bytes per face pixel): a sun and a
@@ -244,18 +303,27 @@ class Relighter:
             self._rows_buf = self.row_cache.buf
         # Only the chosen rank of the basis, in the kernel's 32-pixel blocks (all ranks of one
         # block in one run of memory: one stream per work item, measured 1.5x faster than a run
-        # per colour channel), as the bundle stores it - 8 bits and a step per pixel and channel:
-        # the kernel streams nothing it does not use. A bundle of format 1-2 (float16 basis) is
-        # rounded to 8 bits here as format 3 stores it (its rank errors did not count that noise).
-        kp = max(self.rank or 1, 1)
-        q, q_scale = self.transport.q, self.transport.q_scale
+        # per colour channel), as the bundle stores it - the leading ranks in 8 bits, the rest in
+        # 4, each with a step per pixel and channel: the kernel streams nothing it does not use.
+        # A bundle of format 1-2 (float16 basis) is rounded here as format 4 stores it (its rank
+        # errors did not count that noise).
+        tr = self.transport
+        q, q_scale, q4, q4_scale = tr.q, tr.q_scale, tr.q4, tr.q4_scale
         if q is None:
-            q, q_scale = transport.quantise_basis(self.transport.v, min(kp, self.transport.v.shape[2]))
-        self._q8, self._units = pack_quantised(q, q_scale, kp, self.n_pix)
-        if not np.isfinite(self._units).all():
-            raise InputError("the bundle's transport basis has non-finite step sizes: capture the bundle again")
-        self._q8_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._q8)
-        self._units_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._units)
+            q, q_scale, q4, q4_scale = transport.quantise_basis(tr.v, min(max(self.rank or 1, 1), tr.v.shape[2]))
+        self.rank8 = min(self.rank or 0, q.shape[2])
+        self.rank4 = (self.rank or 0) - self.rank8
+        if q4 is None and self.rank4 or q4 is not None and self.rank4 > q4.shape[2]:
+            raise InputError(f"the bundle stores fewer transport ranks than its errors ({self.rank}): capture it again")
+        self._q8, self._units = pack_quantised(q, q_scale, max(self.rank8, 1), self.n_pix)
+        if self.rank4:
+            self._q4, self._units4 = pack_nibbles(q4, q4_scale, self.rank4, self.n_pix)
+        else:
+            self._q4 = aligned_zeros((1, 1, 3, LANES // 2), np.uint8)
+            self._units4 = aligned_zeros((1, 3, LANES), np.float16)
+        buf = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=a)  # noqa: E731
+        self._q8_buf, self._units_buf = buf(self._q8), buf(self._units)
+        self._q4_buf, self._units4_buf = buf(self._q4), buf(self._units4)
         self._fidx = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.frame_index)
         # The frame lives in host memory the device writes into directly (no copy back). More
         # frames ("slots", e.g. the face under the live light beside the target) on request.
@@ -265,7 +333,7 @@ class Relighter:
         # memory the kernel reads in place: written between launches (each call waits for its
         # kernel), no enqueued copies (each cost ~0.3 ms of PyOpenCL overhead).
         self._n_direct_max = max(self.transport.direct, 4)
-        self._coef4 = aligned_zeros((kp, 4), np.float32)
+        self._coef4 = aligned_zeros((max(self.rank or 1, 1), 4), np.float32)
         self._direct4 = aligned_zeros((self._n_direct_max, 4), np.float32)
         self._coef = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._coef4)
         self._direct = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._direct4)
@@ -273,6 +341,7 @@ class Relighter:
         self._ut = np.ascontiguousarray(self.transport.u[:, :self.rank].T, dtype=np.float64) if self.rank else None
         # The compact kernel's arguments set once; a call sets the rank, the texel count and the frame.
         self._k_compact.set_args(self._q8_buf, np.int32(0), np.int32(self._q8.shape[1]), self._units_buf,
+                                 self._q4_buf, np.int32(0), np.int32(self._q4.shape[1]), self._units4_buf,
                                  self._coef, self._rows_buf, np.int32(self.n_pix), self._direct, np.int32(0),
                                  self._fidx, np.int32(self.n_pix), self._frame_buf)
         self._compact_grid = ((_round_up(-(-self.n_pix // LANES), COMPACT_GROUP),), (COMPACT_GROUP,))
@@ -293,18 +362,24 @@ class Relighter:
         arrays = bundle.arrays
         if "transport_u" in arrays:
             v = arrays["transport_v"]
-            q = q_scale = None
+            q = q_scale = q4 = q4_scale = None
             if v.dtype == np.int8:  # 8-bit storage (format 3): dequantised only where needed
                 if "transport_v_scale" not in arrays:
                     raise InputError("the bundle's 8-bit transport basis has no transport_v_scale: capture it again")
                 q, q_scale = v, np.asarray(arrays["transport_v_scale"])
                 transport.basis_units(q, q_scale)  # its shape checked now
                 v = None
+                if "transport_v4" in arrays:  # format 4: the later ranks in 4 bits
+                    q4, q4_scale = arrays["transport_v4"], np.asarray(arrays.get("transport_v4_scale", np.zeros(0)))
+                    if q4.dtype != np.uint8 or q4.ndim != 4 or q4.shape[:2] != q.shape[:2] or q4.shape[3] * 2 != 16:
+                        raise InputError(f"the bundle's 4-bit transport basis has shape {q4.shape} ({q4.dtype}): "
+                                         "capture it again")
+                    transport.basis_units(q4, q4_scale, transport.V4_LEVELS)
             return transport.Transport(u=np.asarray(arrays["transport_u"]), v=v,
                                        rank_errors=np.asarray(arrays["transport_errors"]),
                                        sigma=np.asarray(arrays.get("transport_sigma", np.zeros(1))),
                                        direct=int(bundle.meta.get("transport_direct", transport.DIRECT_TEXELS)),
-                                       q=q, q_scale=q_scale)
+                                       q=q, q_scale=q_scale, q4=q4, q4_scale=q4_scale)
         return transport.factorize(bundle.pixel_maps(), bundle.map_size, np.asarray(bundle.map_texels))
 
     @property
@@ -449,15 +524,16 @@ class Relighter:
             raise InputError(f"{tex.size} exact texels / rank {rank}: at most {self._n_direct_max} / "
                              f"{self._coef4.shape[0]} for this Relighter")
         if rank:
-            self._coef4[:rank, :3] = coef
+            self._coef4[:rank, :3] = compact_coefficients(coef, min(rank, self.rank8), max(rank - self.rank8, 0))
         self._direct4[:tex.size, :3] = light
         # rows of the texels in the rows buffer (the bundle's maps, or the recipe's cache), exact
         # in float32 (< 2^24)
         self._direct4[:tex.size, 3] = tex if self.row_cache is None else self.row_cache.slots(tex)
         k = self._k_compact
-        k.set_arg(1, np.int32(rank))
-        k.set_arg(8, np.int32(tex.size))
-        k.set_arg(11, self._frame_buf if buf is None else buf)
+        k.set_arg(1, np.int32(min(rank, self.rank8)))  # the first ranks, 8-bit
+        k.set_arg(5, np.int32(max(rank - self.rank8, 0)))  # the rest, 4-bit
+        k.set_arg(12, np.int32(tex.size))
+        k.set_arg(15, self._frame_buf if buf is None else buf)
         cl.enqueue_nd_range_kernel(self._queue, k, *self._compact_grid)
         self._finish(buf, frame)
 
@@ -488,6 +564,21 @@ class Relighter:
             return
         self._launch_compact(0, None, lit, lp[lit])
 
+    def basis_f32(self) -> np.ndarray:
+        """(P, 3, rank) float32: the chosen rank's basis images as the kernel reads them (steps x
+        their step size), for references and tests."""
+        b = self._q8.shape[0]
+        out = np.zeros((b, LANES, 3, max(self.rank or 0, 0)), dtype=np.float32)
+        k8 = self.rank8
+        step = read_halves(self._units)[:, None] / transport.V_LEVELS
+        out[..., :k8] = (self._q8[:, :k8].astype(np.float32) * step).transpose(0, 3, 2, 1)
+        if self.rank4:
+            q = self._q4[:, :self.rank4].view(np.int8)
+            steps = np.concatenate([(q << 4).astype(np.int8) >> 4, q >> 4], axis=-1).astype(np.float32)
+            step = read_halves(self._units4)[:, None] / transport.V4_LEVELS
+            out[..., k8:] = (steps * step).transpose(0, 3, 2, 1)
+        return out.reshape(-1, 3, out.shape[3])[:self.n_pix]
+
     def direct_rows(self, index: np.ndarray) -> np.ndarray:
         """(n, 3, P) float16 maps of the stored texels ``index`` (as the compact kernel reads them)."""
         index = np.asarray(index, dtype=np.int64)
@@ -506,8 +597,8 @@ class Relighter:
             k = self.rank
             direct, rest = transport.split_direct(lp, self.transport.direct)
             coef = self.transport.u[:, :k].T.astype(np.float64) @ rest
-            vals = relight_compact_numpy(self._q8, self._units, k, coef, self.direct_rows(direct), lp[direct],
-                                         self.n_pix)
+            vals = relight_compact_numpy(self._q8, self._units, self.rank8, self._q4, self._units4, self.rank4,
+                                         coef, self.direct_rows(direct), lp[direct], self.n_pix)
         out = np.zeros_like(self.frame)
         out.reshape(-1, 3)[self.frame_index] = vals
         return out

@@ -1,9 +1,9 @@
 """Stage 6: the reflectance bundle - one file with everything the online side needs.
 
-Format (version 3), little-endian::
+Format (version 4), little-endian::
 
     offset 0   8 bytes   magic b"RLBUNDLE"
-    offset 8   u32       format version (3; versions 1 and 2 load too: they hold the maps themselves)
+    offset 8   u32       format version (4; 3 loads too - its basis all 8-bit - and 1 and 2, which hold the maps)
     offset 12  u32       CRC-32 of the header bytes
     offset 16  u64       header length H
     offset 24  H bytes   header: UTF-8 JSON {"format", "version", "meta", "arrays"}
@@ -48,9 +48,13 @@ maps (*)                (P, 3, Tp) float16           reflectance maps, pixel-maj
 maps_rows (*)           (T, 3, P) float16            the maps texel-major
 map_texels              (T,) int32                   map texel (row-major in the lat-long map) of each column
 transport_u             (T, K) float32               compact transport: orthonormal texel basis
-transport_v             (P / 16, 3, Kp, 16) int8     maps projected on it, 8-bit, in blocks of 16 pixels
-                                                     (float16 in bundles before version 3)
-transport_v_scale       (P, 3) float16               per pixel and channel: transport_v's unit
+transport_v             (P / 16, 3, K8, 16) int8     maps projected on it: the first K8 (<= 16) ranks in
+                                                     8 bits, blocks of 16 pixels (every rank before
+                                                     version 4; float16 before version 3)
+transport_v_scale       (P, 3) float16               per pixel and channel: transport_v's peak (step x 127)
+transport_v4 (4)        (P / 16, 3, K - K8, 8) uint8 the other ranks in 4 bits (two's complement, -7..7):
+                                                     byte s of a block holds pixel s (low bits), s + 8 (high)
+transport_v4_scale (4)  (P, 3) float16               per pixel and channel: transport_v4's peak (step x 7)
 transport_errors        (K,) float32                 largest validation error (relative L2) at each rank
 transport_sigma         (K,) float32                 singular values
 tri_vertices            (V, 3) float64               triangulation vertices (samples, then black lights)
@@ -61,7 +65,8 @@ tri_faces               (F, 3) int32                 triangulation faces
 pixel); any texel of any map is made again from it exactly as the capture made it
 (:meth:`Bundle.texel_rows`, :meth:`Bundle.pixel_maps`). (*) only in bundles captured with
 ``--keep-maps`` (the maps themselves) or by a method without a recipe (the classical fits,
-``--paper-adaptation``): those hold ``maps_rows`` instead of the recipe.
+``--paper-adaptation``): those hold ``maps_rows`` instead of the recipe. (4) only when the
+bundle stores more than 16 ranks (format 4).
 ``meta["stored"]`` lists the fields a bundle holds.
 
 Units: linear Rec.709; "flash units" means a pixel's value under a light as strong as the
@@ -86,9 +91,9 @@ from relight.errors import InputError
 from relight.imageio import atomic_path
 
 MAGIC = b"RLBUNDLE"
-VERSION = 3
+VERSION = 4
 #: Format versions this relight reads (versions 1 and 2 store the maps, not their recipe).
-READABLE_VERSIONS = (1, 2, 3)
+READABLE_VERSIONS = (1, 2, 3, 4)
 ALIGN = 64
 _PREFIX = struct.Struct("<8sIIQ")
 #: Largest header accepted (a corrupt length must not make us allocate gigabytes).

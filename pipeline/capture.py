@@ -404,6 +404,8 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: d
         "transport_errors": compact.rank_errors,
         "transport_sigma": compact.sigma,
     }
+    if compact.q4 is not None:
+        arrays.update({"transport_v4": compact.q4, "transport_v4_scale": compact.q4_scale})
     if recipe is not None:  # what the maps are made of (~K + 100 bytes per pixel), not the maps
         from .recipe import recipe_arrays
 

@@ -123,7 +123,8 @@ def test_the_default_bundle_is_small_and_keeps_no_maps(small_bundle):
     k = small_bundle.light_dirs.shape[0]
     per_pixel = small_bundle.path.stat().st_size / small_bundle.n_pixels
     assert not {"maps", "maps_rows", "samples"} & set(small_bundle.arrays)
-    # 3 bytes per sample and pixel, the compact transport (8-bit, 3 per rank), the fits, the
-    # horizon and the crop's images: well under the maps' 2 x 3 x T bytes.
-    rank = small_bundle.transport_v.shape[2]
+    # 3 bytes per sample and pixel, the compact transport (at most 3 bytes per rank: 8 bits for
+    # the first, 4 for the rest), the fits, the horizon and the crop's images: well under the
+    # maps' 2 x 3 x T bytes.
+    rank = small_bundle.arrays["transport_errors"].shape[0]
     assert per_pixel < 3 * k + 3 * rank + 200, per_pixel

@@ -187,7 +187,8 @@ def test_bundles_store_no_subnormal_halves(small_bundle):
     arrays = small_bundle.arrays
     assert "maps_rows" not in arrays and arrays["transport_v"].dtype == np.int8  # the default: a recipe
     rows = small_bundle.texel_rows(np.arange(0, small_bundle.map_texels.size, 97))  # made from it
-    v = dequantise_basis(arrays["transport_v"], arrays["transport_v_scale"])  # as the Relighter reads it
+    v = dequantise_basis(arrays["transport_v"], arrays["transport_v_scale"], arrays.get("transport_v4"),
+                         arrays.get("transport_v4_scale"))  # as the Relighter reads it
     for name, a in (("texel rows", rows), ("transport_v", v)):
         assert a.dtype == np.float16
         assert not ((a != 0) & (np.abs(a) < HALF_TINY)).any(), name
@@ -228,30 +229,51 @@ def test_pocl_worker_threads_are_pinned_unless_the_user_chose(monkeypatch):
 
 
 @pytest.mark.parametrize("n_pix", [17, 31, 32 * 5 + 3, 32 * 4])
-def test_kernel_basis_is_the_8bit_storage_rearranged(n_pix):
-    """The compact kernel reads the bundle's 8-bit basis in its own blocks: every pixel's bytes
-    times its step are the stored basis dequantised (odd and even storage blocks, ranks cut or
-    padded), and the padding reads as zero."""
+def test_kernel_basis_is_the_storage_rearranged(n_pix):
+    """The compact kernel reads the bundle's basis in its own blocks - the first ranks as bytes,
+    the rest as nibbles: every pixel's steps times its step size are the stored basis dequantised
+    (odd and even storage blocks, ranks cut or padded), and the padding reads as zero."""
     from relight.kernels import transport
-    from relight.kernels.relighter import LANES, pack_quantised
+    from relight.kernels.relighter import LANES, pack_nibbles, pack_quantised
+    from relight.numerics import HALF_TINY
 
     rng = np.random.default_rng(3)
     rank = 21
     nb = -(-n_pix // 16)
     v = np.zeros((nb * 16, 3, rank), dtype=np.float32)
     v[:n_pix] = rng.normal(0, 1, (n_pix, 3, rank)) * rng.uniform(1e-6, 2.0, (n_pix, 3, 1))
+    v[:n_pix, :, 16:] *= 0.05  # the later ranks small, as a basis's are
     blocked = np.zeros((nb * 16, 3, 32), dtype=np.float16)
     blocked[:, :, :rank] = v
     blocked = np.ascontiguousarray(blocked.reshape(nb, 16, 3, 32).transpose(0, 2, 3, 1))
-    q, scale = transport.quantise_basis(blocked, rank)
-    ref = transport.dequantise_basis(q, scale).astype(np.float32)  # (nb, 3, Kp, 16)
+    q, scale, q4, scale4 = transport.quantise_basis(blocked, rank)
+    assert q.shape[2] == transport.HEAD_RANKS and q4.shape[2:] == (rank - transport.HEAD_RANKS, 8)
+    # the 4-bit steps are within +-V4_LEVELS and round the small ranks to their own step
+    steps4 = transport.unpack_nibbles(q4)
+    assert np.abs(steps4).max() <= transport.V4_LEVELS
+    ref = transport.dequantise_basis(q, scale, q4, scale4).astype(np.float32)  # (nb, 3, Kp, 16)
     ref = ref.transpose(0, 3, 1, 2).reshape(-1, 3, ref.shape[2])[:n_pix]  # (P, 3, Kp)
+    step4 = scale4.astype(np.float32)[:n_pix] / transport.V4_LEVELS
+    # (the dequantised halves flush values below HALF_TINY to zero, as bundles store none)
+    assert (np.abs(ref[:, :, 16:rank] - v[:n_pix, :, 16:]) <= 0.5 * step4[:, :, None] * 1.01 + HALF_TINY).all()
     for kp in (rank, 16, 32):
         q8, units = pack_quantised(q, scale, kp, n_pix)
         assert q8.shape == (-(-n_pix // LANES), kp, 3, LANES) and q8.dtype == np.int8
         assert q8.ctypes.data % 64 == 0 and units.ctypes.data % 64 == 0
-        got = (q8.astype(np.float32) * units[:, None]).transpose(0, 3, 2, 1).reshape(-1, 3, kp)
-        k = min(kp, rank)
+        assert units.dtype == np.float16
+        step = units.astype(np.float32)[:, None] / transport.V_LEVELS
+        got = (q8.astype(np.float32) * step).transpose(0, 3, 2, 1).reshape(-1, 3, kp)
+        k = min(kp, 16)
         # dequantise_basis rounds to halves: the kernel's operands are the exact stored values
         np.testing.assert_allclose(got[:n_pix, :, :k], ref[:, :, :k], rtol=1e-3, atol=1e-7)
+        assert not got[n_pix:].any() and not got[:, :, k:].any()
+    for kp in (rank - 16, 8):
+        q4k, units4 = pack_nibbles(q4, scale4, kp, n_pix)
+        assert q4k.shape == (-(-n_pix // LANES), kp, 3, LANES // 2) and q4k.dtype == np.uint8
+        b = q4k.view(np.int8)
+        steps = np.concatenate([(b << 4).astype(np.int8) >> 4, b >> 4], axis=-1).astype(np.float32)
+        step = units4.astype(np.float32)[:, None] / transport.V4_LEVELS
+        got = (steps * step).transpose(0, 3, 2, 1).reshape(-1, 3, kp)
+        k = min(kp, rank - 16)
+        np.testing.assert_allclose(got[:n_pix, :, :k], ref[:, :, 16:16 + k], rtol=1e-3, atol=1e-7)
         assert not got[n_pix:].any() and not got[:, :, k:].any()
