@@ -314,7 +314,7 @@ def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
 def _filter_video(inp, out, handle, crf, res, progress, tqdm):
     import av
 
-    from relight.video import MAX_VIDEO_FRAMES, _to_yuv, frame_to_rgb, probe_video
+    from relight.video import MAX_VIDEO_FRAMES, _to_yuv, frame_to_rgb, probe_video, release_frames
 
     info = probe_video(inp)
     suffix = out.suffix.lower()
@@ -365,6 +365,7 @@ def _filter_video(inp, out, handle, crf, res, progress, tqdm):
                             yield ("audio", packet)
                         continue
                     for frame in packet.decode():
+                        release_frames(frame)
                         if state["frames"] >= MAX_VIDEO_FRAMES:
                             raise InputError(f"{inp}: more than {MAX_VIDEO_FRAMES} frames; trim the video")
                         rgb = frame_to_rgb(frame)  # as displayed: the output is written upright
