@@ -277,3 +277,25 @@ def test_kernel_basis_is_the_storage_rearranged(n_pix):
         k = min(kp, rank - 16)
         np.testing.assert_allclose(got[:n_pix, :, :k], ref[:, :, 16:16 + k], rtol=1e-3, atol=1e-7)
         assert not got[n_pix:].any() and not got[:, :, k:].any()
+
+
+def test_small_head_turns_reuse_the_last_relight(relighters):
+    """reuse_deg leaves out a relight the head's small turn does not need - measured from the
+    last relight, so drift cannot build up - and never across an environment or exposure change."""
+    from relight.kernels.relighter import rotation_angle_deg
+
+    compact, _ = relighters
+    assert abs(rotation_angle_deg(rotation_matrix(10, 0, 0), rotation_matrix(10.5, 0, 0)) - 0.5) < 1e-6
+    env = load_environment("builtin:studio")
+    first = np.array(compact.relight(env, rotation_matrix(10, 0, 0)))
+    n, reused = compact.relit, compact.reused
+    near = compact.relight(env, rotation_matrix(10.06, 0, 0), reuse_deg=0.1)
+    assert compact.relit == n and compact.reused == reused + 1 and np.array_equal(near, first)
+    compact.relight(env, rotation_matrix(10.12, 0, 0), reuse_deg=0.1)  # 0.12 deg from the last relight
+    assert compact.relit == n + 1
+    compact.relight(env, rotation_matrix(10.13, 0, 0))  # no reuse_deg: every new rotation relights
+    assert compact.relit == n + 2
+    compact.relight(env, rotation_matrix(10.13, 0, 0), exposure=2.0, reuse_deg=5.0)
+    assert compact.relit == n + 3
+    compact.relight(load_environment("builtin:sunset"), rotation_matrix(10.13, 0, 0), exposure=2.0, reuse_deg=5.0)
+    assert compact.relit == n + 4
