@@ -107,33 +107,48 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     flick = []
     lights = {}
     prev = None
-    side = 0.0
+    side = side_cpu = 0.0
+    reused = []
     t0 = time.perf_counter()
+    cpu0 = time.process_time()  # user + sys of every thread of this process (PoCL's, BLAS's)
     for i, f in enumerate(frames):
         out, info = fp.process(f, i / fps)
         for k in STAGES:
             times[k].append(info.timings.get(k, 0.0))
         if info.face:
+            reused.append((info.reused, info.timings.get("relight", 0.0)))
+        if info.face:
             estimates[str(i)] = info.angles
             raw[str(i)] = info.raw_angles
         if info.light is not None:
             lights[str(i)] = info.light.as_json()
-        t_side = time.perf_counter()  # the benchmark's own measuring, left out of the wall time
+        t_side = time.perf_counter()  # the benchmark's own measuring, left out of the wall and CPU time
+        c_side = time.process_time()
         if prev is not None:
             d = flicker_step(prev[0], prev[1], f, out)
             if d is not None:
                 flick.append(d)
         prev = (f, out)
-        side += time.perf_counter() - t_side
         if i in (len(frames) // 5, len(frames) // 2, 4 * len(frames) // 5):
             pairs.append((i, f, out))
+        side += time.perf_counter() - t_side
+        side_cpu += time.process_time() - c_side
     wall = time.perf_counter() - t0 - side
+    cpu = time.process_time() - cpu0 - side_cpu
+    relit_ms = [t for r, t in reused if not r]
+    reused_ms = [t for r, t in reused if r]
     err = rotation_errors(estimates, meta["head_rotation"])
     err_raw = rotation_errors(raw, meta["head_rotation"])
     return {"frames": len(frames), "faces": len(estimates), "size": meta["size"],
             "stage_ms": {k: {"median": float(np.median(v)), "p99": float(np.percentile(v, 99))}
                          for k, v in times.items()},
             "fps_sustained": len(frames) / wall,
+            "cpu_ms_per_frame": 1000.0 * cpu / len(frames), "wall_ms_per_frame": 1000.0 * wall / len(frames),
+            # Leave out what the scene does not need: frames whose head turned < reuse_deg since
+            # the last relight reuse it (FramePath.reuse_deg).
+            "reuse_deg": fp.reuse_deg, "reused_frames": len(reused_ms), "face_frames": len(reused),
+            "relight_ms_relit_median": float(np.median(relit_ms)) if relit_ms else None,
+            "relight_ms_reused_median": float(np.median(reused_ms)) if reused_ms else None,
             "rotation_error_deg": {"median": float(np.median(err)) if err.size else None,
                                    "p95": float(np.percentile(err, 95)) if err.size else None,
                                    "max": float(err.max()) if err.size else None},
@@ -276,6 +291,14 @@ def table(doc: dict) -> str:
         lines.append(f"{k:10s} {s['median']:10.2f} {s['p99']:8.2f}")
     med = pf["stage_ms"]["total"]["median"]
     lines.append(f"frames per second: {1000.0 / med:.1f} at the median frame time; {pf['fps_sustained']:.1f} sustained")
+    if "cpu_ms_per_frame" in pf:
+        lines.append(f"CPU per frame (user + sys, every thread): {pf['cpu_ms_per_frame']:.1f} ms at "
+                     f"{pf['wall_ms_per_frame']:.1f} ms wall ({pf['cpu_ms_per_frame'] / pf['wall_ms_per_frame']:.2f} "
+                     "cores busy while it runs)")
+        lines.append(f"relight reused on {pf['reused_frames']} of {pf['face_frames']} face frames (head turned < "
+                     f"{pf['reuse_deg']:g} deg since the last relight): relight stage "
+                     f"{_fmt(pf['relight_ms_relit_median'])} ms when relit, "
+                     f"{_fmt(pf['relight_ms_reused_median'])} ms when reused (medians)")
     lines.append(f"flicker (static environment): {_fmt(pf.get('flicker_codes'))} codes mean, "
                  f"{_fmt(pf.get('flicker_p95_codes'))} p95 (output's face change minus the input's)")
     small = doc.get("per_frame_640")
