@@ -221,16 +221,21 @@ class Compositor:
         import pyopencl as cl
 
         q = self.rt.queue
+        rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
         buf = self._frame_for(rgb.shape)
-        # The frame goes in and comes out through explicit copies (a host-pointer buffer written
-        # by the host between kernels is not guaranteed to be seen by the device).
-        cl.enqueue_copy(q, buf, np.ascontiguousarray(rgb, dtype=np.uint8), is_blocking=False)
+        bx0, by0, bx1, by1 = box
+        # Only the box's rows go in and come out, through explicit copies (a host-pointer buffer
+        # written by the host between kernels is not guaranteed to be seen by the device): the
+        # kernel changes nothing outside the box, and the rest of the frame is the input's.
+        row = rgb.shape[1] * rgb.shape[2]
+        lo, hi = min(max(int(by0), 0), rgb.shape[0]), min(max(int(by1), 0), rgb.shape[0])
+        if hi > lo:
+            cl.enqueue_copy(q, buf, rgb[lo:hi], dst_offset=lo * row, is_blocking=False)
         coarse = np.ascontiguousarray(coarse, dtype=np.float32)
         if coarse.nbytes > self._coarse_cap:
             self._coarse_cap = max(coarse.nbytes, 2 * self._coarse_cap)
             self._coarse_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY, self._coarse_cap)
         cl.enqueue_copy(q, self._coarse_buf, coarse, is_blocking=False)
-        bx0, by0, bx1, by1 = box
         bw, bh = bx1 - bx0, by1 - by0
         n = self.support.size
         code = LAYER_MODES[mode]
@@ -246,6 +251,9 @@ class Compositor:
                      np.int32(step), np.float32(self.origin[0]), np.float32(self.origin[1]), self._layer,
                      np.int32(self.cw), np.int32(self.ch), self._expect, self._dec, self._enc, np.int32(self.lut_n),
                      np.int32(code), np.float32(tau))
-        out = np.empty_like(self.frame)
-        cl.enqueue_copy(q, out, buf, is_blocking=True)
+        out = rgb.copy()
+        if hi > lo:
+            cl.enqueue_copy(q, out[lo:hi], buf, src_offset=lo * row, is_blocking=True)
+        else:
+            q.finish()
         return out
