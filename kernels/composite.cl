@@ -53,7 +53,7 @@
 #define AGREE_LO 0.30f
 #define AGREE_HI 0.60f
 
-/* PoCL 3.0 calls its math builtins (floor, clamp, ...) out of line, spilling vector registers
+/* PoCL 3.0 calls its math builtins (floor, clamp, fmax, ...) out of line, spilling vector registers
    around each call (measured: this kernel took 9 ms for a 300x450 box with them): these
    inline stand-ins are exact for the ranges used here. */
 __attribute__((always_inline)) inline int ifloor(float x)
@@ -65,6 +65,11 @@ __attribute__((always_inline)) inline int ifloor(float x)
 __attribute__((always_inline)) inline float fclamp(float v, float lo, float hi)
 {
     return v < lo ? lo : (v > hi ? hi : v);
+}
+
+__attribute__((always_inline)) inline float fmx(float a, float b)
+{
+    return a > b ? a : b;
 }
 
 __attribute__((always_inline)) inline float lum3(float3 c)
@@ -120,8 +125,8 @@ __kernel void build_layer(
         float3 q = (t + eps) / (e + eps);
         r = (float3)(fclamp(q.x, 0.0f, ratio_max), fclamp(q.y, 0.0f, ratio_max), fclamp(q.z, 0.0f, ratio_max));
         float le = lum3(e), lt = lum3(t);
-        float share = le / fmax(fmax(le, lt), 1e-12f);
-        float dark = le / fmax(live_median, 1e-12f);
+        float share = le / fmx(fmx(le, lt), 1e-12f);
+        float dark = le / fmx(live_median, 1e-12f);
         s = fclamp((share - Q_LO) / (Q_HI - Q_LO), 0.0f, 1.0f) * fclamp((dark - D_LO) / (D_HI - D_LO), 0.0f, 1.0f);
         expect[p] = le;
         if (f < 0)
@@ -187,9 +192,9 @@ __kernel void warp_composite(
     float3 f = (float3)(decode_lut[frame[o]], decode_lut[frame[o + 1]], decode_lut[frame[o + 2]]);
     float s = l.s3;
     if (mode == MODE_LIVE && s > 0.0f) {
-        s *= 1.0f - fclamp((fmax(f.x, fmax(f.y, f.z)) - CLIP_LO) / (CLIP_HI - CLIP_LO), 0.0f, 1.0f);
+        s *= 1.0f - fclamp((fmx(f.x, fmx(f.y, f.z)) - CLIP_LO) / (CLIP_HI - CLIP_LO), 0.0f, 1.0f);
         float e = bilerp1(expect, cw, ch, m.x - ox, m.y - oy);
-        float agree = lum3(f) / fmax(e, 1e-12f);
+        float agree = lum3(f) / fmx(e, 1e-12f);
         s *= fclamp((agree - AGREE_LO) / (AGREE_HI - AGREE_LO), 0.0f, 1.0f);
         float dev = fabs(agree - 1.0f);
         s *= dev > tau ? (dev - tau) / dev : 0.0f;
