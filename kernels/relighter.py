@@ -378,7 +378,7 @@ class Relighter:
         if "transport_u" in arrays:
             v = arrays["transport_v"]
             q = q_scale = q4 = q4_scale = None
-            if v.dtype == np.int8:  # 8-bit storage (format 3): dequantised only where needed
+            if v.dtype == np.int8:  # 8-bit storage (format 3 and later): dequantised only where needed
                 if "transport_v_scale" not in arrays:
                     raise InputError("the bundle's 8-bit transport basis has no transport_v_scale: capture it again")
                 q, q_scale = v, np.asarray(arrays["transport_v_scale"])

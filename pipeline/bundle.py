@@ -99,7 +99,7 @@ _PREFIX = struct.Struct("<8sIIQ")
 #: Largest header accepted (a corrupt length must not make us allocate gigabytes).
 MAX_HEADER = 64 << 20
 REQUIRED = ("pixels", "mask_crop", "ambient", "normal", "albedo", "depth", "light_dirs", "map_texels")
-#: The reference frame: a JPEG (format 3) or raw pixels (before).
+#: The reference frame: a JPEG (format 3 and later) or raw pixels (before).
 BACKGROUND = ("background_jpeg", "background")
 #: JPEG quality of the stored reference frame (sRGB, display and tracking only: never relit).
 BACKGROUND_QUALITY = 95
