@@ -523,7 +523,7 @@ def summarise(doc: dict) -> dict:
 
 def default_bundle(doc: dict) -> dict:
     """The ``full`` variant as ``relight capture`` writes it by default (its maps' recipe, the
-    8-bit compact transport) against its exact maps: mean PSNR of both per source (synthetic
+    8/4-bit compact transport) against its exact maps: mean PSNR of both per source (synthetic
     scenes x environments, Dome, each real face), the difference (goal: within
     ``DEFAULT_BUNDLE_DB``) and its size per face pixel (goal: <= ``DEFAULT_BUNDLE_KB``)."""
     rows = []
@@ -708,7 +708,7 @@ def report_markdown(doc: dict) -> str:
                      f"{_f(v['bundle MB'], '{:.1f}')} | {_f(v['relight ms'])} |")
     db = s.get("default_bundle") or {}
     if db.get("rows"):
-        lines += ["", f"## The default bundle: recipe + 8-bit compact transport against the exact maps (goal: "
+        lines += ["", f"## The default bundle: recipe + 8/4-bit compact transport against the exact maps (goal: "
                   f"within {DEFAULT_BUNDLE_DB} dB, <= {DEFAULT_BUNDLE_KB:g} KB per face pixel)", "",
                   "`full` relit from the bundle `relight capture` writes by default (the maps' recipe: texels "
                   "made on demand, the compact transport at the default tolerance) and from its exact maps "
