@@ -69,8 +69,8 @@ def relight_compact_numpy(q8: np.ndarray, units: np.ndarray, rank8: int, q4: np.
             blk = q8[b0:b0 + 1024, :rank8].astype(np.float32)
             out[b0:b0 + 1024] = np.einsum("bkcs,kc->bcs", blk, c[:rank8]) * read_halves(units[b0:b0 + 1024])
         if rank4:
-            b = q4[b0:b0 + 1024, :rank4].view(np.int8)
-            steps = np.concatenate([(b << 4).astype(np.int8) >> 4, b >> 4], axis=-1).astype(np.float32)
+            # (the kernel's nibbles split as the storage's: low four bits the first half of the pixels)
+            steps = transport.unpack_nibbles(q4[b0:b0 + 1024, :rank4]).astype(np.float32)
             out[b0:b0 + 1024] += (np.einsum("bkcs,kc->bcs", steps, c[rank8:])
                                   * read_halves(units4[b0:b0 + 1024]))
     out = out.transpose(0, 2, 1).reshape(-1, 3)[:n_pix].copy()
@@ -382,14 +382,14 @@ class Relighter:
                 if "transport_v_scale" not in arrays:
                     raise InputError("the bundle's 8-bit transport basis has no transport_v_scale: capture it again")
                 q, q_scale = v, np.asarray(arrays["transport_v_scale"])
-                transport.basis_units(q, q_scale)  # its shape checked now
+                transport.basis_scale(q, q_scale)  # its shape checked now
                 v = None
                 if "transport_v4" in arrays:  # format 4: the later ranks in 4 bits
                     q4, q4_scale = arrays["transport_v4"], np.asarray(arrays.get("transport_v4_scale", np.zeros(0)))
                     if q4.dtype != np.uint8 or q4.ndim != 4 or q4.shape[:2] != q.shape[:2] or q4.shape[3] * 2 != 16:
                         raise InputError(f"the bundle's 4-bit transport basis has shape {q4.shape} ({q4.dtype}): "
                                          "capture it again")
-                    transport.basis_units(q4, q4_scale, transport.V4_LEVELS)
+                    transport.basis_scale(q4, q4_scale)
             return transport.Transport(u=np.asarray(arrays["transport_u"]), v=v,
                                        rank_errors=np.asarray(arrays["transport_errors"]),
                                        sigma=np.asarray(arrays.get("transport_sigma", np.zeros(1))),
@@ -602,8 +602,7 @@ class Relighter:
         step = read_halves(self._units)[:, None] / transport.V_LEVELS
         out[..., :k8] = (self._q8[:, :k8].astype(np.float32) * step).transpose(0, 3, 2, 1)
         if self.rank4:
-            q = self._q4[:, :self.rank4].view(np.int8)
-            steps = np.concatenate([(q << 4).astype(np.int8) >> 4, q >> 4], axis=-1).astype(np.float32)
+            steps = transport.unpack_nibbles(self._q4[:, :self.rank4]).astype(np.float32)
             step = read_halves(self._units4)[:, None] / transport.V4_LEVELS
             out[..., k8:] = (steps * step).transpose(0, 3, 2, 1)
         return out.reshape(-1, 3, out.shape[3])[:self.n_pix]
@@ -623,9 +622,8 @@ class Relighter:
         if use_exact:
             vals = relight_exact_numpy(self.maps, lp)
         else:
-            k = self.rank
             direct, rest = transport.split_direct(lp, self.transport.direct)
-            coef = self.transport.u[:, :k].T.astype(np.float64) @ rest
+            coef = self._ut @ rest if self._ut is not None else np.zeros((0, 3))  # (no ranks: the exact texels only)
             vals = relight_compact_numpy(self._q8, self._units, self.rank8, self._q4, self._units4, self.rank4,
                                          coef, self.direct_rows(direct), lp[direct], self.n_pix)
         out = np.zeros_like(self.frame)
