@@ -131,6 +131,28 @@ def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, s
     assert np.median(before) > 1.5 and np.median(err) < REFIND_MEDIAN_PX
 
 
+def test_batched_correlation_matches_opencv_match_template():
+    """Re-anchoring's all-at-once normalised cross-correlation against cv2.matchTemplate
+    (TM_CCOEFF_NORMED) per window, and the parabola peak against its closed form."""
+    from relight.service.frame_path import normalised_correlation, parabola_peaks
+
+    rng = np.random.default_rng(3)
+    win = rng.integers(0, 256, (40, 21, 21)).astype(np.uint8)
+    tpl = rng.integers(0, 256, (40, 13, 13)).astype(np.uint8)
+    tpl[5] = win[5, 2:15, 6:19]  # an exact match at offset (y 2, x 6)
+    win[7] = 40  # a flat window: no correlation
+    r, contrast = normalised_correlation(win, tpl)
+    ref = np.stack([cv2.matchTemplate(w, t, cv2.TM_CCOEFF_NORMED) for w, t in zip(win, tpl, strict=True)])
+    assert r.shape == ref.shape == (40, 9, 9)
+    assert np.abs(r - ref).max() < 1e-5
+    assert np.unravel_index(r[5].argmax(), r[5].shape) == (2, 6) and r[5].max() > 0.999999
+    assert np.all(r[7] == 0.0)
+    np.testing.assert_allclose(contrast, tpl.reshape(40, -1).astype(np.float64).std(axis=1), rtol=1e-6)
+    # a parabola y = -(x - 0.3)^2 sampled at -1, 0, 1 peaks at 0.3; a flat or rising one at 0
+    np.testing.assert_allclose(parabola_peaks(np.array([-1.69, 1.0]), np.array([-0.09, 1.0]),
+                                              np.array([-0.49, 1.0])), [0.3, 0.0], atol=1e-12)
+
+
 def test_piecewise_affine_warp_reproduces_an_affine_map():
     from relight.service.warp import GRID_STEP, OUTSIDE, inverse_map
 
