@@ -32,6 +32,20 @@ class _DefaultsUnlessNone(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
+#: The commands in the order --help lists them, and each one's line there. Only the command being
+#: run has its full parser built (importing what its defaults come from); the others are a line each,
+#: so `relight filter ...` does not import the capture pipeline or the web app to parse its arguments.
+COMMANDS = {
+    "synth": "simulate a two-phone capture of a synthetic head, with its ground truth",
+    "capture": "turn a capture video (or an RTI image set) into a reflectance bundle",
+    "render": "relight a bundle's face under an environment or one light, to an image",
+    "bench": "benchmarks that print measured figures",
+    "demo": "synthesise a capture, turn it into a bundle, show both (what `make demo` runs)",
+    "filter": "relight the face in a video (a virtual-camera-style batch filter)",
+    "serve": "the frame service under load: websocket clients on loopback",
+}
+
+
 def _add_synth(sub) -> None:
     from .pipeline.synth.live import AUDIO_KINDS, LiveConfig
     from .pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig
@@ -39,7 +53,7 @@ def _add_synth(sub) -> None:
     d = SynthConfig()
     live = LiveConfig()
     p = sub.add_parser(
-        "synth", help="simulate a two-phone capture of a synthetic head, with its ground truth",
+        "synth", help=COMMANDS["synth"],
         description="Simulate the paper's acquisition on a procedural head whose truth is known: a phone "
                     "films the face while a second phone's flash blinks and is waved over the front "
                     "hemisphere, a mirror sphere beside the head shows the flash. Writes OUT/capture.mp4 "
@@ -157,7 +171,7 @@ def _add_capture(sub) -> None:
     from .pipeline.methods import METHODS
 
     p = sub.add_parser(
-        "capture", help="turn a capture video (or an RTI image set) into a reflectance bundle",
+        "capture", help=COMMANDS["capture"],
         description="Build a reflectance bundle from a phone video of a face lit by a blinking, hand-waved "
                     "flash with a mirror sphere beside it (or from an RTI image set with --images): flash "
                     "separation, registration, light directions, photometric-stereo geometry, per-pixel "
@@ -267,7 +281,7 @@ def _vec3(text: str) -> tuple[float, float, float]:
 
 def _add_render(sub) -> None:
     p = sub.add_parser(
-        "render", help="relight a bundle's face under an environment or one light, to an image",
+        "render", help=COMMANDS["render"],
         description="Relight the reference frame of a bundle (from `relight capture`) under an environment map "
                     "or a single directional light, and write it as an image: EXR is linear, PNG/JPEG are "
                     "sRGB-encoded (clipped to 0-1).",
@@ -336,7 +350,7 @@ def _run_render(args) -> int:
 
 
 def _add_bench(sub) -> None:
-    p = sub.add_parser("bench", help="benchmarks that print measured figures",
+    p = sub.add_parser("bench", help=COMMANDS["bench"],
                        description="Benchmarks: speed, memory and accuracy, measured here and printed.")
     bsub = p.add_subparsers(title="benchmarks", metavar="NAME", required=True)
     c = bsub.add_parser("capture", help="capture pipeline: time per stage, peak memory, accuracy vs truth",
@@ -389,7 +403,7 @@ def _add_bench(sub) -> None:
     v.add_argument("--quick", action="store_true", help="480x270 clips of 4 s and one real face instead (for CI)")
     v.add_argument("--quiet", action="store_true", help="no progress output")
     v.set_defaults(func=_run_bench_video)
-    sv = bsub.add_parser("serve", help="the frame service under load: websocket clients on loopback",
+    sv = bsub.add_parser("serve", help=COMMANDS["serve"],
                          description="Start relight serve in a fresh process and drive it with websocket clients "
                                      "sending 640x360 JPEG frames of a synthetic live video at a fixed rate: "
                                      "errors, dropped frames, round-trip p50/p95/p99, server memory before and "
@@ -498,7 +512,7 @@ def _run_bench_serve(args) -> int:
 
 
 def _add_demo(sub) -> None:
-    p = sub.add_parser("demo", help="synthesise a capture, turn it into a bundle, show both (what `make demo` runs)",
+    p = sub.add_parser("demo", help=COMMANDS["demo"],
                        description="Synthesise a short capture with the built-in defaults (no download), run "
                                    "the capture pipeline on it, measure it against the truth and write a "
                                    "contact sheet PNG: flash frames, the mirror-sphere crops, the truth relit "
@@ -537,22 +551,14 @@ def _run_demo(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
-
-    parser = argparse.ArgumentParser(
-        prog="relight", description="Real-time relighting of a human face in video, on a CPU.")
-    parser.add_argument("--version", action="version", version=f"relight {__version__}")
-    sub = parser.add_subparsers(title="commands", metavar="COMMAND", required=True)
-    _add_synth(sub)
-    _add_capture(sub)
-    _add_render(sub)
-    _add_bench(sub)
-    _add_demo(sub)
+def _add_filter(sub) -> None:
     from .service.filter_cli import add_filter_parser
 
     add_filter_parser(sub)
-    sp = sub.add_parser("serve", help="serve relighting of video frames over HTTP (also: relight-serve)",
+
+
+def _add_serve(sub) -> None:
+    sp = sub.add_parser("serve", help=COMMANDS["serve"],
                         description="Keep a bundle loaded and relight frames sent over HTTP (POST /v1/relight); "
                                     "health at /livez and /readyz, Prometheus metrics at /metrics, OpenAPI at /docs.",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -560,11 +566,39 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_serve_arguments(sp)
     sp.set_defaults(func=run_serve)
+
+
+_ADDERS = {"synth": _add_synth, "capture": _add_capture, "render": _add_render, "bench": _add_bench,
+           "demo": _add_demo, "filter": _add_filter, "serve": _add_serve}
+
+
+def _command(argv: list[str] | None) -> str | None:
+    """The command named in ``argv`` (the first word that is not an option), or None."""
+    for word in sys.argv[1:] if argv is None else argv:
+        if not word.startswith("-"):
+            return word
+    return None
+
+
+def build_parser(command: str | None = "*") -> argparse.ArgumentParser:
+    """The ``relight`` parser: every command's full parser ("*"), or only ``command``'s (the others
+    a help line each: what --help lists), or none (None)."""
+    from . import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="relight", description="Real-time relighting of a human face in video, on a CPU.")
+    parser.add_argument("--version", action="version", version=f"relight {__version__}")
+    sub = parser.add_subparsers(title="commands", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        if command == "*" or name == command:
+            _ADDERS[name](sub)
+        else:
+            sub.add_parser(name, help=COMMANDS[name])
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(_command(argv))
     args = parser.parse_args(argv)
     try:
         return args.func(args)

@@ -30,10 +30,12 @@ def _focal(text: str):
 
 
 def add_filter_parser(sub) -> None:
+    from relight.cli import COMMANDS
+
     from .composite import MODES
 
     p = sub.add_parser(
-        "filter", help="relight the face in a video (a virtual-camera-style batch filter)",
+        "filter", help=COMMANDS["filter"],
         description="Relight the face of every frame of a video (any container FFmpeg reads) or a folder of "
                     "images with a reflectance bundle: the head is tracked, its rotation turns the environment "
                     "the other way, and the relit light is warped onto the face. Audio and timestamps are "

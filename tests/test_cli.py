@@ -48,3 +48,16 @@ def test_demo_writes_a_contact_sheet(tmp_path, capsys):
     sheet = cv2.imread(str(tmp_path / "contact_sheet.png"))
     assert sheet.shape == (5 * 270, 4 * 480, 3) and sheet.std() > 10
     assert (tmp_path / "face.bundle").stat().st_size > 1e6 and (tmp_path / "report" / "report.json").exists()
+
+
+def test_a_command_builds_only_its_own_parser():
+    """`relight filter ...` parses without importing the capture pipeline or the web app (start-up
+    time), and every command is still listed by --help."""
+    code = ("import sys; from relight.cli import build_parser, COMMANDS; p = build_parser('filter'); "
+            "p.parse_args(['filter', 'a.mp4', 'b.mp4', '--bundle', 'x.bundle', '--env', 'builtin:sunset']); "
+            "print(sorted(m for m in ('fastapi', 'relight.pipeline.capture', 'relight.pipeline.synth.live') "
+            "if m in sys.modules)); print(sorted(p._subparsers._group_actions[0].choices) == sorted(COMMANDS))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
+    assert out[0] == "[]" and out[1] == "True"
+    full = build_parser()
+    assert all(len(sp._actions) > 1 for sp in full._subparsers._group_actions[0].choices.values())
