@@ -142,12 +142,27 @@ def normalised_correlation(windows: np.ndarray, templates: np.ndarray) -> tuple[
     return np.clip(r, -1.0, 1.0), np.sqrt(t_norm2 / area)
 
 
+def _percentile_u8(codes: np.ndarray, q: float) -> float:
+    """``np.percentile(codes, q)`` (linear interpolation) of uint8 codes from their histogram
+    (no sort: ~5x faster on a tracking frame)."""
+    hist = cv2.calcHist([np.ascontiguousarray(codes)], [0], None, [256], [0, 256]).ravel()
+    n = int(hist.sum())
+    if n == 0:
+        return 0.0
+    pos = (n - 1) * q / 100.0
+    lo = int(pos)
+    cum = np.cumsum(hist)
+    v0 = int(np.searchsorted(cum, lo + 1))  # the code of the lo-th smallest value (0-based)
+    v1 = int(np.searchsorted(cum, min(lo + 2, n)))
+    return v0 + (pos - lo) * (v1 - v0)
+
+
 def _track_exposure(grey: np.ndarray) -> tuple[np.ndarray, float]:
     """(the tracking image, the gain on its codes): a dark frame brightened (a gain in quarter stops, so it holds still
     while the exposure does): its 99th percentile brought to ``TRACK_BRIGHT`` codes. Tracking
     compares brightness gradients against fixed thresholds; a frame a twentieth as bright as the
     capture would otherwise lose the face."""
-    top = float(np.percentile(grey[::4, ::4], 99))
+    top = _percentile_u8(grey[::4, ::4], 99.0)
     if top >= TRACK_BRIGHT / 2 or top <= 0:
         return grey, 1.0
     gain = float(2.0 ** (np.floor(4.0 * np.log2(TRACK_BRIGHT / top)) / 4.0))

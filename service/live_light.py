@@ -187,7 +187,7 @@ class LightEstimator:
             w_b = _nnls(a_b * sw[:, None], yl * sw, prior_b)
             # 2. sharp lights near the strongest lobes, fitted with the lobes
             cand = self._sharp_texels(w_b)
-            a = np.concatenate([a_b, self.lum_t[cand][:, idx].T.astype(np.float64)], axis=1)
+            a = np.concatenate([a_b, self.lum_t[np.ix_(cand, idx)].T.astype(np.float64)], axis=1)
             prior_t = np.zeros(cand.size) if first else \
                 np.maximum(prev[cand] @ LUMINANCE - (self.lobes[cand] @ prior_b), 0.0)
             prior = np.concatenate([w_b, prior_t])
@@ -202,7 +202,7 @@ class LightEstimator:
             self.robust[idx] = np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
         # 3. colour: one gain per channel on the fitted shape
         sub = idx[::COLOUR_STRIDE]
-        fit_c = self.lobe_rgb[sub] @ w_lobes + np.tensordot(w_tex, self.maps_t[cand][:, sub], axes=(0, 0))
+        fit_c = self.lobe_rgb[sub] @ w_lobes + np.tensordot(w_tex, self.maps_t[np.ix_(cand, sub)], axes=(0, 0))
         y = live[sub]
         wts = self.robust[sub][:, None]
         gains = (wts * fit_c * y).sum(axis=0) / np.maximum((wts * fit_c * fit_c).sum(axis=0), 1e-30)
