@@ -1,12 +1,13 @@
 """``relight bench serve``: the frame service under load, on loopback, bounded in time.
 
 A real ``relight-serve`` process; N websocket clients each send 640x360 JPEG frames of a
-synthetic live video at a fixed rate for a fixed time (latest frame wins on the server: frames
-the server had no time for are dropped and counted, never queued). Each frame is tagged so the
-client measures its round trip (send -> relit frame back). Reported: errors, frames returned,
-dropped, round-trip p50/p95/p99 per run, the share of busy CPU time the hypervisor stole
-during the run (on a shared VM that, not our code, stretches the tail), and the server's
-resident memory at start and end (``/proc``). Runs: the N-client load, then a single client at the same rate.
+synthetic live video at a fixed rate for a fixed time, then one client 1280x720 frames (latest
+frame wins on the server: frames the server had no time for are dropped and counted, never
+queued). Each frame is tagged so the client measures its round trip (send -> relit frame back).
+Reported: errors, frames returned and relit per second, dropped, round-trip p50/p95/p99 per run,
+the share of busy CPU time the hypervisor stole during the run (on a shared VM that, not our
+code, stretches the tail), the server's resident memory at start and end (``/proc``), and the
+start-up time (launch -> ready) of a first and a second start (kernel cache warm).
 """
 
 from __future__ import annotations
@@ -145,66 +146,98 @@ def _run(url: str, frames, clients: int, fps: float, duration: float) -> dict:
             "failures": [o["failure"] for o in outs if "failure" in o], "rtt_ms": pct, "cpu_steal": steal}
 
 
-def _frames(out: Path, progress: bool) -> list[bytes]:
+def _frames(out: Path, progress: bool, size: tuple[int, int] = (640, 360)) -> list[bytes]:
+    """JPEG frames (quality 85) of a 4 s synthetic live clip at ``size`` (cached in ``out``)."""
     import cv2
 
     from relight.pipeline.synth.live import LiveConfig, synthesize_live
     from relight.video import read_frames
 
-    live = out / "live-640x360-4s"
+    live = out / f"live-{size[0]}x{size[1]}-4s"
     if not (live / "live.mp4").exists():
         if progress:
-            print("synthesising a 640x360 live clip ...", flush=True)
-        synthesize_live(live, LiveConfig(width=640, height=360, duration=4.0, seed=0, audio="none"),
+            print(f"synthesising a {size[0]}x{size[1]} live clip ...", flush=True)
+        synthesize_live(live, LiveConfig(width=size[0], height=size[1], duration=4.0, seed=0, audio="none"),
                         progress=progress)
     return [cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
             for f in read_frames(live / "live.mp4")]
 
 
+def _start(bundle: Path, port: int, clients: int) -> tuple[subprocess.Popen, float]:
+    """``relight serve`` in a fresh process and the seconds until /readyz answers 200."""
+    env = dict(os.environ, RELIGHT_LOG_LEVEL="warning")
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "relight", "serve", str(bundle), "--port", str(port),
+                             "--max-clients", str(max(clients, 1)), "--focal", "ortho"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if not wait_ready(f"http://127.0.0.1:{port}", 120, alive=lambda: proc.poll() is None):
+        _stop(proc)
+        raise RuntimeError(f"relight serve did not become ready: {proc.stderr.read()[-500:]}")
+    return proc, time.perf_counter() - t0
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    proc.terminate()
+    try:
+        proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
+#: The single client's frame size (the issue's live case: a 720p webcam).
+SINGLE_SIZE = (1280, 720)
+
+
 def run(out: Path, bundle: Path | None = None, clients: int = 4, fps: float = 30.0, duration: float = 60.0,
-        quick: bool = False, progress: bool = True) -> dict:
+        quick: bool = False, progress: bool = True, single_size: tuple[int, int] = SINGLE_SIZE) -> dict:
+    """The N-client load at 640x360, then one client alone at ``single_size``; start-up timed on
+    the first start (kernel cache as it was) and on a second one (cache warm)."""
     import httpx
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if quick:
         duration = min(duration, 8.0)
+        single_size = (640, 360)
     if bundle is None:
         from .benchmark import _bundle
 
         bundle = _bundle(out, (640, 360), 20.0 if quick else 30.0, progress)
     frames = _frames(out, progress)
+    single_frames = frames if single_size == (640, 360) else _frames(out, progress, single_size)
     port = free_port()
-    env = dict(os.environ, RELIGHT_LOG_LEVEL="warning")
-    proc = subprocess.Popen([sys.executable, "-m", "relight", "serve", str(bundle), "--port", str(port),
-                             "--max-clients", str(max(clients, 1)), "--focal", "ortho"], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     base = f"http://127.0.0.1:{port}"
+    proc, first_start = _start(bundle, port, clients)
     try:
-        if not wait_ready(base, 120, alive=lambda: proc.poll() is None):
-            raise RuntimeError(f"relight serve did not become ready: {proc.stderr.read()[-500:]}")
         url = f"ws://127.0.0.1:{port}/v1/stream"
         _run(url, frames, 1, fps, 2.0)  # warm-up
         rss_start = _rss_mb(proc.pid)
         if progress:
             print(f"{clients} clients x {fps:g} fps x {duration:g} s ...", flush=True)
         load = _run(url, frames, clients, fps, duration)
+        load["size"] = [640, 360]
+        load["relit_fps"] = load["returned"] / duration
         rss_end = _rss_mb(proc.pid)
         if progress:
-            print(f"1 client x {fps:g} fps ...", flush=True)
-        single = _run(url, frames, 1, fps, min(duration, 20.0))
+            print(f"1 client x {fps:g} fps at {single_size[0]}x{single_size[1]} ...", flush=True)
+        _run(url, single_frames, 1, fps, 2.0)  # warm-up at this size
+        single = _run(url, single_frames, 1, fps, min(duration, 20.0))
+        single["size"] = list(single_size)
+        single["relit_fps"] = single["returned"] / min(duration, 20.0)
         metrics = httpx.get(f"{base}/metrics").text
         alive = httpx.get(f"{base}/readyz").status_code == 200
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        _stop(proc)
+    proc, warm_start = _start(bundle, port, clients)
+    _stop(proc)
     doc = {"load": load, "single": single, "rss_mb": {"start": rss_start, "end": rss_end},
+           "start_s": {"first": first_start, "warm": warm_start}, "bundle": str(bundle),
            "ready_after": alive, "server_errors": [ln for ln in metrics.splitlines()
                                                    if ln.startswith("relight_errors_total")]}
-    (out / "bench.json").write_text(json.dumps(doc, indent=1))
+    from relight.imageio import atomic_path
+
+    with atomic_path(out / "bench.json") as tmp:
+        Path(tmp).write_text(json.dumps(doc, indent=1))
     return doc
 
 
@@ -217,10 +250,17 @@ def table(doc: dict) -> str:
     for name in ("load", "single"):
         r = doc[name]
         q = r["rtt_ms"]
-        lines.append(f"{name:6s}: {r['clients']} client(s) x {r['fps']:g} fps x {r['duration_s']:g} s: sent "
+        size = "x".join(str(v) for v in r.get("size", (640, 360)))
+        lines.append(f"{name:6s}: {r['clients']} client(s) x {r['fps']:g} fps of {size} x {r['duration_s']:g} s: sent "
                      f"{r['sent']}, relit {r['returned']}, dropped {r['dropped']}, errors {r['errors']}; round trip "
                      f"p50 {_ms(q['p50'])} ms, p95 {_ms(q['p95'])} ms, p99 {_ms(q['p99'])} ms; hypervisor steal "
                      + ("-" if r.get("cpu_steal") is None else f"{100 * r['cpu_steal']:.0f} %") + " of busy CPU")
+        if "relit_fps" in r:
+            lines.append(f"        relit frames per second, all clients: {r['relit_fps']:.1f}")
+    st = doc.get("start_s")
+    if st:
+        lines.append(f"start (process launch -> /readyz 200) of {doc.get('bundle', '')}: {st['first']:.2f} s the "
+                     f"first time, {st['warm']:.2f} s again (kernel cache warm)")
     rss = doc["rss_mb"]
     lines.append(f"server memory (RSS): {rss['start']:.0f} MB before the load, {rss['end']:.0f} MB after; "
                  f"ready afterwards: {doc['ready_after']}")
