@@ -363,6 +363,7 @@ class Relighter:
         self._lp = cl.Buffer(ctx, mf.READ_ONLY, 3 * self.t_exact * 4)
         self._blocks = cl.Buffer(ctx, mf.READ_ONLY, (self.t_exact // LANES) * 4)
         self._queue = queue
+        self._pending = None  # (buf, frame) of a launch not yet waited for (relight(wait=False))
         if self.exact:
             self._exact_maps()
         self._env_key = None
@@ -422,7 +423,8 @@ class Relighter:
                                      exposure * self.sample_scale, self.cone)
 
     # ------------------------------------------------------------------ relighting
-    def relight(self, env: np.ndarray, rotation=None, *, exposure: float = 1.0, reuse_deg: float = 0.0) -> np.ndarray:
+    def relight(self, env: np.ndarray, rotation=None, *, exposure: float = 1.0, reuse_deg: float = 0.0,
+                wait: bool = True) -> np.ndarray:
         """The reference frame relit: (H, W, 3) float32 linear RGB, the face inside ``bundle.mask``.
 
         env : (H, 2H, 3) linear radiance (see :func:`relight.load_environment`). rotation : 3x3
@@ -433,6 +435,9 @@ class Relighter:
         1.7 % per degree at worst on the bench's scenes (a point light), see
         :data:`relight.service.frame_path.REUSE_DEG`.
         The returned array is owned by the Relighter (read-only) until the next call.
+        wait : False returns as soon as the kernel is queued (the host may do other work while
+        it runs): call :meth:`sync` before reading the returned array; kernels queued later on
+        the runtime's queue (the compositor's) run after it anyway.
         """
         if not (np.isfinite(exposure) and exposure > 0):
             raise InputError(f"exposure {exposure}: must be a positive finite scale")
@@ -453,7 +458,7 @@ class Relighter:
         if self.exact:
             self._run_exact(lp)
         else:
-            self._run_compact(lp)
+            self._run_compact(lp, wait=wait)
         self._last_key = key
         self._last_rotation = r
         self.relit += 1
@@ -507,6 +512,13 @@ class Relighter:
         out.flags.writeable = False
         return out
 
+    def sync(self) -> None:
+        """Wait for a relight queued with ``wait=False`` (nothing when none is pending)."""
+        if self._pending is not None:
+            buf, frame = self._pending
+            self._pending = None
+            self._finish(buf, frame)
+
     def _finish(self, buf=None, frame: np.ndarray | None = None) -> None:
         import pyopencl as cl
 
@@ -543,11 +555,13 @@ class Relighter:
         return self._maps_exact
 
     def _launch_compact(self, rank: int, coef: np.ndarray | None, tex: np.ndarray, light: np.ndarray,
-                        buf=None, frame=None) -> None:
-        """One compact kernel launch and the frame's sync: ``rank`` basis images with ``coef``
-        (rank, 3) plus the texels ``tex`` with their (n, 3) light, exactly (into ``buf``, the
-        main frame's by default)."""
+                        buf=None, frame=None, wait: bool = True) -> None:
+        """One compact kernel launch and the frame's sync (``wait``; else left pending: :meth:`sync`):
+        ``rank`` basis images with ``coef`` (rank, 3) plus the texels ``tex`` with their (n, 3)
+        light, exactly (into ``buf``, the main frame's by default)."""
         import pyopencl as cl
+
+        self.sync()  # the coefficients and rows below are host memory a pending launch still reads
 
         if tex.size > self._n_direct_max or rank > self._coef4.shape[0]:
             raise InputError(f"{tex.size} exact texels / rank {rank}: at most {self._n_direct_max} / "
@@ -564,16 +578,20 @@ class Relighter:
         k.set_arg(12, np.int32(tex.size))
         k.set_arg(15, self._frame_buf if buf is None else buf)
         cl.enqueue_nd_range_kernel(self._queue, k, *self._compact_grid)
-        self._finish(buf, frame)
+        if wait:
+            self._finish(buf, frame)
+        else:
+            self._pending = (buf, frame)
 
-    def _run_compact(self, lp: np.ndarray, buf=None, frame=None) -> None:
+    def _run_compact(self, lp: np.ndarray, buf=None, frame=None, wait: bool = True) -> None:
         k = self.rank
         direct, rest = transport.split_direct(lp, self.transport.direct)
-        self._launch_compact(k, self._ut @ rest, direct, lp[direct], buf, frame)
+        self._launch_compact(k, self._ut @ rest, direct, lp[direct], buf, frame, wait)
 
     def _run_exact(self, lp: np.ndarray, buf=None, frame=None) -> None:
         import pyopencl as cl
 
+        self.sync()
         maps = self._exact_maps()
         light, blocks = exact_light_blocks(lp, self.t_exact)
         q = self._queue

@@ -481,8 +481,10 @@ class FramePath:
         tm["pose"] = (time.perf_counter() - t1) * 1e3
         t2 = time.perf_counter()
         reused = self.relighter.reused
+        # Queued, not waited for: the warp and the live light's fit run on the host meanwhile;
+        # synced before the host reads the relit frame (the compositor's kernels queue after it).
         img = self.relighter.relight(self.env, None if self.fixed_env else rotation, exposure=self.exposure,
-                                     reuse_deg=self.reuse_deg)
+                                     reuse_deg=self.reuse_deg, wait=False)
         info.reused = self.relighter.reused > reused
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()
@@ -501,6 +503,7 @@ class FramePath:
         live_median = 0.0
         tau = 0.0
         eps = float(self.ratio_eps)
+        waited = 0.0
         if self.mode == "transfer":
             # The live light, fitted to this frame's face; the target exposure-matched to it.
             t5 = time.perf_counter()
@@ -509,11 +512,13 @@ class FramePath:
                 self._last_light = self.light_estimator.fit(lin, valid, t, rotation)
                 self._since_light = 0
                 if self.light_estimator.light is not None:
+                    waited = self._sync_relight(tm)  # the main relight first (counted as its stage)
                     self._set_lit_reference(self.relighter.relight_texels(self.light_estimator.texel_light(),
                                                                           slot="live"))
             else:
                 self._since_light += 1
             info.light = self._last_light
+            waited += self._sync_relight(tm)
             if self.light_estimator.light is not None:
                 est = self.relighter.slot("live")[0].reshape(-1, 3)
                 le = est[self.live_full] @ _LUM
@@ -525,19 +530,21 @@ class FramePath:
                 eps = composite.RATIO_EPS * max(live_median, composite.TINY)
             else:  # no light yet (the first frames showed too little): the capture room's ratio
                 layer_mode, gain = "ambient", self._ambient_gain(flat)
-            tm["light"] = (time.perf_counter() - t5) * 1e3
+            tm["light"] = (time.perf_counter() - t5) * 1e3 - waited
         elif self.mode == "ambient":
             # The lighting ratio's median is 1: the face keeps its brightness.
+            waited = self._sync_relight(tm)
             gain = self._ambient_gain(flat)
         else:
             # paste: the relit face's median matched to the live face's at the tracked points.
+            waited = self._sync_relight(tm)
             live = decode_srgb8(_sample_rgb(rgb, track.xy[keep])) @ _LUM
             ref_px = self.fill_flat[_crop_index(self.control_ref[ref_idx], self.origin, self.mask_crop.shape)]
             relit_l = flat[ref_px[ref_px >= 0]] @ _LUM
             num, den = float(np.median(live)) if live.size else 0.0, float(np.median(relit_l)) if relit_l.size else 0.0
             gain = num / den if num > composite.TINY and den > composite.TINY else 1.0
         gain = float(np.exp(self.gain_filter([np.log(max(gain, 1e-6))], t)[0]))
-        tm["warp"] = (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0)
+        tm["warp"] = (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
         t4 = time.perf_counter()
         out = self.compositor.run(rgb, box, coarse, GRID_STEP, mode=layer_mode, gain=gain * self.exposure,
                                   strength=self.strength, eps=eps, ratio_max=composite.RATIO_MAX, rotation=rotation,
@@ -545,6 +552,14 @@ class FramePath:
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info
+
+    def _sync_relight(self, tm: dict) -> float:
+        """Wait for the queued relight; the ms waited are counted in the relight stage (returned)."""
+        t = time.perf_counter()
+        self.relighter.sync()
+        ms = (time.perf_counter() - t) * 1e3
+        tm["relight"] = tm.get("relight", 0.0) + ms
+        return ms
 
     @staticmethod
     def _regularised_points(base: np.ndarray, xy: np.ndarray, size) -> np.ndarray:

@@ -97,7 +97,8 @@ class PoseEstimator:
         Tracking (a previous pose): Levenberg-Marquardt from it, then again on the points whose
         reprojection error is under the RANSAC threshold (when most points agree,
         ``TRACK_INLIERS``), and - unless that explains every point - RANSAC then LM on its
-        inliers; the one that explains more points is kept. At acquisition, and when the warm start fails: RANSAC, then LM."""
+        inliers; the one that explains more points is kept. At acquisition, and when the warm
+        start fails: RANSAC, then LM."""
         if len(ref_index) < MIN_INLIERS:
             self.last = None
             return None

@@ -120,11 +120,28 @@ def test_nothing_is_recomputed_for_the_same_request(relighters, monkeypatch):
     r = rotation_matrix(5, 0, 0)
     first = compact.relight(env, r)
     calls = []
-    monkeypatch.setattr(compact, "_run_compact", lambda lp: calls.append(1))
+    monkeypatch.setattr(compact, "_run_compact", lambda lp, **kw: calls.append(1))
     again = compact.relight(env, r)
     assert calls == [] and again is not None and np.shares_memory(first, again)
     compact.relight(env, rotation_matrix(6, 0, 0))
     assert calls == [1]
+
+
+def test_a_relight_not_waited_for_gives_the_same_frame_after_sync(relighters):
+    """relight(wait=False) queues the kernel and returns; sync() waits. A launch while one is
+    pending (another slot) waits for it first: its coefficients are host memory the pending
+    kernel still reads."""
+    compact, _ = relighters
+    env = load_environment("builtin:sunset")
+    want = np.array(compact.relight(env, rotation_matrix(11, 2, 0)))
+    want_live = np.array(compact.relight_texels(np.full((compact.texels.size, 3), 1e-3), slot="live"))
+    compact.relight(env, rotation_matrix(-3, 0, 0))  # something else in the main frame
+    got = compact.relight(env, rotation_matrix(11, 2, 0), wait=False)
+    live = compact.relight_texels(np.full((compact.texels.size, 3), 1e-3), slot="live")
+    compact.sync()
+    np.testing.assert_array_equal(np.array(got), want)
+    np.testing.assert_array_equal(np.array(live), want_live)
+    compact.sync()  # nothing pending: a no-op
 
 
 def test_one_light_reads_the_maps_directly(relighters, small_bundle, small_capture):
