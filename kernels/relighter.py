@@ -203,15 +203,24 @@ def pack_nibbles(q4: np.ndarray, scale4: np.ndarray, kp: int, n_pix: int) -> tup
     return out, peaks
 
 
-#: Texel rows a recipe bundle's Relighter keeps made (each 6 bytes per face pixel): a sun and a
-#: few point lights with room to turn the head.
-ROW_SLOTS = 64
+#: Texel rows a recipe bundle's Relighter keeps made (each 6 bytes per face pixel): as many as
+#: ROW_CACHE_BYTES hold, within ROW_SLOTS_RANGE. A row costs ~35 ms to make at 100k face pixels;
+#: a sun crossing the texels of a head turning +-30 deg yaw, +-15 deg pitch visits ~80-100 of
+#: them (measured: 82 rows in 10 s of the live clip), so a cache of 64 made rows again and again.
+ROW_CACHE_BYTES = 128 << 20
+ROW_SLOTS_RANGE = (64, 512)
+
+
+def row_slots(n_pixels: int) -> int:
+    """Texel rows the cache keeps for a bundle of ``n_pixels`` face pixels."""
+    lo, hi = ROW_SLOTS_RANGE
+    return int(min(max(ROW_CACHE_BYTES // max(6 * int(n_pixels), 1), lo), hi))
 
 
 class RowCache:
     """Texel rows (maps of single texels, all pixels) of a recipe bundle, made on first use.
 
-    ``rows`` (ROW_SLOTS, 3, P) float16 is the memory the compact kernel reads them from; slots
+    ``rows`` (n_slots, 3, P) float16 is the memory the compact kernel reads them from; slots
     are reused least recently used first, never one the current call asked for.
     """
 
@@ -311,7 +320,7 @@ class Relighter:
             self.row_cache = None
             self._rows_buf = shared(bundle.maps_rows)
         else:
-            self.row_cache = RowCache(bundle, ROW_SLOTS)
+            self.row_cache = RowCache(bundle, row_slots(bundle.n_pixels))
             self._rows_buf = self.row_cache.buf
         # Only the chosen rank of the basis, in the kernel's 32-pixel blocks (all ranks of one
         # block in one run of memory: one stream per work item, measured 1.5x faster than a run
@@ -477,12 +486,14 @@ class Relighter:
         self._last_key = None
         return self._view()
 
-    def relight_texels(self, lp: np.ndarray, *, slot: str = "main") -> np.ndarray:
+    def relight_texels(self, lp: np.ndarray, *, slot: str = "main", direct: int | None = None) -> np.ndarray:
         """The reference frame under a light given in the map's texels: ``lp`` (T, 3) the power
         each stored texel (``bundle.map_texels``) sends, over pi, in flash units (a light as
         strong as the capture flash sums to 1). Written into the frame ``slot`` (a name: each slot
         is one (H, W, 3) frame owned by the Relighter, "main" the one :meth:`relight` fills);
-        returns it (read-only until the slot's next call)."""
+        returns it (read-only until the slot's next call). direct : how many of the brightest
+        texels are relit exactly, outside the low-rank part (None: the transport's
+        ``DIRECT_TEXELS``; 0: none - no texel row of a recipe bundle is ever made for it)."""
         lp = np.asarray(lp, dtype=np.float64)
         if lp.shape != (self.texels.size, 3):
             raise InputError(f"texel light of shape {lp.shape}: expected ({self.texels.size}, 3)")
@@ -491,7 +502,7 @@ class Relighter:
         if self.exact:
             self._run_exact(lp, buf, frame)
         else:
-            self._run_compact(lp, buf, frame)
+            self._run_compact(lp, buf, frame, direct=direct)
         if slot == "main":
             self._last_key = None
         return self._view(frame)
@@ -583,9 +594,9 @@ class Relighter:
         else:
             self._pending = (buf, frame)
 
-    def _run_compact(self, lp: np.ndarray, buf=None, frame=None, wait: bool = True) -> None:
+    def _run_compact(self, lp: np.ndarray, buf=None, frame=None, wait: bool = True, direct: int | None = None) -> None:
         k = self.rank
-        direct, rest = transport.split_direct(lp, self.transport.direct)
+        direct, rest = transport.split_direct(lp, self.transport.direct if direct is None else direct)
         self._launch_compact(k, self._ut @ rest, direct, lp[direct], buf, frame, wait)
 
     def _run_exact(self, lp: np.ndarray, buf=None, frame=None) -> None:

@@ -153,6 +153,22 @@ def test_batched_correlation_matches_opencv_match_template():
                                               np.array([-0.49, 1.0])), [0.3, 0.0], atol=1e-12)
 
 
+@pytest.mark.parametrize("full", [(720, 1280), (540, 960), (360, 640), (1080, 1920), (271, 481)])
+def test_the_lit_reference_box_downscales_to_the_same_pixels(full):
+    """The face box the live-lit tracking reference is remade in: INTER_AREA of the full box equals
+    the same pixels of the whole frame downscaled (the template matching must not shift)."""
+    from relight.service.frame_path import _aligned_box
+
+    img = np.random.default_rng(0).random(full).astype(np.float32)
+    small = cv2.resize(img, (480, 270), interpolation=cv2.INTER_AREA)
+    mask = np.zeros((270, 480), bool)
+    mask[90:181, 170:311] = True
+    (a, b, c, d), (e, f, g, h) = _aligned_box(mask, full)
+    assert mask[a:b, c:d].sum() == mask.sum()
+    crop = cv2.resize(img[e:f, g:h], (d - c, b - a), interpolation=cv2.INTER_AREA)
+    assert np.abs(crop - small[a:b, c:d]).max() < 1e-6
+
+
 def test_piecewise_affine_warp_reproduces_an_affine_map():
     from relight.service.warp import GRID_STEP, OUTSIDE, inverse_map
 

@@ -144,6 +144,29 @@ def test_a_relight_not_waited_for_gives_the_same_frame_after_sync(relighters):
     compact.sync()  # nothing pending: a no-op
 
 
+def test_a_light_relit_without_exact_texels_makes_no_texel_rows(relighters):
+    """relight_texels(direct=0) (the frame path's live light): the low-rank part alone, no
+    recipe row made, within the Relighter's tolerance of the exact path; the row cache holds
+    as many rows as its byte budget allows."""
+    from relight.kernels.relighter import ROW_SLOTS_RANGE, row_slots
+
+    compact, exact = relighters
+    assert compact.row_cache is not None  # a format-4 (recipe) bundle
+    lp = np.zeros((compact.texels.size, 3))
+    lp[np.argsort(compact.texels)[len(lp) // 3]] = 0.2  # one sharp light
+    lp += 1e-3
+    made = compact.row_cache.made
+    got = np.array(compact.relight_texels(lp, slot="t0", direct=0))
+    assert compact.row_cache.made == made
+    ref = np.array(exact.relight_texels(lp))
+    assert np.linalg.norm(got - ref) / np.linalg.norm(ref) < 0.05
+    with_rows = np.array(compact.relight_texels(lp, slot="t8"))
+    assert compact.row_cache.made > made
+    assert np.linalg.norm(with_rows - ref) <= np.linalg.norm(got - ref)
+    assert row_slots(10**9) == ROW_SLOTS_RANGE[0] and row_slots(1) == ROW_SLOTS_RANGE[1]
+    assert compact.row_cache.rows.shape[0] == row_slots(compact.n_pix)
+
+
 def test_one_light_reads_the_maps_directly(relighters, small_bundle, small_capture):
     compact, exact = relighters
     res, _ = small_capture
