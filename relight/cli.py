@@ -416,6 +416,8 @@ def _add_bench(sub) -> None:
     sv.add_argument("--clients", type=int, default=4, help="websocket clients at once")
     sv.add_argument("--fps", type=float, default=30.0, help="frames per second each client sends")
     sv.add_argument("--duration", type=float, default=60.0, help="seconds of load")
+    sv.add_argument("--start-bundle", type=Path, default=None,
+                    help="bundle whose start-up (launch -> ready) is timed, twice (default: the served one)")
     sv.add_argument("--single-size", type=_size, default=(1280, 720), metavar="WxH",
                     help="frame size the single client sends")
     sv.add_argument("--quick", action="store_true", help="8 s of load and 640x360 for the single client (for CI)")
@@ -509,7 +511,8 @@ def _run_bench_serve(args) -> int:
     if not (1 <= args.clients <= 64) or not (1 <= args.fps <= 120) or not (1 <= args.duration <= 3600):
         raise InputError("--clients 1..64, --fps 1..120, --duration 1..3600 seconds")
     doc = loadtest.run(args.out, bundle=args.bundle, clients=args.clients, fps=args.fps, duration=args.duration,
-                       quick=args.quick, progress=not args.quiet, single_size=tuple(args.single_size))
+                       quick=args.quick, progress=not args.quiet, single_size=tuple(args.single_size),
+                       start_bundle=args.start_bundle)
     print(loadtest.table(doc))
     print(f"wrote {args.out / 'bench.json'}")
     return 0

@@ -37,7 +37,8 @@ CAPTURE_HZ = 4.0
 SPEED_SIZES = ((1280, 720), (1920, 1080))
 SPEED_CAPTURE = (1280, 720)
 SPEED_KEYS = ("size", "frames", "faces", "face_pixels", "bundle_pixels", "stage_ms", "fps_sustained",
-              "cpu_ms_per_frame", "wall_ms_per_frame", "reused_frames", "face_frames", "rotation_error_deg")
+              "cpu_ms_per_frame", "wall_ms_per_frame", "cpu_steal", "reused_frames", "face_frames",
+              "rotation_error_deg")
 #: Other synthetic heads (seeds) whose head pose is measured at 640x360 too, each with its own
 #: capture and live clip: a tracking change is judged over several heads, not tuned to one
 #: (the closed loop moves one clip's figures by a few tenths of a degree for small changes).
@@ -115,6 +116,9 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     prev = None
     side = side_cpu = 0.0
     reused = []
+    from .loadtest import _cpu_jiffies, _steal_share
+
+    jiffies0 = _cpu_jiffies()
     t0 = time.perf_counter()
     cpu0 = time.process_time()  # user + sys of every thread of this process (PoCL's, BLAS's)
     for i, f in enumerate(frames):
@@ -141,6 +145,7 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
         side_cpu += time.process_time() - c_side
     wall = time.perf_counter() - t0 - side
     cpu = time.process_time() - cpu0 - side_cpu
+    steal = _steal_share(jiffies0, _cpu_jiffies())
     relit_ms = [t for r, t in reused if not r]
     reused_ms = [t for r, t in reused if r]
     err = rotation_errors(estimates, meta["head_rotation"])
@@ -157,6 +162,7 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
                          for k, v in times.items()},
             "fps_sustained": len(frames) / wall,
             "cpu_ms_per_frame": 1000.0 * cpu / len(frames), "wall_ms_per_frame": 1000.0 * wall / len(frames),
+            "cpu_steal": steal,
             # Leave out what the scene does not need: frames whose head turned < reuse_deg since
             # the last relight reuse it (FramePath.reuse_deg).
             "reuse_deg": fp.reuse_deg, "reused_frames": len(reused_ms), "face_frames": len(reused),
@@ -322,7 +328,7 @@ def table(doc: dict) -> str:
     if "cpu_ms_per_frame" in pf:
         lines.append(f"CPU per frame (user + sys, every thread): {pf['cpu_ms_per_frame']:.1f} ms at "
                      f"{pf['wall_ms_per_frame']:.1f} ms wall ({pf['cpu_ms_per_frame'] / pf['wall_ms_per_frame']:.2f} "
-                     "cores busy while it runs)")
+                     f"cores busy while it runs); hypervisor steal {_pct(pf.get('cpu_steal'))} of busy CPU")
         lines.append(f"relight reused on {pf['reused_frames']} of {pf['face_frames']} face frames (head turned < "
                      f"{pf['reuse_deg']:g} deg since the last relight): relight stage "
                      f"{_fmt(pf['relight_ms_relit_median'])} ms when relit, "
@@ -343,7 +349,7 @@ def table(doc: dict) -> str:
         lines.append("per-frame path by frame size (bundle face pixels / face pixels in the frame; ms per frame; "
                      "CPU = user + sys of every thread, ms per frame):")
         lines.append(f"{'size':>10s} {'bundle':>7s} {'face':>7s} {'median':>7s} {'p99':>7s} {'fps':>6s} "
-                     f"{'wall':>6s} {'CPU':>6s} {'cores':>5s} {'reused':>7s}  per stage (median ms)")
+                     f"{'wall':>6s} {'CPU':>6s} {'cores':>5s} {'steal':>5s} {'reused':>7s}  per stage (median ms)")
         for r in doc["speed"]:
             st = r["stage_ms"]
             size = f"{r['size'][0]}x{r['size'][1]}"
@@ -352,7 +358,7 @@ def table(doc: dict) -> str:
             reused = f"{r['reused_frames']}/{r['face_frames']}"
             lines.append(f"{size:>10s} {r['bundle_pixels']:7d} {face:>7s} {st['total']['median']:7.1f} "
                          f"{st['total']['p99']:7.1f} {r['fps_sustained']:6.1f} {r['wall_ms_per_frame']:6.1f} "
-                         f"{r['cpu_ms_per_frame']:6.1f} {cores:5.2f} {reused:>7s}  "
+                         f"{r['cpu_ms_per_frame']:6.1f} {cores:5.2f} {_pct(r.get('cpu_steal')):>5s} {reused:>7s}  "
                          + " ".join(f"{k} {st[k]['median']:.1f}" for k in STAGES if k != "total"))
     for key in ("filter", "filter_720"):
         f = doc.get(key)
@@ -377,3 +383,7 @@ def table(doc: dict) -> str:
 
 def _fmt(v, f="{:.2f}") -> str:
     return "-" if v is None else f.format(v)
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.0f} %"
