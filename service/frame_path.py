@@ -414,6 +414,9 @@ class FramePath:
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
         self._last_light: LiveLight | None = None
         self._track_gain = 1.0
+        self._reference_gain = 1.0
+        self._defer_reference = False
+        self._next_reference = None
         self._since_light = 0
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
@@ -455,11 +458,22 @@ class FramePath:
         self.light_estimator.reset()
         self._last_light = None
         self._since_light = 0
+        self._next_reference = None
         for est in self._estimators.values():
             est.last = None
 
     # ------------------------------------------------------------------ per frame
     def process(self, rgb: np.ndarray, t: float) -> tuple[np.ndarray, FrameInfo]:
+        """The relit frame and what happened (see the module docstring): :meth:`front` then
+        :meth:`back`."""
+        return self.back(self.front(rgb, t))
+
+    def front(self, rgb: np.ndarray, t: float) -> dict:
+        """The first half of :meth:`process` - track and head pose - for a frame: what
+        :meth:`back` needs. Touches only the tracker, the pose estimator and the angle filter, so
+        a caller may run it for the next frame while :meth:`back` runs for this one (on another
+        thread: ``defer_reference=True`` there keeps the tracker's live-lit reference for
+        :meth:`commit_reference`)."""
         info = FrameInfo()
         tm = info.timings
         t0 = time.perf_counter()
@@ -490,7 +504,7 @@ class FramePath:
             tm["pose"] = (time.perf_counter() - t1) * 1e3
             info.note = "no face found" if track is None else "no consistent head pose"
             tm["total"] = (time.perf_counter() - t0) * 1e3
-            return rgb, info
+            return {"done": (rgb, info)}
         keep = pose.inliers
         ref_idx = track.ref_index[keep]
         # The pose again (Levenberg-Marquardt from the first): one more pass converges further
@@ -509,6 +523,20 @@ class FramePath:
         info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles
         info.points = int(keep.size)
         tm["pose"] = (time.perf_counter() - t1) * 1e3
+        return {"rgb": rgb, "t": t, "t0": t0, "info": info, "track": track, "keep": keep, "ref_idx": ref_idx,
+                "xy": xy, "rotation": rotation, "size": size, "track_gain": self._track_gain}
+
+    def back(self, front: dict, defer_reference: bool = False) -> tuple[np.ndarray, FrameInfo]:
+        """The second half of :meth:`process` (relight, warp, live light, composite) for the
+        result of :meth:`front`."""
+        if "done" in front:
+            return front["done"]
+        rgb, t, t0, info = front["rgb"], front["t"], front["t0"], front["info"]
+        track, keep, ref_idx, xy = front["track"], front["keep"], front["ref_idx"], front["xy"]
+        rotation, size = front["rotation"], front["size"]
+        tm = info.timings
+        self._defer_reference = defer_reference
+        self._reference_gain = front["track_gain"]
         t2 = time.perf_counter()
         reused = self.relighter.reused
         # Queued, not waited for: the warp and the live light's fit run on the host meanwhile;
@@ -684,9 +712,20 @@ class FramePath:
         face = encode_srgb8(np.clip(crop[self.track_face[sy0:sy1, sx0:sx1]], 0.0, 1.0))
         # in the codes the tracker sees (a dark frame's are brightened by the same gain)
         region = ref[sy0:sy1, sx0:sx1]
-        region[self.track_face[sy0:sy1, sx0:sx1]] = face if self._track_gain == 1.0 else \
-            cv2.convertScaleAbs(face, alpha=self._track_gain).ravel()
-        self.tracker.lit_reference = ref
+        gain = self._reference_gain  # the tracking gain of the frame the light was fitted to
+        region[self.track_face[sy0:sy1, sx0:sx1]] = face if gain == 1.0 else \
+            cv2.convertScaleAbs(face, alpha=gain).ravel()
+        if self._defer_reference:
+            self._next_reference = ref
+        else:
+            self.tracker.lit_reference = ref
+
+    def commit_reference(self) -> None:
+        """Hand the tracker the live-lit reference a deferred :meth:`back` made (between frames,
+        when no :meth:`front` runs)."""
+        if self._next_reference is not None:
+            self.tracker.lit_reference = self._next_reference
+            self._next_reference = None
 
     def _ambient_gain(self, flat: np.ndarray) -> float:
         """The gain that brings the median of the ratio to the reference light to 1."""
