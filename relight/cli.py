@@ -42,7 +42,7 @@ COMMANDS = {
     "bench": "benchmarks that print measured figures",
     "demo": "synthesise a capture, turn it into a bundle, show both (what `make demo` runs)",
     "filter": "relight the face in a video (a virtual-camera-style batch filter)",
-    "serve": "the frame service under load: websocket clients on loopback",
+    "serve": "serve relighting of video frames over HTTP (also: relight-serve)",
 }
 
 
@@ -403,7 +403,7 @@ def _add_bench(sub) -> None:
     v.add_argument("--quick", action="store_true", help="480x270 clips of 4 s and one real face instead (for CI)")
     v.add_argument("--quiet", action="store_true", help="no progress output")
     v.set_defaults(func=_run_bench_video)
-    sv = bsub.add_parser("serve", help=COMMANDS["serve"],
+    sv = bsub.add_parser("serve", help="the frame service under load: websocket clients on loopback",
                          description="Start relight serve in a fresh process and drive it with websocket clients "
                                      "sending 640x360 JPEG frames of a synthetic live video at a fixed rate: "
                                      "errors, dropped frames, relit frames per second, round-trip p50/p95/p99 and "

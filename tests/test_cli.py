@@ -36,6 +36,8 @@ def test_bad_input_is_one_line_and_status_2(tmp_path, capsys):
 def test_module_entry_point():
     out = subprocess.run([sys.executable, "-m", "relight", "--help"], capture_output=True, text=True, check=True)
     assert "synth" in out.stdout and "demo" in out.stdout
+    # each command's own line (the bench's "serve" is another command's)
+    assert "serve relighting of video frames over HTTP" in " ".join(out.stdout.split())
 
 
 def test_demo_writes_a_contact_sheet(tmp_path, capsys):
