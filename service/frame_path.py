@@ -413,10 +413,7 @@ class FramePath:
         maps = bundle.pixel_maps(good, padded=False).astype(np.float32) * np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
         self._last_light: LiveLight | None = None
-        self._track_gain = 1.0
-        self._reference_gain = 1.0
-        self._defer_reference = False
-        self._next_reference = None
+        self._next_reference = None  # a live-lit reference back(defer_reference=True) made
         self._since_light = 0
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
@@ -487,7 +484,7 @@ class FramePath:
         ts = min(1.0, TRACK_ROWS / h)
         if ts < 1:
             grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
-        grey, self._track_gain = _track_exposure(grey)
+        grey, track_gain = _track_exposure(grey)
         last = est.last
         predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
         refind = (lambda idx, g: self._refind(est, last, ts, g, idx)) if last is not None else None
@@ -524,7 +521,7 @@ class FramePath:
         info.points = int(keep.size)
         tm["pose"] = (time.perf_counter() - t1) * 1e3
         return {"rgb": rgb, "t": t, "t0": t0, "info": info, "track": track, "keep": keep, "ref_idx": ref_idx,
-                "xy": xy, "rotation": rotation, "size": size, "track_gain": self._track_gain}
+                "xy": xy, "rotation": rotation, "size": size, "track_gain": track_gain}
 
     def back(self, front: dict, defer_reference: bool = False) -> tuple[np.ndarray, FrameInfo]:
         """The second half of :meth:`process` (relight, warp, live light, composite) for the
@@ -535,8 +532,6 @@ class FramePath:
         track, keep, ref_idx, xy = front["track"], front["keep"], front["ref_idx"], front["xy"]
         rotation, size = front["rotation"], front["size"]
         tm = info.timings
-        self._defer_reference = defer_reference
-        self._reference_gain = front["track_gain"]
         t2 = time.perf_counter()
         reused = self.relighter.reused
         # Queued, not waited for: the warp and the live light's fit run on the host meanwhile;
@@ -577,8 +572,8 @@ class FramePath:
                     # live clip against the exact maps: 0.74 % relative L2 median, 0.94 % max (0.47 /
                     # 0.68 % with 8 exact texels) - within the default tolerance and far below the
                     # fit's own residual (8-15 % on the real faces).
-                    self._set_lit_reference(self.relighter.relight_texels(self.light_estimator.texel_light(),
-                                                                          slot="live", direct=0))
+                    lit = self.relighter.relight_texels(self.light_estimator.texel_light(), slot="live", direct=0)
+                    self._set_lit_reference(lit, front["track_gain"], defer_reference)
             else:
                 self._since_light += 1
             info.light = self._last_light
@@ -699,9 +694,11 @@ class FramePath:
         xy = np.stack([gx[sel[k]] + px + dx + h, gy[sel[k]] + py + dy + h], axis=1).astype(np.float32)
         return Track(ref_index=idx[sel[k]], xy=xy)
 
-    def _set_lit_reference(self, lit: np.ndarray) -> None:
+    def _set_lit_reference(self, lit: np.ndarray, gain: float, defer: bool) -> None:
         """The tracker's reference with the face as the live light shows it (``lit``: the reference
-        frame relit by the estimate, linear): re-anchoring then matches like with like."""
+        frame relit by the estimate, linear; ``gain``: the tracking gain of the frame the light was
+        fitted to): re-anchoring then matches like with like. ``defer``: kept for
+        :meth:`commit_reference` instead of handed to the tracker now."""
         from relight.colour import encode_srgb8
 
         (sy0, sy1, sx0, sx1), (ry0, ry1, rx0, rx1) = self._lit_box
@@ -712,10 +709,9 @@ class FramePath:
         face = encode_srgb8(np.clip(crop[self.track_face[sy0:sy1, sx0:sx1]], 0.0, 1.0))
         # in the codes the tracker sees (a dark frame's are brightened by the same gain)
         region = ref[sy0:sy1, sx0:sx1]
-        gain = self._reference_gain  # the tracking gain of the frame the light was fitted to
         region[self.track_face[sy0:sy1, sx0:sx1]] = face if gain == 1.0 else \
             cv2.convertScaleAbs(face, alpha=gain).ravel()
-        if self._defer_reference:
+        if defer:
             self._next_reference = ref
         else:
             self.tracker.lit_reference = ref
