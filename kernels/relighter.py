@@ -595,9 +595,9 @@ class Relighter:
             self._pending = (buf, frame)
 
     def _run_compact(self, lp: np.ndarray, buf=None, frame=None, wait: bool = True, direct: int | None = None) -> None:
-        k = self.rank
-        direct, rest = transport.split_direct(lp, self.transport.direct if direct is None else direct)
-        self._launch_compact(k, self._ut @ rest, direct, lp[direct], buf, frame, wait)
+        """``direct``: how many brightest texels go exact (None: the transport's)."""
+        tex, rest = transport.split_direct(lp, self.transport.direct if direct is None else direct)
+        self._launch_compact(self.rank, self._ut @ rest, tex, lp[tex], buf, frame, wait)
 
     def _run_exact(self, lp: np.ndarray, buf=None, frame=None) -> None:
         import pyopencl as cl

@@ -81,14 +81,10 @@ def _live(out: Path, size: tuple[int, int], duration: float, progress: bool, see
 def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
     """Degrees between estimated and true head rotations, for the frames with an estimate."""
     from relight.directions import rotation_matrix
+    from relight.kernels.relighter import rotation_angle_deg
 
-    out = []
-    for k, angles in estimates.items():
-        r_est = rotation_matrix(*angles)
-        r_true = rotation_matrix(*truth[int(k)])
-        c = (np.trace(r_true.T @ r_est) - 1.0) / 2.0
-        out.append(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-    return np.asarray(out)
+    return np.asarray([rotation_angle_deg(rotation_matrix(*truth[int(k)]), rotation_matrix(*angles))
+                       for k, angles in estimates.items()])
 
 
 def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
@@ -148,19 +144,15 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     steal = _steal_share(jiffies0, _cpu_jiffies())
     # The same frames through the two-stage pipeline `relight filter` runs (front of frame N+1
     # beside back of frame N on two threads): frames per second it sustains.
-    from concurrent.futures import ThreadPoolExecutor
+    from .filter import _Pipeline
 
     fp.reset()
     t_pipe = time.perf_counter()
-    with ThreadPoolExecutor(1) as pool:
-        pending = None
+    with _Pipeline(fp, record=lambda rgb, out, info, index: out) as pipe:
+        pipe.done = lambda out, pts: None
         for i, f in enumerate(frames):
-            front = fp.front(f, i / fps)
-            if pending is not None:
-                pending.result()
-                fp.commit_reference()
-            pending = pool.submit(fp.back, front, True)
-        pending.result()
+            pipe.put(f, i / fps, i, i)
+        pipe.drain()
     fps_pipelined = len(frames) / (time.perf_counter() - t_pipe)
     relit_ms = [t for r, t in reused if not r]
     reused_ms = [t for r, t in reused if r]

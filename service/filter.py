@@ -54,7 +54,7 @@ class FilterResult:
     def summary(self) -> str:
         t = self.timings_ms.get("total", {})
         return (f"{self.frames} frames ({self.faces} with a face, {self.passed_through} passed through), audio "
-                f"{self.audio}; a frame's latency through the per-frame path (two stages in flight) median "
+                f"{self.audio}; a frame's latency through the per-frame path median "
                 f"{t.get('median', 0):.1f} ms, p99 {t.get('p99', 0):.1f} ms; {self.wall_s:.1f} s in all (start "
                 f"{self.start_s:.1f} s, {self.frames / max(self.wall_s - self.start_s, 1e-9):.1f} frames per second "
                 "after it)")
