@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo serve test lint clean
+.PHONY: install install-system demo serve test test-slow test-all lint clean
 PORT ?= 8000
 DEMO_BUNDLE := out/demo/face.bundle
 
@@ -16,6 +16,18 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -e '.[test]'
 	touch $(STAMP)
 
+# System packages the tests drive (not on PyPI): Chromium for the browser page's test. Installs
+# with Debian's apt when run as root; otherwise says what to install (the test then skips).
+install-system:
+	@if command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1; then \
+	  echo "install-system: chromium present"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  apt-get install -y -q chromium >/dev/null || { apt-get update -q >/dev/null && apt-get install -y -q chromium >/dev/null; }; \
+	else \
+	  echo "install-system: Chromium is missing; install the 'chromium' package (the browser test skips without it)" >&2; \
+	fi
+
 demo: $(STAMP)
 	$(BIN)/relight demo
 
@@ -24,8 +36,18 @@ serve: $(STAMP)
 	@test -f $(DEMO_BUNDLE) || { echo "make serve: $(DEMO_BUNDLE) is missing - run 'make demo' first" >&2; exit 1; }
 	$(BIN)/relight-serve $(DEMO_BUNDLE) --port $(PORT)
 
+# The suite on two worker processes (pytest-xdist). `make test` leaves out the tests marked
+# slow (whole captures of phone-format videos, the demo, the container's install, the real RTI
+# set: ~4 minutes more); `make test-slow` runs only those, `make test-all` everything. CI runs both.
+PYTEST := $(BIN)/python -m pytest -n 2
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(PYTEST) -m "not slow"
+
+test-slow: $(STAMP)
+	$(PYTEST) -m slow
+
+test-all: $(STAMP)
+	$(PYTEST)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -1,10 +1,13 @@
-"""Shared fixtures: the real data folder and small synthetic captures (made once per session)."""
+"""Shared fixtures: the real data folder and small synthetic captures (made once per run: the
+pytest-xdist workers share them through a folder the first worker makes, the others wait)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+
+from .once import made_once, synthesized
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"
@@ -21,12 +24,11 @@ def shared_data() -> Path:
 @pytest.fixture(scope="session")
 def small_capture(tmp_path_factory):
     """A 6-second 320x180 synthetic capture with a point environment among the truth envs."""
-    from relight.pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig, synthesize
+    from relight.pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig
 
-    out = tmp_path_factory.mktemp("capture")
     cfg = SynthConfig(width=320, height=180, duration=6.0, seed=3,
                       truth_envs=DEFAULT_TRUTH_ENVS + ("builtin:point:0.8,0.1,0.6",))
-    return synthesize(out, cfg, progress=False), cfg
+    return synthesized(tmp_path_factory, "small-capture", cfg), cfg
 
 
 @pytest.fixture(scope="session")
@@ -36,6 +38,6 @@ def small_bundle(small_capture, tmp_path_factory):
     from relight.pipeline.capture import capture
 
     res, _ = small_capture
-    out = tmp_path_factory.mktemp("bundle") / "face.bundle"
-    capture(res.video, out, progress=False)
-    return load_bundle(out)
+    folder = made_once(tmp_path_factory, "small-bundle",
+                       lambda folder: capture(res.video, folder / "face.bundle", progress=False))
+    return load_bundle(folder / "face.bundle")

@@ -12,6 +12,8 @@ import pytest
 
 from relight.colour import decode_srgb8, encode_srgb8
 
+from .once import made_once
+
 skimage_data = pytest.importorskip("skimage.data", reason="scikit-image (a test extra) provides the photo")
 
 FRAMES = 12
@@ -29,39 +31,44 @@ def _face_box(rgb):
 
 @pytest.fixture(scope="module")
 def astronaut_bundle(tmp_path_factory):
+    """A bundle captured from 40 images of the photo shaded by a height field (an RTI set made
+    once per run: pytest-xdist's workers share it)."""
     from relight import load_bundle
     from relight.imageio import write_image
     from relight.pipeline.capture import capture
 
     photo = skimage_data.astronaut()
-    x, y, w, h = _face_box(photo)
-    cx, cy = x + w / 2, y + 0.55 * h
-    rx, ry = 0.62 * w, 0.85 * h
-    yy, xx = np.mgrid[0:photo.shape[0], 0:photo.shape[1]].astype(np.float64)
-    r2 = ((xx - cx) / rx) ** 2 + ((yy - cy) / ry) ** 2
-    inside = r2 < 1.0
-    height = np.where(inside, 0.6 * rx * np.sqrt(np.clip(1.0 - r2, 0.0, None)), 0.0)
-    gy, gx = np.gradient(height)
-    normal = np.dstack([-gx, gy, np.ones_like(gx)])
-    normal /= np.linalg.norm(normal, axis=2, keepdims=True)
-    albedo = decode_srgb8(photo)
-    folder = tmp_path_factory.mktemp("astronaut_rti")
-    rng = np.random.default_rng(5)
-    lines = []
-    for i in range(40):
-        d = rng.normal(size=3)
-        d[2] = abs(d[2]) + 0.6
-        d /= np.linalg.norm(d)
-        shade = np.clip(normal @ d, 0.0, None)[..., None]
-        img = albedo * (0.9 * shade + 0.02)
-        name = f"img{i:02d}.png"
-        write_image(folder / name, encode_srgb8(np.clip(img, 0, 1)))
-        lines.append(f"{name} {d[0]:.6f} {d[1]:.6f} {d[2]:.6f}")
-    (folder / "dirs.lp").write_text(f"{len(lines)}\n" + "\n".join(lines) + "\n")
-    write_image(folder / "mask.png", (inside * 255).astype(np.uint8))
-    out = tmp_path_factory.mktemp("astronaut_bundle") / "astronaut.bundle"
-    capture(folder, out, images=True, progress=False)
-    return load_bundle(out), photo
+
+    def make(root):
+        x, y, w, h = _face_box(photo)
+        cx, cy = x + w / 2, y + 0.55 * h
+        rx, ry = 0.62 * w, 0.85 * h
+        yy, xx = np.mgrid[0:photo.shape[0], 0:photo.shape[1]].astype(np.float64)
+        r2 = ((xx - cx) / rx) ** 2 + ((yy - cy) / ry) ** 2
+        inside = r2 < 1.0
+        height = np.where(inside, 0.6 * rx * np.sqrt(np.clip(1.0 - r2, 0.0, None)), 0.0)
+        gy, gx = np.gradient(height)
+        normal = np.dstack([-gx, gy, np.ones_like(gx)])
+        normal /= np.linalg.norm(normal, axis=2, keepdims=True)
+        albedo = decode_srgb8(photo)
+        folder = root / "astronaut_rti"
+        folder.mkdir()
+        rng = np.random.default_rng(5)
+        lines = []
+        for i in range(40):
+            d = rng.normal(size=3)
+            d[2] = abs(d[2]) + 0.6
+            d /= np.linalg.norm(d)
+            shade = np.clip(normal @ d, 0.0, None)[..., None]
+            img = albedo * (0.9 * shade + 0.02)
+            name = f"img{i:02d}.png"
+            write_image(folder / name, encode_srgb8(np.clip(img, 0, 1)))
+            lines.append(f"{name} {d[0]:.6f} {d[1]:.6f} {d[2]:.6f}")
+        (folder / "dirs.lp").write_text(f"{len(lines)}\n" + "\n".join(lines) + "\n")
+        write_image(folder / "mask.png", (inside * 255).astype(np.uint8))
+        capture(folder, root / "astronaut.bundle", images=True, progress=False)
+
+    return load_bundle(made_once(tmp_path_factory, "astronaut-bundle", make) / "astronaut.bundle"), photo
 
 
 def _clip(photo, kind):

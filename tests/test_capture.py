@@ -15,6 +15,7 @@ from relight.pipeline.capture import CaptureOptions, capture, read_lp
 from relight.pipeline.evaluate import evaluate_capture
 from relight.video import VideoWriter
 
+from .once import synthesized
 from .tolerances import (
     DOME_FULL_PSNR,
     DOME_MARGIN_OVER_PTM,
@@ -34,12 +35,10 @@ from .tolerances import (
 
 @pytest.fixture(scope="module")
 def synth_capture(tmp_path_factory):
-    from relight.pipeline.synth.studio import SynthConfig, synthesize
+    from relight.pipeline.synth.studio import SynthConfig
 
-    out = tmp_path_factory.mktemp("cap")
-    res = synthesize(out / "synth", SynthConfig(width=480, height=270, duration=8.0, seed=4,
-                                                truth_envs=("builtin:studio",)), progress=False)
-    return res
+    return synthesized(tmp_path_factory, "capture-480x270",
+                       SynthConfig(width=480, height=270, duration=8.0, seed=4, truth_envs=("builtin:studio",)))
 
 
 def test_video_capture_meets_the_accuracy_goals(synth_capture, tmp_path):
@@ -86,6 +85,7 @@ def _meets_capture_goals(m):
     assert m["registration_rms_px"] <= REGISTRATION_RMS_PX, m
 
 
+@pytest.mark.slow
 def test_iphone_hdr_portrait_video_captures_as_well(synth_capture, tmp_path):
     """The capture as an iPhone stores it - HEVC, 10-bit, BT.2020 primaries and matrix, the HLG
     curve, portrait frames turned in the file plus a display rotation - meets the plain capture's
@@ -114,6 +114,7 @@ def synth_capture_60fps(tmp_path_factory):
                                                  truth_envs=("builtin:studio",)), progress=False)
 
 
+@pytest.mark.slow
 def test_variable_frame_rate_video_captures_as_well(synth_capture_60fps, tmp_path):
     """A 60 fps phone video with a variable frame rate - a fifth of the frames dropped at random
     and the rest stamped with +-3 ms of jitter - meets the capture's goals: flash timing,
@@ -200,6 +201,7 @@ def _psnr_on_test(bundle, test_dir):
     return float(np.mean(out))
 
 
+@pytest.mark.slow
 def test_real_rti_set_predicts_held_out_photos(shared_data, tmp_path):
     dome, test = shared_data / "rti-dome" / "Dome", shared_data / "rti-dome" / "Test"
     psnr = {}

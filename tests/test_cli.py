@@ -40,6 +40,7 @@ def test_module_entry_point():
     assert "serve relighting of video frames over HTTP" in " ".join(out.stdout.split())
 
 
+@pytest.mark.slow
 def test_demo_writes_a_contact_sheet(tmp_path, capsys):
     import cv2
 
