@@ -110,8 +110,8 @@ class CaptureResult:
     meta: dict = field(repr=False, default_factory=dict)
 
 
-class _Progress:
-    """One tqdm bar per stage (or none)."""
+class Progress:
+    """Progress of a capture: one tqdm bar per stage (or none when not ``enabled``)."""
 
     def __init__(self, enabled: bool):
         self.enabled = enabled
@@ -135,7 +135,7 @@ class _Progress:
             self.name = None
 
 
-def prepare_video(path, opts: CaptureOptions, progress: _Progress, timings: dict) -> Prepared:
+def prepare_video(path, opts: CaptureOptions, progress: Progress, timings: dict) -> Prepared:
     """Stages 1-3 on a capture video."""
     from relight.video import probe_video
 
@@ -235,7 +235,7 @@ def read_set_image(f: Path, transfer: str) -> tuple[np.ndarray, np.ndarray]:
     return srgb_to_linear(raw), clip
 
 
-def prepare_images(folder, opts: CaptureOptions, progress: _Progress, timings: dict) -> Prepared:
+def prepare_images(folder, opts: CaptureOptions, progress: Progress, timings: dict) -> Prepared:
     """An RTI image set: images + ``dirs.lp`` (+ optional ``mask.png``, ``ambient.png``) skip
     stages 1-3. Files are decoded with ``opts.transfer`` (EXR/HDR: linear); an ambient frame is
     subtracted from every image and becomes the bundle's ambient."""
@@ -295,7 +295,7 @@ def prepare_images(folder, opts: CaptureOptions, progress: _Progress, timings: d
                     report=report)
 
 
-def finish(prep: Prepared, opts: CaptureOptions, progress: _Progress, timings: dict):
+def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: dict):
     """Geometry, maps and bundle arrays from prepared samples: (arrays, meta, geometry, triangulation)."""
     t0 = time.perf_counter()
     k, h, w = prep.images.shape[:3]
@@ -627,7 +627,7 @@ def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = F
     """Run the whole capture; write the bundle to ``out`` (and a report to ``report_dir``)."""
     opts = (opts or CaptureOptions()).validate()
     timings = StageTimings()
-    bar = _Progress(progress)
+    bar = Progress(progress)
     t_all = time.perf_counter()
     try:
         prep = prepare_images(source, opts, bar, timings) if images else prepare_video(source, opts, bar, timings)

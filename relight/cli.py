@@ -454,8 +454,8 @@ def _shared_data(name: str, probe: str) -> Path | None:
 
 
 def _run_bench_accuracy(args) -> int:
+    from .bench import accuracy
     from .errors import InputError
-    from .pipeline import accuracy
 
     rti = args.rti if args.rti is not None else _shared_data("rti-dome", "Dome/dirs.lp")
     if args.rti is not None and not (args.rti / "Dome" / "dirs.lp").exists():
@@ -470,7 +470,7 @@ def _run_bench_accuracy(args) -> int:
 
 
 def _run_bench_capture(args) -> int:
-    from .pipeline import benchmark
+    from .bench import capture as benchmark
 
     doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet, growth=args.growth, only=args.only)
     print(benchmark.table(doc))
@@ -480,7 +480,7 @@ def _run_bench_capture(args) -> int:
 
 
 def _run_bench_relight(args) -> int:
-    from .kernels import benchmark
+    from .bench import relight as benchmark
 
     doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet)
     print(benchmark.table(doc))
@@ -489,9 +489,9 @@ def _run_bench_relight(args) -> int:
 
 
 def _run_bench_video(args) -> int:
+    from .bench import video as benchmark
+    from .bench.accuracy import face_subjects
     from .errors import InputError
-    from .pipeline.accuracy import face_subjects
-    from .service import benchmark
 
     faces = args.faces if args.faces is not None else _shared_data("faces-yale", "*/dirs.lp")
     if args.faces is not None and not face_subjects(args.faces):
@@ -505,8 +505,8 @@ def _run_bench_video(args) -> int:
 
 
 def _run_bench_serve(args) -> int:
+    from .bench import serve as loadtest
     from .errors import InputError
-    from .service import loadtest
 
     if not (1 <= args.clients <= 64) or not (1 <= args.fps <= 120) or not (1 <= args.duration <= 3600):
         raise InputError("--clients 1..64, --fps 1..120, --duration 1..3600 seconds")

@@ -230,7 +230,7 @@ def run_filter(inp, out, bundle, env, *, mode: str = "transfer", fixed_env: bool
         if inp.is_dir():
             _filter_sequence(inp, out, handle, fps, crf, res, progress, tqdm)
         else:
-            _filter_video(inp, out, _Pipeline(fp, record), crf, res, progress, tqdm)
+            _filter_video(inp, out, FramePipeline(fp, record), crf, res, progress, tqdm)
     finally:
         if cam is not None:
             cam.close()
@@ -315,7 +315,7 @@ def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
         raise
 
 
-class _Pipeline:
+class FramePipeline:
     """The per-frame path in two stages on two threads: :meth:`FramePath.front` (track, pose)
     of frame N+1 on the calling thread beside :meth:`FramePath.back` (relight, live light, warp,
     composite) of frame N on a worker - OpenCV, PoCL and BLAS release the GIL, so the second

@@ -5,7 +5,7 @@ from contextlib import contextmanager
 
 import pytest
 
-from relight.service.loadtest import free_port, wait_ready
+from relight.bench.server import free_port, wait_ready
 
 
 @contextmanager

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from relight.pipeline import accuracy
+from relight.bench import accuracy
 
 
 def test_env_metrics_fit_one_gain_and_follow_the_error():

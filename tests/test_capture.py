@@ -213,7 +213,7 @@ def test_real_rti_set_predicts_held_out_photos(shared_data, tmp_path):
 
 
 def test_real_face_predicts_held_out_photos(shared_data, tmp_path):
-    from relight.pipeline import accuracy
+    from relight.bench import accuracy
 
     small = accuracy.scaled_rti(shared_data / "faces-yale" / "yaleB02", tmp_path / "yaleB02", 2)
     res = accuracy.evaluate_face(small, tmp_path / "eval", False,

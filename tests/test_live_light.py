@@ -206,9 +206,9 @@ def test_a_real_face_lit_from_one_side_is_found_and_relit(shared_data, tmp_path)
     is found in every frame, the live light points at that light, and transfer toward a held-out
     light is far closer to that light's photo than the unchanged input."""
     import relight
-    from relight.pipeline.accuracy import FACES_TRANSFER, scaled_rti, split_rti
+    from relight.bench import realface
+    from relight.bench.accuracy import FACES_TRANSFER, scaled_rti, split_rti
     from relight.pipeline.capture import CaptureOptions, capture
-    from relight.service import realface
     from relight.service.frame_path import FramePath
     from relight.video import read_frames
 

@@ -276,7 +276,7 @@ def test_make_serve_prints_the_page_url_and_serves(small_bundle, tmp_path):
     import sys
     from pathlib import Path
 
-    from relight.service.loadtest import wait_ready
+    from relight.bench.server import wait_ready
 
     from .serving import free_port
 

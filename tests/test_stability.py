@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from relight.pipeline.stability import (
+from relight.bench.stability import (
     BASELINE_MAX_REL,
     CASES,
     RENDER_MAX_REL,
@@ -105,7 +105,7 @@ def test_a_non_finite_sample_is_refused_not_passed_on(small_problem, value):
 
 
 def test_the_suite_flags_non_finite_and_wrong_output():
-    from relight.pipeline.stability import relative_error
+    from relight.bench.stability import relative_error
 
     ref = np.ones((4, 3, 8))
     bad = ref.copy()

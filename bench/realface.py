@@ -86,8 +86,8 @@ def make_clip(folder: Path, out: Path, transfer: str) -> dict:
     """The clip of one subject (see the module docstring): ``out/clip.mp4`` (H.264, sRGB),
     ``out/truth.npz`` (the truth frames under B, linear, and the face masks). Returns a dict of
     what was made."""
+    from relight.bench.accuracy import FACE_HOLDOUT
     from relight.colour import encode_srgb8
-    from relight.pipeline.accuracy import FACE_HOLDOUT
     from relight.pipeline.capture import read_lp, read_set_image
     from relight.video import VideoWriter
 
@@ -151,8 +151,8 @@ def evaluate_subject(folder: Path, out: Path, *, transfer: str, progress: bool =
     """The real-face video benchmark for one subject (module docstring): PSNR of each mode, the
     unchanged input and the still prediction; frames with a face; the filter's light estimates."""
     import relight
+    from relight.bench.accuracy import split_rti
     from relight.colour import encode_srgb8
-    from relight.pipeline.accuracy import split_rti
     from relight.pipeline.capture import CaptureOptions, capture
     from relight.video import read_frames
 

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .machine import cpu_jiffies, steal_share
+
 STAGES = ("track", "pose", "relight", "light", "warp", "composite", "total")
 
 
@@ -45,7 +47,7 @@ SPEED_KEYS = ("size", "frames", "faces", "face_pixels", "bundle_pixels", "stage_
 POSE_HEADS = (1, 2)
 
 
-def _bundle(out: Path, size: tuple[int, int], duration: float, progress: bool, flash_hz: float = CAPTURE_HZ,
+def synth_bundle(out: Path, size: tuple[int, int], duration: float, progress: bool, flash_hz: float = CAPTURE_HZ,
             seed: int = 0) -> Path:
     """A bundle captured from a static studio capture of head ``seed`` at ``size`` (cached)."""
     from relight.pipeline.capture import capture
@@ -66,7 +68,7 @@ def _bundle(out: Path, size: tuple[int, int], duration: float, progress: bool, f
     return bundle
 
 
-def _live(out: Path, size: tuple[int, int], duration: float, progress: bool, seed: int = 0) -> Path:
+def synth_live(out: Path, size: tuple[int, int], duration: float, progress: bool, seed: int = 0) -> Path:
     from relight.pipeline.synth.live import LiveConfig, synthesize_live
 
     folder = out / (f"live-{size[0]}x{size[1]}-{duration:g}s" + (f"-seed{seed}" if seed else ""))
@@ -89,9 +91,8 @@ def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
 
 def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     import relight
+    from relight.service.frame_path import FramePath
     from relight.video import read_frames
-
-    from .frame_path import FramePath
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
     fps = float(meta["fps"])
@@ -112,9 +113,8 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     prev = None
     side = side_cpu = 0.0
     reused = []
-    from .loadtest import _cpu_jiffies, _steal_share
 
-    jiffies0 = _cpu_jiffies()
+    jiffies0 = cpu_jiffies()
     t0 = time.perf_counter()
     cpu0 = time.process_time()  # user + sys of every thread of this process (PoCL's, BLAS's)
     for i, f in enumerate(frames):
@@ -141,14 +141,14 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
         side_cpu += time.process_time() - c_side
     wall = time.perf_counter() - t0 - side
     cpu = time.process_time() - cpu0 - side_cpu
-    steal = _steal_share(jiffies0, _cpu_jiffies())
+    steal = steal_share(jiffies0, cpu_jiffies())
     # The same frames through the two-stage pipeline `relight filter` runs (front of frame N+1
     # beside back of frame N on two threads): frames per second it sustains.
-    from .filter import _Pipeline
+    from relight.service.filter import FramePipeline
 
     fp.reset()
     t_pipe = time.perf_counter()
-    with _Pipeline(fp, record=lambda rgb, out, info, index: out) as pipe:
+    with FramePipeline(fp, record=lambda rgb, out, info, index: out) as pipe:
         pipe.done = lambda out, pts: None
         for i, f in enumerate(frames):
             pipe.put(f, i / fps, i, i)
@@ -253,23 +253,22 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = "built
         mode: str = "transfer", faces: Path | None = None) -> dict:
     """The whole benchmark: the synthetic clips (pose, speed, flicker), a `relight filter` run,
     and the real faces (``faces``: one RTI set per subject; quick: ``QUICK_FACES``)."""
-    from relight.pipeline.accuracy import FACES_TRANSFER, QUICK_FACES, face_subjects
-
-    from .realface import evaluate_subject
+    from relight.bench.accuracy import FACES_TRANSFER, QUICK_FACES, face_subjects
+    from relight.bench.realface import evaluate_subject
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     size = (480, 270) if quick else (960, 540)
-    bundle = _bundle(out, size, CAPTURE_S, progress)
-    live = _live(out, size, 4.0 if quick else 10.0, progress)
+    bundle = synth_bundle(out, size, CAPTURE_S, progress)
+    live = synth_live(out, size, 4.0 if quick else 10.0, progress)
     if progress:
         print("timing the per-frame path ...", flush=True)
     pf = _per_frame(bundle, live, env, mode)
     pairs = pf.pop("_pairs")
     doc = {"per_frame": pf, "env": env, "mode": mode, "capture": {"seconds": CAPTURE_S, "flash_hz": CAPTURE_HZ}}
     fsize = (480, 270) if quick else (640, 360)
-    f_bundle = _bundle(out, fsize, CAPTURE_S, progress)
-    f_live = _live(out, fsize, 4.0 if quick else 10.0, progress)
+    f_bundle = synth_bundle(out, fsize, CAPTURE_S, progress)
+    f_live = synth_live(out, fsize, 4.0 if quick else 10.0, progress)
     if not quick:
         if progress:
             print("head pose at 640x360 ...", flush=True)
@@ -281,19 +280,19 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = "built
         for seed in POSE_HEADS:
             if progress:
                 print(f"head pose at 640x360, head {seed} ...", flush=True)
-            r = _per_frame(_bundle(out, fsize, CAPTURE_S, progress, seed=seed),
-                           _live(out, fsize, 10.0, progress, seed=seed), env, mode)
+            r = _per_frame(synth_bundle(out, fsize, CAPTURE_S, progress, seed=seed),
+                           synth_live(out, fsize, 10.0, progress, seed=seed), env, mode)
             doc["pose_heads"].append({"seed": seed, **{k: r[k] for k in ("frames", "faces", "rotation_error_deg")}})
     if not quick:
         # The per-frame path's growth with the frame: 640x360 (above), 1280x720 and 1920x1080 live
         # clips of the same head relit with a 1280x720 capture's bundle (face pixels capped at the
         # capture's default, as a user's 1080p or 4K capture is).
         doc["speed"] = [{k: small[k] for k in SPEED_KEYS}]
-        big_bundle = _bundle(out, SPEED_CAPTURE, CAPTURE_S, progress)
+        big_bundle = synth_bundle(out, SPEED_CAPTURE, CAPTURE_S, progress)
         for size in SPEED_SIZES:
             if progress:
                 print(f"timing the per-frame path at {size[0]}x{size[1]} ...", flush=True)
-            r = _per_frame(big_bundle, _live(out, size, 10.0, progress), env, mode)
+            r = _per_frame(big_bundle, synth_live(out, size, 10.0, progress), env, mode)
             doc["speed"].append({k: r[k] for k in SPEED_KEYS})
     if progress:
         print("running relight filter on a 10 s clip ...", flush=True)
@@ -301,7 +300,7 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = "built
     if not quick:
         if progress:
             print("running relight filter on a 10 s 1280x720 clip ...", flush=True)
-        doc["filter_720"] = _filter_run(big_bundle, _live(out, (1280, 720), 10.0, progress), out, env)
+        doc["filter_720"] = _filter_run(big_bundle, synth_live(out, (1280, 720), 10.0, progress), out, env)
     subjects = face_subjects(faces)
     if quick:
         subjects = [p for p in subjects if p.name in QUICK_FACES]

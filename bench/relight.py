@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .transport import split_direct
+from relight.kernels.transport import split_direct
 
 TOLERANCES = (0.05, 0.02, 0.01, 0.005, 0.002)
 #: Timing: rounds x (pause, warm-up calls, timed calls) per function, functions in turn.
@@ -73,7 +73,7 @@ class ReadProbe:
     def __init__(self, mb: int = MB):
         import pyopencl as cl
 
-        from .runtime import get_runtime
+        from relight.kernels.runtime import get_runtime
 
         self.rt = get_runtime()
         src = """__kernel void rd(__global const float16 *x, int per, __global float *out) {
@@ -84,7 +84,7 @@ class ReadProbe:
             a += b;
             out[g] = a.s0 + a.s5 + a.sa + a.sf; }"""
         self.kernel = cl.Kernel(cl.Program(self.rt.context, src).build(), "rd")
-        from .runtime import aligned_zeros
+        from relight.kernels.runtime import aligned_zeros
 
         self.items = 1024
         self.data = aligned_zeros((mb * (1 << 20) // 4,), np.float32)
@@ -111,7 +111,7 @@ def measure_bandwidth(probe: ReadProbe) -> dict:
     return {"numpy_copy_gbps": 2 * a.nbytes / t["copy"] / 1e6, "opencl_read_gbps": probe.gbps(t["read"])}
 
 
-def _frontal(env: np.ndarray) -> np.ndarray:
+def frontal_environment(env: np.ndarray) -> np.ndarray:
     """The environment kept only well inside a frontal capture's hull (within 55 degrees of the
     camera axis, elevation -25..55 degrees), black elsewhere."""
     from relight.directions import equirect_directions
@@ -133,8 +133,8 @@ def _scenario(out: Path, quick: bool, progress: bool):
     front_studio = out / "front_studio.exr"
     front_sky = out / "front_sky.exr"
     if not front_studio.exists():
-        write_image(front_studio, _frontal(load_environment("builtin:studio")))
-        write_image(front_sky, _frontal(load_environment("builtin:sunset")))
+        write_image(front_studio, frontal_environment(load_environment("builtin:studio")))
+        write_image(front_sky, frontal_environment(load_environment("builtin:sunset")))
     envs = {"sky (sunset)": "builtin:sunset", "studio": "builtin:studio", "small sun": "builtin:point:0.5,0.3,0.8",
             "front studio": str(front_studio), "front sky": str(front_sky)}
     size = (480, 270) if quick else (960, 540)
@@ -166,9 +166,8 @@ def run(out: Path, quick: bool = False, progress: bool = True) -> dict:
     import relight
     from relight.directions import rotation_matrix
     from relight.imageio import read_image
-
-    from . import transport
-    from .relighter import Relighter
+    from relight.kernels import transport
+    from relight.kernels.relighter import Relighter
 
     bundle_path, truth_dir, envs = _scenario(Path(out), quick, progress)
     bundle = relight.load_bundle(bundle_path)
@@ -221,7 +220,7 @@ def _psnr(pred, truth, mask):
 
 def _bench_env(name, env, exact, compacts, rots, mask, truth, p, probe, quick) -> dict:
     """Every path on one environment."""
-    from .relighter import LANES, exact_light_blocks
+    from relight.kernels.relighter import LANES, exact_light_blocks
 
     per100k = 1e5 / p
     e_img = np.array(exact.relight(env))
@@ -249,9 +248,8 @@ def _bench_env(name, env, exact, compacts, rots, mask, truth, p, probe, quick) -
 
 
 def _bench_compact(tol, rl, env, e_img, rots, mask, truth, p, probe, quick) -> dict:
+    from relight.kernels.relighter import LANES
     from relight.numerics import read_halves
-
-    from .relighter import LANES
 
     per100k = 1e5 / p
     c_img = np.array(rl.relight(env))

@@ -27,7 +27,7 @@ Metrics, per variant x scene x environment, inside the face mask (bundle mask an
   PSNR / SSIM in sRGB inside the mask, no gain fitted.
 * run time: capture seconds (the shared preparation + the variant's own maps), bundle MB and
   relight ms (default compact path, median of calls with the head turning).
-* numerical stability: :mod:`relight.pipeline.stability`.
+* numerical stability: :mod:`relight.bench.stability`.
 """
 
 from __future__ import annotations
@@ -40,22 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-#: Capture options of each variant (``relight capture`` flags in words).
-VARIANTS: dict[str, dict] = {
-    "full": {},
-    "full -visibility": {"visibility": False},
-    "full -adaptation": {"adaptation": False},
-    "full -both": {"visibility": False, "adaptation": False},
-    "full -extrapolation": {"extrapolation": False},
-    "full -spline": {"spline": False},
-    "full, paper adaptation": {"paper_adaptation": True},
-    "barycentric": {"method": "barycentric"},
-    "ptm": {"method": "ptm"},
-    "hsh": {"method": "hsh"},
-    "hsh2": {"method": "hsh2"},
-    "rbf": {"method": "rbf"},
-}
-BASELINES = ("barycentric", "ptm", "hsh", "hsh2", "rbf")
+from .variants import BASELINES, VARIANTS
 
 #: Synthetic scenes: they differ in seed, size, flash rate, sampling density, head motion and
 #: camera drift.
@@ -93,16 +78,16 @@ QUICK_FACE_VARIANTS = ("full", "barycentric", "ptm", "hsh")
 
 def _environments(out: Path) -> dict[str, tuple[str, str]]:
     """name -> (source, "in hull" | "whole sphere"); the frontal ones written to ``out``."""
+    from relight.bench.relight import frontal_environment
     from relight.envmap import load_environment
     from relight.imageio import write_image
-    from relight.kernels.benchmark import _frontal
 
     out.mkdir(parents=True, exist_ok=True)
     envs = {}
     for name, src in (("front studio", "builtin:studio"), ("front sky", "builtin:sunset")):
         path = out / f"{name.replace(' ', '_')}.exr"
         if not path.exists():
-            write_image(path, _frontal(load_environment(src)))
+            write_image(path, frontal_environment(load_environment(src)))
         envs[name] = (str(path), "in hull")
     envs["studio"] = ("builtin:studio", "whole sphere")
     envs["sunset"] = ("builtin:sunset", "whole sphere")
@@ -110,7 +95,7 @@ def _environments(out: Path) -> dict[str, tuple[str, str]]:
 
 
 def _synth(out: Path, scene: dict, envs: dict, progress: bool):
-    from .synth.studio import SynthConfig, cached_synthesis
+    from relight.pipeline.synth.studio import SynthConfig, cached_synthesis
 
     cfg = SynthConfig(**{k: v for k, v in scene.items() if k != "name"},
                       truth_envs=tuple(src for src, _ in envs.values()))
@@ -122,12 +107,12 @@ def build_variants(source, out_dir: Path, *, images: bool = False, variants=None
     """Prepare ``source`` once (a capture video, or an RTI folder with ``images``, its files encoded
     with ``transfer``) and write one bundle per variant to ``out_dir``: name -> {"bundle",
     "capture_s", "prepare_s", "bundle_mb"}."""
-    from .bundle import write_bundle
-    from .capture import CaptureOptions, _Progress, finish, prepare_images, prepare_video
+    from relight.pipeline.bundle import write_bundle
+    from relight.pipeline.capture import CaptureOptions, Progress, finish, prepare_images, prepare_video
 
     variants = VARIANTS if variants is None else variants
     out_dir.mkdir(parents=True, exist_ok=True)
-    bar = _Progress(progress)
+    bar = Progress(progress)
     timings: dict = {}
     t0 = time.perf_counter()
     prepare = prepare_images if images else prepare_video
@@ -187,8 +172,7 @@ def olat_truth(cfg, dirs: np.ndarray, progress: bool = False) -> tuple[np.ndarra
     """Truth (D, P, 3) of the synthetic head under each direction at the flash's power, at the
     reference pose, and the shaded pixels' flat frame indices (P,)."""
     from relight.kernels.shading import MAX_OUT
-
-    from .synth.studio import FLASH_STRENGTH, Studio
+    from relight.pipeline.synth.studio import FLASH_STRENGTH, Studio
 
     studio = Studio(cfg)
     pix = studio.surface.pix
@@ -244,8 +228,7 @@ def evaluate_scene(cfg, cap: Path, bundles: dict, envs: dict, out: Path, name: s
                    keep_bundles: bool = False) -> dict:
     import relight
     from relight.imageio import read_image
-
-    from .reflectance import inside_hull
+    from relight.pipeline.reflectance import inside_hull
 
     meta = json.loads((cap / "truth" / "meta.json").read_text())
     truth_mask = read_image(cap / "truth" / "mask.png")[..., 0] > 0.5
@@ -341,7 +324,7 @@ def scaled_rti(folder: Path, out: Path, factor: int) -> Path:
     average)."""
     import cv2
 
-    from .capture import AMBIENT_NAMES, read_lp
+    from relight.pipeline.capture import AMBIENT_NAMES, read_lp
 
     out.mkdir(parents=True, exist_ok=True)
     names = [n for n, _ in read_lp(folder / "dirs.lp")]
@@ -366,8 +349,7 @@ def evaluate_dome(dome: Path, test: Path, out: Path, progress: bool, *, scale: i
     import relight
     from relight.colour import linear_to_srgb
     from relight.imageio import read_image
-
-    from .capture import read_lp
+    from relight.pipeline.capture import read_lp
 
     if scale > 1:
         dome = scaled_rti(dome, out / "dome-small" / "Dome", scale)
@@ -405,7 +387,7 @@ def split_rti(folder: Path, out: Path, every: int = FACE_HOLDOUT) -> list[tuple[
     Returns the held-out (name, direction) pairs."""
     import os
 
-    from .capture import AMBIENT_NAMES, read_lp
+    from relight.pipeline.capture import AMBIENT_NAMES, read_lp
 
     entries = read_lp(folder / "dirs.lp")
     held = [e for i, e in enumerate(entries) if i % every == 0]
@@ -439,8 +421,7 @@ def evaluate_face(folder: Path, out: Path, progress: bool, *, variants=None, tra
     (0-1, no gain) over the face (``mask.png``, else the whole crop): PSNR and SSIM."""
     import relight
     from relight.colour import linear_to_srgb
-
-    from .capture import read_lp, read_set_image
+    from relight.pipeline.capture import read_lp, read_set_image
 
     train = out / "train" / folder.name
     held = split_rti(folder, train)
@@ -582,7 +563,7 @@ def run(out: Path, quick: bool = False, progress: bool = True, rti: Path | None 
     faces : a folder of real faces, one RTI set per subject (``../shared/data/faces-yale``);
     ``quick`` takes ``QUICK_FACES`` of them with ``QUICK_FACE_VARIANTS``.
     """
-    from .stability import run_stability
+    from relight.bench.stability import run_stability
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -52,11 +52,11 @@ import numpy as np
 
 from relight.errors import InputError
 from relight.numerics import flush_subnormal_halves
+from relight.pipeline import methods, reflectance
 
-from . import methods, reflectance
-from .accuracy import VARIANTS as _CAPTURE_VARIANTS
+from .variants import VARIANTS as CAPTURE_VARIANTS
 
-#: The variants measured: the benchmark's (``relight.pipeline.accuracy.VARIANTS``), each as the
+#: The variants measured: the benchmark's (``relight.bench.variants.VARIANTS``), each as the
 #: ``CaptureOptions`` fields that select it (visibility, light adaptation and extrapolation only
 #: act on ``full``; the flags here are the effective ones).
 VARIANTS: dict[str, dict] = {
@@ -66,7 +66,7 @@ VARIANTS: dict[str, dict] = {
            "extrapolation": kw.get("extrapolation", True) and kw.get("method", "full") == "full",
            "paper_adaptation": kw.get("paper_adaptation", False),
            "spline": kw.get("spline", True) and kw.get("method", "full") == "full"}
-    for name, kw in _CAPTURE_VARIANTS.items()
+    for name, kw in CAPTURE_VARIANTS.items()
 }
 
 #: Floor of the error's denominator (an all-zero reference compares as an absolute error).
@@ -153,7 +153,7 @@ class Head:
 
 def make_head(seed: int = SEED) -> Head:
     """The bump-on-a-slope head of about 120 pixels, its analytic normals and its horizon table."""
-    from .capture import horizon_for
+    from relight.pipeline.capture import horizon_for
 
     h, w = HEAD_SHAPE
     y, x = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -264,7 +264,7 @@ def _degenerate_hull(head: Head) -> list:
 
 
 def _saturated(head: Head) -> list:
-    from .geometry import photometric_stereo
+    from relight.pipeline.geometry import photometric_stereo
 
     dirs = _unit(front_dirs(60, seed=5))
     raw = shade(head, dirs) * np.float32(8.0)
@@ -342,7 +342,7 @@ def builder_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulati
     :func:`~relight.pipeline.reflectance.triangulate`): the OpenCL kernel's float16 output with
     ``half`` (production) or its float32 output; a fitted method's float32. The maps hold the
     samples divided by ``scale``."""
-    from .capture import CaptureOptions, reflectance_maps
+    from relight.pipeline.capture import CaptureOptions, reflectance_maps
 
     opts = VARIANTS[variant]
     o = CaptureOptions(method=opts["method"], visibility=opts["visibility"], adaptation=opts["adaptation"],
@@ -363,7 +363,7 @@ def production_maps(variant: str, problem: MapProblem, tri: reflectance.Triangul
 
 def reference_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulation) -> np.ndarray:
     """(P, 3, T) float64-computed maps of the same method (see the module docstring)."""
-    from . import recipe
+    from relight.pipeline import recipe
 
     opts = VARIANTS[variant]
     method = opts["method"]
@@ -377,8 +377,8 @@ def reference_maps(variant: str, problem: MapProblem, tri: reflectance.Triangula
 
 
 def _reference_maps(opts, method, samples, problem, tri):
-    from . import recipe
-    from .capture import HORIZON_DIRS
+    from relight.pipeline import recipe
+    from relight.pipeline.capture import HORIZON_DIRS
 
     if method not in methods.FITTED:
         vis = None
@@ -443,8 +443,8 @@ class BundleCache:
         return self.bundles[variant]
 
     def _build(self, variant: str):
-        from .bundle import load_bundle, write_bundle
-        from .capture import CaptureOptions, Prepared, _Progress, finish
+        from relight.pipeline.bundle import load_bundle, write_bundle
+        from relight.pipeline.capture import CaptureOptions, Prepared, Progress, finish
 
         head = self.head
         base = head.baseline()
@@ -458,7 +458,7 @@ class BundleCache:
                         ambient=ambient, background=np.zeros((h, w, 3), dtype=np.uint8), origin=(0, 0),
                         frame_size=(w, h), face_local=None, mask=head.mask.copy(), meta={"kind": "stability"})
         opts = CaptureOptions(**VARIANTS[variant], map_size=self.map_size)
-        arrays, meta, _, _ = finish(prep, opts, _Progress(False), {})
+        arrays, meta, _, _ = finish(prep, opts, Progress(False), {})
         path = self.folder / f"{variant.replace(' ', '_')}.bundle"
         write_bundle(path, meta, arrays)
         return load_bundle(path)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -23,58 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-
-def _rss_mb(pid: int) -> float:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return float("nan")
-
-
-def _cpu_jiffies() -> np.ndarray | None:
-    """The machine's CPU time counters (``/proc/stat``: user nice system idle iowait irq softirq
-    steal), or None off Linux."""
-    try:
-        return np.array([int(v) for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:9]], np.int64)
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-def _steal_share(before, after) -> float | None:
-    """Share of the machine's busy CPU time the hypervisor took (steal) between two readings:
-    on a shared VM this, not our code, is what stretches the latency tail."""
-    if before is None or after is None:
-        return None
-    d = after - before
-    busy = float(d.sum() - d[3] - d[4])
-    return float(d[7]) / busy if busy > 0 else None
-
-
-def free_port() -> int:
-    """A TCP port free on loopback now."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_ready(base: str, timeout: float, *, alive=None) -> bool:
-    """Poll ``base``/readyz until it answers 200 (True), or ``timeout`` seconds pass or
-    ``alive()`` turns False (False)."""
-    import httpx
-
-    deadline = time.time() + timeout
-    while True:
-        try:
-            if httpx.get(f"{base}/readyz", timeout=1).status_code == 200:
-                return True
-        except httpx.TransportError:
-            pass
-        if time.time() > deadline or (alive is not None and not alive()):
-            return False
-        time.sleep(0.1)
+from .machine import cpu_jiffies, rss_mb, steal_share
+from .server import free_port, wait_ready
 
 
 def _client(url: str, frames: list[bytes], fps: float, duration: float, out: dict) -> None:
@@ -131,12 +80,12 @@ def _client(url: str, frames: list[bytes], fps: float, duration: float, out: dic
 def _run(url: str, frames, clients: int, fps: float, duration: float) -> dict:
     outs = [{} for _ in range(clients)]
     threads = [threading.Thread(target=_client, args=(url, frames, fps, duration, o)) for o in outs]
-    cpu0 = _cpu_jiffies()
+    cpu0 = cpu_jiffies()
     for t in threads:
         t.start()
     for t in threads:
         t.join()
-    steal = _steal_share(cpu0, _cpu_jiffies())
+    steal = steal_share(cpu0, cpu_jiffies())
     rtts = np.concatenate([np.asarray(o.get("rtts", []), dtype=np.float64) for o in outs]) if outs else np.zeros(0)
     sent = sum(o.get("sent", 0) for o in outs)
     returned = sum(o.get("returned", 0) for o in outs)
@@ -201,9 +150,9 @@ def run(out: Path, bundle: Path | None = None, clients: int = 4, fps: float = 30
         duration = min(duration, 8.0)
         single_size = (640, 360)
     if bundle is None:
-        from .benchmark import _bundle
+        from relight.bench.video import synth_bundle
 
-        bundle = _bundle(out, (640, 360), 20.0 if quick else 30.0, progress)
+        bundle = synth_bundle(out, (640, 360), 20.0 if quick else 30.0, progress)
     frames = _frames(out, progress)
     single_frames = frames if single_size == (640, 360) else _frames(out, progress, single_size)
     port = free_port()
@@ -212,13 +161,13 @@ def run(out: Path, bundle: Path | None = None, clients: int = 4, fps: float = 30
     try:
         url = f"ws://127.0.0.1:{port}/v1/stream"
         _run(url, frames, 1, fps, 2.0)  # warm-up
-        rss_start = _rss_mb(proc.pid)
+        rss_start = rss_mb(proc.pid)
         if progress:
             print(f"{clients} clients x {fps:g} fps x {duration:g} s ...", flush=True)
         load = _run(url, frames, clients, fps, duration)
         load["size"] = [640, 360]
         load["relit_fps"] = load["returned"] / duration
-        rss_end = _rss_mb(proc.pid)
+        rss_end = rss_mb(proc.pid)
         if progress:
             print(f"1 client x {fps:g} fps at {single_size[0]}x{single_size[1]} ...", flush=True)
         _run(url, single_frames, 1, fps, 2.0)  # warm-up at this size

@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from .machine import steal_and_total
+
 #: Peak memory every capture should stay within (MB).
 MEMORY_GOAL_MB = 3072.0
 SCENARIOS = [
@@ -97,23 +99,10 @@ def _reencoded(video: Path, mbps: float, progress: bool) -> Path:
     return out
 
 
-def _cpu_times() -> tuple[int, int] | None:
-    """(steal, total) CPU ticks of the machine from /proc/stat (Linux), or None."""
-    try:
-        fields = Path("/proc/stat").read_text().splitlines()[0].split()
-    except (OSError, IndexError):
-        return None
-    if fields[0] != "cpu" or len(fields) < 9:
-        return None
-    ticks = [int(v) for v in fields[1:]]
-    return ticks[7], sum(ticks[:8])
-
-
 def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool = False,
         only: list[str] | None = None) -> dict:
     from relight.errors import InputError
-
-    from .synth.studio import SynthConfig, cached_synthesis
+    from relight.pipeline.synth.studio import SynthConfig, cached_synthesis
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -134,13 +123,13 @@ def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool =
             key += f"-{sc['reencode_mbps']}M"
         if progress:
             print(f"capturing {sc['name']} ...", flush=True)
-        code = (f"from relight.pipeline.benchmark import _child; _child({str(video)!r}, "
+        code = (f"from relight.bench.capture import _child; _child({str(video)!r}, "
                 f"{str(out / (key + '.bundle'))!r}, {str(cap / 'truth')!r})")
         t0 = time.perf_counter()
-        cpu0 = _cpu_times()
+        cpu0 = steal_and_total()
         proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         wall = time.perf_counter() - t0
-        cpu1 = _cpu_times()
+        cpu1 = steal_and_total()
         if proc.returncode != 0:
             raise RuntimeError(f"capture of {sc['name']} failed:\n{proc.stderr[-2000:]}")
         fig = json.loads(proc.stdout.strip().splitlines()[-1])
