@@ -240,7 +240,7 @@ class Compositor:
         n = self.support.size
         code = LAYER_MODES[mode]
         rz = np.eye(3)[2] if rotation is None else np.asarray(rotation, dtype=np.float64)[2]
-        _, relit_buf = self.relighter.slot("main")
+        relit_buf = self.relighter.last_buffer  # the relit face the frame's relight wrote
         live_buf = self.relighter.slot("live")[1] if mode == "live" else relit_buf
         self._k_layer(q, (max(-(-n // 64), 1) * 64,), (64,), relit_buf, live_buf, self._fill, self._inv,
                       self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]), np.float32(rz[2]),

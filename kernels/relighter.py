@@ -15,6 +15,8 @@ computed; the output is the full reference frame, linear RGB, zero outside ``bun
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 from relight.errors import InputError
@@ -49,6 +51,14 @@ def compact_coefficients(coef: np.ndarray, rank8: int, rank4: int) -> np.ndarray
     c[:rank8] /= transport.V_LEVELS
     c[rank8:] /= transport.V4_LEVELS
     return c.astype(np.float32)
+
+
+def frozen(env) -> np.ndarray:
+    """A read-only float32 copy of an environment that owns its data: :meth:`Relighter.lights`
+    recognises it by identity, so a per-frame caller passing it again pays no hashing."""
+    out = np.array(env, dtype=np.float32, order="C")
+    out.flags.writeable = False
+    return out
 
 
 def relight_compact_numpy(q8: np.ndarray, units: np.ndarray, rank8: int, q4: np.ndarray, units4: np.ndarray,
@@ -375,10 +385,15 @@ class Relighter:
         self._pending = None  # (buf, frame) of a launch not yet waited for (relight(wait=False))
         if self.exact:
             self._exact_maps()
-        self._env_key = None
+        self._env_key = None  # (shape, dtype, digest) of the environment whose lights are cached
+        self._env_array = None  # that environment (identity: a frozen array is not hashed again)
         self._env_lights = None
-        self._last_key = None
+        self._env_generation = 0  # bumped when the cached lights change
+        self._last_key = None  # (environment generation, rotation, exposure) of the last relight
         self._last_rotation = None
+        self._last_frame = None  # the array the last relight filled, and its buffer
+        self._last_buf = self._frame_buf
+        self._bound = None  # (buffer, array) of the last caller's out
         self.relit = 0  # relights run by relight() (figures for benchmarks)
         self.reused = 0  # calls of relight() answered by the last result (reuse_deg)
 
@@ -418,12 +433,21 @@ class Relighter:
 
     # ------------------------------------------------------------------ direction space
     def lights(self, env: np.ndarray) -> transport.EnvLights:
-        """The environment's lights, cached while the same array is passed again."""
+        """The environment's lights, cached by the array's contents: an environment edited in
+        place is seen as new. A read-only array that owns its data (``env.flags.writeable =
+        False``: :class:`relight.service.frame_path.FramePath` freezes its environment) is
+        recognised again by identity alone; any other array is hashed (BLAKE2b, ~4 ms for a
+        512x256 map, a tenth of what making its lights takes)."""
         arr = np.asarray(env)
-        key = (id(env), arr.shape, float(np.asarray(arr[::17, ::13], dtype=np.float64).sum()))
-        if key != self._env_key:
-            self._env_lights = transport.environment_lights(arr)
-            self._env_key = key
+        frozen = arr is self._env_array and not arr.flags.writeable and arr.flags.owndata
+        if not frozen:
+            digest = hashlib.blake2b(memoryview(np.ascontiguousarray(arr)).cast("B"), digest_size=16)
+            key = (arr.shape, arr.dtype.str, digest.digest())
+            if key != self._env_key:
+                self._env_lights = transport.environment_lights(arr)
+                self._env_key = key
+                self._env_generation += 1
+            self._env_array = arr
         return self._env_lights
 
     def texel_light(self, env, rotation=None, exposure: float = 1.0) -> np.ndarray:
@@ -433,58 +457,105 @@ class Relighter:
 
     # ------------------------------------------------------------------ relighting
     def relight(self, env: np.ndarray, rotation=None, *, exposure: float = 1.0, reuse_deg: float = 0.0,
-                wait: bool = True) -> np.ndarray:
-        """The reference frame relit: (H, W, 3) float32 linear RGB, the face inside ``bundle.mask``.
+                out: np.ndarray | None = None, wait: bool = True) -> np.ndarray:
+        """The reference frame relit: a new (H, W, 3) float32 array of linear RGB, the face
+        inside ``bundle.mask`` and zero elsewhere - or ``out``, filled in place.
 
         env : (H, 2H, 3) linear radiance (see :func:`relight.load_environment`). rotation : 3x3
         head rotation (camera from head) or None. exposure : linear scale of the environment.
         reuse_deg : when > 0, a call whose environment and exposure are the last relight's and
-        whose rotation is within this angle (degrees) of its rotation returns that result instead
-        of relighting (``reused`` counts them, ``relit`` the relights): the error added is about
-        1.7 % per degree at worst on the bench's scenes (a point light), see
-        :data:`relight.service.frame_path.REUSE_DEG`.
-        The returned array is owned by the Relighter (read-only) until the next call.
-        wait : False returns as soon as the kernel is queued (the host may do other work while
-        it runs): call :meth:`sync` before reading the returned array; kernels queued later on
-        the runtime's queue (the compositor's) run after it anyway.
+        whose rotation is within this angle (degrees) of its rotation, into the same ``out``,
+        leaves that result instead of relighting (``reused`` counts them, ``relit`` the
+        relights): the error added is about 1.7 % per degree at worst on the bench's scenes (a
+        point light), see :data:`relight.service.frame_path.REUSE_DEG`.
+        out : the hot path's target, as NumPy's ``out=``: a writeable C-contiguous (H, W, 3)
+        float32 array the kernel writes the face pixels into directly (no copy; the pixels
+        outside the face are left as they are). Pass the same array every frame; a call that
+        reuses the last result leaves ``out`` as the last call made it, so do not write into it
+        between calls.
+        wait : False (only with ``out``) returns as soon as the kernel is queued, so the host
+        may do other work while it runs: call :meth:`sync` before reading ``out``; kernels
+        queued later on the runtime's queue (the compositor's) run after it anyway.
         """
         if not (np.isfinite(exposure) and exposure > 0):
             raise InputError(f"exposure {exposure}: must be a positive finite scale")
+        if out is None and not wait:
+            raise InputError("relight(wait=False) needs out=: the array the kernel fills while the host goes on")
+        buf, frame = self._frame_buf, self.frame
+        if out is not None:
+            buf, frame = self._bind(out)
         r = check_rotation(rotation)
-        lights = self.lights(env)
-        key = (self._env_key, None if r is None else r.round(12).tobytes(), float(exposure))
-        if key == self._last_key:
-            return self._view()
-        if (reuse_deg > 0 and r is not None and self._last_rotation is not None and self._last_key is not None
-                and self._last_key[0] == key[0] and self._last_key[2] == key[2]
+        self.lights(env)
+        key = (self._env_generation, None if r is None else r.round(12).tobytes(), float(exposure))
+        same_target = frame is self._last_frame
+        if same_target and key == self._last_key:
+            return self._result(out)
+        if (same_target and reuse_deg > 0 and r is not None and self._last_rotation is not None
+                and self._last_key is not None and self._last_key[0] == key[0] and self._last_key[2] == key[2]
                 and rotation_angle_deg(self._last_rotation, r) < reuse_deg):
             # Leave out a relight the head's small turn does not need: the result of the last
             # relight (its rotation within reuse_deg of this one; drift cannot build up).
             self.reused += 1
-            return self._view()
-        lp = _check_light(transport.texel_light(lights, r, self.map_size, self.texels, exposure * self.sample_scale,
-                                                self.cone))
+            return self._result(out)
+        lp = _check_light(transport.texel_light(self._env_lights, r, self.map_size, self.texels,
+                                                exposure * self.sample_scale, self.cone))
         if self.exact:
-            self._run_exact(lp)
+            self._run_exact(lp, buf, frame)
         else:
-            self._run_compact(lp, wait=wait)
-        self._last_key = key
-        self._last_rotation = r
+            self._run_compact(lp, buf, frame, wait=wait)
+        self._last_key, self._last_rotation = key, r
+        self._last_frame, self._last_buf = frame, buf
         self.relit += 1
-        return self._view()
+        return self._result(out)
+
+    def _result(self, out: np.ndarray | None) -> np.ndarray:
+        if out is not None:
+            return out
+        self.sync()
+        return self.frame.copy()
+
+    def _bind(self, out: np.ndarray):
+        """(buffer, array) of a caller's ``out`` (the buffer wraps its memory; kept for the next call)."""
+        if not isinstance(out, np.ndarray) or out.shape != self.frame.shape or out.dtype != np.float32 \
+                or not out.flags.c_contiguous or not out.flags.writeable:
+            shape = getattr(out, "shape", None)
+            dtype = getattr(out, "dtype", type(out).__name__)
+            raise InputError(f"out of shape {shape} ({dtype}): pass a writeable C-contiguous float32 array of "
+                             f"shape {self.frame.shape}, e.g. np.zeros({self.frame.shape}, np.float32)")
+        if out is self.frame:
+            return self._frame_buf, self.frame
+        if self._bound is None or self._bound[1] is not out:
+            import pyopencl as cl
+
+            self.sync()
+            self._bound = (cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR,
+                                     hostbuf=out), out)
+        return self._bound
+
+    @property
+    def last_buffer(self):
+        """The OpenCL buffer the last :meth:`relight` wrote (its ``out``'s, or the Relighter's
+        own frame): what kernels queued after it read the relit face from."""
+        return self._last_buf
 
     def relight_light(self, direction, *, exposure: float = 1.0) -> np.ndarray:
-        """The reference frame under one directional light as strong as the capture flash.
-
-        Reads only the (up to four) map texels around ``direction`` - no environment needed.
+        """The reference frame under one directional light as strong as the capture flash: a new
+        (H, W, 3) float32 array. Reads only the (up to four) map texels around ``direction`` -
+        no environment needed.
         """
         d = np.asarray(direction, dtype=np.float64)
         if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) < 1e-9:
             raise InputError(f"light direction {direction}: three finite numbers, not all zero")
         lp = _check_light(transport.point_light(d, self.map_size, self.texels) * (exposure * self.sample_scale))
         self._run_rows(lp)
-        self._last_key = None
-        return self._view()
+        self._forget_main()
+        return self.frame.copy()
+
+    def _forget_main(self) -> None:
+        """The Relighter's own frame was overwritten: the next relight into it runs again."""
+        if self._last_frame is self.frame:
+            self._last_key = None
+            self._last_buf = self._frame_buf
 
     def relight_texels(self, lp: np.ndarray, *, slot: str = "main", direct: int | None = None) -> np.ndarray:
         """The reference frame under a light given in the map's texels: ``lp`` (T, 3) the power
@@ -504,7 +575,7 @@ class Relighter:
         else:
             self._run_compact(lp, buf, frame, direct=direct)
         if slot == "main":
-            self._last_key = None
+            self._forget_main()
         return self._view(frame)
 
     def slot(self, name: str):

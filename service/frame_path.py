@@ -276,6 +276,8 @@ class FramePath:
         limit_blas_threads()
         self.bundle = bundle
         self.relighter = relighter if relighter is not None else Relighter(bundle, tolerance=tolerance)
+        # The relit reference frame, filled in place by the relight of each frame (its out=).
+        self.relit_frame = np.zeros_like(self.relighter.frame)
         self.set_mode(mode)
         self.set_strength(strength)
         self.set_exposure(exposure)
@@ -371,7 +373,7 @@ class FramePath:
             # environment) instead.
             from relight.envmap import load_environment
 
-            even = np.array(self.relighter.relight(load_environment("builtin:uniform", width=64)))
+            even = self.relighter.relight(load_environment("builtin:uniform", width=64))
             self.ambient_crop = np.ascontiguousarray(even[y0:y0 + h, x0:x0 + w])
             self.reference_light = "uniform"
         amb_lum = (self.ambient_crop[mask_crop] @ _LUM) if mask_crop.any() else np.zeros(1, np.float32)
@@ -421,6 +423,11 @@ class FramePath:
 
     # ------------------------------------------------------------------ settings
     def set_environment(self, env: np.ndarray) -> None:
+        """Relight under ``env`` from the next frame: a frozen copy is kept (the Relighter then
+        recognises it without hashing it every frame, and the caller's array stays theirs)."""
+        from relight.kernels.relighter import frozen
+
+        env = frozen(env)
         self.relighter.lights(env)  # validates and converts once
         self.env = env
 
@@ -537,7 +544,7 @@ class FramePath:
         # Queued, not waited for: the warp and the live light's fit run on the host meanwhile;
         # synced before the host reads the relit frame (the compositor's kernels queue after it).
         img = self.relighter.relight(self.env, None if self.fixed_env else rotation, exposure=self.exposure,
-                                     reuse_deg=self.reuse_deg, wait=False)
+                                     reuse_deg=self.reuse_deg, out=self.relit_frame, wait=False)
         info.reused = self.relighter.reused > reused
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()

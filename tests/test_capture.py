@@ -255,6 +255,13 @@ def test_image_set_transfer_and_room_light(tmp_path):
     samples = np.asarray(b.samples, dtype=np.float32)
     np.testing.assert_allclose(samples[0], (linear["i0.png"] - ambient).reshape(-1, 3), atol=2e-3)
     assert b.room_light is None  # 1 % of the face's light is noise, not a reference
+    # The background, declared sRGB, is the median image through the sRGB curve (not a plain
+    # 1/2.2 power: 0.4 linear is code 170 in sRGB, 167 with the power).
+    median = np.median(np.stack([linear[k] for k in sorted(linear)]), axis=0)
+    bg = np.asarray(b.background, np.float64)
+    bias = float(np.mean(bg - 255 * linear_to_srgb(np.clip(median, 0, 1))))
+    bias_power = float(np.mean(bg - 255 * np.clip(median, 0, 1) ** (1 / 2.2)))
+    assert abs(bias) < 0.3 and abs(bias_power) > 1.0, (bias, bias_power)  # JPEG-stored: unbiased, not exact
     srgb = load_bundle(capture(tmp_path, tmp_path / "srgb.bundle", CaptureOptions(keep_maps=True), images=True,
                                progress=False).bundle)
     assert np.asarray(srgb.samples, np.float32).mean() < 0.5 * samples.mean()  # read as sRGB: far darker

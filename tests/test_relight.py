@@ -118,13 +118,16 @@ def test_nothing_is_recomputed_for_the_same_request(relighters, monkeypatch):
     compact, _ = relighters
     env = load_environment("builtin:sunset")
     r = rotation_matrix(5, 0, 0)
-    first = compact.relight(env, r)
+    out = np.zeros_like(compact.frame)
+    first = compact.relight(env, r, out=out).copy()
     calls = []
-    monkeypatch.setattr(compact, "_run_compact", lambda lp, **kw: calls.append(1))
-    again = compact.relight(env, r)
-    assert calls == [] and again is not None and np.shares_memory(first, again)
-    compact.relight(env, rotation_matrix(6, 0, 0))
+    monkeypatch.setattr(compact, "_run_compact", lambda lp, *a, **kw: calls.append(1))
+    again = compact.relight(env, r, out=out)
+    assert calls == [] and again is out and np.array_equal(out, first)
+    compact.relight(env, r)  # another target (the Relighter's own frame, then a new array): relit there
     assert calls == [1]
+    compact.relight(env, rotation_matrix(6, 0, 0), out=out)
+    assert calls == [1, 1]
 
 
 def test_a_relight_not_waited_for_gives_the_same_frame_after_sync(relighters):
@@ -136,10 +139,11 @@ def test_a_relight_not_waited_for_gives_the_same_frame_after_sync(relighters):
     want = np.array(compact.relight(env, rotation_matrix(11, 2, 0)))
     want_live = np.array(compact.relight_texels(np.full((compact.texels.size, 3), 1e-3), slot="live"))
     compact.relight(env, rotation_matrix(-3, 0, 0))  # something else in the main frame
-    got = compact.relight(env, rotation_matrix(11, 2, 0), wait=False)
+    out = np.zeros_like(compact.frame)
+    got = compact.relight(env, rotation_matrix(11, 2, 0), out=out, wait=False)
     live = compact.relight_texels(np.full((compact.texels.size, 3), 1e-3), slot="live")
     compact.sync()
-    np.testing.assert_array_equal(np.array(got), want)
+    np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(np.array(live), want_live)
     compact.sync()  # nothing pending: a no-op
 
@@ -339,3 +343,45 @@ def test_small_head_turns_reuse_the_last_relight(relighters):
     assert compact.relit == n + 3
     compact.relight(load_environment("builtin:sunset"), rotation_matrix(10.13, 0, 0), exposure=2.0, reuse_deg=5.0)
     assert compact.relit == n + 4
+
+
+def test_relight_returns_a_new_array_and_fills_out_in_place(relighters, small_bundle):
+    """As NumPy does: a call returns an array the caller owns (the next call does not change
+    it); ``out=`` is filled in place, the kernel writing into it directly (the hot path)."""
+    compact, _ = relighters
+    studio, sunset = load_environment("builtin:studio"), load_environment("builtin:sunset")
+    a = compact.relight(studio)
+    kept = a.copy()
+    b = compact.relight(sunset)
+    assert a.flags.writeable and a.flags.owndata and np.array_equal(a, kept) and not np.array_equal(a, b)
+    out = np.full(compact.frame.shape, -1.0, dtype=np.float32)
+    got = compact.relight(studio, out=out)
+    m = small_bundle.mask
+    assert got is out and np.array_equal(out[m], a[m]) and (out[~m] == -1.0).all()  # the rest left as it was
+    queued = compact.relight(sunset, out=out, wait=False)
+    compact.sync()
+    assert queued is out and np.array_equal(out[m], b[m])
+    with pytest.raises(InputError, match="needs out="):
+        compact.relight(studio, wait=False)
+    for bad in (np.zeros((4, 4, 3), np.float32), np.zeros(compact.frame.shape, np.float64),
+                np.zeros(compact.frame.shape, np.float32)[:, ::-1]):
+        with pytest.raises(InputError, match="writeable C-contiguous float32"):
+            compact.relight(studio, out=bad)
+
+
+def test_an_environment_edited_in_place_is_relit_anew(relighters, small_bundle):
+    """The lights are cached by the environment's contents, not its identity: doubling the same
+    array in place doubles the relit face (a cache on id() returned the stale light)."""
+    m = small_bundle.mask
+    for rl in relighters:
+        env = load_environment("builtin:studio")
+        first = rl.relight(env)
+        env *= 2.0
+        second = rl.relight(env)
+        assert np.allclose(second[m], 2.0 * first[m], rtol=1e-4, atol=1e-7)
+        # A frozen environment (read-only, owning its data) is recognised without hashing.
+        from relight.kernels.relighter import frozen
+
+        env = frozen(env)
+        assert not env.flags.writeable
+        assert np.array_equal(rl.relight(env)[m], second[m]) and np.array_equal(rl.relight(env)[m], second[m])
