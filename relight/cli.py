@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import time
 from pathlib import Path
@@ -21,6 +22,32 @@ def _size(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: write the size as WIDTHxHEIGHT, e.g. 960x540") from None
     return w, h
+
+
+#: A value that starts with '-' yet is a number or a list of numbers ("-0.5,0.2,0.8", "-1e-3",
+#: "-20,0"): argparse takes it for an option ("expected one argument"), so it is joined to the
+#: long flag before it (``--light -0.5,0.2,0.8`` -> ``--light=-0.5,0.2,0.8``).
+_NEGATIVE_VALUE = re.compile(r"^-(?:\d|\.\d)[0-9eE.+\-,]*$")
+
+
+def negative_values_joined(argv: list[str]) -> list[str]:
+    """``argv`` with every negative number (or number list) joined to the long flag before it,
+    so flags taking numbers accept negative values as users type them."""
+    out: list[str] = []
+    for tok in argv:
+        prev = out[-1] if out else ""
+        if (_NEGATIVE_VALUE.match(tok) and prev.startswith("--") and "=" not in prev and prev != "--"
+                and "--" not in out):
+            out[-1] = f"{prev}={tok}"
+        else:
+            out.append(tok)
+    return out
+
+
+def parse_args(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> argparse.Namespace:
+    """``parser.parse_args`` of ``argv`` (default: the command line) with negative values joined
+    to their flags (:func:`negative_values_joined`): what every relight entry point parses with."""
+    return parser.parse_args(negative_values_joined(sys.argv[1:] if argv is None else list(argv)))
 
 
 class _DefaultsUnlessNone(argparse.ArgumentDefaultsHelpFormatter):
@@ -350,6 +377,8 @@ def _run_render(args) -> int:
 
 
 def _add_bench(sub) -> None:
+    from .service.composite import DEFAULT_MODE, MODES
+
     p = sub.add_parser("bench", help=COMMANDS["bench"],
                        description="Benchmarks: speed, memory and accuracy, measured here and printed.")
     bsub = p.add_subparsers(title="benchmarks", metavar="NAME", required=True)
@@ -394,7 +423,7 @@ def _add_bench(sub) -> None:
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     v.add_argument("-o", "--out", type=Path, default=Path("out/bench-video"), help="output and cache folder")
     v.add_argument("--env", default="builtin:sunset", metavar="FILE|builtin:NAME", help="environment to relight with")
-    v.add_argument("--mode", choices=("transfer", "ambient", "paste"), default="transfer",
+    v.add_argument("--mode", choices=MODES, default=DEFAULT_MODE,
                    help="compositing mode of the synthetic clips (the real faces run every mode)")
     v.add_argument("--faces", type=Path, default=None,
                    help="real faces: a folder with one RTI image set per subject (default: "
@@ -558,10 +587,143 @@ def _run_demo(args) -> int:
     return 0
 
 
-def _add_filter(sub) -> None:
-    from .service.filter_cli import add_filter_parser
+def _strength(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a number from 0 to 1") from None
+    if not (0.0 <= v <= 1.0):
+        raise argparse.ArgumentTypeError(f"{text!r}: give a number from 0 to 1")
+    return v
 
-    add_filter_parser(sub)
+
+def _focal(text: str):
+    if text.strip().lower() == "ortho":
+        return "ortho"
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give the focal length in pixels, or 'ortho'") from None
+    if not (v > 0 and v < 1e6):
+        raise argparse.ArgumentTypeError(f"{text!r}: give a positive focal length in pixels, or 'ortho'")
+    return v
+
+
+def _add_filter(sub) -> None:
+    from .service.composite import DEFAULT_MODE, MODES
+
+    p = sub.add_parser(
+        "filter", help=COMMANDS["filter"],
+        description="Relight the face of every frame of a video (any container FFmpeg reads) or a folder of "
+                    "images with a reflectance bundle: the head is tracked, its rotation turns the environment "
+                    "the other way, and the relit light is warped onto the face. Audio and timestamps are "
+                    "kept; OUT appears only when complete. Frames without a face pass through unchanged.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("input", type=Path, metavar="IN", help="video file, or a folder of images (a sequence)")
+    p.add_argument("output", type=Path, metavar="OUT",
+                   help="video to write (.mp4/.mov/.mkv/.avi: H.264, .webm: VP9), or a folder for PNG frames")
+    p.add_argument("--bundle", type=Path, required=True, help="reflectance bundle of this face (relight capture)")
+    p.add_argument("--env", required=True, metavar="FILE|builtin:NAME",
+                   help="environment to light the face with (lat-long .exr/.hdr/.png or a built-in)")
+    p.add_argument("--mode", choices=MODES, default=DEFAULT_MODE,
+                   help="transfer: the live face relit for real - its own light measured from it and swapped for "
+                        "the target (eyes, mouth, expression kept where lit; the bundle's prediction where the live "
+                        "light left the face dark); ambient: the ratio to the capture room's light (the live "
+                        "room's light stays); paste: the relit reference face warped in (the paper)")
+    p.add_argument("--fixed-env", action="store_true",
+                   help="do not turn the environment against the head's rotation (the light follows the face)")
+    p.add_argument("--strength", type=_strength, default=1.0, help="blend with the original frame, 0 to 1")
+    p.add_argument("--exposure", type=float, default=0.0,
+                   help="stops (EV) on top of the automatic exposure matching")
+    p.add_argument("--focal", type=_focal, default=None, metavar="PIXELS|ortho",
+                   help="the video's focal length in pixels (default: 0.85 x the frame's larger side, a phone or "
+                        "webcam); 'ortho' for an orthographic camera such as relight synth's")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate of an image-sequence input")
+    p.add_argument("--crf", type=int, default=18, help="output quality (lower = better, bigger)")
+    p.add_argument("--report", type=Path, metavar="DIR",
+                   help="write DIR/report.json: head_rotation per frame, timings, counts")
+    p.add_argument("--virtual-camera", action="store_true",
+                   help="also send the frames to a virtual camera (needs the pyvirtualcam extra)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_filter_command)
+
+
+def _filter_command(args) -> int:
+    t0 = time.perf_counter()
+    import numpy as np
+
+    import relight
+
+    from .errors import InputError
+    from .service.filter import run_filter
+
+    if not np.isfinite(args.exposure) or abs(args.exposure) > 20:
+        raise InputError(f"--exposure {args.exposure}: use stops between -20 and 20")
+    if not (1.0 <= args.fps <= 240.0):
+        raise InputError(f"--fps {args.fps}: use 1 to 240")
+    if not (0 <= args.crf <= 51):
+        raise InputError(f"--crf {args.crf}: use 0 to 51")
+    if not args.input.exists():
+        raise InputError(f"{args.input}: no such file or folder")
+    bundle = relight.load_bundle(args.bundle)
+    env = relight.load_environment(args.env)
+    res = run_filter(args.input, args.output, bundle, env, mode=args.mode, fixed_env=args.fixed_env,
+                     strength=args.strength, exposure=args.exposure, focal=args.focal, fps=args.fps, crf=args.crf,
+                     report_dir=args.report, virtual_camera=args.virtual_camera, progress=not args.quiet,
+                     start_time=t0)
+    print(f"wrote {res.out}: {res.summary()}")
+    for note in res.notes:
+        print(f"note: {note}")
+    if args.report:
+        print(f"report: {args.report / 'report.json'}")
+    return 0
+
+
+def _serve_arguments(p) -> None:
+    from .service.composite import DEFAULT_MODE, MODES
+
+    p.add_argument("bundle", type=Path, help="reflectance bundle to serve (relight capture)")
+    p.add_argument("--env", default="builtin:studio", metavar="FILE|builtin:NAME", help="starting environment")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    p.add_argument("--port", type=int, default=8000, help="port to listen on")
+    p.add_argument("--mode", choices=MODES, default=DEFAULT_MODE,
+                   help="transfer: the live light measured from the face and swapped for the target; ambient: the "
+                        "ratio to the capture room's light; paste: the relit reference face (the paper)")
+    p.add_argument("--max-clients", type=int, default=4, help="most stream clients at once")
+    p.add_argument("--focal", type=_focal, default=None, metavar="PIXELS|ortho",
+                   help="the frames' focal length in pixels, or 'ortho' (default: 0.85 x the frame's larger side)")
+
+
+def _serve_command(args) -> int:
+    import relight
+
+    from .errors import InputError
+    from .service.app import serve
+
+    if not args.bundle.is_file():
+        raise InputError(f"{args.bundle}: no such bundle file")
+    # A broken bundle (header, sizes): a one-line error here, not a server traceback. The lifespan
+    # loads it again and checks every array's CRC, so that pass is not done twice.
+    relight.load_bundle(args.bundle, verify=False)
+    if not (1 <= args.port <= 65535):
+        raise InputError(f"--port {args.port}: use 1 to 65535")
+    if not (1 <= args.max_clients <= 1024):
+        raise InputError(f"--max-clients {args.max_clients}: use 1 to 1024")
+    return serve(args.bundle, env=args.env, host=args.host, port=args.port, mode=args.mode,
+                 max_clients=args.max_clients, focal=args.focal)
+
+
+def serve_main(argv: list[str] | None = None) -> int:
+    """The ``relight-serve`` command (the same as ``relight serve``)."""
+    p = argparse.ArgumentParser(prog="relight-serve", description="Serve relighting of video frames over HTTP.",
+                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    _serve_arguments(p)
+    args = parse_args(p, argv)
+    try:
+        return _serve_command(args)
+    except RelightError as exc:
+        print(f"relight-serve: error: {exc}", file=sys.stderr)
+        return 2
 
 
 def _add_serve(sub) -> None:
@@ -569,10 +731,8 @@ def _add_serve(sub) -> None:
                         description="Keep a bundle loaded and relight frames sent over HTTP (POST /v1/relight); "
                                     "health at /livez and /readyz, Prometheus metrics at /metrics, OpenAPI at /docs.",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    from .service.app import add_serve_arguments, run_serve
-
-    add_serve_arguments(sp)
-    sp.set_defaults(func=run_serve)
+    _serve_arguments(sp)
+    sp.set_defaults(func=_serve_command)
 
 
 _ADDERS = {"synth": _add_synth, "capture": _add_capture, "render": _add_render, "bench": _add_bench,
@@ -606,7 +766,7 @@ def build_parser(command: str | None = "*") -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser(_command(argv))
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv)
     try:
         return args.func(args)
     except RelightError as exc:

@@ -35,7 +35,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 
 from relight.imageio import image_size
 
-from .composite import MODES
+from .composite import DEFAULT_MODE, MODES
 
 #: Default caps: a 4K frame's worth of raw RGB, and its pixel count.
 MAX_BODY = 3840 * 2160 * 3
@@ -50,7 +50,7 @@ class ServeConfig:
 
     bundle: Path
     env: str = "builtin:studio"
-    mode: str = "transfer"
+    mode: str = DEFAULT_MODE
     max_clients: int = 4
     max_body: int = MAX_BODY
     max_pixels: int = MAX_PIXELS
@@ -520,60 +520,19 @@ def create_app(config: ServeConfig):
     return app
 
 
-def add_serve_arguments(p) -> None:
-    p.add_argument("bundle", type=Path, help="reflectance bundle to serve (relight capture)")
-    p.add_argument("--env", default="builtin:studio", metavar="FILE|builtin:NAME", help="starting environment")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
-    p.add_argument("--port", type=int, default=8000, help="port to listen on")
-    p.add_argument("--mode", choices=MODES, default="transfer",
-                   help="transfer: the live light measured from the face and swapped for the target; ambient: the "
-                        "ratio to the capture room's light; paste: the relit reference face (the paper)")
-    p.add_argument("--max-clients", type=int, default=4, help="most stream clients at once")
-    p.add_argument("--focal", default=None, metavar="PIXELS|ortho", help="the frames' focal length (see filter)")
-
-
-def run_serve(args) -> int:
+def serve(bundle: Path, *, env: str = "builtin:studio", host: str = "127.0.0.1", port: int = 8000,
+          mode: str = DEFAULT_MODE, max_clients: int = 4, focal=None) -> int:
+    """Serve ``bundle`` with uvicorn until stopped (``relight serve`` / ``relight-serve``; the
+    command line checks its arguments first: :mod:`relight.cli`)."""
     import uvicorn
 
-    from relight.errors import InputError
-
-    if not args.bundle.is_file():
-        raise InputError(f"{args.bundle}: no such bundle file")
-    import relight
-
-    # A broken bundle (header, sizes): a one-line error here, not a server traceback. The lifespan
-    # loads it again and checks every array's CRC, so that pass is not done twice.
-    relight.load_bundle(args.bundle, verify=False)
-    if not (1 <= args.port <= 65535):
-        raise InputError(f"--port {args.port}: use 1 to 65535")
-    if not (1 <= args.max_clients <= 1024):
-        raise InputError(f"--max-clients {args.max_clients}: use 1 to 1024")
-    focal = args.focal if args.focal in (None, "ortho") else float(args.focal)
-    shown = "127.0.0.1" if args.host in ("0.0.0.0", "::", "") else args.host
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
     shown = f"[{shown}]" if ":" in shown else shown
-    url = f"http://{shown}:{args.port}"
-    announce = (f"relight: serving {args.bundle} - open {url}/ (webcam page), {url}/docs (API), "
+    url = f"http://{shown}:{port}"
+    announce = (f"relight: serving {bundle} - open {url}/ (webcam page), {url}/docs (API), "
                 f"{url}/metrics; Ctrl-C stops")
-    app = create_app(ServeConfig(bundle=args.bundle, env=args.env, mode=args.mode, max_clients=args.max_clients,
-                                 focal=focal, announce=announce))
-    uvicorn.run(app, host=args.host, port=args.port, log_level=os.environ.get("RELIGHT_LOG_LEVEL", "info"),
+    app = create_app(ServeConfig(bundle=bundle, env=env, mode=mode, max_clients=max_clients, focal=focal,
+                                 announce=announce))
+    uvicorn.run(app, host=host, port=port, log_level=os.environ.get("RELIGHT_LOG_LEVEL", "info"),
                 ws_max_size=MAX_BODY + 1024)
     return 0
-
-
-def serve_main(argv=None) -> int:
-    """The ``relight-serve`` command (the same as ``relight serve``)."""
-    import argparse
-    import sys
-
-    from relight.errors import RelightError
-
-    p = argparse.ArgumentParser(prog="relight-serve", description="Serve relighting of video frames over HTTP.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    add_serve_arguments(p)
-    args = p.parse_args(argv)
-    try:
-        return run_serve(args)
-    except RelightError as exc:
-        print(f"relight-serve: error: {exc}", file=sys.stderr)
-        return 2

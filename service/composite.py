@@ -33,6 +33,8 @@ RATIO_MAX = 6.0
 #: Smallest luminance a median may have before a gain is taken from it.
 TINY = 1e-6
 MODES = ("transfer", "ambient", "paste")
+#: The mode every entry point starts in (filter, serve, the frame path).
+DEFAULT_MODE = "transfer"
 #: The compositing kernel's mode for each (relight.kernels.compositor.LAYER_MODES).
 LAYER_MODE = {"transfer": "live", "ambient": "ambient", "paste": "paste"}
 #: Mode transfer: a live pixel passes its own detail into the output only where it differs from

@@ -27,6 +27,8 @@ import numpy as np
 from relight.errors import InputError
 from relight.imageio import atomic_path
 
+from .composite import DEFAULT_MODE
+
 #: Image files read as a sequence when IN is a folder.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", ".bmp")
 MAX_SEQUENCE = 100_000
@@ -185,7 +187,7 @@ class _Writer:
             raise self.error
 
 
-def run_filter(inp, out, bundle, env, *, mode: str = "transfer", fixed_env: bool = False, strength: float = 1.0,
+def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bool = False, strength: float = 1.0,
                exposure: float = 0.0, focal: float | None = None, fps: float = 30.0, crf: int = 18,
                report_dir=None, virtual_camera: bool = False, progress: bool = True, frame_path=None,
                start_time: float | None = None) -> FilterResult:

@@ -268,7 +268,7 @@ class FramePath:
     reuse_deg : head turns below which the last relight is reused (:data:`REUSE_DEG`; 0: never).
     """
 
-    def __init__(self, bundle, env: np.ndarray, *, mode: str = "transfer", strength: float = 1.0,
+    def __init__(self, bundle, env: np.ndarray, *, mode: str = composite.DEFAULT_MODE, strength: float = 1.0,
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
                  tolerance: float = 0.01, relighter=None, reuse_deg: float = REUSE_DEG):
         from relight.kernels.relighter import Relighter

@@ -64,3 +64,13 @@ def test_a_command_builds_only_its_own_parser():
     assert out[0] == "[]" and out[1] == "True"
     full = build_parser()
     assert all(len(sp._actions) > 1 for sp in full._subparsers._group_actions[0].choices.values())
+
+
+def test_negative_numbers_are_values_not_flags():
+    from relight.cli import negative_values_joined
+
+    argv = ["render", "b", "--light", "-0.5,0.2,0.8", "--exposure", "-1e-3", "--rotate=-3,0,0", "--quiet", "x"]
+    assert negative_values_joined(argv) == ["render", "b", "--light=-0.5,0.2,0.8", "--exposure=-1e-3",
+                                            "--rotate=-3,0,0", "--quiet", "x"]
+    assert negative_values_joined(["--", "--light", "-1"]) == ["--", "--light", "-1"]  # after --: untouched
+    assert negative_values_joined(["-h"]) == ["-h"] and negative_values_joined(["--light", "-x"]) == ["--light", "-x"]

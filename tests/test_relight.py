@@ -192,6 +192,11 @@ def test_render_cli(small_bundle, tmp_path, capsys):
                  "--background", "reference"]) == 0
     a = read_image(tmp_path / "a.exr")
     assert a.shape[:2] == small_bundle.mask.shape and a[small_bundle.mask].max() > 0
+    # Negative numbers as users type them (argparse alone took "-0.5,0.2,0.8" for a flag).
+    assert main(["render", path, "--light", "-0.5,0.2,0.8", "-o", str(tmp_path / "d.exr"), "--rotate", "-10,-5,0"]) == 0
+    assert main(["render", path, "--light", "0.5,0.2,0.8", "-o", str(tmp_path / "e.exr"), "--rotate", "-10,-5,0"]) == 0
+    d, e = read_image(tmp_path / "d.exr"), read_image(tmp_path / "e.exr")
+    assert np.isfinite(d).all() and not np.array_equal(d, e)  # the light from the other side
     assert main(["render", path, "--env", "builtin:nope", "-o", str(tmp_path / "c.exr")]) == 2
     assert main(["render", path, "--env", "builtin:studio", "-o", str(tmp_path / "c.tif")]) == 2
     assert "write .exr" in capsys.readouterr().err
