@@ -107,7 +107,7 @@ def build_variants(source, out_dir: Path, *, images: bool = False, variants=None
     """Prepare ``source`` once (a capture video, or an RTI folder with ``images``, its files encoded
     with ``transfer``) and write one bundle per variant to ``out_dir``: name -> {"bundle",
     "capture_s", "prepare_s", "bundle_mb"}."""
-    from relight.pipeline.bundle import write_bundle
+    from relight.kernels.bundle import write_bundle
     from relight.pipeline.capture import CaptureOptions, Progress, finish, prepare_images, prepare_video
 
     variants = VARIANTS if variants is None else variants
@@ -230,7 +230,7 @@ def evaluate_scene(cfg, cap: Path, bundles: dict, envs: dict, out: Path, name: s
                    keep_bundles: bool = False) -> dict:
     import relight
     from relight.imageio import read_image
-    from relight.pipeline.reflectance import inside_hull
+    from relight.kernels.reflectance import inside_hull
 
     meta = json.loads((cap / "truth" / "meta.json").read_text())
     truth_mask = read_image(cap / "truth" / "mask.png")[..., 0] > 0.5

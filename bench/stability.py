@@ -6,15 +6,15 @@ Blinn-Phong lobe; linear float32 samples) run through every variant of :data:`VA
 way production runs it, and compared with the same computation in float64:
 
 * **Production maps** are built exactly as :func:`relight.pipeline.capture.finish` builds
-  them: :func:`~relight.pipeline.reflectance.triangulate`, then for the triangulated variants
-  :func:`~relight.pipeline.reflectance.compute_maps` on the OpenCL device with float16 output
+  them: :func:`~relight.kernels.reflectance.triangulate`, then for the triangulated variants
+  :func:`~relight.kernels.reflectance.compute_maps` on the OpenCL device with float16 output
   (horizon from :func:`~relight.pipeline.capture.horizon_for` when visibility is on), for the
   fitted ones :func:`~relight.pipeline.methods.fit_and_evaluate` on the front texels; then
   stored as the bundle stores them (float16, subnormal halves flushed). ``detail`` also lists
   the builder's float32 result before that storage (the kernel run with float32 output): the
   arithmetic's own error, apart from the storage's.
 * **Reference maps**, triangulated variants: the NumPy twin
-  :func:`~relight.pipeline.reflectance.build_maps` given float64 samples, normals and horizon.
+  :func:`~relight.kernels.reflectance.build_maps` given float64 samples, normals and horizon.
   It interpolates and light-adapts in float64 when given float64 input; only its visibility
   maps (values in [0, 1]) and its returned array are float32, so the reference itself is
   exact to 2^-24 relative, far below the production's float16 storage (2^-11). Same
@@ -24,7 +24,7 @@ way production runs it, and compared with the same computation in float64:
 * **Renders** (cases ``sun_1e5`` and ``exposure_extremes``): a tiny bundle is built per
   variant by :func:`~relight.pipeline.capture.finish` from a hand-made ``Prepared`` (given
   mask: photometric stereo geometry on the synthetic images), written with
-  :func:`~relight.pipeline.bundle.write_bundle` and loaded back; ``relight.Relighter`` renders
+  :func:`~relight.kernels.bundle.write_bundle` and loaded back; ``relight.Relighter`` renders
   it. The reference is the bundle's maps promoted to float64 times the float64 texel light
   (:meth:`Relighter.texel_light`, the light the kernels are given). ``max_rel_error`` is the
   exact path's (``exact=True``: the full sum in float32); the default compact path is a
@@ -50,9 +50,11 @@ from pathlib import Path
 
 import numpy as np
 
+from relight.directions import fibonacci_sphere
 from relight.errors import InputError
+from relight.kernels import reflectance
 from relight.numerics import flush_subnormal_halves
-from relight.pipeline import methods, reflectance
+from relight.pipeline import methods
 
 from .variants import VARIANTS as CAPTURE_VARIANTS
 
@@ -199,7 +201,7 @@ def _unit(v) -> np.ndarray:
 
 def front_dirs(k: int, seed: int = 0, min_z: float = 0.2) -> np.ndarray:
     """(k, 3) well-spread directions in front of the face (a capture's typical cover)."""
-    d = reflectance.fibonacci_sphere(6 * k)
+    d = fibonacci_sphere(6 * k)
     d = d[d[:, 2] > min_z]
     return d[np.random.default_rng(seed).choice(len(d), k, replace=False)]
 
@@ -339,7 +341,7 @@ def builder_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulati
                  half: bool) -> tuple[np.ndarray, float]:
     """(maps (P, 3, T_pad), scale) as :func:`relight.pipeline.capture.reflectance_maps` - the
     maps stage of ``capture.finish`` - returns them (``tri``: the problem's
-    :func:`~relight.pipeline.reflectance.triangulate`): the OpenCL kernel's float16 output with
+    :func:`~relight.kernels.reflectance.triangulate`): the OpenCL kernel's float16 output with
     ``half`` (production) or its float32 output; a fitted method's float32. The maps hold the
     samples divided by ``scale``."""
     from relight.pipeline.capture import CaptureOptions, reflectance_maps
@@ -363,7 +365,7 @@ def production_maps(variant: str, problem: MapProblem, tri: reflectance.Triangul
 
 def reference_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulation) -> np.ndarray:
     """(P, 3, T) float64-computed maps of the same method (see the module docstring)."""
-    from relight.pipeline import recipe
+    from relight.kernels import recipe
 
     opts = VARIANTS[variant]
     method = opts["method"]
@@ -377,8 +379,8 @@ def reference_maps(variant: str, problem: MapProblem, tri: reflectance.Triangula
 
 
 def _reference_maps(opts, method, samples, problem, tri):
-    from relight.pipeline import recipe
-    from relight.pipeline.capture import HORIZON_DIRS
+    from relight.kernels import recipe
+    from relight.kernels.heightfield import HORIZON_DIRS
 
     if method not in methods.FITTED:
         vis = None
@@ -443,7 +445,7 @@ class BundleCache:
         return self.bundles[variant]
 
     def _build(self, variant: str):
-        from relight.pipeline.bundle import load_bundle, write_bundle
+        from relight.kernels.bundle import load_bundle, write_bundle
         from relight.pipeline.capture import CaptureOptions, Prepared, Progress, finish
 
         head = self.head

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from relight.colour import _decode_lut8, _encode_lut
+from relight.colour import decode_lut8, encode_lut
 
 from .runtime import build_program, get_runtime
 
@@ -139,7 +139,7 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
     mx, my = m[sel, 0] - np.float32(origin[0]), m[sel, 1] - np.float32(origin[1])
     a = lay[:, 7:8]
     region = out[by0:by1, bx0:bx1].reshape(-1, 3)
-    f = _decode_lut8()[region[sel]]
+    f = decode_lut8()[region[sel]]
     s = lay[:, 3:4]
     if mode == "live":
         e = _bilinear(expect[..., None], mx, my)
@@ -150,7 +150,7 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
                      * shrink, s)
     face = s * f * lay[:, 0:3] + (1.0 - s) * lay[:, 4:7]
     res = f + a * (face - f)
-    lut, n = _encode_lut()
+    lut, n = encode_lut()
     idx = np.clip(res * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
     region[sel] = lut[idx]
     out[by0:by1, bx0:bx1] = region.reshape(bh, bw, 3)
@@ -189,8 +189,8 @@ class Compositor:
         if self.normal.shape != (*self.alpha.shape, 3) or not np.isfinite(self.normal).all():
             raise ValueError("compositor normals must be finite, (ch, cw, 3)")
         self._normal = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.normal)
-        self._dec = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_decode_lut8().astype(np.float32))
-        lut, self.lut_n = _encode_lut()
+        self._dec = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=decode_lut8().astype(np.float32))
+        lut, self.lut_n = encode_lut()
         self._enc = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(lut))
         # The layer is zero except at the crop pixels with alpha > 0, the only ones rebuilt per frame.
         self.support = np.flatnonzero(self.alpha.ravel() > 0).astype(np.int32)

@@ -20,6 +20,8 @@ TILE = 8
 NO_SURFACE = -1.0e30
 #: Pixels per horizon-table launch (progress is reported per launch).
 HORIZON_CHUNK = 8192
+#: Image-plane directions of the horizon table a capture computes for visibility.
+HORIZON_DIRS = 64
 
 
 @dataclass(frozen=True)

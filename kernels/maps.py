@@ -1,7 +1,7 @@
 """Host wrapper of ``reflectance.cl``: reflectance maps for many pixels on the OpenCL device.
 
-NumPy twins: :func:`relight.pipeline.reflectance.visibility_maps` and
-:func:`relight.pipeline.reflectance.build_maps` (same arguments, same maths).
+NumPy twins: :func:`relight.kernels.reflectance.visibility_maps` and
+:func:`relight.kernels.reflectance.build_maps` (same arguments, same maths).
 """
 
 from __future__ import annotations
@@ -21,7 +21,21 @@ def padded_texels(n: int) -> int:
     return max((n + TEXEL_ALIGN - 1) // TEXEL_ALIGN * TEXEL_ALIGN, TEXEL_ALIGN)
 
 
-def _texel_azimuths(texel_dirs: np.ndarray, n_az: int) -> np.ndarray:
+def neighbourhoods(map_size, texels: np.ndarray) -> np.ndarray:
+    """(n, 9) texel ids of each texel's 3x3 neighbourhood (wrapping in azimuth, clamped at the poles)."""
+    w, h = map_size
+    y, x = np.divmod(np.asarray(texels, dtype=np.int64), w)
+    out = np.empty((len(texels), 9), dtype=np.int64)
+    j = 0
+    for dy in (-1, 0, 1):
+        yy = np.clip(y + dy, 0, h - 1)
+        for dx in (-1, 0, 1):
+            out[:, j] = yy * w + (x + dx) % w
+            j += 1
+    return out
+
+
+def texel_azimuths(texel_dirs: np.ndarray, n_az: int) -> np.ndarray:
     """(T, 4) per texel: the two horizon columns around its azimuth, their blend, its elevation
     (8 for straight at the camera: always visible)."""
     s_xy = np.hypot(texel_dirs[:, 0], texel_dirs[:, 1])
@@ -51,8 +65,6 @@ def visibility_at_cl(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], 
     texel_dirs : (T, 3) the map's texel directions."""
     import pyopencl as cl
 
-    from relight.pipeline.recipe import neighbourhoods
-
     rt = get_runtime()
     ctx, queue = rt.context, rt.queue
     mf = cl.mem_flags
@@ -68,7 +80,7 @@ def visibility_at_cl(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], 
     hz[:, :p] = np.asarray(horizon, np.float32).T
     b_hz = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=hz)
     b_taz = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                      hostbuf=np.ascontiguousarray(_texel_azimuths(texel_dirs, n_az), dtype=np.float32))
+                      hostbuf=np.ascontiguousarray(texel_azimuths(texel_dirs, n_az), dtype=np.float32))
     b_nb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                      hostbuf=np.ascontiguousarray(neighbourhoods(map_size, cols), dtype=np.int32))
     chunk = min(PIXEL_CHUNK, m_all)
@@ -132,16 +144,16 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     trend : None, or (offset (P, 3), coef (P, 3)[, spec (P, 3)]): each texel becomes
     ``interpolation - offset + (coef x max(n . l, 0) + spec x lobe(l)) x visibility(l)`` (the
     shading model added back; lobe: ``max(n . h, 0) ** spec_exponent`` where ``n . l > 0``, h the
-    half vector of l and the view +Z, as :func:`relight.pipeline.reflectance.lobe`), then clipped at 0.
+    half vector of l and the view +Z, as :func:`relight.kernels.reflectance.lobe`), then clipped at 0.
     spline : None, or (raw (K', P, 3) the samples themselves, rows (Q,) indices into the active
     texels, weights (Q, K') their spline weights, blend (P,)): at those texels each map becomes
     ``blend x map + (1 - blend) x min(spline, brightest of the triangle's samples)``, clipped at
-    0 (:func:`relight.pipeline.reflectance._blend_spline`; spline values from
-    :func:`relight.pipeline.spline.spline_values`, by BLAS per chunk).
+    0 (:func:`relight.kernels.reflectance._blend_spline`; spline values from
+    :func:`relight.kernels.spline.spline_values`, by BLAS per chunk).
     """
     import pyopencl as cl
 
-    from relight.pipeline.spline import SPLINE_GAMMA, spline_power_sum, spline_root
+    from .spline import SPLINE_GAMMA, spline_power_sum, spline_root
 
     rt = get_runtime()
     ctx, queue = rt.context, rt.queue
@@ -172,7 +184,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
 
     tables = [buf(t) for t in _texel_tables(vertices, vertex_texel, texel_vertices, texel_weights, texel_dirs,
                                              act, k, None if spline is None else spline[1])]
-    b_taz = buf(_texel_azimuths(texel_dirs, n_az), np.float32)
+    b_taz = buf(texel_azimuths(texel_dirs, n_az), np.float32)
     wg = GROUP_PIXELS
     chunk = min(PIXEL_CHUNK, -(-p // wg) * wg)  # a whole number of work-groups
     raw = cl.Buffer(ctx, mf.READ_WRITE, chunk * n_tex * 4)

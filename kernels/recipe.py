@@ -1,191 +1,401 @@
-"""Host wrapper of ``recipe.cl``: texel rows of a recipe bundle on the OpenCL device.
+"""The maps' recipe: what a bundle keeps instead of its reflectance maps.
 
-NumPy twin: :func:`relight.pipeline.recipe.texel_rows` (same recipe, same maths). A
-:class:`RecipeRows` puts a recipe's per-pixel arrays on the device once (the bundle's sample
-and horizon codes used in place) and makes rows of up to ``MAX_T`` texels per launch straight
-into a (slots, 3, P) float16 array the relighting kernel reads.
+A pixel's reflectance map (64x32 texels, ~1000-2000 of them lit) is made by
+:func:`relight.kernels.reflectance.model_maps` from the capture's light samples and a handful
+of per-pixel fits: the shading model (albedo, specular weight, trust), the horizon table
+(visibility), and the weight of the model path against the thin-plate spline. Those are what a
+bundle stores - about K + 100 bytes per face pixel for K samples, against 2 x 3 x T bytes for
+the maps themselves (12 KB at T = 2000) - and any texel of any pixel's map is evaluated from
+them on demand, exactly as the capture made it:
+
+* :func:`texel_rows` - a few texels for every pixel (a sun, a point light: the exact part of the
+  compact relight), in NumPy, pixel chunk by pixel chunk;
+* :func:`recipe_maps` - every texel for some or all pixels (the exact path, the live light
+  estimate's pixels), through the same kernels as the capture.
+
+Storage (the bundle's ``samples_code`` / ``samples_scale`` / ``horizon_code``):
+
+* samples as 8-bit codes ``q = round(255 (x / s) ** SAMPLE_GAMMA)`` with ``s`` (per pixel and
+  channel, float16, rounded up) the pixel's brightest sample: relative steps of ~1 % at mid
+  code, ~0.4 % at the top; the spline's power domain is this gamma, so it works on the codes
+  directly. Negative values (flash minus no-flash noise) are stored as 0: light is not
+  negative, and the maps clip there anyway.
+* horizons as 8-bit elevation angles, steps of 180/255 = 0.7 degrees (the visibility step is a
+  texel, 5.6 degrees, wide).
+
+The capture quantises first and builds everything from the decoded values, so the maps a
+bundle evaluates are the maps its capture made (to float rounding).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from .maps import _texel_azimuths
-from .runtime import build_program, get_runtime
+from relight.errors import InputError
+from relight.numerics import half_ceil
 
-#: Texels per launch, and the kernel's bounds on visibility positions and model vertices.
-MAX_T = 8
-MAX_POS = 112
-MAX_MV = 96
-#: Work-group size (each work item holds ~4 KB of private arrays).
-GROUP = 16
+from . import reflectance as rf
+from .maps import neighbourhoods
+from .spline import SPLINE_GAMMA, spline_weights
+
+#: Sample codes: x = scale * (q / 255) ** (1 / SAMPLE_GAMMA); the spline's own power domain.
+SAMPLE_GAMMA = SPLINE_GAMMA
+#: Pixels per chunk of the NumPy evaluation (bounds its scratch memory).
+ROW_CHUNK = 16384
 
 
-class RecipeRows:
-    """Makes texel rows of one recipe (:class:`relight.pipeline.recipe.Recipe`) into ``rows``
-    ((slots, 3, P) float16 host memory, used in place through ``rows_buf``)."""
+# ---------------------------------------------------------------------- quantisation
+def encode_samples(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(codes (K, P, 3) uint8, scale (P, 3) float16) of linear samples (K, P, 3); see the module."""
+    x = np.asarray(samples, dtype=np.float32)
+    if x.ndim != 3 or x.shape[2] != 3:
+        raise InputError(f"samples of shape {x.shape}: expected (K, P, 3)")
+    if not np.isfinite(x).all():
+        raise InputError("light samples hold NaN or infinite values; check the input images")
+    peak = np.maximum(x.max(axis=0), 0.0) if x.shape[0] else np.zeros(x.shape[1:], np.float32)
+    if float(peak.max(initial=0.0)) > float(np.finfo(np.float16).max):
+        raise InputError("light samples above the float16 range: scale them first (reflectance.storage_scale)")
+    scale = half_ceil(peak)  # x / scale <= 1
+    s = scale.astype(np.float32)
+    inv = np.where(s > 0, 1.0 / np.where(s > 0, s, 1.0), 0.0).astype(np.float32)
+    codes = np.empty(x.shape, dtype=np.uint8)
+    for k0 in range(0, x.shape[0], 16):
+        r = np.clip(x[k0:k0 + 16] * inv[None], 0.0, 1.0)
+        np.power(r, np.float32(SAMPLE_GAMMA), out=r)
+        codes[k0:k0 + 16] = np.rint(r * 255.0)
+    return codes, scale
 
-    def __init__(self, recipe, rows: np.ndarray, rows_buf=None):
-        import pyopencl as cl
 
-        from relight.pipeline import recipe as rcp
-        from relight.pipeline import reflectance as rf
+def _code_table(gamma: float) -> np.ndarray:
+    return ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
 
-        self.recipe = recipe
-        rt = get_runtime()
-        ctx = rt.context
-        self.queue = rt.queue
-        mf = cl.mem_flags
-        self.kernel = cl.Kernel(build_program("recipe", ("-cl-denorms-are-zero",)), "texel_rows")
-        p = recipe.n_pixels
-        self.n_pix = p
 
-        def dev(a, dtype=None):
-            a = np.ascontiguousarray(a, dtype=dtype)
-            return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a if a.size else np.zeros(4, a.dtype))
+_DECODE = _code_table(1.0 / SAMPLE_GAMMA)
+_POWER = _code_table(1.0)  # the codes in the spline's power domain, per unit scale
 
-        def f4(a):
-            out = np.zeros((max(len(a), 1), 4), np.float32)
-            out[:len(a), :3] = a
-            return out
 
-        codes = recipe.codes
-        if isinstance(codes, np.ndarray) and codes.flags.c_contiguous and codes.dtype == np.uint8 and codes.size:
-            self._codes = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=codes)  # the bundle's, in place
-        else:
-            self._codes = dev(codes, np.uint8)
-        self._scale = dev(np.asarray(recipe.scale, np.float32))
-        self._normal = dev(f4(np.asarray(recipe.normals, np.float32)))
-        self.use_vis = recipe.horizon is not None
-        if self.use_vis:
-            h = np.asarray(recipe.horizon)
-            if h.dtype != np.uint8:
-                h = rcp.encode_horizon(h)
-            if recipe.horizon_index is not None:
-                h = h[np.asarray(recipe.horizon_index)]  # a row per pixel on the device
-            self._horizon = dev(h, np.uint8)
-        else:
-            self._horizon = dev(np.zeros(4, np.uint8))
-        self._albedo = dev(f4(np.asarray(recipe.albedo, np.float32)))
-        self._spec = dev(f4(np.asarray(recipe.spec, np.float32)))
-        self._trust = dev(np.asarray(recipe.trust, np.float32))
-        self._blend = dev(np.asarray(recipe.blend, np.float32))
-        self._decode = dev(rcp._DECODE)
-        self._elevation = dev(rcp.decode_horizon(np.arange(256, dtype=np.uint8)))
-        w, h_ = recipe.tri.map_size
-        self._taz = _texel_azimuths(recipe.tri.texel_dirs, recipe.n_az).astype(np.float32)
-        self.inv_soft = 1.0 / (rf.VIS_SOFT_TEXELS * np.pi / h_)
-        self.open_elev = float(rf.OPEN_SKY)
-        self.rows = rows
-        self.rows_buf = rows_buf if rows_buf is not None else cl.Buffer(
-            ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=rows)
-        self._carry = rf.carry_weights(recipe.tri.vertices, recipe.n_samples) \
-            if len(recipe.tri.vertices) > recipe.n_samples else (None, None)
-        self._spline_cache: dict[int, np.ndarray | None] = {}
+def decode_samples(codes: np.ndarray, scale: np.ndarray, ids=slice(None), pixels=slice(None)) -> np.ndarray:
+    """(k, p, 3) float32 linear samples of the codes ``ids`` (sample indices) and ``pixels``."""
+    q = np.asarray(codes[ids])[:, pixels]
+    return _DECODE[q] * np.asarray(scale[pixels], dtype=np.float32)[None]
 
-    def _spline_rows(self, texels: np.ndarray) -> list[np.ndarray | None]:
-        """Per texel its (K,) spline weights in the code domain, or None (outside the hull / no spline)."""
-        from relight.pipeline import reflectance as rf
-        from relight.pipeline.spline import spline_weights
 
-        r = self.recipe
-        k = r.n_samples
-        todo = [int(t) for t in texels if int(t) not in self._spline_cache]
-        if todo:
-            dirs = r.tri.texel_dirs[todo]
-            res: list[np.ndarray | None] = [None] * len(todo)
-            if r.spline:
-                inside = np.flatnonzero(rf.spline_texels(r.tri.texel_vertices[todo], k))
-                if inside.size:
-                    w_ = spline_weights(r.tri.vertices[:k], dirs[inside])
-                    if w_ is not None:
-                        for j, i in enumerate(inside):
-                            res[i] = w_[j].astype(np.float32)
-            for t, v in zip(todo, res, strict=True):
-                self._spline_cache[t] = v
-        return [self._spline_cache[int(t)] for t in texels]
+def quantise_samples(samples: np.ndarray) -> np.ndarray:
+    """The samples as a bundle stores them, decoded: (K, P, 3) float32."""
+    codes, scale = encode_samples(samples)
+    return decode_samples(codes, scale)
 
-    def make(self, texels: np.ndarray, slots: np.ndarray) -> None:
-        """Rows of the map texels ``texels`` (ids in the map, all active) into ``rows[slots]``."""
-        texels = np.asarray(texels, dtype=np.int64).ravel()
-        slots = np.asarray(slots, dtype=np.int64).ravel()
-        for i in range(0, texels.size, MAX_T):
-            self._launch(texels[i:i + MAX_T], slots[i:i + MAX_T])
-        self.queue.finish()
 
-    def _launch(self, texels: np.ndarray, slots: np.ndarray) -> None:
-        import pyopencl as cl
+def encode_horizon(elevations: np.ndarray) -> np.ndarray:
+    """(P, n_az) uint8 codes of horizon elevations (radians, -pi/2..pi/2)."""
+    e = np.asarray(elevations, dtype=np.float64)
+    return np.rint((e / np.pi + 0.5) * 255.0).clip(0, 255).astype(np.uint8)
 
-        from relight.pipeline import recipe as rcp
-        from relight.pipeline.reflectance import SPEC_EXPONENT
-        from relight.pipeline.spline import SPLINE_GAMMA
 
-        if SPLINE_GAMMA != 0.4:  # the kernel undoes the spline's power as x * x * sqrt(x)
-            raise RuntimeError("recipe.cl assumes SPLINE_GAMMA = 0.4")
-        r = self.recipe
-        k = r.n_samples
-        tri = r.tri
-        ctx = get_runtime().context
-        mf = cl.mem_flags
-        tv = tri.texel_vertices[texels]
-        need = list(dict.fromkeys(int(v) for v in tv.ravel()))
-        carry_ids, carry_w = self._carry
-        extra = []
-        if r.extrapolate and carry_ids is not None:
-            for v in need:
-                if v >= k:
-                    extra += [int(c) for c in carry_ids[v - k]]
-        verts = sorted(set(need) | set(extra), key=lambda v: (v >= k, v))  # samples first
-        index = {v: i for i, v in enumerate(verts)}
-        vtex = tri.vertex_texel
-        positions = list(dict.fromkeys([int(t) for t in texels] + [int(vtex[v]) for v in verts]))
-        pos_of = {t: i for i, t in enumerate(positions)}
-        if len(positions) > MAX_POS or len(verts) > MAX_MV:
-            raise RuntimeError("texel_rows: too many vertices for one launch; this is a bug, please report it")
-        az = np.ascontiguousarray(self._taz[rcp.neighbourhoods(tri.map_size, np.asarray(positions)).ravel()])
-        mv_dir = np.zeros((len(verts), 4), np.float32)
-        mv_kind = -np.ones((len(verts), 4), np.int32)
-        mv_carry = np.zeros((len(verts), 4), np.float32)
-        for i, v in enumerate(verts):
-            mv_dir[i, :3] = tri.vertices[v]
-            mv_dir[i, 3] = pos_of[int(vtex[v])]
-            if v < k:
-                mv_kind[i, 0] = v
-            elif not r.extrapolate:
-                mv_kind[i, 0] = -2
-            else:
-                mv_kind[i, 1:] = [index[int(c)] for c in carry_ids[v - k]]
-                mv_carry[i, :3] = carry_w[v - k]
-        n = texels.size
-        t_dir = np.zeros((n, 4), np.float32)
-        t_vert = -np.ones((n, 4), np.int32)
-        t_wt = np.zeros((n, 4), np.float32)
-        t_corner = np.zeros((n, 4), np.int32)
-        spl = self._spline_rows(texels)
-        spline_w = [s for s in spl if s is not None]
-        row = 0
-        for j, t in enumerate(texels):
-            t_dir[j, :3] = tri.texel_dirs[t]
-            t_dir[j, 3] = pos_of[int(t)]
-            t_vert[j, :3] = [index[int(v)] for v in tv[j]]
-            t_wt[j, :3] = tri.texel_weights[t]
-            if spl[j] is not None:
-                t_vert[j, 3] = row
-                row += 1
-                t_corner[j, :3] = np.minimum(tv[j], k - 1)  # inside the hull: samples
-        sw = np.ascontiguousarray(np.stack(spline_w) if spline_w else np.zeros((1, max(k, 1))), np.float32)
+#: code -> elevation (radians)
+_ELEVATION = ((np.arange(256) / 255.0 - 0.5) * np.pi).astype(np.float32)
 
-        def buf(a):
-            a = np.ascontiguousarray(a)
-            return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
 
-        self.kernel(self.queue, (-(-self.n_pix // GROUP) * GROUP,), (GROUP,), self._codes, np.int32(k),
-                    np.int32(self.n_pix), self._scale, self._decode, self._normal, self._horizon, np.int32(r.n_az),
-                    np.int32(self.use_vis), self._elevation,
-                    self._albedo, self._spec, self._trust, self._blend, buf(az), np.int32(len(positions)),
-                    buf(mv_dir), buf(mv_kind), buf(mv_carry), np.int32(len(verts)), buf(t_dir), buf(t_vert),
-                    buf(t_wt), buf(t_corner), np.int32(n), buf(sw), np.int32(r.trend),
-                    np.int32(bool(spline_w)), np.int32(SPEC_EXPONENT), np.float32(self.inv_soft),
-                    np.float32(self.open_elev), buf(slots.astype(np.int32)),
-                    self.rows_buf)
+def decode_horizon(codes: np.ndarray) -> np.ndarray:
+    """(P, n_az) float32 horizon elevations (radians) of their codes."""
+    return _ELEVATION[np.asarray(codes, dtype=np.uint8)]
 
+
+def quantise_horizon(elevations: np.ndarray | None) -> np.ndarray | None:
+    """Horizon elevations as a bundle stores them, decoded (None stays None)."""
+    return None if elevations is None else decode_horizon(encode_horizon(elevations))
+
+
+# ---------------------------------------------------------------------- the recipe
+@dataclass
+class Recipe:
+    """Everything :func:`relight.kernels.reflectance.model_maps` needs to make any texel again.
+
+    codes (K, P, 3) uint8 / scale (P, 3): the samples (:func:`encode_samples`). normals (P, 3).
+    horizon (P, n_az) float32 elevations (or their uint8 codes), or None (no visibility).
+    albedo, spec (P, 3), trust (P,): the shading model
+    (:class:`relight.kernels.reflectance.ShadingModel`). blend (P,): the model path's weight
+    against the spline (1: no spline). tri: the samples' triangulation;
+    active (T,) bool the map texels kept. trend / extrapolate / spline: model_maps' options.
+    """
+
+    codes: np.ndarray
+    scale: np.ndarray
+    normals: np.ndarray
+    horizon: np.ndarray | None
+    albedo: np.ndarray
+    spec: np.ndarray
+    trust: np.ndarray
+    blend: np.ndarray
+    tri: rf.Triangulation
+    active: np.ndarray
+    n_az: int
+    trend: bool = True
+    extrapolate: bool = True
+    spline: bool = True
+    horizon_index: np.ndarray | None = None  # (P,) row of ``horizon`` per pixel (None: a row each)
+
+    @property
+    def n_pixels(self) -> int:
+        return int(self.normals.shape[0])
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.codes.shape[0])
+
+    def samples(self, pixels=slice(None)) -> np.ndarray:
+        return decode_samples(self.codes, self.scale, pixels=pixels)
+
+    def horizon_elevations(self, pixels=slice(None)) -> np.ndarray | None:
+        """(p, n_az) float32 horizon elevations (decoded when stored as codes), or None."""
+        if self.horizon is None:
+            return None
+        rows = pixels if self.horizon_index is None else np.asarray(self.horizon_index)[pixels]
+        h = np.asarray(self.horizon)[rows]
+        return decode_horizon(h) if h.dtype == np.uint8 else h.astype(np.float32, copy=False)
+
+    def subset(self, pixels: np.ndarray) -> Recipe:
+        """The recipe of some pixels (an index array or slice)."""
+        return Recipe(codes=np.asarray(self.codes)[:, pixels], scale=np.asarray(self.scale)[pixels],
+                      normals=np.asarray(self.normals)[pixels],
+                      horizon=(None if self.horizon is None else self.horizon if self.horizon_index is not None
+                               else np.asarray(self.horizon)[pixels]),
+                      horizon_index=(None if self.horizon_index is None
+                                     else np.asarray(self.horizon_index)[pixels]),
+                      albedo=np.asarray(self.albedo)[pixels], spec=np.asarray(self.spec)[pixels],
+                      trust=np.asarray(self.trust)[pixels], blend=np.asarray(self.blend)[pixels], tri=self.tri,
+                      active=self.active, n_az=self.n_az, trend=self.trend, extrapolate=self.extrapolate,
+                      spline=self.spline)
+
+
+def recipe_maps(recipe: Recipe, *, backend: str = "opencl", half: bool = True, texel_major: bool = False,
+                progress=None) -> np.ndarray:
+    """(P, 3, T_pad) maps of every active texel, as the capture made them (float16 with
+    ``half``), or with ``texel_major`` (T_pad, 3, P) float32 (OpenCL)."""
+    sm = rf.ShadingModel(albedo=np.asarray(recipe.albedo, np.float64), spec=np.asarray(recipe.spec, np.float64),
+                         trust=np.asarray(recipe.trust, np.float64))
+    maps, _ = rf.maps_from_fit(recipe.samples(), np.asarray(recipe.normals, np.float32), recipe.tri,
+                               recipe.horizon_elevations(),
+                               recipe.n_az, sm, np.asarray(recipe.blend, np.float64), recipe.active,
+                               trend=recipe.trend, extrapolate=recipe.extrapolate, spline=recipe.spline,
+                               backend=backend, half=half, texel_major=texel_major, progress=progress)
+    return maps
+
+
+def recipe_from_arrays(arrays: dict, meta: dict, map_size) -> Recipe:
+    """The recipe a bundle stores (:mod:`relight.kernels.bundle`, fields marked (r))."""
+    verts = np.asarray(arrays["tri_vertices"], dtype=np.float64)
+    codes = arrays["samples_code"]
+    k = int(codes.shape[0])
+    p = int(arrays["pixels"].shape[0])
+    tv = np.asarray(arrays["tri_texel_vertices"], dtype=np.int64)
+    tw = np.asarray(arrays["tri_texel_weights"], dtype=np.float64)
+    w, h = map_size
+    if (codes.shape != (k, p, 3) or arrays["samples_scale"].shape != (p, 3) or tv.shape != (w * h, 3)
+            or tw.shape != (w * h, 3) or verts.ndim != 2 or verts.shape[1:] != (3,) or len(verts) < k
+            or (tv.size and (tv.min() < 0 or tv.max() >= len(verts)))):
+        raise InputError("the bundle's recipe fields do not fit together (samples, pixels, triangulation); "
+                         "the bundle is damaged - capture it again")
+    active = np.zeros(w * h, dtype=bool)
+    tex = np.asarray(arrays["map_texels"], dtype=np.int64)
+    if tex.size and (tex.min() < 0 or tex.max() >= w * h):
+        raise InputError("the bundle's map_texels lie outside its map; capture it again")
+    active[tex] = True
+    tri = rf.Triangulation(vertices=verts, n_samples=k, faces=np.asarray(arrays["tri_faces"], dtype=np.int64),
+                           texel_vertices=tv, texel_weights=tw, active=(tv < k).any(axis=1), map_size=(w, h))
+    opts = meta.get("recipe", {}) if isinstance(meta.get("recipe"), dict) else {}
+    hz, hidx = arrays.get("horizon_code"), arrays.get("horizon_index")
+    if hz is not None and not _horizon_fits(hz, hidx, p):
+        raise InputError("the bundle's horizon fields do not fit its pixels; the bundle is damaged - capture it again")
+    return Recipe(codes=codes, scale=arrays["samples_scale"], normals=arrays["normal"],
+                  horizon=hz, horizon_index=None if hz is None else hidx, albedo=arrays["model_albedo"],
+                  spec=arrays["model_spec"],
+                  trust=arrays["model_trust"], blend=arrays["spline_blend"], tri=tri, active=active,
+                  n_az=int(opts.get("n_az", 64)), trend=bool(opts.get("trend", True)),
+                  extrapolate=bool(opts.get("extrapolate", True)), spline=bool(opts.get("spline", True)))
+
+
+def _horizon_fits(hz: np.ndarray, hidx: np.ndarray | None, p: int) -> bool:
+    if hz.ndim != 2:
+        return False
+    if hidx is None:
+        return hz.shape[0] == p
+    return hidx.shape == (p,) and (p == 0 or (int(np.min(hidx)) >= 0 and int(np.max(hidx)) < hz.shape[0]))
+
+
+def recipe_arrays(recipe: Recipe) -> tuple[dict, dict]:
+    """(arrays, meta["recipe"]) a bundle stores for a recipe (inverse of :func:`recipe_from_arrays`)."""
+    arrays = {
+        "samples_code": np.asarray(recipe.codes, dtype=np.uint8),
+        "samples_scale": np.asarray(recipe.scale, dtype=np.float16),
+        "model_albedo": rf.stored_precision(np.asarray(recipe.albedo, np.float32)).astype(np.float16),
+        "model_spec": rf.stored_precision(np.asarray(recipe.spec, np.float32)).astype(np.float16),
+        "model_trust": np.asarray(recipe.trust, np.float32).astype(np.float16),
+        "spline_blend": np.asarray(recipe.blend, np.float32).astype(np.float16),
+        "tri_vertices": np.asarray(recipe.tri.vertices, dtype=np.float64),
+        "tri_faces": np.asarray(recipe.tri.faces, dtype=np.int32),
+        "tri_texel_vertices": np.asarray(recipe.tri.texel_vertices, dtype=np.int32),
+        "tri_texel_weights": np.asarray(recipe.tri.texel_weights, dtype=np.float32),
+    }
+    if recipe.horizon is not None:
+        h = np.asarray(recipe.horizon)
+        arrays["horizon_code"] = h if h.dtype == np.uint8 else encode_horizon(h)
+        if recipe.horizon_index is not None:
+            arrays["horizon_index"] = np.asarray(recipe.horizon_index, dtype=np.int32)
+    meta = {"n_az": int(recipe.n_az), "trend": bool(recipe.trend), "extrapolate": bool(recipe.extrapolate),
+            "spline": bool(recipe.spline), "sample_gamma": SAMPLE_GAMMA}
+    return arrays, meta
+
+
+# ---------------------------------------------------------------------- a few texels
+def smoothed_visibility(horizon: np.ndarray, n_az: int, map_size, texels: np.ndarray) -> np.ndarray:
+    """(p, n) the smoothed visibility (:func:`relight.kernels.reflectance.visibility_maps`) of
+    the map texels ``texels`` for each pixel of a horizon table (p, n_az) of elevations, float32."""
+    w, h = map_size
+    nb = neighbourhoods(map_size, texels)
+    uniq, inv = np.unique(nb, return_inverse=True)
+    d = rf.equirect_directions(w, h).reshape(-1, 3)[uniq]
+    s = np.hypot(d[:, 0], d[:, 1])
+    beta = np.mod(np.arctan2(d[:, 1], d[:, 0]), 2 * np.pi)
+    pos = beta / (2 * np.pi) * n_az - 0.5
+    i0 = np.floor(pos).astype(np.int64) % n_az
+    f = (pos - np.floor(pos)).astype(np.float32)
+    hz = horizon[:, i0] * (1 - f) + horizon[:, (i0 + 1) % n_az] * f
+    elev = np.arctan2(d[:, 2], np.maximum(s, 1e-9)).astype(np.float32)
+    soft = np.float32(rf.VIS_SOFT_TEXELS * np.pi / h)
+    vis = np.clip(0.5 + (elev[None] - hz) / soft, 0.0, 1.0).astype(np.float32)
+    vis[:, s < 1e-6] = 1.0
+    return vis[:, inv.reshape(nb.shape)].mean(axis=2, dtype=np.float32)
+
+
+def texel_rows(recipe: Recipe, texels: np.ndarray, *, pixels=None) -> np.ndarray:
+    """(n, 3, P) float32 maps of the given map texels (ids into the map, all active) for every
+    pixel (or the index array ``pixels``), evaluated from the recipe as
+    :func:`relight.kernels.reflectance.model_maps` makes them."""
+    texels = np.asarray(texels, dtype=np.int64).ravel()
+    if texels.size and not recipe.active[texels].all():
+        raise InputError("texel_rows: a requested texel is not among the bundle's map texels")
+    p_all = recipe.n_pixels if pixels is None else len(pixels)
+    out = np.zeros((texels.size, 3, p_all), dtype=np.float32)
+    if texels.size == 0 or p_all == 0:
+        return out
+    tri, k = recipe.tri, recipe.n_samples
+    verts = tri.vertices
+    tv = tri.texel_vertices[texels]  # (n, 3)
+    tw = tri.texel_weights[texels].astype(np.float32)
+    need_v = np.unique(tv)
+    virt = need_v[need_v >= k]
+    carry_ids = carry_w = None
+    if virt.size and recipe.extrapolate:
+        carry_ids, carry_w = rf.carry_weights(verts, k)
+        carry_ids, carry_w = carry_ids[virt - k], carry_w[virt - k].astype(np.float32)  # (b, 3)
+    model_v = np.unique(np.concatenate([need_v, [] if carry_ids is None else carry_ids.ravel()]).astype(np.int64))
+    samp_v = model_v[model_v < k]
+    col = {int(v): i for i, v in enumerate(model_v)}
+    vtex = tri.vertex_texel[model_v]
+    tdirs = tri.texel_dirs[texels]
+    # The spline part: texels inside the samples' hull, for pixels whose blend is below 1.
+    spl_w = None
+    if recipe.spline:
+        inside = np.flatnonzero(rf.spline_texels(tv, k))
+        if inside.size:
+            w_ = spline_weights(verts[:k], tdirs[inside])
+            if w_ is not None:
+                spl_w = (inside, w_.astype(np.float32))
+    pix_all = np.arange(recipe.n_pixels) if pixels is None else np.asarray(pixels, dtype=np.int64)
+    for c0 in range(0, p_all, ROW_CHUNK):
+        ps = pix_all[c0:c0 + ROW_CHUNK]
+        out[:, :, c0:c0 + len(ps)] = _rows_chunk(recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs,
+                                                 virt, carry_ids, carry_w, spl_w)
+    if not np.isfinite(out).all():
+        raise ArithmeticError("non-finite reflectance from the recipe; this is a bug, please report it")
+    return out
+
+
+def _rows_chunk(r: Recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs, virt, carry_ids, carry_w, spl_w):
+    k = r.n_samples
+    n_t = texels.size
+    p = len(ps)
+    normals = np.asarray(r.normals[ps], dtype=np.float32)
+    trust = np.asarray(r.trust[ps], dtype=np.float32)
+    albedo = np.asarray(r.albedo[ps], dtype=np.float32)
+    spec = np.asarray(r.spec[ps], dtype=np.float32)
+    if r.horizon is None:
+        vis_m = np.ones((p, len(model_v)), np.float32)
+        vis_t = np.ones((p, n_t), np.float32)
+        vis_iv = None
+    else:
+        hz = r.horizon_elevations(ps)
+        open_sky = trust < 0.5
+        # The model at the vertices sees the horizon itself (open-sky pixels: every light); the
+        # interpolation and the trend see open-sky pixels' horizon as far below every light.
+        vis_m = smoothed_visibility(hz, r.n_az, r.tri.map_size, vtex)
+        vis_m[open_sky] = 1.0
+        hz_i = np.where(open_sky[:, None], np.float32(rf.OPEN_SKY), hz)
+        both = smoothed_visibility(hz_i, r.n_az, r.tri.map_size, np.concatenate([texels, vtex]))
+        vis_t, vis_iv = both[:, :n_t], both[:, n_t:]
+    sm = rf.ShadingModel(albedo=albedo, spec=spec, trust=trust)
+    model = sm.at(normals, r.tri.vertices[model_v].astype(np.float32), vis_m)  # (m, p, 3)
+    x = decode_samples(r.codes, r.scale, ids=samp_v, pixels=ps)  # (s, p, 3)
+    xi = {int(v): i for i, v in enumerate(samp_v)}
+    tw_ = trust[None, :, None] if r.trend else None
+    vals = np.zeros((len(model_v), p, 3), np.float32)
+    for v in model_v:
+        i = col[int(v)]
+        if v < k:
+            vals[i] = x[xi[int(v)]] - (tw_[0] * model[i] if r.trend else 0.0)
+    if virt.size and r.extrapolate:
+        for b, v in enumerate(virt):
+            i = col[int(v)]
+            base = (1.0 - tw_[0]) * model[i] if r.trend else model[i]
+            carried = np.zeros((p, 3), np.float32)
+            for j in range(carry_ids.shape[1]):
+                c = int(carry_ids[b, j])
+                carried += carry_w[b, j] * np.maximum(x[xi[c]] - model[col[c]], 0.0)
+            vals[i] = base + carried
+    # (virtual vertices without extrapolation are black: their vals stay 0)
+    ci = np.vectorize(col.get, otypes=[np.int64])(tv)  # (n, 3) rows of vals
+    cv = vals[ci]  # (n, 3v, p, 3c)
+    regular = np.einsum("tv,tvpc->tpc", tw, cv)
+    if vis_iv is not None:
+        vv = vis_iv[:, ci].transpose(1, 2, 0)  # (n, 3v, p)
+        vp = vis_t.T  # (n, p)
+        vmin, vmax = vv.min(axis=1), vv.max(axis=1)
+        spread = vmax - vmin
+        sp = np.maximum(spread, 1e-6)
+        lit = np.clip((vv - vmin[:, None]) / sp[:, None], 0.0, 1.0)
+        t_lit = np.clip((vp - vmin) / sp, 0.0, 1.0)[..., None]
+
+        def subset(use):
+            wgt = tw[:, :, None] * use
+            wgt = wgt / np.maximum(wgt.sum(axis=1, keepdims=True), 1e-12)
+            return np.einsum("tvp,tvpc->tpc", wgt, cv)
+
+        aware = t_lit * subset(lit) + (1 - t_lit) * subset(1.0 - lit)
+        regular = (1 - spread[..., None]) * regular + spread[..., None] * aware
+    if r.trend:
+        coef = trust[:, None] * albedo
+        spc = trust[:, None] * spec
+        lit_t = np.clip(normals @ tdirs.T.astype(np.float32), 0.0, None) * vis_t  # (p, n)
+        lobe_t = rf.lobe(normals, tdirs.astype(np.float32)) * vis_t
+        regular = regular + lit_t.T[..., None] * coef[None] + lobe_t.T[..., None] * spc[None]
+    m = np.clip(regular, 0.0, None)  # (n, p, 3)
+    if spl_w is not None:
+        blend = np.asarray(r.blend[ps], dtype=np.float32)
+        sel = np.flatnonzero(blend < 1.0)
+        if sel.size:
+            inside, w_ = spl_w
+            q = _POWER[np.asarray(r.codes)[:, ps[sel]]]  # (K, s, 3): (x / scale) ** gamma
+            spl = (w_ @ q.reshape(k, -1)).reshape(len(inside), sel.size, 3)
+            np.clip(spl, 0.0, None, out=spl)
+            sc = np.asarray(r.scale[ps[sel]], dtype=np.float32)
+            spl = spl ** np.float32(1.0 / SAMPLE_GAMMA) * sc[None]
+            corners = r.tri.texel_vertices[texels[inside]]  # sample ids (inside the hull)
+            cap = np.max(_DECODE[np.asarray(r.codes)[corners.ravel()][:, ps[sel]]].reshape(
+                len(inside), 3, sel.size, 3), axis=1) * sc[None]
+            np.minimum(spl, cap, out=spl)
+            b = blend[sel][None, :, None]
+            m[np.ix_(inside, sel)] = np.clip(b * m[np.ix_(inside, sel)] + (1 - b) * spl, 0.0, None)
+    return m.transpose(0, 2, 1)

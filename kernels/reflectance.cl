@@ -1,5 +1,5 @@
 /* Reflectance maps from light samples (relight.kernels.maps; NumPy twin:
- * relight.pipeline.reflectance.visibility_maps / build_maps).
+ * relight.kernels.reflectance.visibility_maps / build_maps).
  *
  * Every per-pixel array is planar with the pixels innermost - (rows, n_pix) - so neighbouring
  * pixels are neighbouring lanes: soft_visibility and box3 are one (pixel, texel) per work-item

@@ -235,7 +235,7 @@ class RowCache:
     """
 
     def __init__(self, bundle, n_slots: int):
-        from .recipe import RecipeRows
+        from .recipe_cl import RecipeRows
 
         self.bundle = bundle
         self.rows = aligned_zeros((n_slots, 3, max(bundle.n_pixels, 1)), np.float16)
@@ -425,7 +425,7 @@ class Relighter:
     @property
     def maps(self) -> np.ndarray:
         """(P, 3, Tp) float16 pixel-major maps (the bundle's, or gathered from its texel-major rows
-        once: :meth:`relight.pipeline.bundle.Bundle.pixel_maps`)."""
+        once: :meth:`relight.kernels.bundle.Bundle.pixel_maps`)."""
         if self._maps is None:
             self._maps = self.bundle.pixel_maps() if self.bundle.has_maps else \
                 self._exact_maps_host()[:, :, :self.t_pad]

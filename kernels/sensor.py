@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from relight.colour import _encode_lut
+from relight.colour import encode_lut
 
 from .runtime import build_program, get_runtime
 
@@ -49,7 +49,7 @@ def expose_numpy(scene: np.ndarray, gains: np.ndarray, read_noise: float, shot_g
         k = np.arange(x.size, dtype=np.uint32).reshape(x.shape)
         sigma = np.sqrt(np.float32(read_noise**2) + np.float32(shot_gain) * np.maximum(x, 0.0))
         x = x + sigma * hash_normal(k, key)
-    lut, n = _encode_lut()
+    lut, n = encode_lut()
     idx = np.clip(x * np.float32(n) + np.float32(0.5), 0.0, np.float32(n)).astype(np.int32)
     return lut[idx]
 
@@ -64,7 +64,7 @@ class SensorKernel:
         self.shape = (int(shape[0]), int(shape[1]), 3)
         self.n = int(np.prod(self.shape))
         self._kernel = cl.Kernel(build_program("sensor"), "expose")
-        lut, self.lut_n = _encode_lut()
+        lut, self.lut_n = encode_lut()
         mf = cl.mem_flags
         ctx = self.rt.context
         self._lut = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=lut)

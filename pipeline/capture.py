@@ -20,16 +20,17 @@ from relight import __version__
 from relight.colour import encode_srgb8, srgb_to_linear
 from relight.errors import InputError
 from relight.imageio import read_image
+from relight.kernels import reflectance
+from relight.kernels.bundle import write_bundle
+from relight.kernels.heightfield import HORIZON_DIRS
 from relight.numerics import flush_subnormal_halves
 
-from . import geometry, methods, reflectance
-from .bundle import write_bundle
+from . import geometry, methods
 from .ingest import DEFAULT_FACE_PIXELS, ingest
 from .samples import SampleOptions, collect_samples
 
-#: Image-plane directions of the horizon table used for visibility, and the head size (pixels)
-#: above which it is computed at half resolution.
-HORIZON_DIRS = 64
+#: The head size (pixels) above which the horizon table (relight.kernels.heightfield.HORIZON_DIRS
+#: directions) is computed at half resolution.
 HALF_RES_PIXELS = 30000
 #: Largest image set accepted (files) and the most landmarks stored.
 MAX_IMAGES = 2000
@@ -334,7 +335,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
     pix = np.flatnonzero(geo.mask)
     samples = np.ascontiguousarray(prep.images.reshape(k, -1, 3)[:, pix], dtype=np.float32)
     prep.images = None  # the full sample images are the largest thing held: the head's pixels suffice now
-    from .reflectance import stored_precision
+    from relight.kernels.reflectance import stored_precision
 
     # The normals as the bundle stores them (float16): its recipe makes the maps from those.
     normals = stored_precision(geo.normal.reshape(-1, 3)[pix].astype(np.float32))
@@ -355,14 +356,13 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
                                                     recipe_out=made, recipe_only=not opts.keep_maps)
     recipe = made.get("recipe")
     from relight.kernels import transport
-
-    from .bundle import encode_background
+    from relight.kernels.bundle import encode_background
 
     rows = None
     if maps is None:
         # The default bundle stores the maps' recipe: the maps are made chunk by chunk for the
         # compact transport and dropped (no array of every pixel's maps is ever held).
-        from .recipe import recipe_maps
+        from relight.kernels.recipe import recipe_maps
 
         timings["maps"] = time.perf_counter() - t1  # the fits; making the maps counts as transport
         t1 = time.perf_counter()
@@ -407,7 +407,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
     if compact.q4 is not None:
         arrays.update({"transport_v4": compact.q4, "transport_v4_scale": compact.q4_scale})
     if recipe is not None:  # what the maps are made of (~K + 100 bytes per pixel), not the maps
-        from .recipe import recipe_arrays
+        from relight.kernels.recipe import recipe_arrays
 
         rec_arrays, rec_meta = recipe_arrays(recipe)
         arrays.update(rec_arrays)
@@ -447,19 +447,19 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     texels (T,) map texel ids, scale, stored samples (K, P, 3) float32).
 
     The samples are divided by ``scale``, a power of two (1 for ordinary captures; see
-    :func:`relight.pipeline.reflectance.storage_scale`) so that maps and samples fit float16;
+    :func:`relight.kernels.reflectance.storage_scale`) so that maps and samples fit float16;
     the bundle records it as ``sample_scale`` and the renderer multiplies its light by it.
     ``horizon``: the pixels' horizon table for visibility (P, n_az), or (table, index) as
     :func:`horizon_rows` gives it, or None.
 
     Samples and horizons are quantised first, as the bundle stores them
-    (:mod:`relight.pipeline.recipe`), and everything is made from the stored values. With
+    (:mod:`relight.kernels.recipe`), and everything is made from the stored values. With
     ``recipe_out`` (a dict) and the shading-model method, it receives the
-    :class:`relight.pipeline.recipe.Recipe` the maps can be made again from; with
+    :class:`relight.kernels.recipe.Recipe` the maps can be made again from; with
     ``recipe_only`` too the maps are then not made here (None is returned for them: the caller
-    makes them chunk by chunk, :func:`relight.pipeline.recipe.recipe_maps`).
+    makes them chunk by chunk, :func:`relight.kernels.recipe.recipe_maps`).
     """
-    from . import recipe as rcp
+    from relight.kernels import recipe as rcp
 
     if not np.isfinite(samples).all():
         raise InputError("light samples hold NaN or infinite values; check the input images")
@@ -559,8 +559,7 @@ def _landmarks(prep: Prepared, mask: np.ndarray) -> np.ndarray:
     on the room-light frame when it shows the face (a video's no-flash frames), else on the
     reference frame (an image set's typical lit face)."""
     from relight.colour import decode_srgb8, luminance
-
-    from .bundle import ROOM_LIGHT_MIN_SHARE
+    from relight.kernels.bundle import ROOM_LIGHT_MIN_SHARE
 
     x0, y0 = prep.origin
     ref = prep.background[y0:y0 + mask.shape[0], x0:x0 + mask.shape[1]]

@@ -13,12 +13,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from relight import faces
 from relight.colour import decode_srgb8
 from relight.errors import InputError
 from relight.video import crop_frame, frame_to_rgb, probe_video, read_frames_raw, whole_frame
 from relight.video_colour import PLANAR_FORMATS, VideoColour, luma_table, video_colour
 
-from . import registration, sphere
+from . import sphere
 
 #: Seconds of frames held in full at the start (face and sphere are found there).
 HEAD_SECONDS = 3.0
@@ -164,7 +165,7 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
     face_source = "given" if face is not None else "none"
     if face is None:
         for i in order[:8]:
-            found = registration.detect_face(head_rgb[i])
+            found = faces.detect_face(head_rgb[i])
             if found is not None:
                 face = _scaled_box(found, 1.0 / det, size)
                 face_source = "haar"

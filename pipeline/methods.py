@@ -1,7 +1,7 @@
 """Interpolation methods: name -> how sparse light samples become reflectance maps.
 
 ``full`` and ``barycentric`` are the paper's triangulation (with and without visibility and
-light adaptation, :mod:`relight.pipeline.reflectance`); the baselines people use for sparse
+light adaptation, :mod:`relight.kernels.reflectance`); the baselines people use for sparse
 light relighting are fitted per pixel and evaluated on the same map, so a comparison is of the
 representation only:
 
@@ -81,7 +81,7 @@ def fit_and_evaluate(method: str, dirs: np.ndarray, samples: np.ndarray, texel_d
     """Fit ``method`` to samples (K, P, 3) at ``dirs`` (K, 3); evaluate at texel_dirs (T, 3).
 
     Returns pixel-major maps (P, 3, T_pad) float32 (the layout of
-    :func:`relight.pipeline.reflectance.compute_maps`).
+    :func:`relight.kernels.reflectance.compute_maps`).
     """
     dirs = np.asarray(dirs, dtype=np.float64)
     k = len(dirs)

@@ -1,6 +1,6 @@
 """Stage 2: register the head's small motions (paper section 3.1, "Face registration").
 
-Viola-Jones finds the face in the reference (first no-flash) frame; Shi-Tomasi corners inside
+Viola-Jones (:mod:`relight.faces`) finds the face in the reference (first no-flash) frame; Shi-Tomasi corners inside
 it are tracked by pyramidal Lucas-Kanade into every later no-flash frame (from the reference
 directly, seeded with the previous frame's motion, checked forward-backward); RANSAC rejects
 outliers and the rigid motion (rotation + translation, no scale) is the least-squares (SVD)
@@ -20,7 +20,6 @@ import numpy as np
 
 from relight.directions import rigid_matrix
 
-HAAR_CASCADE = "haarcascade_frontalface_default.xml"
 #: Lucas-Kanade settings: window, pyramid levels, forward-backward tolerance (pixels).
 LK_WINDOW = 21
 LK_LEVELS = 3
@@ -31,31 +30,6 @@ RANSAC_ITERS = 300
 #: Pre-smoothing of the (dark, noisy) frames before tracking, pixels.
 TRACK_BLUR = 1.0
 MAX_FEATURES = 400
-
-
-def detect_face(rgb: np.ndarray) -> tuple[int, int, int, int] | None:
-    """The largest frontal face (x, y, w, h) found by OpenCV's Haar cascade, or None."""
-    cascade = _cascade()
-    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    h = grey.shape[0]
-    faces = cascade.detectMultiScale(grey, scaleFactor=1.1, minNeighbors=5, minSize=(max(h // 12, 24),) * 2)
-    if len(faces) == 0:
-        return None
-    x, y, w, hh = max(faces, key=lambda f: f[2] * f[3])
-    return int(x), int(y), int(w), int(hh)
-
-
-_CASCADE = None
-
-
-def _cascade():
-    global _CASCADE
-    if _CASCADE is None:
-        path = cv2.data.haarcascades + HAAR_CASCADE
-        _CASCADE = cv2.CascadeClassifier(path)
-        if _CASCADE.empty():  # pragma: no cover - the wheel ships the file (opencv < 5)
-            raise RuntimeError(f"OpenCV's Haar cascade {path} is missing; install opencv-contrib-python-headless<5")
-    return _CASCADE
 
 
 def fit_rigid(src: np.ndarray, dst: np.ndarray) -> np.ndarray:

@@ -127,7 +127,7 @@ def _maps(plt, arrays, meta, tri, geo, path):
     if "maps_rows" in arrays:
         maps = np.asarray(arrays["maps_rows"][:, :, picks], dtype=np.float32).transpose(2, 1, 0)  # (n, 3, T)
     else:  # made again from the bundle's recipe, as a user's bundle would
-        from .recipe import recipe_from_arrays, recipe_maps
+        from relight.kernels.recipe import recipe_from_arrays, recipe_maps
 
         rec = recipe_from_arrays(arrays, meta, tri.map_size).subset(np.asarray(picks))
         maps = recipe_maps(rec, half=False)[:, :, :texels.size]
@@ -148,10 +148,8 @@ def _maps(plt, arrays, meta, tri, geo, path):
 
 
 def _visibility(plt, arrays, tri, geo, picks, path):
-    from relight.kernels.heightfield import NO_SURFACE, horizon_table
-
-    from .capture import HORIZON_DIRS
-    from .reflectance import visibility_maps
+    from relight.kernels.heightfield import HORIZON_DIRS, NO_SURFACE, horizon_table
+    from relight.kernels.reflectance import visibility_maps
 
     pix = arrays["pixels"]
     hgt = np.where(geo.mask, geo.depth, NO_SURFACE).astype(np.float32)

@@ -26,8 +26,8 @@ def __getattr__(name):
 
 
 def load_bundle(path, *, verify: bool = True):
-    """Open a reflectance bundle written by ``relight capture`` (see :mod:`relight.pipeline.bundle`)."""
-    from .pipeline.bundle import load_bundle as _load
+    """Open a reflectance bundle written by ``relight capture`` (see :mod:`relight.kernels.bundle`)."""
+    from .kernels.bundle import load_bundle as _load
 
     return _load(path, verify=verify)
 

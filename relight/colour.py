@@ -35,12 +35,15 @@ def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=1)
-def _decode_lut8() -> np.ndarray:
+def decode_lut8() -> np.ndarray:
+    """(256,) float32: linear value of each 8-bit sRGB code (what decode_srgb8 looks up)."""
     return srgb_to_linear(np.arange(256, dtype=FLOAT) / 255.0)
 
 
 @lru_cache(maxsize=1)
-def _encode_lut() -> tuple[np.ndarray, int]:
+def encode_lut() -> tuple[np.ndarray, int]:
+    """(table, n): the 8-bit sRGB code of each linear value i / n, i = 0..n (what encode_srgb8
+    and the kernels' encoders look up, rounding v * n + 0.5 down)."""
     # 16384 linear steps: finer than one 8-bit sRGB code everywhere (the darkest code
     # spans 1/(255*12.92) ~ 3e-4 in linear, the LUT step is 6e-5).
     n = 16384
@@ -55,8 +58,8 @@ def decode_srgb8(image: np.ndarray) -> np.ndarray:
         import cv2
 
         # OpenCV's table lookup is several times faster than NumPy's fancy indexing.
-        return cv2.LUT(image, _decode_lut8().reshape(1, 256))
-    return _decode_lut8()[image]
+        return cv2.LUT(image, decode_lut8().reshape(1, 256))
+    return decode_lut8()[image]
 
 
 def encode_srgb8(linear: np.ndarray) -> np.ndarray:
@@ -65,7 +68,7 @@ def encode_srgb8(linear: np.ndarray) -> np.ndarray:
     Uses a 16k-entry lookup table: as exact as the 8-bit output and ~10x faster than the
     power function, which matters on the per-frame path.
     """
-    lut, n = _encode_lut()
+    lut, n = encode_lut()
     idx = np.clip(np.asarray(linear, dtype=FLOAT) * n + 0.5, 0, n).astype(np.int32)
     return lut[idx]
 

@@ -126,6 +126,15 @@ def light_for_sphere_point(xy: np.ndarray, sphere: tuple[float, float, float]) -
     return reflect(np.array([0.0, 0.0, 1.0]), np.stack([nx, ny, nz], axis=-1))
 
 
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """(n, 3) nearly uniform unit directions (a Fibonacci lattice: equal-area z bands, the
+    azimuth turned by the golden angle), +Z at the first point's pole."""
+    i = np.arange(n) + 0.5
+    phi = np.arccos(1 - 2 * i / n)
+    theta = np.pi * (1 + 5**0.5) * i
+    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], axis=1)
+
+
 def angle_between_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle in degrees between direction arrays (..., 3) (not necessarily unit)."""
     a = np.asarray(a, dtype=ACCUM)

@@ -50,7 +50,7 @@ def _sws_flags():
     return I.BICUBIC | I.ACCURATE_RND | I.FULL_CHR_H_INT
 
 
-def _to_yuv(rgb: np.ndarray):
+def to_yuv(rgb: np.ndarray):
     """RGB uint8 -> a yuv420p frame, BT.709 matrix, limited range (what players assume for HD)."""
     import av
 
@@ -218,7 +218,7 @@ class VideoWriter:
                 continue  # drain after a failure; the caller sees the error
             try:
                 index, rgb = item
-                frame = _to_yuv(rgb)
+                frame = to_yuv(rgb)
                 frame.pts = index
                 frame.time_base = 1 / self.fps
                 for packet in self._stream.encode(frame):

@@ -100,7 +100,7 @@ class FaceFinder:
         room-light image in the reference frame, when given), scaled by ``scale`` (the tracker's
         copy of the reference), cropped to ``mask_full`` (reference-frame bool mask)."""
         from relight.colour import luminance
-        from relight.pipeline.reflectance import fibonacci_sphere
+        from relight.directions import fibonacci_sphere
 
         dirs = fibonacci_sphere(4 * BASIS_LIGHTS)
         dirs = dirs[dirs[:, 2] > BASIS_MIN_Z][:BASIS_LIGHTS]

@@ -364,7 +364,7 @@ class FramePipeline:
 def _filter_video(inp, out, pipeline, crf, res, progress, tqdm):
     import av
 
-    from relight.video import MAX_VIDEO_FRAMES, _to_yuv, frame_to_rgb, probe_video, release_frames
+    from relight.video import MAX_VIDEO_FRAMES, frame_to_rgb, probe_video, release_frames, to_yuv
 
     info = probe_video(inp)
     suffix = out.suffix.lower()
@@ -450,7 +450,7 @@ def _filter_video(inp, out, pipeline, crf, res, progress, tqdm):
                                 dst.mux(p)
                 return
             _, rgb, pts = item
-            outf = _to_yuv(rgb)
+            outf = to_yuv(rgb)
             outf.pts = pts
             outf.time_base = tb
             for p in vout.encode(outf):

@@ -118,7 +118,7 @@ class LightEstimator:
     """
 
     def __init__(self, maps: np.ndarray, texel_dirs: np.ndarray, solid_angle: np.ndarray):
-        from relight.pipeline.reflectance import fibonacci_sphere
+        from relight.directions import fibonacci_sphere
 
         maps = np.asarray(maps, dtype=np.float32)
         self.texel_dirs = np.asarray(texel_dirs, dtype=np.float64)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from relight.pipeline.registration import _cascade
+from relight.faces import face_cascade
 
 #: Lucas-Kanade window (px, at 540 rows; scaled with the frame), pyramid levels, iterations.
 LK_WINDOW_AT_540 = 15
@@ -68,7 +68,7 @@ def detect_face_box(grey: np.ndarray) -> tuple[int, int, int, int] | None:
     h, w = grey.shape
     s = min(1.0, DETECT_ROWS / h)
     small = cv2.resize(grey, (max(int(w * s), 1), max(int(h * s), 1)), interpolation=cv2.INTER_AREA) if s < 1 else grey
-    faces = _cascade().detectMultiScale(small, scaleFactor=1.1, minNeighbors=5,
+    faces = face_cascade().detectMultiScale(small, scaleFactor=1.1, minNeighbors=5,
                                         minSize=(max(small.shape[0] // 12, 24),) * 2)
     if len(faces) == 0:
         return None

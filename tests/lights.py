@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from relight.pipeline.reflectance import fibonacci_sphere
+from relight.directions import fibonacci_sphere
 
 
 def front_directions(k: int, seed: int = 0, min_z: float = 0.2) -> np.ndarray:

@@ -327,9 +327,9 @@ def test_image_set_with_nan_is_refused(tmp_path):
 
 
 def test_no_face_falls_back_to_the_whole_frame(synth_capture, tmp_path, monkeypatch):
-    from relight.pipeline import registration
+    from relight import faces
 
-    monkeypatch.setattr(registration, "detect_face", lambda rgb: None)  # as if the cascade saw no face
+    monkeypatch.setattr(faces, "detect_face", lambda rgb: None)  # as if the cascade saw no face
     res = capture(synth_capture.video, tmp_path / "f.bundle", CaptureOptions(method="barycentric"), progress=False)
     assert any("no face detected" in n for n in res.report["notes"])
     assert res.report["face_source"] == "none"

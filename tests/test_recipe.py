@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from relight.errors import InputError
-from relight.pipeline import recipe as rcp
+from relight.kernels import recipe as rcp
 
 #: float16 storage of maps (relative), and the halves flushed to zero below HALF_TINY.
 HALF_RTOL = 2e-3
@@ -56,7 +56,7 @@ def _some_texels(bundle, n=8, seed=0):
 
 
 def test_texel_rows_kernel_matches_its_numpy_twin(small_bundle, recipe):
-    from relight.kernels.recipe import RecipeRows
+    from relight.kernels.recipe_cl import RecipeRows
     from relight.kernels.runtime import aligned_zeros
     from relight.numerics import HALF_TINY, read_halves
 
@@ -107,7 +107,7 @@ def test_texel_major_maps_are_the_maps_transposed_and_match_numpy(recipe):
 
 
 def test_a_damaged_recipe_is_refused(small_bundle):
-    from relight.pipeline.recipe import recipe_from_arrays
+    from relight.kernels.recipe import recipe_from_arrays
 
     arrays = dict(small_bundle.arrays)
     arrays["horizon_index"] = np.full(small_bundle.n_pixels, 10 ** 6, np.int32)

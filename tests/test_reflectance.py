@@ -5,7 +5,7 @@ import pytest
 
 from relight.errors import InputError
 from relight.kernels.heightfield import NO_SURFACE, horizon_table
-from relight.pipeline.reflectance import (
+from relight.kernels.reflectance import (
     MIN_COS,
     compute_maps,
     inside_hull,

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from relight.pipeline.reflectance import fibonacci_sphere, inside_hull, model_maps, triangulate
-from relight.pipeline.spline import (
+from relight.directions import fibonacci_sphere
+from relight.kernels.reflectance import model_maps
+from relight.kernels.spline import (
     SPLINE_GAMMA,
     leave_one_out,
     spline_values,
@@ -12,6 +13,7 @@ from relight.pipeline.spline import (
     stacking_terms,
     stacking_weight,
 )
+from relight.kernels.triangulation import inside_hull, triangulate
 
 from .lights import front_directions
 

@@ -59,7 +59,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 from tqdm import tqdm
 
-from relight.directions import equirect_directions, equirect_solid_angles, rotation_matrix
+from relight.directions import equirect_directions, equirect_solid_angles, fibonacci_sphere, rotation_matrix
 from relight.errors import InputError
 from relight.imageio import atomic_path, write_image
 from relight.numerics import FLOAT
@@ -229,17 +229,11 @@ def sh9_irradiance_matrix(coeffs: np.ndarray) -> np.ndarray:
     return m
 
 
+#: Directions the SH light's brightest irradiance is searched over (a Fibonacci sphere).
+SPHERE_POINTS = 2000
+
 #: Upper-triangle entries (i, j) of a symmetric 4x4 form over (x, y, z, 1), the constant (3, 3) last.
 _MONOMIALS = (np.array([0, 1, 2, 0, 0, 1, 0, 1, 2, 3]), np.array([0, 1, 2, 1, 2, 2, 3, 3, 3, 3]))
-
-
-def _sphere_points(n: int = 2000) -> np.ndarray:
-    """``n`` nearly uniform unit vectors (Fibonacci sphere)."""
-    k = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * k / n
-    r = np.sqrt(1.0 - z * z)
-    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
 
 
 # ---------------------------------------------------------------------- motion
@@ -350,7 +344,7 @@ class LiveHead:
         # Room irradiance (SH) at the reference normals, for the shading ratio.
         self.sh = environment_sh9(room)
         self._irradiance_form = sh9_irradiance_matrix(self.sh)
-        e_max = sh9_irradiance(self.sh, _sphere_points()).max(axis=0)
+        e_max = sh9_irradiance(self.sh, fibonacci_sphere(SPHERE_POINTS)).max(axis=0)
         self._e_floor = IRRADIANCE_FLOOR * np.maximum(e_max, 1e-12)
         self._e_ref = np.maximum(sh9_irradiance(self.sh, self.normal), self._e_floor)
         n = self.normal

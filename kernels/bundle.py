@@ -31,7 +31,7 @@ albedo                  (P, 3) float16               Lambertian albedo, linear, 
 depth                   (h, w) float32               height toward the camera, pixels
 landmarks               (N, 2) float32               trackable points of the reference (frame px)
 light_dirs              (K, 3) float32               sample light directions (camera space)
-samples_code (r)        (K, P, 3) uint8              the light samples, 8-bit codes (:mod:`relight.pipeline.recipe`)
+samples_code (r)        (K, P, 3) uint8              the light samples, 8-bit codes (:mod:`relight.kernels.recipe`)
 samples_scale (r)       (P, 3) float16               their per-pixel, per-channel scale (linear, flash units)
 horizon_code (r)        (R, n_az) uint8              horizon elevations (visibility; absent without it)
 horizon_index (r)       (P,) int32                   each pixel's row of horizon_code (large heads share a row
@@ -230,7 +230,7 @@ class Bundle:
 
     @property
     def recipe(self):
-        """The maps' :class:`relight.pipeline.recipe.Recipe` (None for a bundle that stores its maps)."""
+        """The maps' :class:`relight.kernels.recipe.Recipe` (None for a bundle that stores its maps)."""
         if self.has_maps:
             return None
         cached = self.__dict__.get("_recipe")
@@ -272,7 +272,7 @@ class Bundle:
         slice into ``pixels``; None: all), zero padded to Tp texels (a multiple of 16) unless
         ``padded`` is False. From ``maps`` when the bundle stores it, else gathered from
         ``maps_rows`` (memory: the result only)."""
-        from relight.kernels.maps import padded_texels
+        from .maps import padded_texels
 
         if "maps" in self.arrays:
             sel = self.arrays["maps"] if index is None else self.arrays["maps"][index]

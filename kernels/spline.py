@@ -111,7 +111,7 @@ def leave_one_out(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     (L, K) spherical barycentric weights, spline (L, K) :func:`spline_weights`), zero at the
     left-out sample. Only samples inside the others' hull are left out (at most ``LOO_MAX``,
     evenly spread); None when there is none."""
-    from .reflectance import _cap_faces, _locate, inside_hull
+    from .triangulation import cap_faces, inside_hull, locate_in_faces
 
     dirs = np.asarray(dirs, dtype=np.float64)
     k = len(dirs)
@@ -122,11 +122,11 @@ def leave_one_out(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         others = np.r_[0:j, j + 1:k]
         if not inside_hull(dirs[others], dirs[j:j + 1])[0]:
             continue
-        faces = _cap_faces(dirs[others])
+        faces = cap_faces(dirs[others])
         sw = spline_weights(dirs[others], dirs[j:j + 1])
         if faces is None or sw is None:
             continue
-        tv, tw = _locate(dirs[others], faces, dirs[j:j + 1])
+        tv, tw = locate_in_faces(dirs[others], faces, dirs[j:j + 1])
         a, b = np.zeros(k), np.zeros(k)
         np.add.at(a, others[tv[0]], tw[0])
         b[others] = sw[0]

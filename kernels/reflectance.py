@@ -23,7 +23,7 @@ fill it in four steps:
 a broad specular lobe) x visibility, :func:`shading_model`) whose residual is interpolated,
 extends the model beyond the hull (carrying what the model leaves of the nearest samples: skin's
 indirect and subsurface light does not stop where the Lambert term does), and blends each pixel
-with a thin-plate spline of its samples (:mod:`relight.pipeline.spline`) by how well each
+with a thin-plate spline of its samples (:mod:`relight.kernels.spline`) by how well each
 predicts left-out samples.
 
 The NumPy implementation here is the reference; it works in chunks of pixels and texels so its
@@ -36,17 +36,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from relight.directions import direction_to_equirect_uv, equirect_directions, equirect_solid_angles
+from relight.directions import (
+    direction_to_equirect_uv,
+    equirect_directions,
+)
 from relight.errors import InputError
 
-DEFAULT_MAP_SIZE = (64, 32)
-#: Samples closer than this (degrees) are merged into one (the hand paused).
-MERGE_DEG = 0.75
-#: Virtual black lights sit where the nearest sample is farther than this many times the
-#: samples' typical spacing (and at least BLACK_MIN_DEG).
-BLACK_SPACING = 1.6
-BLACK_MIN_DEG = 10.0
-BLACK_CANDIDATES = 600
+from .triangulation import (  # noqa: F401 (the triangulation's names, re-exported for the stages)
+    DEFAULT_MAP_SIZE,
+    MERGE_DEG,
+    Triangulation,
+    cap_faces,
+    inside_hull,
+    locate_in_faces,
+    merge_close,
+    triangulate,
+)
+
 #: Cosines below this count as facing away (no direct light): the guard of every division.
 MIN_COS = 0.1
 #: Soft width of the visibility step, in texels of elevation.
@@ -54,178 +60,6 @@ VIS_SOFT_TEXELS = 1.0
 #: Pixels and texels per chunk of the NumPy reference (memory bound).
 PIXEL_CHUNK = 4096
 TEXEL_CHUNK = 256
-
-
-def _convex_hull(points: np.ndarray, **kw):
-    """scipy's ConvexHull, imported on first use (scipy.spatial takes ~0.9 s to import: a
-    bundle's first frame does not need it)."""
-    from scipy.spatial import ConvexHull
-
-    return ConvexHull(points, **kw)
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """(n, 3) nearly uniform unit directions."""
-    i = np.arange(n) + 0.5
-    phi = np.arccos(1 - 2 * i / n)
-    theta = np.pi * (1 + 5**0.5) * i
-    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], axis=1)
-
-
-def merge_close(dirs: np.ndarray, values: np.ndarray | None = None, *, deg: float = MERGE_DEG):
-    """Merge directions closer than ``deg`` (their values averaged). Returns (dirs, values, groups)."""
-    dirs = np.asarray(dirs, dtype=np.float64)
-    n = len(dirs)
-    cos_t = np.cos(np.radians(deg))
-    group = -np.ones(n, dtype=np.int64)
-    g = 0
-    for i in range(n):
-        if group[i] >= 0:
-            continue
-        close = (dirs @ dirs[i] > cos_t) & (group < 0)
-        group[close] = g
-        g += 1
-    out_dirs = np.stack([dirs[group == k].mean(axis=0) for k in range(g)])
-    out_dirs /= np.linalg.norm(out_dirs, axis=1, keepdims=True)
-    out_vals = None
-    if values is not None:
-        out_vals = np.stack([values[group == k].mean(axis=0) for k in range(g)])
-    return out_dirs, out_vals, group
-
-
-@dataclass
-class Triangulation:
-    """Sample directions, virtual black lights, the hull and each texel's triangle.
-
-    vertices : (K + B, 3) unit directions, the K samples first. faces : (F, 3) vertex ids.
-    texel_vertices : (T, 3) the vertices of each texel's triangle; texel_weights : (T, 3) its
-    spherical barycentric weights (sum 1). active : (T,) texels touching a sample (the others
-    are black). map_size : (width, height).
-    """
-
-    vertices: np.ndarray
-    n_samples: int
-    faces: np.ndarray
-    texel_vertices: np.ndarray
-    texel_weights: np.ndarray
-    active: np.ndarray
-    map_size: tuple[int, int]
-
-    @property
-    def texel_dirs(self) -> np.ndarray:
-        w, h = self.map_size
-        return equirect_directions(w, h).reshape(-1, 3)
-
-    @property
-    def vertex_texel(self) -> np.ndarray:
-        """(V,) the map texel holding each vertex direction (where its visibility is read)."""
-        w, h = self.map_size
-        u, v = direction_to_equirect_uv(self.vertices)
-        return (np.minimum((v * h).astype(np.int64), h - 1) * w + np.minimum((u * w).astype(np.int64), w - 1))
-
-    @property
-    def solid_angle(self) -> np.ndarray:
-        """(T,) exact solid angle of each texel (sr)."""
-        w, h = self.map_size
-        return np.repeat(equirect_solid_angles(w, h), w)
-
-
-def inside_hull(dirs: np.ndarray, query: np.ndarray) -> np.ndarray:
-    """(Q,) bool: which query directions lie inside the spherical convex hull of ``dirs``.
-
-    That hull is the convex cone of the sample directions: the faces of the 3D hull of the
-    samples and the origin that meet at the origin bound it. When the origin is inside that
-    hull (samples all around), every direction is inside; a degenerate set (all on one great
-    circle) has no inside.
-    """
-    from scipy.spatial import QhullError
-
-    pts = np.vstack([np.zeros(3), dirs])
-    try:
-        hull = _convex_hull(pts)
-    except QhullError:
-        return np.zeros(len(query), dtype=bool)
-    at_origin = np.any(hull.simplices == 0, axis=1)
-    if not at_origin.any():
-        return np.ones(len(query), dtype=bool)
-    planes = hull.equations[at_origin]  # outward normal n, offset ~0: inside where n . x <= 0
-    return (query @ planes[:, :3].T + planes[:, 3] <= 1e-9).all(axis=1)
-
-
-def triangulate(dirs: np.ndarray, map_size: tuple[int, int] = DEFAULT_MAP_SIZE) -> Triangulation:
-    """Spherical Delaunay triangulation of the sample directions plus virtual black lights.
-
-    Raises :class:`InputError` for fewer than 3 distinct directions or non-finite input.
-    """
-    dirs = np.asarray(dirs, dtype=np.float64)
-    if dirs.ndim != 2 or dirs.shape[1] != 3 or not np.isfinite(dirs).all():
-        raise InputError("light directions must be finite (K, 3) vectors")
-    norm = np.linalg.norm(dirs, axis=1, keepdims=True)
-    if (norm < 1e-9).any():
-        raise InputError("a light direction has zero length")
-    dirs = dirs / norm
-    k = len(dirs)
-    if k < 3:
-        raise InputError(f"{k} light direction(s): at least 3 distinct directions are needed")
-    # Typical spacing: median angle to the nearest other sample.
-    cosm = dirs @ dirs.T
-    np.fill_diagonal(cosm, -1.0)
-    spacing = np.degrees(np.arccos(np.clip(cosm.max(axis=1), -1, 1)))
-    gap = max(BLACK_SPACING * float(np.median(spacing)), BLACK_MIN_DEG)
-    cand = fibonacci_sphere(BLACK_CANDIDATES)
-    far = (cand @ dirs.T).max(axis=1) < np.cos(np.radians(gap))
-    black = cand[far & ~inside_hull(dirs, cand)]
-    verts = np.concatenate([dirs, black])
-    if len(verts) < 4:
-        raise InputError("the light directions cover the whole sphere too densely to triangulate; "
-                         "this should not happen - report it")
-    faces = _convex_hull(verts, qhull_options="Qt QJ").simplices.astype(np.int64)
-    w, h = map_size
-    tdirs = equirect_directions(w, h).reshape(-1, 3)
-    tv, wts = _locate(verts, faces, tdirs)
-    # Inside the samples' own hull, interpolate from samples only: the triangulation with the
-    # black lights is Delaunay, not constrained to the hull's edges, so near them a black light
-    # could otherwise reach in and darken a direction that was captured.
-    cap = _cap_faces(dirs)
-    if cap is not None:
-        inside = inside_hull(dirs, tdirs)
-        if inside.any():
-            tv_in, w_in = _locate(dirs, cap, tdirs[inside])
-            tv[inside], wts[inside] = tv_in, w_in
-            faces = np.concatenate([faces, cap])
-    active = (tv < k).any(axis=1)
-    return Triangulation(vertices=verts, n_samples=k, faces=faces, texel_vertices=tv, texel_weights=wts,
-                         active=active, map_size=(w, h))
-
-
-def _cap_faces(dirs: np.ndarray) -> np.ndarray | None:
-    """Spherical Delaunay faces of the samples alone (their cap), or None when they have no inside."""
-    from scipy.spatial import QhullError
-
-    try:
-        hull = _convex_hull(np.vstack([np.zeros(3), dirs]), qhull_options="Qt QJ")
-    except QhullError:
-        return None
-    keep = ~np.any(hull.simplices == 0, axis=1)
-    if keep.all():  # the origin is inside: samples all around, no black lights were added
-        return None
-    return hull.simplices[keep].astype(np.int64) - 1
-
-
-def _locate(verts: np.ndarray, faces: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For each query direction, the face its ray crosses and the normalised barycentric weights."""
-    m = np.transpose(verts[faces], (0, 2, 1))  # (F, 3 coords, 3 vertices): columns are vertices
-    det = np.linalg.det(m)
-    ok = np.abs(det) > 1e-12  # joggled duplicates leave faces of no area: never pick them
-    inv = np.zeros_like(m)
-    inv[ok] = np.linalg.inv(m[ok])
-    bary = np.einsum("fij,tj->tfi", inv, query)  # (T, F, 3)
-    score = bary.min(axis=2)
-    score[(bary.sum(axis=2) <= 0) | ~ok[None, :]] = -np.inf  # the ray must hit a real face in front
-    best = np.argmax(score, axis=1)
-    wts = np.clip(bary[np.arange(len(query)), best], 0.0, None)
-    wts /= np.maximum(wts.sum(axis=1, keepdims=True), 1e-12)
-    return faces[best], wts
 
 
 #: Bundles store samples and maps as float16 (largest 65504, smallest normal 6.1e-5): samples
@@ -262,7 +96,7 @@ def visibility_at(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], col
     (:func:`relight.kernels.maps.visibility_at_cl`) or "numpy" (in pixel chunks)."""
     columns = np.asarray(columns, dtype=np.int64)
     if backend == "opencl":
-        from relight.kernels.maps import visibility_at_cl
+        from .maps import visibility_at_cl
 
         w, h = map_size
         return visibility_at_cl(horizon, n_az, map_size, equirect_directions(w, h).reshape(-1, 3), columns,
@@ -440,13 +274,13 @@ def model_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hor
     offset to be non-negative and the offset taken off again. paper_adaptation (no trend): the
     paper's light adaptation (:func:`compute_maps` ``adaptation``) over samples + model lights.
     spline : inside the captured directions each pixel blends this path with the thin-plate
-    spline of its samples (:mod:`relight.pipeline.spline`; capped at the brightest sample of the
+    spline of its samples (:mod:`relight.kernels.spline`; capped at the brightest sample of the
     texel's triangle), by the weight that best predicts left-out samples (stacking, fitted over
     a window of neighbouring pixels when ``grid``, the (H, W) mask of the P pixels, is given).
     reach_deg : with ``extrapolate``, model light is kept only this far from a captured direction.
     fit_out : a dict that receives the fits (``model``: the :class:`ShadingModel`, ``blend``) -
     with the samples, normals, horizon and triangulation, all
-    :func:`maps_from_fit` (and :mod:`relight.pipeline.recipe`) needs to make the maps again.
+    :func:`maps_from_fit` (and :mod:`relight.kernels.recipe`) needs to make the maps again.
     """
     if trend and paper_adaptation:
         raise InputError("the shading-model trend and the paper's light adaptation exclude each other")
@@ -791,7 +625,7 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
             out[t0:t0 + len(ts), ps] = np.clip(regular, 0.0, None).transpose(1, 0, 2)
     if not np.isfinite(out).all():  # pragma: no cover - guarded above
         raise ArithmeticError("non-finite reflectance")
-    from relight.kernels.maps import padded_texels
+    from .maps import padded_texels
 
     pm = np.zeros((p, 3, padded_texels(act.size)), dtype=np.float32)
     pm[:, :, :act.size] = out.transpose(1, 2, 0)
@@ -841,7 +675,7 @@ def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *
         return build_maps(samples, normals, tri, visibility=vis, adaptation=adaptation, trend=trend)
     if backend != "opencl":
         raise InputError(f"backend {backend!r}: use 'opencl' or 'numpy'")
-    from relight.kernels.maps import build_maps_cl
+    from .maps import build_maps_cl
 
     return build_maps_cl(np.ascontiguousarray(samples, dtype=np.float32), normals, vertices=tri.vertices,
                          vertex_texel=tri.vertex_texel, texel_vertices=tri.texel_vertices,
