@@ -9,15 +9,18 @@ from relight.bench.server import free_port, wait_ready
 
 
 @contextmanager
-def running_server(config):
-    """Serve ``create_app(config)`` with uvicorn on a free loopback port; yield its base URL once
-    /readyz answers 200 (fails the test after a minute), stop it afterwards."""
+def running_server(config, overrides: dict | None = None):
+    """Serve ``create_app(config)`` (with FastAPI ``dependency_overrides``) with uvicorn on a free
+    loopback port; yield its base URL once /readyz answers 200 (fails the test after a minute),
+    stop it afterwards."""
     import uvicorn
 
     from relight.service.app import create_app
 
     port = free_port()
-    srv = uvicorn.Server(uvicorn.Config(create_app(config), host="127.0.0.1", port=port, log_level="warning"))
+    app = create_app(config)
+    app.dependency_overrides.update(overrides or {})
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
     th = threading.Thread(target=srv.run, daemon=True)
     th.start()
     base = f"http://127.0.0.1:{port}"

@@ -55,7 +55,7 @@ def y4m_clip(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def server(small_bundle):
-    from relight.service.app import ServeConfig
+    from relight.service.settings import ServeConfig
 
     with running_server(ServeConfig(bundle=small_bundle.path)) as base:
         yield base

@@ -17,7 +17,7 @@ FUZZ_EXAMPLES = 25
 
 @pytest.fixture(scope="module")
 def server(small_bundle):
-    from relight.service.app import ServeConfig
+    from relight.service.settings import ServeConfig
 
     with running_server(ServeConfig(bundle=small_bundle.path, env="builtin:studio", max_body=2_000_000,
                                     max_pixels=1_000_000)) as base:
@@ -311,3 +311,26 @@ def test_make_serve_prints_the_page_url_and_serves(small_bundle, tmp_path):
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert run.stderr.strip().startswith("relight-serve: error:") and "truncated" in run.stderr
+
+
+def test_settings_come_through_one_dependency_tests_can_override(small_bundle, frame):
+    """The routes read the settings through ``get_settings`` (FastAPI's dependency): overriding
+    it changes the limits of the HTTP routes and the websocket alike."""
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    from relight.service.settings import ServeConfig, get_settings
+
+    from .serving import running_server
+
+    png = cv2.imencode(".png", np.ascontiguousarray(frame[..., ::-1]))[1].tobytes()
+    assert len(png) > 1000
+    tight = ServeConfig(bundle=small_bundle.path, max_body=1000)
+    with running_server(ServeConfig(bundle=small_bundle.path), {get_settings: lambda: tight}) as base:
+        r = httpx.post(f"{base}/v1/relight", content=png, headers={"content-type": "image/png"})
+        assert r.status_code == 413 and r.json()["kind"] == "too_large"
+        with connect(base.replace("http://", "ws://") + "/v1/stream", open_timeout=10) as ws:
+            ws.send(png)
+            with pytest.raises(ConnectionClosed) as info:
+                ws.recv(timeout=10)
+            assert info.value.rcvd.code == 1009  # over the overridden 1000 bytes

@@ -1,0 +1,120 @@
+"""Frames and environments over the wire: bounded reads of request bodies, PNG/JPEG frames
+decoded and encoded (sRGB uint8 RGB), uploaded environments validated as files are, the
+environment's tone-mapped preview, query values parsed. Every failure is a
+:class:`~relight.service.errors.ServiceError` saying what to change."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from relight.imageio import image_size
+
+from .errors import ServiceError
+
+#: Default caps: a 4K frame's worth of raw RGB, and its pixel count.
+MAX_BODY = 3840 * 2160 * 3
+MAX_PIXELS = 3840 * 2160
+CONTENT_TYPES = {"image/png": ".png", "image/jpeg": ".jpg"}
+#: Environment uploads: content types and the largest body (bytes).
+ENV_TYPES = {"image/vnd.radiance": ".hdr", "image/x-exr": ".exr", "image/aces": ".exr", "image/png": ".png"}
+ENV_MAX_BODY = 64 << 20
+#: JPEG quality of relit frames sent back.
+JPEG_QUALITY = 92
+
+
+def decode_frame(data: bytes, content_type: str, max_pixels: int) -> np.ndarray:
+    """An encoded PNG/JPEG -> (H, W, 3) uint8 RGB, validated (raises ServiceError)."""
+    import cv2
+
+    if content_type not in CONTENT_TYPES:
+        raise ServiceError(415, "content_type", f"content type {content_type!r}: send image/png or image/jpeg")
+    size = image_size(data)
+    if size is None:
+        raise ServiceError(400, "undecodable", "the body is not a PNG or JPEG image (no valid header)")
+    w, h = size
+    if w <= 0 or h <= 0 or w * h > max_pixels:
+        raise ServiceError(413, "too_many_pixels", f"image of {w}x{h} pixels: at most {max_pixels} pixels "
+                                                   "(downscale the frame)")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if img is None or img.shape[0] != h or img.shape[1] != w:
+        raise ServiceError(400, "undecodable", "the image could not be decoded (truncated or corrupt)")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def encode_frame(rgb: np.ndarray, content_type: str) -> bytes:
+    """(H, W, 3) uint8 sRGB RGB -> PNG or JPEG bytes (``content_type``)."""
+    import cv2
+
+    ok, buf = cv2.imencode(CONTENT_TYPES[content_type], cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),
+                           [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if content_type == "image/jpeg" else [])
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 RGB frame
+        raise ServiceError(500, "encode", "the relit frame could not be encoded")
+    return buf.tobytes()
+
+
+def parse_rotation(text: str | None):
+    """A query's "yaw,pitch,roll" (degrees) -> a tuple, or None when absent (422 when malformed)."""
+    if not text:
+        return None
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise ServiceError(422, "bad_query", f"rotation={text!r}: give yaw,pitch,roll in degrees") from None
+    if len(vals) != 3 or not all(np.isfinite(vals)) or max(abs(v) for v in vals) > 360:
+        raise ServiceError(422, "bad_query", f"rotation={text!r}: give three angles within +-360 degrees")
+    return vals
+
+
+def binary_body(*types: str, required: bool = True) -> dict:
+    """OpenAPI request body of raw bytes in ``types`` (the handlers read the stream themselves)."""
+    schema = {"type": "string", "format": "binary"}
+    return {"requestBody": {"required": required, "content": {t: {"schema": schema} for t in types}}}
+
+
+async def read_body(request, cap: int) -> bytes:
+    """The request's body, read in chunks and refused (413) as soon as it passes ``cap`` bytes."""
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > cap:
+        raise ServiceError(413, "too_large", f"body of {declared} bytes: at most {cap}")
+    chunks, total = [], 0
+    async for chunk in request.stream():
+        total += len(chunk)
+        if total > cap:
+            raise ServiceError(413, "too_large", f"body over {cap} bytes: send a smaller file")
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def load_uploaded_environment(body: bytes, suffix: str) -> np.ndarray:
+    """Validate an uploaded environment exactly as a file would be (written to a temporary file)."""
+    import tempfile
+
+    import relight
+    from relight.errors import RelightError
+
+    with tempfile.TemporaryDirectory(prefix="relight-env-") as tmp:
+        path = Path(tmp) / f"upload{suffix}"
+        path.write_bytes(body)
+        try:
+            return relight.load_environment(path)
+        except RelightError as exc:
+            raise ServiceError(400, "bad_environment", str(exc).replace(str(path), "the uploaded environment")) \
+                from None
+
+
+def preview_png(env: np.ndarray, exposure_ev: float) -> bytes:
+    """The environment scaled to at most 512x256, Reinhard tone-mapped, sRGB PNG."""
+    import cv2
+
+    from relight.colour import encode_srgb8, luminance
+
+    h, w = env.shape[:2]
+    s = min(1.0, 256.0 / h)
+    small = cv2.resize(env, (max(int(w * s), 2), max(int(h * s), 1)), interpolation=cv2.INTER_AREA) if s < 1 else env
+    small = small * np.float32(2.0 ** exposure_ev)
+    lum = luminance(small)[..., None]
+    mapped = small / (1.0 + lum)
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(encode_srgb8(np.clip(mapped, 0, 1)), cv2.COLOR_RGB2BGR))
+    return buf.tobytes()

@@ -1,0 +1,30 @@
+"""What the routes depend on, from ``app.state`` (FastAPI dependencies)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Depends, Request
+
+from .engine import Engine, Metrics
+from .errors import ServiceError
+from .settings import ServeConfig, get_settings
+
+
+def get_metrics(request: Request) -> Metrics:
+    """The app's Prometheus metrics."""
+    return request.app.state.metrics
+
+
+def get_engine(request: Request) -> Engine:
+    """The loaded engine, or 503 while the bundle is still loading."""
+    engine = request.app.state.engine
+    if engine is None:
+        raise ServiceError(503, "not_ready", "the service is still loading its bundle; retry shortly")
+    return engine
+
+
+#: Route parameter types (FastAPI's ``Annotated`` dependencies).
+EngineDep = Annotated[Engine, Depends(get_engine)]
+MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+SettingsDep = Annotated[ServeConfig, Depends(get_settings)]

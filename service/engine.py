@@ -1,0 +1,89 @@
+"""The service's state: the loaded bundle and per-frame path (:class:`Engine`, one frame at a
+time under its lock) and the Prometheus metrics. Made in the app's lifespan, kept on ``app.state``
+and handed to the routes by :mod:`relight.service.dependencies`."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import numpy as np
+
+from .codec import decode_frame, encode_frame
+from .settings import ServeConfig
+
+
+class Metrics:
+    """The service's Prometheus metrics, in a registry of their own."""
+
+    def __init__(self):
+        from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+
+        self.registry = CollectorRegistry()
+        self.frames = Counter("relight_frames", "Frames relit", registry=self.registry)
+        self.dropped = Counter("relight_dropped_frames", "Stale stream frames dropped", registry=self.registry)
+        self.errors = Counter("relight_errors", "Requests that failed, by kind", ["kind"], registry=self.registry)
+        self.latency = Histogram("relight_frame_latency_seconds", "Time to relight one frame (s)",
+                                 buckets=(0.005, 0.01, 0.015, 0.02, 0.03, 0.05, 0.1, 0.25, 1.0),
+                                 registry=self.registry)
+        self.clients = Gauge("relight_clients", "Connected stream clients", registry=self.registry)
+
+
+class Engine:
+    """The loaded bundle and per-frame path, one frame at a time; environments cached by name."""
+
+    def __init__(self, config: ServeConfig):
+        import relight
+
+        from .frame_path import FramePath
+
+        self.config = config
+        self.bundle = relight.load_bundle(config.bundle)
+        self._envs: dict = {}
+        self.env_name = config.env
+        # The service's current environment (PUT /v1/environment): used when a request names none.
+        self.default_rotation: tuple[float, float, float] | None = None
+        self.default_exposure = 0.0
+        self.path = FramePath(self.bundle, self.environment(config.env), mode=config.mode, focal=config.focal)
+        self.lock = asyncio.Lock()
+
+    def set_uploaded(self, name: str, env: np.ndarray) -> None:
+        """An uploaded (validated) environment becomes the current one under ``name``."""
+        self._envs = {k: v for k, v in self._envs.items() if k[0] != name}
+        self._envs[(name, None)] = env
+        self.env_name = name
+
+    def environment(self, name: str, rotation: tuple[float, float, float] | None = None) -> np.ndarray:
+        import relight
+        from relight.directions import rotation_matrix
+        from relight.envmap import rotate_environment
+
+        key = (name, rotation)
+        env = self._envs.get(key)
+        if env is None:
+            base = self._envs.get((name, None))
+            env = relight.load_environment(name) if base is None else base
+            if rotation is not None and any(rotation):
+                env = rotate_environment(env, rotation_matrix(*rotation), supersample=2)
+            if len(self._envs) > 16:
+                self._envs.clear()
+            self._envs[key] = env
+        return env
+
+    def relight(self, rgb: np.ndarray, *, env: str | None, rotation, exposure: float | None, strength: float | None,
+                mode: str | None):
+        fp = self.path
+        if env is None and rotation is None:
+            rotation = self.default_rotation
+        fp.set_environment(self.environment(env or self.env_name, rotation))
+        fp.set_mode(mode or self.config.mode)
+        fp.set_strength(1.0 if strength is None else strength)
+        fp.set_exposure(self.default_exposure if exposure is None else exposure)
+        return fp.process(rgb, time.perf_counter())
+
+
+def decode_relight_encode(engine: Engine, data: bytes, ctype: str, max_pixels: int, settings: dict):
+    """(encoded relit frame, FrameInfo) of an encoded frame (raises ServiceError/RelightError)."""
+    rgb = decode_frame(data, ctype, max_pixels)
+    out, info = engine.relight(rgb, **settings)
+    return encode_frame(out, ctype), info

@@ -1,0 +1,65 @@
+"""``/v1/environment``: the current environment - a built-in or an upload (.hdr/.exr/.png) -
+its rotation and exposure, and a tone-mapped preview."""
+
+from __future__ import annotations
+
+import asyncio
+
+from fastapi import APIRouter, Query, Request, Response
+
+from ..codec import (
+    ENV_MAX_BODY,
+    ENV_TYPES,
+    binary_body,
+    load_uploaded_environment,
+    parse_rotation,
+    preview_png,
+    read_body,
+)
+from ..dependencies import EngineDep
+from ..errors import ServiceError
+from ..settings import PRESETS
+
+router = APIRouter()
+
+
+@router.get("/v1/environment", summary="The current environment and the built-ins")
+async def get_environment(engine: EngineDep):
+    return {"current": engine.env_name, "rotation": engine.default_rotation, "exposure": engine.default_exposure,
+            "builtins": list(PRESETS)}
+
+@router.put("/v1/environment", summary="Choose a built-in or upload an environment (.hdr/.exr/.png)",
+         openapi_extra=binary_body(*ENV_TYPES, required=False), responses={400: {}, 413: {}, 415: {}, 422: {}})
+async def put_environment(request: Request, engine: EngineDep,
+                          builtin: str | None = Query(None, description="a built-in: " + ", ".join(PRESETS)),
+                          rotation: str | None = Query(None, description="yaw,pitch,roll (degrees)"),
+                          exposure: float | None = Query(None, ge=-20, le=20, description="stops (EV)")):
+    rot = parse_rotation(rotation)
+    ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
+    body = await read_body(request, ENV_MAX_BODY)
+    if builtin is not None:
+        if builtin not in PRESETS:
+            raise ServiceError(422, "bad_query", f"builtin={builtin!r}: use one of {', '.join(PRESETS)}")
+        async with engine.lock:
+            await asyncio.to_thread(engine.environment, f"builtin:{builtin}")
+            engine.env_name = f"builtin:{builtin}"
+    elif body:
+        suffix = ENV_TYPES.get(ctype)
+        if suffix is None:
+            raise ServiceError(415, "content_type", f"content type {ctype or 'none'!r}: send "
+                               + ", ".join(ENV_TYPES) + " (an .hdr, .exr or .png lat-long map)")
+        env = await asyncio.to_thread(load_uploaded_environment, body, suffix)
+        async with engine.lock:
+            engine.set_uploaded("uploaded" + suffix, env)
+    if rot is not None:
+        engine.default_rotation = rot
+    if exposure is not None:
+        engine.default_exposure = float(exposure)
+    return await get_environment(engine)
+
+@router.get("/v1/environment/preview.png", summary="The current environment, tone-mapped",
+         response_class=Response, responses={200: {"content": {"image/png": {}}}})
+async def preview_environment(engine: EngineDep):
+    env = engine.environment(engine.env_name, engine.default_rotation)
+    return Response(await asyncio.to_thread(preview_png, env, engine.default_exposure), media_type="image/png")
+

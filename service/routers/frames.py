@@ -1,0 +1,57 @@
+"""``POST /v1/relight``: one encoded frame in, the relit frame out."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+
+from fastapi import APIRouter, Query, Request, Response
+
+from relight.errors import RelightError
+
+from ..codec import CONTENT_TYPES, binary_body, decode_frame, encode_frame, parse_rotation, read_body
+from ..dependencies import EngineDep, MetricsDep, SettingsDep
+from ..errors import ServiceError
+from ..settings import PRESETS
+
+router = APIRouter()
+
+
+@router.post("/v1/relight", summary="Relight one frame", openapi_extra=binary_body("image/png", "image/jpeg"),
+          responses={200: {"content": {"image/png": {}, "image/jpeg": {}}}, 400: {}, 413: {}, 415: {}, 422: {}})
+async def relight_frame(request: Request, engine: EngineDep, metrics: MetricsDep, config: SettingsDep,
+                        env: str | None = Query(None, description="built-in preset: " + ", ".join(PRESETS)),
+                        rotation: str | None = Query(None, description="environment yaw,pitch,roll (degrees)"),
+                        exposure: float | None = Query(None, ge=-20, le=20, description="stops (EV)"),
+                        strength: float | None = Query(None, ge=0, le=1, description="blend, 0 to 1"),
+                        mode: str | None = Query(None, pattern="^(transfer|ambient|paste)$",
+                                                 description="transfer (the live light measured and swapped), "
+                                                             "ambient (ratio to the capture room), paste")):
+    if env is not None and env not in PRESETS:
+        raise ServiceError(422, "bad_query", f"env={env!r}: use one of {', '.join(PRESETS)}")
+    rot = parse_rotation(rotation)
+    ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
+    if ctype not in CONTENT_TYPES:
+        raise ServiceError(415, "content_type", f"content type {ctype or 'none'!r}: send image/png or image/jpeg")
+    rgb = decode_frame(await read_body(request, config.max_body), ctype, config.max_pixels)
+    accept = (request.headers.get("accept") or "").lower()
+    out_type = "image/jpeg" if "image/jpeg" in accept and "image/png" not in accept else \
+        "image/png" if "image/png" in accept and "image/jpeg" not in accept else ctype
+    t0 = time.perf_counter()
+    async with engine.lock:
+        try:
+            out, info = await asyncio.to_thread(engine.relight, rgb, env=f"builtin:{env}" if env else None,
+                                                rotation=rot, exposure=exposure, strength=strength, mode=mode)
+        except RelightError as exc:
+            raise ServiceError(400, "bad_request", str(exc)) from None
+    metrics.latency.observe(time.perf_counter() - t0)
+    metrics.frames.inc()
+    timing = ", ".join(f"{k};dur={v:.2f}" for k, v in info.timings.items())
+    headers = {"Server-Timing": timing, "X-Relight-Face": "found" if info.face else "none"}
+    if not info.face and info.note:
+        headers["X-Relight-Note"] = info.note
+    if info.light is not None:
+        headers["X-Relight-Light"] = json.dumps(info.light.as_json(), separators=(",", ":"))
+    return Response(encode_frame(out, out_type), media_type=out_type, headers=headers)
+

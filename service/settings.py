@@ -1,0 +1,35 @@
+"""The service's settings (the ``relight-serve`` flags) and the one dependency that hands them
+to the routes: tests override :func:`get_settings` (``app.dependency_overrides``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from starlette.requests import HTTPConnection
+
+from .codec import MAX_BODY, MAX_PIXELS
+from .composite import DEFAULT_MODE
+
+#: The environments a request may name (``builtin:NAME``).
+PRESETS = ("studio", "sunset", "window", "uniform", "room")
+
+
+@dataclass
+class ServeConfig:
+    """The service's settings (the ``relight-serve`` flags)."""
+
+    bundle: Path
+    env: str = "builtin:studio"
+    mode: str = DEFAULT_MODE
+    max_clients: int = 4
+    max_body: int = MAX_BODY
+    max_pixels: int = MAX_PIXELS
+    focal: float | str | None = None
+    announce: str | None = None  # printed once the service is ready (relight-serve: the page's URL)
+
+
+def get_settings(conn: HTTPConnection) -> ServeConfig:
+    """The running app's settings (set by :func:`relight.service.app.create_app`; HTTP requests
+    and websockets alike)."""
+    return conn.app.state.settings
