@@ -87,7 +87,7 @@ from pathlib import Path
 import numpy as np
 
 from relight.directions import equirect_solid_angles
-from relight.errors import InputError
+from relight.errors import InputError, NumericalError
 from relight.imageio import atomic_path
 
 MAGIC = b"RLBUNDLE"
@@ -325,7 +325,7 @@ def encode_background(rgb: np.ndarray) -> np.ndarray:
                            [cv2.IMWRITE_JPEG_QUALITY, BACKGROUND_QUALITY,
                             cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444])
     if not ok:
-        raise ArithmeticError("could not encode the reference frame as JPEG; this is a bug, please report it")
+        raise RuntimeError("could not encode the reference frame as JPEG; this is a bug, please report it")
     return buf.reshape(-1)
 
 
@@ -366,12 +366,12 @@ def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarr
     if "maps_rows" not in arrays:
         missing += [k for k in RECIPE if k not in arrays]
     if missing:
-        raise ValueError(f"bundle is missing required field(s): {', '.join(missing)}")
+        raise InputError(f"bundle is missing required field(s): {', '.join(missing)}")
     prepared = {}
     for name, a in arrays.items():
         a = np.asarray(a)
         if a.dtype.kind == "f" and not np.isfinite(a).all():
-            raise ArithmeticError(f"bundle field {name!r} holds non-finite values")
+            raise NumericalError(f"bundle field {name!r} holds non-finite values")
         a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<") if a.dtype.byteorder == ">" else a.dtype)
         prepared[name] = a
     directory = {}

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from relight.colour import decode_lut8, encode_lut
+from relight.errors import InputError
 
 from .runtime import build_program, get_runtime
 
@@ -178,7 +179,7 @@ class Compositor:
         self.fill = np.ascontiguousarray(fill, dtype=np.int32)
         self.inv_amb = np.ascontiguousarray(inv_amb, dtype=np.float32)
         if not (np.isfinite(self.alpha).all() and np.isfinite(self.inv_amb).all()):
-            raise ValueError("compositor inputs must be finite")
+            raise InputError("compositor inputs must be finite: the bundle's alpha, fill and ambient arrays")
         self.ch, self.cw = self.alpha.shape
         self.origin = (float(origin[0]), float(origin[1]))
         self.relighter = relighter
@@ -187,7 +188,7 @@ class Compositor:
         self._inv = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.inv_amb)
         self.normal = np.ascontiguousarray(normal, dtype=np.float32)
         if self.normal.shape != (*self.alpha.shape, 3) or not np.isfinite(self.normal).all():
-            raise ValueError("compositor normals must be finite, (ch, cw, 3)")
+            raise InputError("compositor normals must be finite, (ch, cw, 3): the bundle's normal field")
         self._normal = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.normal)
         self._dec = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=decode_lut8().astype(np.float32))
         lut, self.lut_n = encode_lut()

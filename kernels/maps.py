@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from relight.errors import InputError
+
 from .runtime import aligned_zeros, build_program, get_runtime
 
 #: Pixels per launch (bounds the visibility scratch: PIXEL_CHUNK x texels floats, twice).
@@ -162,7 +164,7 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     use_trend = trend is not None
     root25 = SPLINE_GAMMA == 0.4  # the kernel takes the spline's root as x * x * sqrt(x)
     if not 0 <= int(spec_exponent) < 256:
-        raise ValueError(f"spec_exponent {spec_exponent}: a whole number in [0, 256)")
+        raise InputError(f"spec_exponent {spec_exponent}: a whole number in [0, 256)")
     opts = (f"-DSPEC_EXP={int(spec_exponent)}", f"-DADAPT={int(bool(adaptation))}", f"-DUSE_VIS={int(use_vis)}",
             f"-DUSE_TREND={int(use_trend)}", f"-DUSE_SPLINE={int(spline is not None)}",
             f"-DSPLINE_ROOT25={int(root25)}")

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from relight.errors import InputError
+from relight.errors import InputError, NumericalError
 from relight.numerics import half_ceil
 
 from . import reflectance as rf
@@ -310,7 +310,7 @@ def texel_rows(recipe: Recipe, texels: np.ndarray, *, pixels=None) -> np.ndarray
         out[:, :, c0:c0 + len(ps)] = _rows_chunk(recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs,
                                                  virt, carry_ids, carry_w, spl_w)
     if not np.isfinite(out).all():
-        raise ArithmeticError("non-finite reflectance from the recipe; this is a bug, please report it")
+        raise NumericalError("non-finite reflectance from the recipe; this is a bug, please report it")
     return out
 
 

@@ -40,7 +40,7 @@ from relight.directions import (
     direction_to_equirect_uv,
     equirect_directions,
 )
-from relight.errors import InputError
+from relight.errors import InputError, NumericalError
 
 from .triangulation import (  # noqa: F401 (the triangulation's names, re-exported for the stages)
     DEFAULT_MAP_SIZE,
@@ -447,7 +447,7 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     # [0, inf) by selects): the vertex values are checked, ~10x fewer than the maps.
     checked = vals if backend == "opencl" else maps
     if not np.isfinite(np.sum(checked, dtype=np.float64)):
-        raise ArithmeticError("non-finite reflectance from the shading model; this is a bug, please report it")
+        raise NumericalError("non-finite reflectance from the shading model; this is a bug, please report it")
     return maps, map_tri
 
 
@@ -624,7 +624,7 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
                         (lobe(n, tdirs[ts]) * tv_)[..., None]
             out[t0:t0 + len(ts), ps] = np.clip(regular, 0.0, None).transpose(1, 0, 2)
     if not np.isfinite(out).all():  # pragma: no cover - guarded above
-        raise ArithmeticError("non-finite reflectance")
+        raise NumericalError("non-finite reflectance")
     from .maps import padded_texels
 
     pm = np.zeros((p, 3, padded_texels(act.size)), dtype=np.float32)

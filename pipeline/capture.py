@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from relight import __version__
 from relight.colour import encode_srgb8, srgb_to_linear
-from relight.errors import InputError
+from relight.errors import InputError, NumericalError
 from relight.imageio import read_image
 from relight.kernels import reflectance
 from relight.kernels.bundle import write_bundle
@@ -378,7 +378,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
     else:
         timings["maps"] = time.perf_counter() - t1
         if not np.isfinite(maps).all():
-            raise ArithmeticError("reflectance maps hold non-finite values; this is a bug, please report it")
+            raise NumericalError("reflectance maps hold non-finite values; this is a bug, please report it")
         maps = flush_subnormal_halves(maps.astype(np.float16, copy=False))
         t1 = time.perf_counter()
         # The maps texel-major (what the bundle stores); the pixel-major copy only when kept: the

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from relight.directions import rigid_matrix
+from relight.errors import InputError
 
 #: Lucas-Kanade settings: window, pyramid levels, forward-backward tolerance (pixels).
 LK_WINDOW = 21
@@ -117,7 +118,8 @@ class Tracker:
                                       mask=None if region is None else region.astype(np.uint8) * 255,
                                       blockSize=7)
         if pts is None or len(pts) < 6:
-            raise ValueError("too few trackable features in the reference frame")
+            raise InputError("too few trackable features in the reference frame: the face needs texture and "
+                             "light in the no-flash frames")
         self.points = pts.reshape(-1, 2).astype(np.float32)
         self.last = np.hstack([np.eye(2), np.zeros((2, 1))])
         self._ref_stats = self._stats(self.ref)

@@ -32,6 +32,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from relight.errors import InputError
+
 from .colour import LUMINANCE, srgb_to_linear
 from .numerics import EPS, FLOAT
 
@@ -169,7 +171,7 @@ def to_linear(encoded: np.ndarray, transfer: str) -> np.ndarray:
         return nits / PQ_REFERENCE_NITS
     if transfer == "hlg":
         return _hlg_inverse_oetf(e) / _hlg_inverse_oetf(np.array(HLG_REFERENCE_SIGNAL))
-    raise ValueError(f"unknown transfer {transfer!r}; use one of {', '.join(TRANSFERS)}")
+    raise InputError(f"unknown transfer {transfer!r}; use one of {', '.join(TRANSFERS)}")
 
 
 def from_linear(linear: np.ndarray, transfer: str) -> np.ndarray:
@@ -194,7 +196,7 @@ def from_linear(linear: np.ndarray, transfer: str) -> np.ndarray:
         a, b, c = _HLG
         e = np.minimum(x * _hlg_inverse_oetf(np.array(HLG_REFERENCE_SIGNAL)), 1.0)
         return np.where(e <= 1.0 / 12.0, np.sqrt(3.0 * e), a * np.log(np.maximum(12.0 * e - b, EPS)) + c)
-    raise ValueError(f"unknown transfer {transfer!r}; use one of {', '.join(TRANSFERS)}")
+    raise InputError(f"unknown transfer {transfer!r}; use one of {', '.join(TRANSFERS)}")
 
 
 _HLG = (0.17883277, 0.28466892, 0.55991073)

@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from relight.directions import rotation_angles
+from relight.errors import InputError
 
 #: Default focal length as a multiple of the frame's larger side.
 DEFAULT_FOCAL = 0.85
@@ -54,7 +55,7 @@ def camera_matrix(size: tuple[int, int], focal: float | str | None = None) -> np
     else:
         f = float(focal) if focal else DEFAULT_FOCAL * max(w, h)
     if not (np.isfinite(f) and f > 0):
-        raise ValueError(f"focal length {focal}: use a positive number of pixels")
+        raise InputError(f"focal length {focal}: use a positive number of pixels")
     return np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
 
 

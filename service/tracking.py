@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from relight.errors import InputError
 from relight.faces import face_cascade
 
 #: Lucas-Kanade window (px, at 540 rows; scaled with the frame), pyramid levels, iterations.
@@ -97,7 +98,7 @@ class FaceTracker:
         self.finder = finder
         self.landmarks = thin_points(np.asarray(landmarks, dtype=np.float32).reshape(-1, 2), MAX_TRACKED)
         if len(self.landmarks) < MIN_POINTS:
-            raise ValueError(f"the bundle has {len(self.landmarks)} landmarks; tracking needs {MIN_POINTS}")
+            raise InputError(f"the bundle has {len(self.landmarks)} landmarks; tracking needs {MIN_POINTS}")
         self.mask = mask
         box = detect_face_box(self.reference)
         if box is None:  # the reference face as the mask's bounding box
