@@ -18,6 +18,7 @@ import numpy as np
 
 from relight.colour import decode_lut8, encode_lut
 from relight.errors import InputError
+from relight.numerics import EPS
 
 from .runtime import build_program, get_runtime
 
@@ -108,8 +109,8 @@ def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, 
         t = g * rel
         r = np.clip((t + e32) / (e + e32), 0.0, rmax)
         le, lt = e @ LUMINANCE, t @ LUMINANCE
-        share = le / np.maximum(np.maximum(le, lt), np.float32(1e-12))
-        s = _ramp(share, TRUST_RATIO) * _ramp(le / np.float32(max(live_median, 1e-12)), TRUST_DARK)
+        share = le / np.maximum(np.maximum(le, lt), np.float32(EPS))
+        s = _ramp(share, TRUST_RATIO) * _ramp(le / np.float32(max(live_median, EPS)), TRUST_DARK)
         expect = np.where(a > 0, le, 0.0).astype(np.float32)
         a = np.where(ok, a, 0.0)
     layer = np.concatenate([r, s[:, None], t, a[:, None]], axis=1).astype(np.float32).reshape(*fill.shape, 8)
@@ -144,9 +145,9 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
     s = lay[:, 3:4]
     if mode == "live":
         e = _bilinear(expect[..., None], mx, my)
-        agree = (f @ LUMINANCE)[:, None] / np.maximum(e, np.float32(1e-12))
+        agree = (f @ LUMINANCE)[:, None] / np.maximum(e, np.float32(EPS))
         dev = np.abs(agree - 1.0)
-        shrink = np.where(dev > tau, (dev - np.float32(tau)) / np.maximum(dev, np.float32(1e-12)), 0.0)
+        shrink = np.where(dev > tau, (dev - np.float32(tau)) / np.maximum(dev, np.float32(EPS)), 0.0)
         s = np.where(s > 0, s * (1.0 - _ramp(f.max(axis=1, keepdims=True), CLIP_RAMP)) * _ramp(agree, AGREE_RAMP)
                      * shrink, s)
     face = s * f * lay[:, 0:3] + (1.0 - s) * lay[:, 4:7]

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from relight.errors import InputError
+from relight.numerics import EPS_NORM
 
 from .runtime import aligned_zeros, build_program, get_runtime
 
@@ -45,7 +46,7 @@ def texel_azimuths(texel_dirs: np.ndarray, n_az: int) -> np.ndarray:
     pos = beta / (2 * np.pi) * n_az - 0.5
     i0 = np.floor(pos).astype(np.int64) % n_az
     return np.stack([i0, (i0 + 1) % n_az, pos - np.floor(pos),
-                     np.where(s_xy < 1e-6, 8.0, np.arctan2(texel_dirs[:, 2], np.maximum(s_xy, 1e-9)))], axis=1)
+                     np.where(s_xy < 1e-6, 8.0, np.arctan2(texel_dirs[:, 2], np.maximum(s_xy, EPS_NORM)))], axis=1)
 
 
 def _smoothed_visibility(queue, k_vis, k_box, b_hz, p_all: int, b_taz, map_size, vis_soft: float, p0: int, n: int,

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.errors import InputError, NumericalError
-from relight.numerics import half_ceil
+from relight.numerics import EPS, EPS_NORM, half_ceil
 
 from . import reflectance as rf
 from .maps import neighbourhoods
@@ -263,7 +263,7 @@ def smoothed_visibility(horizon: np.ndarray, n_az: int, map_size, texels: np.nda
     i0 = np.floor(pos).astype(np.int64) % n_az
     f = (pos - np.floor(pos)).astype(np.float32)
     hz = horizon[:, i0] * (1 - f) + horizon[:, (i0 + 1) % n_az] * f
-    elev = np.arctan2(d[:, 2], np.maximum(s, 1e-9)).astype(np.float32)
+    elev = np.arctan2(d[:, 2], np.maximum(s, EPS_NORM)).astype(np.float32)
     soft = np.float32(rf.VIS_SOFT_TEXELS * np.pi / h)
     vis = np.clip(0.5 + (elev[None] - hz) / soft, 0.0, 1.0).astype(np.float32)
     vis[:, s < 1e-6] = 1.0
@@ -370,7 +370,7 @@ def _rows_chunk(r: Recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs
 
         def subset(use):
             wgt = tw[:, :, None] * use
-            wgt = wgt / np.maximum(wgt.sum(axis=1, keepdims=True), 1e-12)
+            wgt = wgt / np.maximum(wgt.sum(axis=1, keepdims=True), EPS)
             return np.einsum("tvp,tvpc->tpc", wgt, cv)
 
         aware = t_lit * subset(lit) + (1 - t_lit) * subset(1.0 - lit)

@@ -41,6 +41,7 @@ from relight.directions import (
     equirect_directions,
 )
 from relight.errors import InputError, NumericalError
+from relight.numerics import EPS, EPS_NORM, TINY_SCALE
 
 from .triangulation import (  # noqa: F401 (the triangulation's names, re-exported for the stages)
     DEFAULT_MAP_SIZE,
@@ -214,7 +215,7 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation,
         sy = np.einsum("pk,kpc->pc", s, y, dtype=np.float64)
         cc, ss, cs_ = (c * c).sum(axis=1), (s * s).sum(axis=1), (c * s).sum(axis=1)
         det = cc * ss - cs_ * cs_
-        ok = det > 1e-9 * np.maximum(cc * ss, 1e-30)  # the lobe is not a multiple of the cosine here
+        ok = det > EPS_NORM * np.maximum(cc * ss, TINY_SCALE)  # the lobe is not a multiple of the cosine here
         safe = np.where(ok, det, 1.0)[:, None]
         a2 = (ss[:, None] * cy - cs_[:, None] * sy) / safe
         s2 = (cc[:, None] * sy - cs_[:, None] * cy) / safe
@@ -231,7 +232,7 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation,
             np.ascontiguousarray(s.T, dtype=dt)[..., None] * sp[None].astype(dt)
         ss_tot = (((y - mean[None].astype(dt)) ** 2) * w).sum(axis=(0, 2), dtype=np.float64)
         ss_res = (((y - pred) ** 2) * w).sum(axis=(0, 2), dtype=np.float64)
-        r2 = 1.0 - ss_res / np.maximum(ss_tot, 1e-30)
+        r2 = 1.0 - ss_res / np.maximum(ss_tot, TINY_SCALE)
         t = np.clip((r2 - MODEL_R2_NONE) / (MODEL_R2_FULL - MODEL_R2_NONE), 0.0, 1.0)
         trust[ps] = np.where(cnt >= 4, t, 0.0)
     return ShadingModel(albedo=albedo, spec=spec, trust=trust)
@@ -245,7 +246,7 @@ def carry_weights(vertices: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]
     ids = np.argsort(ang, axis=1)[:, :near]
     a = np.take_along_axis(ang, ids, axis=1)
     w = np.exp(-(a / CARRY_SIGMA_DEG) ** 2)
-    w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-30)
+    w /= np.maximum(w.sum(axis=1, keepdims=True), TINY_SCALE)
     return ids, w * np.exp(-a[:, :1] / CARRY_FADE_DEG)
 
 
@@ -328,7 +329,7 @@ def fit_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hori
     num, den = np.zeros(p), np.zeros(p)
     lit_vertex = np.zeros(len(verts), dtype=bool)
     lit_vertex[:k] = True
-    peak = max(float(np.max(samples)) if samples.size else 0.0, 1e-30)
+    peak = max(float(np.max(samples)) if samples.size else 0.0, TINY_SCALE)
     for p0 in range(0, p, PIXEL_CHUNK):
         ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
         vis = (np.ones((ps.stop - p0, len(verts)), dtype=np.float32) if horizon is None else
@@ -503,7 +504,7 @@ def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *
     i1 = (i0 + 1) % n_az
     f = (pos - np.floor(pos)).astype(np.float32)
     elev_h = horizon[:, i0] * (1 - f) + horizon[:, i1] * f  # (P, T)
-    elev = np.arctan2(tdirs[:, 2], np.maximum(s, 1e-9))
+    elev = np.arctan2(tdirs[:, 2], np.maximum(s, EPS_NORM))
     soft = VIS_SOFT_TEXELS * np.pi / h
     vis = np.clip(0.5 + (elev[None, :] - elev_h) / soft, 0.0, 1.0).astype(np.float32)
     vis[:, s < 1e-6] = 1.0  # straight toward the camera: a height field cannot block it
@@ -534,7 +535,7 @@ def _adapt(c, wv, dv, dp, use):
     """
     w = wv * use
     wsum = w.sum(axis=-1, keepdims=True)
-    w = w / np.maximum(wsum, 1e-12)
+    w = w / np.maximum(wsum, EPS)
     inc = w > 0
     lit = inc & (dv > MIN_COS)
     unlit = inc & ~lit
@@ -544,7 +545,7 @@ def _adapt(c, wv, dv, dp, use):
     wl = np.where(lit, w, 0.0)
     wu = np.where(unlit, w, 0.0)
     w_ind = wu.sum(axis=-1, keepdims=True)
-    c_ind = np.einsum("...v,...vc->...c", wu, c) / np.maximum(w_ind, 1e-12)  # indirect estimate
+    c_ind = np.einsum("...v,...vc->...c", wu, c) / np.maximum(w_ind, EPS)  # indirect estimate
     plain = np.einsum("...v,...vc->...c", w, c)
     # All lit: divide out the cosines, interpolate, multiply back.
     all_lit = np.einsum("...v,...vc->...c", wl / dvs, c) * dps
@@ -552,7 +553,7 @@ def _adapt(c, wv, dv, dp, use):
     # lit vertex, cosine-adapt the rest, add the indirect light back.
     sub = c - (w_ind * c_ind)[..., None, :]
     w_lit = wl.sum(axis=-1, keepdims=True)
-    c_dir = np.einsum("...v,...vc->...c", wl / dvs, sub) * dps / np.maximum(w_lit, 1e-12) + w_ind * c_ind
+    c_dir = np.einsum("...v,...vc->...c", wl / dvs, sub) * dps / np.maximum(w_lit, EPS) + w_ind * c_ind
     mixed = w_lit * c_dir + w_ind * c_ind
     out = np.where((n_lit == 0)[..., None], plain, np.where((n_lit == inc.sum(axis=-1))[..., None], all_lit, mixed))
     return out
@@ -634,7 +635,7 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
 
 def _subset(c, wv, use):
     w = wv * use
-    w = w / np.maximum(w.sum(axis=-1, keepdims=True), 1e-12)
+    w = w / np.maximum(w.sum(axis=-1, keepdims=True), EPS)
     return np.einsum("...v,...vc->...c", w, c)
 
 

@@ -20,7 +20,7 @@ import hashlib
 import numpy as np
 
 from relight.errors import InputError
-from relight.numerics import flush_subnormal_halves, read_halves
+from relight.numerics import EPS_NORM, flush_subnormal_halves, read_halves
 
 from . import transport
 from .maps import padded_texels
@@ -544,7 +544,7 @@ class Relighter:
         no environment needed.
         """
         d = np.asarray(direction, dtype=np.float64)
-        if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) < 1e-9:
+        if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) < EPS_NORM:
             raise InputError(f"light direction {direction}: three finite numbers, not all zero")
         lp = _check_light(transport.point_light(d, self.map_size, self.texels) * (exposure * self.sample_scale))
         self._run_rows(lp)

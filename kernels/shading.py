@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.errors import InputError
+from relight.numerics import EPS_NORM
 
 from .heightfield import (  # noqa: F401  (re-exported: the synth and the tests use them from here)
     NO_SURFACE,
@@ -67,7 +68,7 @@ def _check(surface: Surface, dirs: np.ndarray, power: np.ndarray) -> tuple[np.nd
     if not (np.isfinite(dirs).all() and np.isfinite(power).all()):
         raise InputError("light directions and powers must be finite")
     norm = np.linalg.norm(dirs, axis=1, keepdims=True)
-    if (norm < 1e-9).any():
+    if (norm < EPS_NORM).any():
         raise InputError("a light direction has zero length")
     return dirs / norm, power
 

@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from relight.numerics import EPS, TINY_SCALE
+
 #: Power applied to the (non-negative, linear) values before interpolating, undone after.
 SPLINE_GAMMA = 0.4
 #: Leave-one-out: at most this many samples are left out (evenly spread) to weigh the spline
@@ -174,5 +176,5 @@ def stacking_weight(num: np.ndarray, den: np.ndarray, trust: np.ndarray, grid: n
             return uniform_filter(img, size=2 * radius + 1, mode="constant")[grid]
 
         num, den = window(num), window(den)
-    ok = den > 1e-12 * max(float(np.max(den)) if den.size else 0.0, 1e-30)
+    ok = den > EPS * max(float(np.max(den)) if den.size else 0.0, TINY_SCALE)
     return np.where(ok, np.clip(num / np.where(ok, den, 1.0), 0.0, 1.0), trust)

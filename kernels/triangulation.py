@@ -11,6 +11,7 @@ import numpy as np
 
 from relight.directions import direction_to_equirect_uv, equirect_directions, equirect_solid_angles, fibonacci_sphere
 from relight.errors import InputError
+from relight.numerics import EPS, EPS_NORM
 
 DEFAULT_MAP_SIZE = (64, 32)
 #: Samples closer than this (degrees) are merged into one (the hand paused).
@@ -107,7 +108,7 @@ def inside_hull(dirs: np.ndarray, query: np.ndarray) -> np.ndarray:
     if not at_origin.any():
         return np.ones(len(query), dtype=bool)
     planes = hull.equations[at_origin]  # outward normal n, offset ~0: inside where n . x <= 0
-    return (query @ planes[:, :3].T + planes[:, 3] <= 1e-9).all(axis=1)
+    return (query @ planes[:, :3].T + planes[:, 3] <= EPS_NORM).all(axis=1)
 
 
 def triangulate(dirs: np.ndarray, map_size: tuple[int, int] = DEFAULT_MAP_SIZE) -> Triangulation:
@@ -119,7 +120,7 @@ def triangulate(dirs: np.ndarray, map_size: tuple[int, int] = DEFAULT_MAP_SIZE) 
     if dirs.ndim != 2 or dirs.shape[1] != 3 or not np.isfinite(dirs).all():
         raise InputError("light directions must be finite (K, 3) vectors")
     norm = np.linalg.norm(dirs, axis=1, keepdims=True)
-    if (norm < 1e-9).any():
+    if (norm < EPS_NORM).any():
         raise InputError("a light direction has zero length")
     dirs = dirs / norm
     k = len(dirs)
@@ -174,7 +175,7 @@ def locate_in_faces(verts: np.ndarray, faces: np.ndarray, query: np.ndarray) -> 
     """For each query direction, the face its ray crosses and the normalised barycentric weights."""
     m = np.transpose(verts[faces], (0, 2, 1))  # (F, 3 coords, 3 vertices): columns are vertices
     det = np.linalg.det(m)
-    ok = np.abs(det) > 1e-12  # joggled duplicates leave faces of no area: never pick them
+    ok = np.abs(det) > EPS  # joggled duplicates leave faces of no area: never pick them
     inv = np.zeros_like(m)
     inv[ok] = np.linalg.inv(m[ok])
     bary = np.einsum("fij,tj->tfi", inv, query)  # (T, F, 3)
@@ -182,5 +183,5 @@ def locate_in_faces(verts: np.ndarray, faces: np.ndarray, query: np.ndarray) -> 
     score[(bary.sum(axis=2) <= 0) | ~ok[None, :]] = -np.inf  # the ray must hit a real face in front
     best = np.argmax(score, axis=1)
     wts = np.clip(bary[np.arange(len(query)), best], 0.0, None)
-    wts /= np.maximum(wts.sum(axis=1, keepdims=True), 1e-12)
+    wts /= np.maximum(wts.sum(axis=1, keepdims=True), EPS)
     return faces[best], wts

@@ -23,7 +23,7 @@ from relight.imageio import read_image
 from relight.kernels import reflectance
 from relight.kernels.bundle import write_bundle
 from relight.kernels.heightfield import HORIZON_DIRS
-from relight.numerics import flush_subnormal_halves
+from relight.numerics import EPS_NORM, flush_subnormal_halves
 
 from . import geometry, methods
 from .ingest import DEFAULT_FACE_PIXELS, ingest
@@ -217,7 +217,7 @@ def read_lp(path: Path) -> list[tuple[str, np.ndarray]]:
             d = np.array([float(v) for v in parts[1:4]])
         except ValueError:
             raise InputError(f"{path}:{i}: x y z must be numbers, got {parts[1:4]}") from None
-        if not np.isfinite(d).all() or np.linalg.norm(d) < 1e-9:
+        if not np.isfinite(d).all() or np.linalg.norm(d) < EPS_NORM:
             raise InputError(f"{path}:{i}: light direction {parts[1:4]} is not a finite non-zero vector")
         out.append((name, d / np.linalg.norm(d)))
     return out

@@ -31,6 +31,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from relight.errors import InputError
+from relight.numerics import EPS
 
 #: Default minimum flash contrast over the dark level (linear luminance, 0-1), as in the paper,
 #: and the least share of the median flash's contrast a flash must reach (beyond the paper).
@@ -104,7 +105,7 @@ def estimate_flash_hz(trace: np.ndarray, fps: float, times: np.ndarray | None = 
     if 0 < k < power.size - 1:
         a, b, c = np.log(power[k - 1:k + 2] + 1e-300)
         denom = a - 2 * b + c
-        offset = 0.5 * (a - c) / denom if abs(denom) > 1e-12 else 0.0
+        offset = 0.5 * (a - c) / denom if abs(denom) > EPS else 0.0
         return float((k + np.clip(offset, -0.5, 0.5)) * fps / pad)
     return float(freqs[k])
 

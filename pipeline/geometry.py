@@ -25,6 +25,7 @@ from scipy.sparse.linalg import spsolve
 
 from relight.colour import luminance
 from relight.errors import InputError
+from relight.numerics import EPS, EPS_NORM
 
 #: Share of each pixel's samples left out as shadowed (darkest) and as specular (brightest).
 SHADOW_SHARE = 0.35
@@ -142,7 +143,7 @@ def _ps_chunk(col: np.ndarray, dirs: np.ndarray, clipped: np.ndarray | None):
     b = _weighted_lstsq(L, val, wgt)
     # Second round: drop samples facing away from the first fit (attached shadow, wrap light)
     # and those far above or below it (specular, cast shadow).
-    n1 = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
+    n1 = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), EPS)
     cos = n1 @ L.T
     pred = b @ L.T
     res = val - pred
@@ -152,15 +153,15 @@ def _ps_chunk(col: np.ndarray, dirs: np.ndarray, clipped: np.ndarray | None):
     wgt2[few] = wgt[few]
     b = _weighted_lstsq(L, val, wgt2)
     rho = np.linalg.norm(b, axis=1)
-    n = b / np.maximum(rho, 1e-12)[:, None]
-    bad = ~np.isfinite(n).all(axis=1) | (rho < 1e-9)
+    n = b / np.maximum(rho, EPS)[:, None]
+    bad = ~np.isfinite(n).all(axis=1) | (rho < EPS_NORM)
     n[bad] = (0.0, 0.0, 1.0)
     n[n[:, 2] < 0] *= -1.0  # a visible surface faces the camera
     cos = np.clip(n @ L.T, 0.0, None)
     wc = wgt2 * cos
     num = np.einsum("pk,kpc->pc", wc, np.nan_to_num(col).astype(np.float64), optimize=True)
     den = np.einsum("pk,pk->p", wc, cos)[:, None]
-    albedo = np.where(den > 1e-9, num / np.maximum(den, 1e-9), 0.0)
+    albedo = np.where(den > EPS_NORM, num / np.maximum(den, EPS_NORM), 0.0)
     pred = rho[:, None] * cos
     rel = np.sqrt(np.sum(wgt2 * (val - pred) ** 2, axis=1) / np.maximum(wgt2.sum(axis=1), 1)) / np.maximum(rho, 1e-6)
     return n, albedo, rel
@@ -171,7 +172,7 @@ def _weighted_lstsq(L: np.ndarray, val: np.ndarray, wgt: np.ndarray) -> np.ndarr
     # As matrix products (BLAS): a three-operand einsum runs as one naive loop, ~20x slower.
     ata = (wgt @ (L[:, :, None] * L[:, None, :]).reshape(len(L), 9)).reshape(-1, 3, 3)
     atb = (wgt * val) @ L
-    ata += np.eye(3) * 1e-9 * np.maximum(np.trace(ata, axis1=1, axis2=2), 1e-12)[:, None, None]
+    ata += np.eye(3) * EPS_NORM * np.maximum(np.trace(ata, axis1=1, axis2=2), EPS)[:, None, None]
     return np.linalg.solve(ata, atb[..., None])[..., 0]
 
 
@@ -267,7 +268,7 @@ def rasterize_mesh(mesh, shape: tuple[int, int], origin=(0, 0)) -> tuple[np.ndar
     keep = (x1 >= 0) & (y1 >= 0) & (x0 <= w - 1) & (y0 <= h - 1)
     tri = tri[keep]
     fn = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
-    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-12)
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), EPS)
     fn[fn[:, 2] < 0] *= -1
     span = np.maximum(np.ceil(x1[keep]) - np.floor(x0[keep]), np.ceil(y1[keep]) - np.floor(y0[keep])).astype(int) + 1
     for size in np.unique(np.minimum(span, 64)):
@@ -283,11 +284,11 @@ def rasterize_mesh(mesh, shape: tuple[int, int], origin=(0, 0)) -> tuple[np.ndar
             bx, by = px[t[:, 1]][:, None], py[t[:, 1]][:, None]
             cx, cy = px[t[:, 2]][:, None], py[t[:, 2]][:, None]
             den = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
-            den = np.where(np.abs(den) < 1e-12, np.nan, den)
+            den = np.where(np.abs(den) < EPS, np.nan, den)
             l0 = ((by - cy) * (X - cx) + (cx - bx) * (Y - cy)) / den
             l1 = ((cy - ay) * (X - cx) + (ax - cx) * (Y - cy)) / den
             l2 = 1 - l0 - l1
-            inside = (l0 >= -1e-9) & (l1 >= -1e-9) & (l2 >= -1e-9) & (X >= 0) & (Y >= 0) & (X < w) & (Y < h)
+            inside = (l0 >= -EPS_NORM) & (l1 >= -EPS_NORM) & (l2 >= -EPS_NORM) & (X >= 0) & (Y >= 0) & (X < w) & (Y < h)
             z = l0 * pz[t[:, 0]][:, None] + l1 * pz[t[:, 1]][:, None] + l2 * pz[t[:, 2]][:, None]
             ii, jj = np.nonzero(inside)
             flat = (Y[ii, jj] * w + X[ii, jj]).astype(np.int64)

@@ -30,6 +30,7 @@ from scipy import ndimage
 from scipy.optimize import least_squares
 
 from relight.directions import light_for_sphere_point
+from relight.numerics import EPS
 
 #: Highlight detection, on linear luminance 0-1: the least the flash must add, the paper's
 #: threshold and the blob's extent (shares of the maximum). A highlight on a reflection of the
@@ -102,7 +103,7 @@ def refine_circle(image: np.ndarray, guess: tuple[float, float, float]) -> tuple
     rows = np.arange(EDGE_RAYS)
     a, b, c = grad[rows, k - 1], grad[rows, k], grad[rows, k + 1]
     den = a - 2 * b + c
-    off = np.where(np.abs(den) > 1e-12, 0.5 * (a - c) / np.where(np.abs(den) > 1e-12, den, 1.0), 0.0)
+    off = np.where(np.abs(den) > EPS, 0.5 * (a - c) / np.where(np.abs(den) > EPS, den, 1.0), 0.0)
     edge = rho[k] + np.clip(off, -1, 1) * (rho[1] - rho[0])
     strength = b
     keep = strength > 0.3 * np.median(strength)

@@ -29,7 +29,7 @@ from .directions import (
 )
 from .errors import InputError
 from .imageio import read_image
-from .numerics import ACCUM, FLOAT, require_finite
+from .numerics import ACCUM, EPS, EPS_NORM, FLOAT, TINY_SCALE, require_finite
 
 #: Width of the built-in maps unless asked otherwise (a 2-degree sun spans ~3 texels).
 BUILTIN_WIDTH = 512
@@ -148,7 +148,7 @@ def builtin_point(direction, width: int = BUILTIN_WIDTH) -> np.ndarray:
     Its radiance integrates to pi over the map, so a white Lambertian surface facing it reads 1.
     """
     d = np.asarray(direction, dtype=ACCUM)
-    if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) < 1e-9:
+    if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) < EPS_NORM:
         raise InputError(f"point:{direction}: expected three finite numbers x,y,z not all zero")
     dirs, dw, env = _grid(width)
     _light(env, _disc(dirs, dw, d, POINT_RADIUS_DEG), dw, (1.0, 1.0, 1.0), 1.0)
@@ -289,7 +289,7 @@ def _quarter_yaw(r: np.ndarray) -> int | None:
     for k in range(4):
         a = k * np.pi / 2
         ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-        if np.allclose(r, ry, atol=1e-12):
+        if np.allclose(r, ry, atol=EPS):
             return k
     return None
 
@@ -356,7 +356,7 @@ def environment_to_lights(env: np.ndarray, *, grid: tuple[int, int] = (128, 64),
     power = env.astype(ACCUM) * dw[..., None]
     lum = luminance(env).astype(ACCUM)
     mean = float(np.sum(lum * dw) / (4 * np.pi))
-    peak = lum > peak_factor * max(mean, 1e-30)
+    peak = lum > peak_factor * max(mean, TINY_SCALE)
     if peak.sum() > max_peaks:
         thresh = np.partition(lum.ravel(), -max_peaks)[-max_peaks]
         peak &= lum >= thresh

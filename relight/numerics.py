@@ -17,8 +17,14 @@ from .errors import InputError, NumericalError
 FLOAT = np.float32
 ACCUM = np.float64
 
-#: Denominators smaller than this are treated as zero (guarded divisions).
+#: The named epsilons (no literal ones in product code):
+#: denominators smaller than EPS are treated as zero (guarded divisions, weight sums, determinants);
 EPS = 1e-12
+#: a length, area or weight below EPS_NORM is zero - not a direction, a degenerate triangle, a
+#: point on a plane - and EPS_NORM x trace is the ridge that keeps a Gram matrix positive definite;
+EPS_NORM = 1e-9
+#: the floor of a scale, energy or peak that a ratio is taken against (far below any radiance).
+TINY_SCALE = 1e-30
 
 
 def require_finite(name: str, array: np.ndarray, *, user_input: bool = False) -> np.ndarray:

@@ -34,6 +34,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from relight.numerics import TINY_SCALE
+
 #: Directional lights the basis is rendered under (Fibonacci directions with z above this).
 BASIS_LIGHTS = 24
 BASIS_MIN_Z = 0.05
@@ -119,7 +121,7 @@ class FaceFinder:
         a = stack[:, m].astype(np.float64)
         a -= a.mean(axis=1, keepdims=True)
         _, sv, vt = np.linalg.svd(a, full_matrices=False)
-        k = min(BASIS_DIM, int((sv > 1e-6 * max(sv[0], 1e-30)).sum()))
+        k = min(BASIS_DIM, int((sv > 1e-6 * max(sv[0], TINY_SCALE)).sum()))
         basis = np.zeros((k, *m.shape), np.float32)
         basis[:, m] = vt[:k]
         return cls(basis, m, origin=(x0 * scale, y0 * scale))
@@ -156,7 +158,7 @@ class FaceFinder:
         b = np.stack([warp(x) for x in self.basis])[:, m].astype(np.float64)
         b -= b.mean(axis=1, keepdims=True)
         q, r = np.linalg.qr(b.T)
-        keep = np.abs(np.diag(r)) > 1e-6 * max(float(np.abs(np.diag(r)).max()), 1e-30)
+        keep = np.abs(np.diag(r)) > 1e-6 * max(float(np.abs(np.diag(r)).max()), TINY_SCALE)
         basis = np.zeros((int(keep.sum()), side, side), np.float32)
         basis[:, m] = q[:, keep].T
         out = (basis, m.astype(np.float32), ref_to_t)
@@ -178,7 +180,7 @@ class FaceFinder:
             cj = cv2.matchTemplate(frame, bj, cv2.TM_CCORR)
             expl += cj * cj
         floor = n * (MIN_CONTRAST * np.maximum(mean, 1e-4)) ** 2
-        score = np.where(var > floor, expl / np.maximum(var, 1e-30), 0.0)
+        score = np.where(var > floor, expl / np.maximum(var, TINY_SCALE), 0.0)
         return score.astype(np.float32), mean
 
     # ------------------------------------------------------------------ search

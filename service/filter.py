@@ -26,6 +26,7 @@ import numpy as np
 
 from relight.errors import InputError
 from relight.imageio import atomic_path
+from relight.numerics import EPS_NORM
 
 from .composite import DEFAULT_MODE
 
@@ -58,7 +59,8 @@ class FilterResult:
         return (f"{self.frames} frames ({self.faces} with a face, {self.passed_through} passed through), audio "
                 f"{self.audio}; a frame's latency through the per-frame path median "
                 f"{t.get('median', 0):.1f} ms, p99 {t.get('p99', 0):.1f} ms; {self.wall_s:.1f} s in all (start "
-                f"{self.start_s:.1f} s, {self.frames / max(self.wall_s - self.start_s, 1e-9):.1f} frames per second "
+                f"{self.start_s:.1f} s, {self.frames / max(self.wall_s - self.start_s, EPS_NORM):.1f} frames per "
+                "second "
                 "after it)")
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from relight.colour import decode_srgb8
 from relight.directions import rotation_matrix
 from relight.errors import InputError
+from relight.numerics import EPS
 
 from . import composite
 from .live_light import SAMPLES, LightEstimator, LiveLight
@@ -636,7 +637,7 @@ class FramePath:
         e = xy - base
         noise = POINT_NOISE_AT_540 * size[1] / 540.0
         n2 = (e * e).sum(axis=1, keepdims=True)
-        shrink = np.clip(1.0 - noise * noise / np.maximum(n2, 1e-12), 0.0, 1.0)
+        shrink = np.clip(1.0 - noise * noise / np.maximum(n2, EPS), 0.0, 1.0)
         return (base + shrink * e).astype(np.float32)
 
     def _refind(self, est, pose, ts, grey, idx):

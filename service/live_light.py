@@ -33,6 +33,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from relight.colour import LUMINANCE
+from relight.numerics import EPS, EPS_NORM, TINY_SCALE
 
 #: Broad lobes over the sphere (Fibonacci directions) and their angular width (degrees, the von
 #: Mises-Fisher sigma).
@@ -98,13 +99,13 @@ def _nnls(a: np.ndarray, y: np.ndarray, prior: np.ndarray, ridge: float = RIDGE)
     """argmin |a w - y|^2 + lam |w - prior|^2 over w >= 0 (lam = ridge x the mean diagonal of a^T a)."""
     n = a.shape[1]
     g = a.T @ a
-    lam = ridge * max(float(np.trace(g)) / max(n, 1), 1e-30)
+    lam = ridge * max(float(np.trace(g)) / max(n, 1), TINY_SCALE)
     lhs = g + lam * np.eye(n)
     rhs = a.T @ y + lam * prior
     try:
         chol = np.linalg.cholesky(lhs)
     except np.linalg.LinAlgError:
-        chol = np.linalg.cholesky(lhs + 1e-9 * float(np.trace(lhs)) * np.eye(n))
+        chol = np.linalg.cholesky(lhs + EPS_NORM * float(np.trace(lhs)) * np.eye(n))
     w, _ = nnls(chol.T, np.linalg.solve(chol, rhs), maxiter=20 * n)
     return w
 
@@ -130,7 +131,7 @@ class LightEstimator:
         dirs = fibonacci_sphere(LOBES)
         lobes = lobe_lights(self.texel_dirs, np.asarray(solid_angle, np.float64), dirs)  # (T, n)
         reach = (self.lum_maps @ lobes.astype(np.float32)).max(axis=0)
-        live = reach > 1e-6 * max(float(reach.max(initial=0.0)), 1e-30)  # lobes the bundle can show
+        live = reach > 1e-6 * max(float(reach.max(initial=0.0)), TINY_SCALE)  # lobes the bundle can show
         self.lobe_dirs, self.lobes = dirs[live], lobes[:, live]
         self.lobe_lum = self.lum_maps @ self.lobes.astype(np.float32)  # (P_s, n)
         self.lobe_rgb = np.einsum("pct,tn->pcn", maps, self.lobes.astype(np.float32))  # (P_s, 3, n)
@@ -198,14 +199,14 @@ class LightEstimator:
             fit_l = a @ w
             r = np.abs(yl - fit_l)
             scale = 1.4826 * float(np.median(r))  # over every usable pixel: excluded ones can come back
-            u = r / (TUKEY_C * max(scale, 1e-9 * max(float(np.median(yl)), 1e-12)))
+            u = r / (TUKEY_C * max(scale, EPS_NORM * max(float(np.median(yl)), EPS)))
             self.robust[idx] = np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
         # 3. colour: one gain per channel on the fitted shape
         sub = idx[::COLOUR_STRIDE]
         fit_c = self.lobe_rgb[sub] @ w_lobes + np.tensordot(w_tex, self.maps_t[np.ix_(cand, sub)], axes=(0, 0))
         y = live[sub]
         wts = self.robust[sub][:, None]
-        gains = (wts * fit_c * y).sum(axis=0) / np.maximum((wts * fit_c * fit_c).sum(axis=0), 1e-30)
+        gains = (wts * fit_c * y).sum(axis=0) / np.maximum((wts * fit_c * fit_c).sum(axis=0), TINY_SCALE)
         gains = np.where(np.isfinite(gains) & (gains > 0), gains, 0.0)
         lum_gain = float(gains @ LUMINANCE)
         gains = gains / lum_gain if lum_gain > 0 else np.ones(3)
@@ -213,7 +214,7 @@ class LightEstimator:
         keep = self.robust[idx] > 0
         rms = float(np.sqrt(np.mean(yl[keep] ** 2))) if keep.any() else 0.0
         res = float(np.sqrt(np.mean((yl - fit_l)[keep] ** 2))) / rms if rms > 0 else float("nan")
-        lit = fit_l > 0.05 * max(float(np.median(fit_l)), 1e-12)
+        lit = fit_l > 0.05 * max(float(np.median(fit_l)), EPS)
         spread = 1.4826 * float(np.median(np.abs(yl[lit] / fit_l[lit] - 1.0))) if lit.any() else float("nan")
         if prev is not None and self.t is not None and t > self.t:
             k = 1.0 - np.exp(-(t - self.t) / SMOOTH_S)

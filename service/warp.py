@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
+from relight.numerics import EPS
+
 #: Spacing (px) of the grid at which the piecewise-affine map is evaluated exactly.
 GRID_STEP = 12
 #: Reference position given to frame pixels outside the triangulation (remap reads zeros there).
@@ -63,7 +65,7 @@ def coarse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int],
     q = np.asarray(ref, dtype=np.float64)[tri.simplices]  # (T, 3, 2) reference corners
     e = p[:, 1:] - p[:, :1]  # (T, 2, 2) edge vectors (rows)
     det = e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0]
-    det = np.where(np.abs(det) > 1e-12, det, 1e-12)
+    det = np.where(np.abs(det) > EPS, det, EPS)
     inv = np.empty_like(e)
     inv[:, 0, 0], inv[:, 0, 1] = e[:, 1, 1], -e[:, 0, 1]
     inv[:, 1, 0], inv[:, 1, 1] = -e[:, 1, 0], e[:, 0, 0]

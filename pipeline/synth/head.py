@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from relight.kernels.shading import NO_SURFACE, Surface
+from relight.numerics import EPS_NORM
 
 #: Subsamples per pixel side for the anti-aliased silhouette.
 ALPHA_SUPERSAMPLE = 4
@@ -197,7 +198,7 @@ def build_head(width: int, height: int, seed: int = 0) -> Head:
     gx = gx + np.gradient(bump, axis=1)
     gy = gy - np.gradient(bump, axis=0)
     slope = np.hypot(gx, gy)
-    limit = np.where(slope > MAX_SLOPE, MAX_SLOPE / np.maximum(slope, 1e-9), 1.0)
+    limit = np.where(slope > MAX_SLOPE, MAX_SLOPE / np.maximum(slope, EPS_NORM), 1.0)
     nrm = np.stack([-gx * limit, -gy * limit, np.ones_like(gx)], axis=-1)
     nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
 

@@ -62,7 +62,7 @@ from tqdm import tqdm
 from relight.directions import equirect_directions, equirect_solid_angles, fibonacci_sphere, rotation_matrix
 from relight.errors import InputError
 from relight.imageio import atomic_path, write_image
-from relight.numerics import FLOAT
+from relight.numerics import EPS, EPS_NORM, FLOAT
 from relight.video import AUDIO_RATE, VideoWriter
 
 from .head import Head, height_units, inside
@@ -245,7 +245,7 @@ def _smooth_channel(rng: np.random.Generator, t: np.ndarray, duration: float) ->
     phases = rng.uniform(0.0, 2.0 * np.pi, size=3)
     x = sum(wt * np.sin(2.0 * np.pi * f * t + p) for wt, f, p in zip(MOTION_WEIGHTS, freqs, phases, strict=True))
     lo, hi = float(x.min()), float(x.max())
-    if hi - lo < 1e-12:
+    if hi - lo < EPS:
         return np.zeros_like(t)
     return MOTION_SPAN * (2.0 * (x - lo) / (hi - lo) - 1.0)
 
@@ -260,7 +260,7 @@ def head_pose_track(rng: np.random.Generator, n: int, fps: float, amplitudes: tu
     frames are rendered from exactly the rounded values that go into the truth.
     """
     t = np.arange(n) / fps
-    duration = max(n / fps, 1e-9)
+    duration = max(n / fps, EPS_NORM)
     rot = np.stack([a * _smooth_channel(rng, t, duration) for a in amplitudes], axis=1)
     trans = np.stack([shift_px * _smooth_channel(rng, t, duration) for _ in range(2)], axis=1)
     return np.round(rot, 6), np.round(trans, 4)
@@ -345,7 +345,7 @@ class LiveHead:
         self.sh = environment_sh9(room)
         self._irradiance_form = sh9_irradiance_matrix(self.sh)
         e_max = sh9_irradiance(self.sh, fibonacci_sphere(SPHERE_POINTS)).max(axis=0)
-        self._e_floor = IRRADIANCE_FLOOR * np.maximum(e_max, 1e-12)
+        self._e_floor = IRRADIANCE_FLOOR * np.maximum(e_max, EPS)
         self._e_ref = np.maximum(sh9_irradiance(self.sh, self.normal), self._e_floor)
         n = self.normal
         self._monomials = np.stack([n[:, i] * n[:, j] if j < 3 else n[:, i] for i, j in zip(*_MONOMIALS, strict=True)
@@ -456,7 +456,7 @@ class LiveHead:
         ymin = np.maximum(np.ceil(np.minimum(np.minimum(ay, by), cy)), 0.0)
         ymax = np.minimum(np.floor(np.maximum(np.maximum(ay, by), cy)), gh - 1.0)
         area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-        live = (xmax >= xmin) & (ymax >= ymin) & (np.abs(area) > 1e-9)
+        live = (xmax >= xmin) & (ymax >= ymin) & (np.abs(area) > EPS_NORM)
         nx = (xmax - xmin).astype(np.int64) + 1
         ny = (ymax - ymin).astype(np.int64) + 1
         # Barycentric weights are affine in the sample position: l = base + A dx + B dy from the

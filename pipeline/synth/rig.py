@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.directions import rigid_matrix
+from relight.numerics import EPS
 
 #: Flash hand-path extent (degrees): azimuth +-AZ, elevation from EL_LOW to EL_HIGH.
 AZIMUTH_MAX = 80.0
@@ -140,7 +141,7 @@ def _ou_walk(rng: np.random.Generator, n: int, fps: float, tau_s: float = 2.0) -
     k = max(int(0.25 * fps), 1)
     x = np.convolve(np.pad(x, k, mode="edge"), np.ones(2 * k + 1) / (2 * k + 1), mode="same")[k:-k]
     x -= x.mean()
-    return x / max(float(np.abs(x).max()), 1e-12)
+    return x / max(float(np.abs(x).max()), EPS)
 
 
 def head_motion(rng: np.random.Generator, n: int, fps: float, height: int, amount: float,
@@ -164,8 +165,8 @@ def head_motion(rng: np.random.Generator, n: int, fps: float, height: int, amoun
     shift_max = MAX_SHIFT_PX_AT_540 * height / 540.0 * amount * rng.uniform(0.7, 1.0)
     rot_max = MAX_ROT_DEG * amount * rng.uniform(0.7, 1.0)
     tmag = np.hypot(rel[:, 0], rel[:, 1]).max()
-    rel[:, :2] *= shift_max / max(tmag, 1e-12) if amount > 0 else 0.0
-    rel[:, 2] *= rot_max / max(np.abs(rel[:, 2]).max(), 1e-12) if amount > 0 else 0.0
+    rel[:, :2] *= shift_max / max(tmag, EPS) if amount > 0 else 0.0
+    rel[:, 2] *= rot_max / max(np.abs(rel[:, 2]).max(), EPS) if amount > 0 else 0.0
     rel[reference] = 0.0
     return rel
 

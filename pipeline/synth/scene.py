@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from relight.envmap import sample_environment
-from relight.numerics import FLOAT
+from relight.numerics import EPS_NORM, FLOAT
 
 #: Angular radius of the flash as seen from the face (degrees) and the sphere's reflectance.
 FLASH_RADIUS_DEG = 1.5
@@ -88,7 +88,7 @@ class MirrorSphere:
         x0, y0, x1, y1 = self.bbox
         img = np.zeros((y1 - y0, x1 - x0), dtype=np.float64)
         half = d + np.array([0.0, 0.0, 1.0])
-        if np.linalg.norm(half) < 1e-9:
+        if np.linalg.norm(half) < EPS_NORM:
             return np.zeros((*img.shape, 3), dtype=FLOAT)
         # Where to look: around the mirror point of the half vector (the sub-samples below do
         # their own reflection, so the result does not rest on this guess).

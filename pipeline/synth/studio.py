@@ -35,6 +35,7 @@ from relight.kernels.shading import LightShader
 from relight.numerics import FLOAT, require_finite
 from relight.video import VideoWriter
 
+from ..geometry import height_field_mesh
 from . import rig
 from .camera import Sensor
 from .head import Head, build_head
@@ -412,23 +413,6 @@ def _union(group: list[Lights]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return dirs[keep], power[keep], column[keep]
 
 
-def _height_field_mesh(head: Head):
-    import trimesh
-
-    mask = head.mask
-    h, w = mask.shape
-    idx = -np.ones((h, w), dtype=np.int64)
-    ys, xs = np.nonzero(mask)
-    idx[ys, xs] = np.arange(ys.size)
-    verts = np.stack([xs, -ys, head.height[ys, xs]], axis=1).astype(np.float64)
-    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    quad = (a >= 0) & (b >= 0) & (c >= 0) & (d >= 0)
-    # Wound counter-clockwise as seen from the camera (+Z), so normals face it.
-    f1 = np.stack([a[quad], c[quad], b[quad]], axis=1)
-    f2 = np.stack([b[quad], c[quad], d[quad]], axis=1)
-    return trimesh.Trimesh(vertices=verts, faces=np.concatenate([f1, f2]), process=False)
-
-
 def synthesize(out: str | Path, config: SynthConfig = SynthConfig(), *, progress: bool = True) -> SynthResult:
     """Simulate a capture: write ``out/capture.mp4`` and the truth in ``out/truth/``."""
     t_all = time.perf_counter()
@@ -457,7 +441,7 @@ def synthesize(out: str | Path, config: SynthConfig = SynthConfig(), *, progress
     write_image(truth / "depth.exr", np.where(head.mask, head.height, 0.0).astype(FLOAT))
     write_image(truth / "albedo.exr", head.albedo)
     with atomic_path(truth / "head.ply") as tmp:
-        _height_field_mesh(head).export(str(tmp), file_type="ply")
+        height_field_mesh(head.height, head.mask).export(str(tmp), file_type="ply")
     timings["truth_write"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
