@@ -15,16 +15,10 @@ from relight.envmap import load_environment
 from relight.errors import InputError
 from relight.imageio import read_image
 from relight.pipeline.synth.head import height_units, inside
-from relight.pipeline.synth.live import (
-    AUDIO_RATE,
-    LiveConfig,
-    LiveScene,
-    environment_sh9,
-    head_pose_track,
-    make_audio,
-    sh9_irradiance,
-)
-from relight.video import VideoWriter, read_frames
+from relight.pipeline.synth.live import LiveConfig, LiveScene
+from relight.pipeline.synth.motion import head_pose_track, make_audio
+from relight.pipeline.synth.sh_light import environment_sh9, sh9_irradiance
+from relight.video import AUDIO_RATE, VideoWriter, read_frames
 
 SIZE, SEED, SECONDS = (320, 180), 5, 2.0
 

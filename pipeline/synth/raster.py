@@ -1,0 +1,277 @@
+"""The synthetic head rendered turned and moved: its height field as a triangle mesh shaded by
+spherical-harmonic light ratios, rasterised on a supersampled grid (a fragment rasteriser
+grouped by triangle size)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+
+from relight.directions import fibonacci_sphere
+from relight.numerics import EPS, EPS_NORM, FLOAT
+
+from .head import Head, height_units, inside
+from .sh_light import MONOMIALS, SPHERE_POINTS, environment_sh9, sh9_irradiance, sh9_irradiance_matrix
+
+#: Irradiance-ratio guards: the reference irradiance is floored at this share of the brightest
+#: direction's, and the ratio is capped.
+IRRADIANCE_FLOOR = 0.02
+MAX_SHADING_RATIO = 8.0
+#: Triangles per rasterisation batch times candidate samples (bounds memory).
+RASTER_BATCH = 2_000_000
+
+
+class LiveHead:
+    """The head as a triangle mesh that renders at any pose (see the module docstring).
+
+    head : the studio's head; radiance : (P, 3) linear radiance at the head's mask pixels
+    (``np.flatnonzero(head.mask)`` order) at the reference pose; room : the room environment
+    (lat-long, linear) whose irradiance re-shades turned normals; pivot : camera-space pivot
+    ``C`` (x, -y, z) - see :func:`pivot_point`; reach_px : how far (pixels) the head may move
+    down, to extend the neck below the frame.
+    """
+
+    def __init__(self, head: Head, radiance: np.ndarray, room: np.ndarray, pivot: np.ndarray, *,
+                 reach_px: float):
+        h_img, w_img = head.mask.shape
+        self.size = (w_img, h_img)
+        self.pivot = np.asarray(pivot, dtype=np.float64)
+        x0, y0, x1, _ = head.bbox(pad=2)
+        mask = head.mask[y0:, x0:x1]
+        rad_img = np.zeros((h_img, w_img, 3), dtype=np.float64)
+        rad_img.reshape(-1, 3)[np.flatnonzero(head.mask)] = radiance
+        # Rim vertices: the pixels just outside the silhouette, moved onto it (where the segment to
+        # the nearest head pixel leaves the head, found on the analytic outline), at the surface's
+        # height there. They carry the nearest head pixel's colour and normal.
+        ring = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~mask
+        _, (iy, ix) = distance_transform_edt(~mask, return_indices=True)
+        src_y, src_x = iy + y0, ix + x0  # image pixel each vertex takes its colour from
+        rows, cols = mask.shape
+        gy, gx = np.mgrid[y0:y0 + rows, x0:x0 + cols].astype(np.float64)
+        px, py = gx.copy(), gy.copy()
+        z = np.where(mask, head.height[y0:, x0:x1], 0.0).astype(np.float64)
+        ry, rx = np.nonzero(ring)
+        rim_x, rim_y, rim_z = _rim_points(head, src_x[ry, rx], src_y[ry, rx], gx[ry, rx], gy[ry, rx])
+        px[ry, rx], py[ry, rx], z[ry, rx] = rim_x, rim_y, rim_z
+        vert = mask | ring
+        # Extend the neck below the frame: repeat the last row (pure neck there), one pixel lower each time.
+        extra = int(np.ceil(reach_px)) + 2
+        if mask[-1].any():
+            def ext(a):
+                return np.concatenate([a, np.repeat(a[-1:], extra, axis=0)], axis=0)
+            vert, z, px, src_y, src_x, mask = ext(vert), ext(z), ext(px), ext(src_y), ext(src_x), ext(mask)
+            py = np.concatenate([py, py[-1:] + np.arange(1, extra + 1)[:, None]], axis=0)
+        index = -np.ones(vert.shape, dtype=np.int64)
+        vy, vx = np.nonzero(vert)
+        index[vy, vx] = np.arange(vy.size)
+        #: Reference image position (x, y) of each vertex, and its camera-space point (x, -y, height).
+        self.ref_xy = np.stack([px[vy, vx], py[vy, vx]], axis=1)
+        self.points = np.stack([self.ref_xy[:, 0], -self.ref_xy[:, 1], z[vy, vx]], axis=1)
+        self._src = (src_y[vy, vx], src_x[vy, vx])
+        self.radiance = rad_img[self._src]
+        self.normal = head.normal[self._src].astype(np.float64)
+        # Two triangles per quad of four vertices with at least one head pixel among them.
+        a, b, c, d = index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:]
+        quad = (a >= 0) & (b >= 0) & (c >= 0) & (d >= 0)
+        quad &= mask[:-1, :-1] | mask[:-1, 1:] | mask[1:, :-1] | mask[1:, 1:]
+        self.triangles = np.concatenate([np.stack([a[quad], c[quad], b[quad]], axis=1),
+                                         np.stack([b[quad], c[quad], d[quad]], axis=1)]).astype(np.int32)
+        self._corners = np.ascontiguousarray(self.triangles.T)  # (3, T): rows of first, second, third corners
+        # Room irradiance (SH) at the reference normals, for the shading ratio.
+        self.sh = environment_sh9(room)
+        self._irradiance_form = sh9_irradiance_matrix(self.sh)
+        e_max = sh9_irradiance(self.sh, fibonacci_sphere(SPHERE_POINTS)).max(axis=0)
+        self._e_floor = IRRADIANCE_FLOOR * np.maximum(e_max, EPS)
+        self._e_ref = np.maximum(sh9_irradiance(self.sh, self.normal), self._e_floor)
+        n = self.normal
+        self._monomials = np.stack([n[:, i] * n[:, j] if j < 3 else n[:, i] for i, j in zip(*MONOMIALS, strict=True)
+                                    if i < 3])  # (9, V): the monomials except the constant
+        self._relative = np.ascontiguousarray((self.points - self.pivot).T)  # (3, V)
+
+    # -- per-vertex values
+    def vertex_values(self, image: np.ndarray) -> np.ndarray:
+        """Per-vertex values (V, C) of a reference-pose image (H, W) or (H, W, C): each head
+        pixel's own; rim and below-frame neck vertices take their nearest head pixel's (as the
+        colours do)."""
+        img = np.asarray(image, dtype=np.float64)
+        if img.ndim == 2:
+            img = img[..., None]
+        return img[self._src]
+
+    def colours(self, rotation: np.ndarray) -> np.ndarray:
+        """(V, 3) vertex radiance with the head turned by ``rotation`` (room light, SH irradiance ratio)."""
+        # E(R n) = n~^T (R~^T M R~) n~ with n~ = (n, 1), R~ = diag(R, 1): rotate the form, not the
+        # normals, and evaluate it on the normals' ten quadratic monomials. (Per-frame work avoids
+        # BLAS: its threads spin on small products and slow the rest down.)
+        r4 = np.eye(4)
+        r4[:3, :3] = rotation
+        form = np.einsum("ji,cjk,kl->cil", r4, self._irradiance_form, r4)  # (3, 4, 4)
+        iu, ju = MONOMIALS
+        weight = np.where(iu == ju, 1.0, 2.0)
+        out = np.empty_like(self.radiance, dtype=FLOAT)
+        for ch in range(3):
+            coef = form[ch][iu, ju] * weight
+            e = np.full(self._monomials.shape[1], coef[-1], dtype=np.float64)
+            for k in range(len(coef) - 1):
+                e += coef[k] * self._monomials[k]
+            ratio = np.minimum(np.maximum(e, 0.0) / self._e_ref[:, ch], MAX_SHADING_RATIO)
+            out[:, ch] = self.radiance[:, ch] * ratio
+        return out
+
+    def project(self, rotation: np.ndarray, translation=(0.0, 0.0), points: np.ndarray | None = None) -> np.ndarray:
+        """Camera-space points (N, 3) (default: the mesh vertices) moved by the pose -> (N, 3):
+        ``R (P - C) + C + (tx, -ty, 0)``."""
+        r = np.asarray(rotation, dtype=np.float64)
+        q = self._relative if points is None else (np.asarray(points, dtype=np.float64) - self.pivot).T
+        tx, ty = translation
+        shift = self.pivot + np.array([tx, -ty, 0.0])
+        return np.stack([r[i, 0] * q[0] + r[i, 1] * q[1] + r[i, 2] * q[2] + shift[i] for i in range(3)], axis=1)
+
+    # -- rasterisation
+    def render(self, rotation: np.ndarray, translation=(0.0, 0.0), values: np.ndarray | None = None
+               ) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]:
+        """Rasterise the head at a pose.
+
+        Returns ``box`` (x0, y0, x1, y1) in the image, the premultiplied head values
+        (y1-y0, x1-x0, C) (mean over 2x2 samples per pixel; 0 where uncovered) and the coverage
+        (y1-y0, x1-x0) in [0, 1]. ``values`` (V, C) replaces the shaded vertex colours.
+        """
+        rotation = np.asarray(rotation, dtype=np.float64)
+        vals = self.colours(rotation) if values is None else np.asarray(values, dtype=FLOAT)
+        w_img, h_img = self.size
+        p = self.project(rotation, translation)
+        x_img, y_img = p[:, 0], -p[:, 1]
+        bx0 = int(np.clip(np.floor(x_img.min()) - 1, 0, w_img))
+        bx1 = int(np.clip(np.ceil(x_img.max()) + 2, 0, w_img))
+        by0 = int(np.clip(np.floor(y_img.min()) - 1, 0, h_img))
+        by1 = int(np.clip(np.ceil(y_img.max()) + 2, 0, h_img))
+        box = (bx0, by0, bx1, by1)
+        nch = vals.shape[1]
+        if bx1 <= bx0 or by1 <= by0:
+            return box, np.zeros((max(by1 - by0, 0), max(bx1 - bx0, 0), nch), FLOAT), \
+                np.zeros((max(by1 - by0, 0), max(bx1 - bx0, 0)), FLOAT)
+        gw, gh = 2 * (bx1 - bx0), 2 * (by1 - by0)
+        # Sample (I, J) of the 2x grid sits at pixel coordinate box0 + (I - 0.5) / 2.
+        sx = 2.0 * (x_img - bx0) + 0.5
+        sy = 2.0 * (y_img - by0) + 0.5
+        sz = p[:, 2].astype(np.float32)
+        cells, depth, t, w0, w1 = self._rasterise(sx, sy, sz, gw, gh)
+        # Z-buffer: the nearest fragment (largest z: toward the camera) of each sample wins.
+        zbuf = np.full(gw * gh, -np.inf, dtype=np.float32)
+        np.maximum.at(zbuf, cells, depth)
+        win = depth >= zbuf[cells]
+        cells, w0, w1 = cells[win], w0[win], w1[win]
+        t0, t1, t2 = t[0, win], t[1, win], t[2, win]
+        w2 = 1.0 - w0 - w1
+        # Values and coverage on the 2x grid, box-filtered to pixels (INTER_AREA: exact 2x2 means).
+        planes = np.ascontiguousarray(vals.T)
+        out = np.empty((gh // 2, gw // 2, nch), dtype=FLOAT)
+        grid = np.zeros(gw * gh, dtype=FLOAT)
+        for ch in range(nch):
+            v = planes[ch]
+            grid[cells] = w0 * v[t0] + w1 * v[t1] + w2 * v[t2]
+            out[..., ch] = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
+        grid[:] = 0.0
+        grid[cells] = 1.0
+        cov = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
+        return box, out, cov
+
+    def _rasterise(self, sx: np.ndarray, sy: np.ndarray, sz: np.ndarray, gw: int, gh: int):
+        """Fragments of all triangles on the integer sample grid [0, gw) x [0, gh).
+
+        sx, sy : (V,) float64 vertex positions in samples; sz : (V,) depth. Returns sample index,
+        depth, the triangle's vertices (3, F) and the barycentric weights of the first two. Edges
+        are inclusive (a sample on an edge shared by two triangles is produced by both, never by
+        neither). Triangles are grouped by bounding-box size; each is tested at every sample of
+        its box (boxes larger than 4x4 samples are rounded up to squares).
+        """
+        ax, bx, cx = sx[self._corners]
+        ay, by, cy = sy[self._corners]
+        xmin = np.maximum(np.ceil(np.minimum(np.minimum(ax, bx), cx)), 0.0)
+        xmax = np.minimum(np.floor(np.maximum(np.maximum(ax, bx), cx)), gw - 1.0)
+        ymin = np.maximum(np.ceil(np.minimum(np.minimum(ay, by), cy)), 0.0)
+        ymax = np.minimum(np.floor(np.maximum(np.maximum(ay, by), cy)), gh - 1.0)
+        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        live = (xmax >= xmin) & (ymax >= ymin) & (np.abs(area) > EPS_NORM)
+        nx = (xmax - xmin).astype(np.int64) + 1
+        ny = (ymax - ymin).astype(np.int64) + 1
+        # Barycentric weights are affine in the sample position: l = base + A dx + B dy from the
+        # bounding box's first sample (coefficients in float64, per-sample work in float32).
+        inv = np.where(live, 1.0 / np.where(live, area, 1.0), 0.0)
+        a0, b0 = (by - cy) * inv, (cx - bx) * inv
+        a1, b1 = (cy - ay) * inv, (ax - cx) * inv
+        base0 = a0 * xmin + b0 * ymin + (bx * cy - by * cx) * inv
+        base1 = a1 * xmin + b1 * ymin + (cx * ay - cy * ax) * inv
+        coef = np.stack([a0, b0, a1, b1, base0, base1]).astype(np.float32)
+        xmin, ymin = xmin.astype(np.int32), ymin.astype(np.int32)
+        # Group key: exact box size up to 4x4, else the power-of-two square that holds the box.
+        small = (nx <= 4) & (ny <= 4)
+        side = 2 ** np.ceil(np.log2(np.maximum(np.maximum(nx, ny), 1))).astype(np.int64)
+        key = np.where(small, (nx - 1) * 4 + (ny - 1), 16 + side)
+        sel = np.flatnonzero(live)
+        order = sel[np.argsort(key[sel], kind="stable")]
+        keys = key[order]
+        # Per-triangle data in group order, so each group is a contiguous slice.
+        coef, xmin, ymin = coef[:, order], xmin[order], ymin[order]
+        starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if order.size else np.zeros(0, np.int64)
+        ends = np.r_[starts[1:], order.size]
+        eps = np.float32(-1e-5)
+        out = []
+        for s0, s1 in zip(starts, ends, strict=True):
+            kk = int(keys[s0])
+            gx_n, gy_n = (kk // 4 + 1, kk % 4 + 1) if kk < 16 else (kk - 16, kk - 16)
+            m = gx_n * gy_n
+            dy, dx = np.divmod(np.arange(m, dtype=np.int32), np.int32(gx_n))
+            fdx, fdy = dx.astype(np.float32), dy.astype(np.float32)
+            step = max(RASTER_BATCH // m, 1)
+            for c0 in range(s0, s1, step):
+                c1 = min(c0 + step, s1)
+                fa0, fb0, fa1, fb1, fc0, fc1 = coef[:, c0:c1, None]
+                l0 = fa0 * fdx
+                l0 += fc0
+                l0 += fb0 * fdy
+                l1 = fa1 * fdx
+                l1 += fc1
+                l1 += fb1 * fdy
+                ok = (l0 >= eps) & (l1 >= eps) & (l0 + l1 <= 1.0 - eps)
+                flat = np.flatnonzero(ok)
+                r, q = np.divmod(flat, m)
+                px = xmin[c0:c1][r] + dx[q]
+                py = ymin[c0:c1][r] + dy[q]
+                if kk >= 16:  # rounded-up boxes can reach past the grid's edge
+                    inb = (px < gw) & (py < gh)
+                    flat, r, px, py = flat[inb], r[inb], px[inb], py[inb]
+                l0, l1 = l0.ravel()[flat], l1.ravel()[flat]
+                ti = order[c0 + r]
+                t = self._corners[:, ti]
+                z0, z1, z2 = sz[t[0]], sz[t[1]], sz[t[2]]
+                out.append((py * gw + px, z2 + l0 * (z0 - z2) + l1 * (z1 - z2), t, l0, l1))
+        if not out:
+            return (np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros((3, 0), np.int32),
+                    np.zeros(0, np.float32), np.zeros(0, np.float32))
+        cells, depth, t, l0, l1 = zip(*out, strict=True)
+        return (np.concatenate(cells), np.concatenate(depth), np.concatenate(t, axis=1), np.concatenate(l0),
+                np.concatenate(l1))
+
+
+#: Bisection steps locating the silhouette between a head pixel and a pixel off the head (2^-20 px).
+RIM_BISECTIONS = 20
+
+
+def _rim_points(head: Head, in_x, in_y, out_x, out_y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the segments from head pixels (in_x, in_y) to off-head pixels (out_x, out_y) cross the
+    head's analytic outline (:func:`.head.inside`), and the surface height there (pixels)."""
+    cx, cy = head.center
+    s = head.scale
+    ax, ay = np.asarray(in_x, dtype=np.float64), np.asarray(in_y, dtype=np.float64)
+    bx, by = np.asarray(out_x, dtype=np.float64), np.asarray(out_y, dtype=np.float64)
+    lo, hi = np.zeros(ax.shape), np.ones(ax.shape)
+    for _ in range(RIM_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        inn = inside((ax + mid * (bx - ax) - cx) / s, (cy - (ay + mid * (by - ay))) / s)
+        lo = np.where(inn, mid, lo)
+        hi = np.where(inn, hi, mid)
+    x, y = ax + lo * (bx - ax), ay + lo * (by - ay)
+    z = height_units((x - cx) / s, (cy - y) / s) * s
+    return x, y, z
