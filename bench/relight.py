@@ -196,7 +196,7 @@ def run(out: Path, quick: bool = False, progress: bool = True) -> dict:
     light = np.array([0.5, 0.3, 0.8])
     lp = transport.point_light(light, bundle.map_size, np.asarray(bundle.map_texels))
     pl = _blocked_ms({"light": lambda i: exact.relight_light(light + 0.01 * np.sin(i) * np.array([1, 0, 0])),
-                      "exact": lambda i: exact._run_exact(lp)})
+                      "exact": lambda i: exact.relight_texels(lp)})
     pl_bytes = 4 * 3 * p * 2 + p * 16
     doc = {"pixels": p, "frame": list(bundle.frame_size), "map_size": list(bundle.map_size),
            "texels": int(bundle.map_texels.size), "bandwidth": bw, "start": start, "envs": rows,
@@ -228,8 +228,10 @@ def _bench_env(name, env, exact, compacts, rots, mask, truth, p, probe, quick) -
     e_img = exact.relight(env)
     row = {"env": name, "paths": []}
     lp = exact.texel_light(env, rots[3])
+    lp_t = lp / exact.sample_scale  # relight_texels takes flash units (texel_light's are scaled)
     # The exact kernel and the bandwidth probe take turns: the fraction compares like with like.
-    t = _blocked_ms({"call": lambda i: exact.relight(env, rots[i], out=out), "kernel": lambda i: exact._run_exact(lp),
+    t = _blocked_ms({"call": lambda i: exact.relight(env, rots[i], out=out),
+                     "kernel": lambda i: exact.relight_texels(lp_t),
                      "probe": probe}, rounds=3 if quick else 4, per=3, warmup=1)
     e_ms, e_kernel = t["call"], t["kernel"]
     _, lit = exact_light_blocks(lp, exact.t_exact)
@@ -263,6 +265,7 @@ def _bench_compact(tol, rl, env, e_img, rots, mask, truth, p, probe, quick) -> d
     r_img_e = rl.relight_numpy(env, rots[7], exact=True)
     rel_rot = float(np.linalg.norm(r_img_c[mask] - r_img_e[mask]) / np.linalg.norm(r_img_e[mask]))
     lp = rl.texel_light(env, rots[3])
+    lp_t = lp / rl.sample_scale  # relight_texels takes flash units (texel_light's are scaled)
     k = rl.rank
     # What a user would write instead: the same rank-k product with NumPy/BLAS on float32 data
     # (basis images (3, k, P), the brightest texels' rows (n, 3, P)), written into a frame.
@@ -282,7 +285,7 @@ def _bench_compact(tol, rl, env, e_img, rots, mask, truth, p, probe, quick) -> d
     def blas_product(i):
         return [coef[c] @ v32[c] + dl[:, c] @ rows32[:, c] for c in range(3)]
 
-    ms = _blocked_ms({"call": lambda i: rl.relight(env, rots[i], out=out), "kernel": lambda i: rl._run_compact(lp),
+    ms = _blocked_ms({"call": lambda i: rl.relight(env, rots[i], out=out), "kernel": lambda i: rl.relight_texels(lp_t),
                       "blas": blas, "blas_product": blas_product,
                       "direction": lambda i: rl.texel_light(env, rots[i])},
                      rounds=3 if quick else ROUNDS)

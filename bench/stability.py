@@ -404,17 +404,17 @@ def _reference_maps(opts, method, samples, problem, tri):
     k = len(dirs)
     flat = samples.reshape(k, -1)
     if method == "rbf":
-        width = methods._rbf_setup(dirs)
-        kk = methods._rbf_kernel(dirs, dirs, width)
+        width = methods.rbf_width(dirs)
+        kk = methods.rbf_kernel(dirs, dirs, width)
         system = kk + methods.RBF_RIDGE * np.eye(k) * np.trace(kk) / k
         coef = np.linalg.lstsq(system, flat, rcond=None)[0]
-        out = methods._rbf_kernel(texels, dirs, width) @ coef
+        out = methods.rbf_kernel(texels, dirs, width) @ coef
     else:
         if method == "ptm":
-            a, e = methods._ptm_basis(dirs), methods._ptm_basis(texels)
+            a, e = methods.ptm_basis(dirs), methods.ptm_basis(texels)
         else:
             order = 3 if method == "hsh" else 2
-            a, e = methods._hsh_basis(dirs, order), methods._hsh_basis(texels, order)
+            a, e = methods.hsh_basis(dirs, order), methods.hsh_basis(texels, order)
         coef = np.linalg.lstsq(a, flat, rcond=None)[0]
         out = e @ coef
     out = np.clip(out, 0.0, None).reshape(len(texels), *problem.samples.shape[1:])

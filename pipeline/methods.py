@@ -36,12 +36,13 @@ def validate_method(name: str) -> str:
     return name
 
 
-def _ptm_basis(d: np.ndarray) -> np.ndarray:
+def ptm_basis(d: np.ndarray) -> np.ndarray:
+    """(K, 6) PTM's biquadratic basis in the directions' (x, y) (Malzbender et al. 2001)."""
     u, v = d[:, 0], d[:, 1]
     return np.stack([u * u, v * v, u * v, u, v, np.ones_like(u)], axis=1)
 
 
-def _hsh_basis(d: np.ndarray, order: int) -> np.ndarray:
+def hsh_basis(d: np.ndarray, order: int) -> np.ndarray:
     """Hemispherical harmonics (Gautron et al. 2004) up to ``order`` (order^2 terms) over z > 0."""
     z = np.clip(d[:, 2], -1.0, 1.0)
     theta = np.arccos(np.clip(z, 0.0, 1.0))
@@ -64,7 +65,8 @@ def _hsh_basis(d: np.ndarray, order: int) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def _rbf_setup(dirs: np.ndarray):
+def rbf_width(dirs: np.ndarray):
+    """The Gaussian RBF width (radians) for sample directions ``dirs``: from their median spacing."""
     cosm = dirs @ dirs.T
     np.fill_diagonal(cosm, -1.0)
     spacing = float(np.median(np.arccos(np.clip(cosm.max(axis=1), -1, 1))))
@@ -72,7 +74,8 @@ def _rbf_setup(dirs: np.ndarray):
     return width
 
 
-def _rbf_kernel(a: np.ndarray, b: np.ndarray, width: float) -> np.ndarray:
+def rbf_kernel(a: np.ndarray, b: np.ndarray, width: float) -> np.ndarray:
+    """(len(a), len(b)) Gaussian of the angle between directions, of ``width`` radians."""
     ang = np.arccos(np.clip(a @ b.T, -1.0, 1.0))
     return np.exp(-0.5 * (ang / width) ** 2)
 
@@ -87,16 +90,16 @@ def fit_and_evaluate(method: str, dirs: np.ndarray, samples: np.ndarray, texel_d
     k = len(dirs)
     flat = samples.reshape(k, -1).astype(np.float64)
     if method == "ptm":
-        a, e = _ptm_basis(dirs), _ptm_basis(texel_dirs)
+        a, e = ptm_basis(dirs), ptm_basis(texel_dirs)
     elif method in ("hsh", "hsh2"):
         order = 3 if method == "hsh" else 2
-        a, e = _hsh_basis(dirs, order), _hsh_basis(texel_dirs, order)
+        a, e = hsh_basis(dirs, order), hsh_basis(texel_dirs, order)
     elif method == "rbf":
-        width = _rbf_setup(dirs)
-        kk = _rbf_kernel(dirs, dirs, width)
+        width = rbf_width(dirs)
+        kk = rbf_kernel(dirs, dirs, width)
         # Ridge-regularised interpolation: the weights solve (K + ridge I) w = samples.
         coef = np.linalg.solve(kk + RBF_RIDGE * np.eye(k) * np.trace(kk) / k, flat)
-        out = _rbf_kernel(texel_dirs, dirs, width) @ coef
+        out = rbf_kernel(texel_dirs, dirs, width) @ coef
         return _pixel_major(np.clip(out, 0.0, None).reshape(len(texel_dirs), *samples.shape[1:]))
     else:
         raise InputError(f"method {method!r} is not a fitted method")
