@@ -27,6 +27,8 @@ from relight.colour import luminance
 from relight.errors import InputError
 from relight.numerics import EPS, EPS_NORM
 
+from .raster import rasterise
+
 #: Share of each pixel's samples left out as shadowed (darkest) and as specular (brightest).
 SHADOW_SHARE = 0.35
 SPECULAR_SHARE = 0.10
@@ -259,46 +261,17 @@ def rasterize_mesh(mesh, shape: tuple[int, int], origin=(0, 0)) -> tuple[np.ndar
         raise InputError("the mesh has non-finite vertex coordinates")
     px = v[:, 0] - origin[0]
     py = -v[:, 1] - origin[1]
-    pz = v[:, 2]
-    zbuf = np.full(h * w, -np.inf)
-    nbuf = np.zeros((h * w, 3))
-    tri = np.stack([f[:, 0], f[:, 1], f[:, 2]], axis=1)
-    x0, y0 = px[tri].min(axis=1), py[tri].min(axis=1)
-    x1, y1 = px[tri].max(axis=1), py[tri].max(axis=1)
-    keep = (x1 >= 0) & (y1 >= 0) & (x0 <= w - 1) & (y0 <= h - 1)
-    tri = tri[keep]
-    fn = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), EPS)
     fn[fn[:, 2] < 0] *= -1
-    span = np.maximum(np.ceil(x1[keep]) - np.floor(x0[keep]), np.ceil(y1[keep]) - np.floor(y0[keep])).astype(int) + 1
-    for size in np.unique(np.minimum(span, 64)):
-        sel = np.flatnonzero(np.minimum(span, 64) == size)
-        for start in range(0, sel.size, max(1, 200_000 // (size * size))):
-            part = sel[start:start + max(1, 200_000 // (size * size))]
-            t = tri[part]
-            gx = np.floor(px[t].min(axis=1))[:, None] + np.arange(size)[None, :]
-            gy = np.floor(py[t].min(axis=1))[:, None] + np.arange(size)[None, :]
-            X = np.repeat(gx[:, None, :], size, axis=1).reshape(len(part), -1)
-            Y = np.repeat(gy[:, :, None], size, axis=2).reshape(len(part), -1)
-            ax, ay = px[t[:, 0]][:, None], py[t[:, 0]][:, None]
-            bx, by = px[t[:, 1]][:, None], py[t[:, 1]][:, None]
-            cx, cy = px[t[:, 2]][:, None], py[t[:, 2]][:, None]
-            den = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
-            den = np.where(np.abs(den) < EPS, np.nan, den)
-            l0 = ((by - cy) * (X - cx) + (cx - bx) * (Y - cy)) / den
-            l1 = ((cy - ay) * (X - cx) + (ax - cx) * (Y - cy)) / den
-            l2 = 1 - l0 - l1
-            inside = (l0 >= -EPS_NORM) & (l1 >= -EPS_NORM) & (l2 >= -EPS_NORM) & (X >= 0) & (Y >= 0) & (X < w) & (Y < h)
-            z = l0 * pz[t[:, 0]][:, None] + l1 * pz[t[:, 1]][:, None] + l2 * pz[t[:, 2]][:, None]
-            ii, jj = np.nonzero(inside)
-            flat = (Y[ii, jj] * w + X[ii, jj]).astype(np.int64)
-            zz = z[ii, jj]
-            order = np.argsort(zz)  # later (nearer) writes win
-            zbuf_prev = zbuf[flat[order]]
-            win = zz[order] > zbuf_prev
-            fi = flat[order][win]
-            zbuf[fi] = zz[order][win]
-            nbuf[fi] = fn[part[ii[order][win]]]
+    # Fragments at the pixel centres (the one rasteriser), then a z-buffer: the nearest fragment
+    # (largest z: toward the camera) of each pixel wins.
+    cells, z, tri, _, _ = rasterise(np.ascontiguousarray(f.T), px, py, v[:, 2], w, h)
+    zbuf = np.full(h * w, -np.inf)
+    np.maximum.at(zbuf, cells, z.astype(np.float64))
+    win = z >= zbuf[cells]
+    nbuf = np.zeros((h * w, 3))
+    nbuf[cells[win]] = fn[tri[win]]
     cover = np.isfinite(zbuf)
     depth = np.where(cover, zbuf, 0.0).reshape(h, w).astype(np.float32)
     return depth, nbuf.reshape(h, w, 3).astype(np.float32), cover.reshape(h, w)

@@ -65,7 +65,7 @@ from relight.video import AUDIO_RATE, VideoWriter
 
 from .head import Head
 from .motion import AUDIO_KINDS, NOISE_RMS, TONE_HZ, TONE_PEAK, head_pose_track, make_audio
-from .raster import LiveHead
+from .render import LiveHead
 from .studio import MAX_SIZE, MIN_SIZE, Studio, SynthConfig
 
 LIVE_FORMAT_VERSION = 1
