@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import maximum_filter
 
+from relight.numerics import EPS_VALUE
+
 from .runtime import build_program, get_runtime
 
 #: Tile size of the empty-space-skipping maxima (must match TILE in heightfield.h).
@@ -83,7 +85,7 @@ def visibility_numpy(height: np.ndarray, px: np.ndarray, py: np.ndarray, pz: np.
     l = np.asarray(light, dtype=np.float32)
     s = np.float32(np.sqrt(l[0] * l[0] + l[1] * l[1]))
     vis = np.ones(px.shape, dtype=bool)
-    if s < 1e-6:
+    if s < EPS_VALUE:
         return vis
     dx, dy, dz = l[0] / s, -l[1] / s, l[2] / s
     active = np.ones(px.shape, dtype=bool)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from relight.errors import InputError
-from relight.numerics import EPS_NORM
+from relight.numerics import EPS_NORM, EPS_VALUE
 
 from .runtime import aligned_zeros, build_program, get_runtime
 
@@ -46,7 +46,7 @@ def texel_azimuths(texel_dirs: np.ndarray, n_az: int) -> np.ndarray:
     pos = beta / (2 * np.pi) * n_az - 0.5
     i0 = np.floor(pos).astype(np.int64) % n_az
     return np.stack([i0, (i0 + 1) % n_az, pos - np.floor(pos),
-                     np.where(s_xy < 1e-6, 8.0, np.arctan2(texel_dirs[:, 2], np.maximum(s_xy, EPS_NORM)))], axis=1)
+                     np.where(s_xy < EPS_VALUE, 8.0, np.arctan2(texel_dirs[:, 2], np.maximum(s_xy, EPS_NORM)))], axis=1)
 
 
 def _smoothed_visibility(queue, k_vis, k_box, b_hz, p_all: int, b_taz, map_size, vis_soft: float, p0: int, n: int,
@@ -127,7 +127,7 @@ def _texel_tables(vertices, vertex_texel, texel_vertices, texel_weights, texel_d
     floats[:, :3] = np.asarray(texel_weights)[act]
     floats[:, 4:13] = np.asarray(vertices)[tv].reshape(-1, 9)
     floats[:, 13:16] = d
-    floats[:, 16:19] = np.where(hn > 1e-6, hv / np.maximum(hn, 1e-6), 0.0)  # as lobe()
+    floats[:, 16:19] = np.where(hn > EPS_VALUE, hv / np.maximum(hn, EPS_VALUE), 0.0)  # as lobe()
     return ints, floats
 
 

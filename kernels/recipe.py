@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.errors import InputError, NumericalError
-from relight.numerics import EPS, EPS_NORM, half_ceil
+from relight.numerics import EPS, EPS_NORM, EPS_VALUE, half_ceil
 
 from . import reflectance as rf
 from .maps import neighbourhoods
@@ -266,7 +266,7 @@ def smoothed_visibility(horizon: np.ndarray, n_az: int, map_size, texels: np.nda
     elev = np.arctan2(d[:, 2], np.maximum(s, EPS_NORM)).astype(np.float32)
     soft = np.float32(rf.VIS_SOFT_TEXELS * np.pi / h)
     vis = np.clip(0.5 + (elev[None] - hz) / soft, 0.0, 1.0).astype(np.float32)
-    vis[:, s < 1e-6] = 1.0
+    vis[:, s < EPS_VALUE] = 1.0
     return vis[:, inv.reshape(nb.shape)].mean(axis=2, dtype=np.float32)
 
 
@@ -364,7 +364,7 @@ def _rows_chunk(r: Recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs
         vp = vis_t.T  # (n, p)
         vmin, vmax = vv.min(axis=1), vv.max(axis=1)
         spread = vmax - vmin
-        sp = np.maximum(spread, 1e-6)
+        sp = np.maximum(spread, EPS_VALUE)
         lit = np.clip((vv - vmin[:, None]) / sp[:, None], 0.0, 1.0)
         t_lit = np.clip((vp - vmin) / sp, 0.0, 1.0)[..., None]
 

@@ -41,7 +41,7 @@ from relight.directions import (
     equirect_directions,
 )
 from relight.errors import InputError, NumericalError
-from relight.numerics import EPS, EPS_NORM, TINY_SCALE
+from relight.numerics import EPS, EPS_NORM, EPS_VALUE, TINY_SCALE
 
 from .triangulation import (  # noqa: F401 (the triangulation's names, re-exported for the stages)
     DEFAULT_MAP_SIZE,
@@ -145,7 +145,7 @@ def lobe(normals: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     h the unit half vector of each direction (D, 3) and the view +Z (0 straight behind)."""
     half = np.asarray(dirs, dtype=normals.dtype) + np.array([0.0, 0.0, 1.0], dtype=normals.dtype)
     norm = np.linalg.norm(half, axis=1)
-    half = half / np.where(norm > 1e-6, norm, np.inf)[:, None]
+    half = half / np.where(norm > EPS_VALUE, norm, np.inf)[:, None]
     nh = np.clip(normals @ half.T, 0.0, None)
     return np.where(normals @ np.asarray(dirs, dtype=normals.dtype).T > 0.0, _ipow(nh, SPEC_EXPONENT), 0.0)
 
@@ -219,7 +219,7 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation,
         safe = np.where(ok, det, 1.0)[:, None]
         a2 = (ss[:, None] * cy - cs_[:, None] * sy) / safe
         s2 = (cc[:, None] * sy - cs_[:, None] * cy) / safe
-        a1 = cy / np.maximum(cc, 1e-6)[:, None]  # albedo alone
+        a1 = cy / np.maximum(cc, EPS_VALUE)[:, None]  # albedo alone
         two = ok[:, None] & (s2 > 0.0)
         a = np.where(two, a2, a1)
         sp = np.where(two, s2, 0.0)
@@ -507,7 +507,7 @@ def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *
     elev = np.arctan2(tdirs[:, 2], np.maximum(s, EPS_NORM))
     soft = VIS_SOFT_TEXELS * np.pi / h
     vis = np.clip(0.5 + (elev[None, :] - elev_h) / soft, 0.0, 1.0).astype(np.float32)
-    vis[:, s < 1e-6] = 1.0  # straight toward the camera: a height field cannot block it
+    vis[:, s < EPS_VALUE] = 1.0  # straight toward the camera: a height field cannot block it
     vis = vis.reshape(-1, h, w)
     if smooth:
         vis = box3(vis)
@@ -605,8 +605,8 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
                 # The vertex with the least visibility is shadowed, the one with the most lit, the
                 # third in between by its value (a soft share, so tiny changes never flip a
                 # vertex); the texel's own visibility chooses between the two interpolations.
-                lit_share = np.clip((vv - vmin[..., None]) / np.maximum(spread, 1e-6)[..., None], 0.0, 1.0)
-                t_lit = np.clip((vp - vmin) / np.maximum(spread, 1e-6), 0.0, 1.0)[..., None]
+                lit_share = np.clip((vv - vmin[..., None]) / np.maximum(spread, EPS_VALUE)[..., None], 0.0, 1.0)
+                t_lit = np.clip((vp - vmin) / np.maximum(spread, EPS_VALUE), 0.0, 1.0)[..., None]
                 if adaptation:
                     c_l = _adapt(cv, wv, dv, dp, lit_share)
                     c_s = _adapt(cv, wv, dv, dp, 1.0 - lit_share)

@@ -27,7 +27,7 @@ from relight.colour import luminance
 from relight.directions import equirect_directions, rotation_matrix
 from relight.envmap import environment_to_lights, load_environment, validate_environment
 from relight.errors import InputError
-from relight.numerics import flush_subnormal_halves, half_ceil, read_halves
+from relight.numerics import RANK_REL, flush_subnormal_halves, half_ceil, read_halves
 
 #: Lat-long grid (columns, rows) on which environments become lights; their bright texels
 #: (over PEAK_FACTOR times the mean, at most MAX_PEAKS) stay lights of their own. The maps' own
@@ -128,7 +128,7 @@ def hull_cone(map_size, texels: np.ndarray) -> tuple[np.ndarray, float]:
     d = equirect_directions(w, h).reshape(-1, 3)[np.asarray(texels, dtype=np.int64)]
     axis = d.sum(axis=0)
     n = float(np.linalg.norm(axis))
-    if not d.size or n < 1e-6 * max(len(d), 1):
+    if not d.size or n < RANK_REL * max(len(d), 1):
         return np.array([0.0, 0.0, 1.0]), -1.0
     axis /= n
     spread = float(np.arccos(np.clip((d @ axis).min(), -1.0, 1.0)))

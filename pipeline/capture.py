@@ -23,7 +23,7 @@ from relight.imageio import read_image
 from relight.kernels import reflectance
 from relight.kernels.bundle import write_bundle
 from relight.kernels.heightfield import HORIZON_DIRS
-from relight.numerics import EPS_NORM, flush_subnormal_halves
+from relight.numerics import EPS_NORM, EPS_VALUE, flush_subnormal_halves
 
 from . import geometry, methods
 from .ingest import DEFAULT_FACE_PIXELS, ingest
@@ -566,7 +566,7 @@ def _landmarks(prep: Prepared, mask: np.ndarray) -> np.ndarray:
     if mask.any():
         amb = float(np.median(luminance(prep.ambient[mask])))
         if amb > 0.0 and amb >= ROOM_LIGHT_MIN_SHARE * float(np.median(luminance(decode_srgb8(ref)[mask]))):
-            ref = encode_srgb8(prep.ambient / max(float(prep.ambient.max()), 1e-6))
+            ref = encode_srgb8(prep.ambient / max(float(prep.ambient.max()), EPS_VALUE))
     grey = cv2.cvtColor(np.ascontiguousarray(ref), cv2.COLOR_RGB2GRAY)
     pts = cv2.goodFeaturesToTrack(grey, maxCorners=MAX_LANDMARKS, qualityLevel=0.01, minDistance=5,
                                   mask=mask.astype(np.uint8) * 255)

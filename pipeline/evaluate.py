@@ -20,6 +20,7 @@ import numpy as np
 
 from relight.directions import angle_between_deg, rigid_matrix
 from relight.imageio import read_image
+from relight.numerics import EPS_VALUE
 
 from .flash import precision_recall
 
@@ -63,7 +64,7 @@ def evaluate_capture(report: dict, bundle, truth_dir) -> dict:
         size = bundle.frame_size
         mask = cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA) > 0.5
         n_true = cv2.resize(n_true, size, interpolation=cv2.INTER_AREA)
-        n_true /= np.maximum(np.linalg.norm(n_true, axis=-1, keepdims=True), 1e-6)
+        n_true /= np.maximum(np.linalg.norm(n_true, axis=-1, keepdims=True), EPS_VALUE)
     x0, y0 = bundle.crop_origin
     m_est = np.asarray(bundle.mask_crop)
     h, w = m_est.shape

@@ -70,6 +70,10 @@ class FlashFrames:
 #: Relative difference between the stated frame rate and the frames' mean rate above which the
 #: mean rate is used (below it the stated one: the frames are evenly spaced).
 RATE_TOLERANCE = 1e-3
+#: A brightness trace whose standard deviation is below this is flat (nothing blinks), and the
+#: floor of the spectrum's power before its logarithm.
+FLAT_STD = 1e-7
+LOG_FLOOR = 1e-300
 
 
 def estimate_flash_hz(trace: np.ndarray, fps: float, times: np.ndarray | None = None) -> float | None:
@@ -89,7 +93,7 @@ def estimate_flash_hz(trace: np.ndarray, fps: float, times: np.ndarray | None = 
     if n < 16:
         return None
     x = x - x.mean()
-    if x.std() < 1e-7:  # a flat trace: nothing blinks
+    if x.std() < FLAT_STD:  # a flat trace: nothing blinks
         return None
     window = np.hanning(n)
     pad = 1 << int(np.ceil(np.log2(n * 4)))
@@ -103,7 +107,7 @@ def estimate_flash_hz(trace: np.ndarray, fps: float, times: np.ndarray | None = 
     if power[k] < 4.0 * np.median(power[idx]) or power[k] <= 0:
         return None
     if 0 < k < power.size - 1:
-        a, b, c = np.log(power[k - 1:k + 2] + 1e-300)
+        a, b, c = np.log(power[k - 1:k + 2] + LOG_FLOOR)
         denom = a - 2 * b + c
         offset = 0.5 * (a - c) / denom if abs(denom) > EPS else 0.0
         return float((k + np.clip(offset, -0.5, 0.5)) * fps / pad)

@@ -25,7 +25,7 @@ from scipy.sparse.linalg import spsolve
 
 from relight.colour import luminance
 from relight.errors import InputError
-from relight.numerics import EPS, EPS_NORM
+from relight.numerics import EPS, EPS_NORM, EPS_VALUE
 
 from .raster import rasterise
 
@@ -61,6 +61,13 @@ class Geometry:
 MASK_BAND_VALUES = 1 << 22
 
 
+#: Ambient light below this (linear) is too dark to tell the flash's share of a pixel.
+AMBIENT_FLOOR = 1e-4
+#: Tikhonov weight keeping the normal integration's sparse system well posed (the depth's
+#: constant offset is otherwise free).
+INTEGRATION_RIDGE = 1e-6
+
+
 def head_mask(images: np.ndarray, ambient: np.ndarray, face_box_local=None) -> np.ndarray:
     """(h, w) bool: pixels the flash lights much more, relative to the room, than the wall.
 
@@ -76,14 +83,14 @@ def head_mask(images: np.ndarray, ambient: np.ndarray, face_box_local=None) -> n
     for r0 in range(0, h, band):
         flash[r0:r0 + band] = np.median(luminance(images[:, r0:r0 + band]), axis=0)
     amb = luminance(ambient)
-    ratio = flash / np.maximum(amb, 1e-4)
+    ratio = flash / np.maximum(amb, AMBIENT_FLOOR)
     ratio = ndimage.median_filter(ratio, size=5)
     if face_box_local is None:
         face_box_local = (w // 3, h // 3, w // 3, h // 3)
     fx, fy, fw, fh = (int(v) for v in face_box_local)
     face = ratio[max(fy, 0):fy + fh, max(fx, 0):fx + fw]
     ref = float(np.median(face)) if face.size else float(np.median(ratio))
-    mask = (ratio > MASK_RATIO * ref) & (amb > 1e-4)
+    mask = (ratio > MASK_RATIO * ref) & (amb > AMBIENT_FLOOR)
     mask = ndimage.binary_opening(mask, iterations=2)
     labels, n = ndimage.label(mask)
     if n == 0:
@@ -150,7 +157,7 @@ def _ps_chunk(col: np.ndarray, dirs: np.ndarray, clipped: np.ndarray | None):
     pred = b @ L.T
     res = val - pred
     scale = np.sqrt(np.sum(wgt * res**2, axis=1, keepdims=True) / np.maximum(wgt.sum(axis=1, keepdims=True), 1))
-    wgt2 = (valid & (cos > MIN_COSINE) & (np.abs(res) < 2.5 * scale + 1e-6) & (val > 0)).astype(np.float64)
+    wgt2 = (valid & (cos > MIN_COSINE) & (np.abs(res) < 2.5 * scale + EPS_VALUE) & (val > 0)).astype(np.float64)
     few = wgt2.sum(axis=1) < 6
     wgt2[few] = wgt[few]
     b = _weighted_lstsq(L, val, wgt2)
@@ -165,7 +172,8 @@ def _ps_chunk(col: np.ndarray, dirs: np.ndarray, clipped: np.ndarray | None):
     den = np.einsum("pk,pk->p", wc, cos)[:, None]
     albedo = np.where(den > EPS_NORM, num / np.maximum(den, EPS_NORM), 0.0)
     pred = rho[:, None] * cos
-    rel = np.sqrt(np.sum(wgt2 * (val - pred) ** 2, axis=1) / np.maximum(wgt2.sum(axis=1), 1)) / np.maximum(rho, 1e-6)
+    rel = np.sqrt(np.sum(wgt2 * (val - pred) ** 2, axis=1) / np.maximum(wgt2.sum(axis=1), 1))
+    rel /= np.maximum(rho, EPS_VALUE)
     return n, albedo, rel
 
 
@@ -213,7 +221,7 @@ def integrate_normals(normal: np.ndarray, mask: np.ndarray) -> np.ndarray:
     bvec = np.concatenate(rhs)
     # A whisper of Tikhonov pins the free constant (and any island) without bending the shape;
     # the outline's mean height is then set to zero.
-    lhs = (a.T @ a + sparse.identity(n) * 1e-6).tocsc()
+    lhs = (a.T @ a + sparse.identity(n) * INTEGRATION_RIDGE).tocsc()
     z = spsolve(lhs, a.T @ bvec)
     edge = mask & ~ndimage.binary_erosion(mask)
     z -= z[idx[edge]].mean()

@@ -12,6 +12,9 @@ from relight.numerics import EPS_NORM
 #: Triangles per rasterisation batch times candidate samples (bounds memory).
 RASTER_BATCH = 2_000_000
 
+#: Barycentric slack (float32) that keeps samples on a shared edge in both triangles.
+EDGE_EPS = 1e-5
+
 
 def rasterise(corners: np.ndarray, sx: np.ndarray, sy: np.ndarray, sz: np.ndarray, gw: int, gh: int):
     """Fragments of all triangles on the integer sample grid [0, gw) x [0, gh).
@@ -54,7 +57,7 @@ def rasterise(corners: np.ndarray, sx: np.ndarray, sy: np.ndarray, sz: np.ndarra
     coef, xmin, ymin = coef[:, order], xmin[order], ymin[order]
     starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if order.size else np.zeros(0, np.int64)
     ends = np.r_[starts[1:], order.size]
-    eps = np.float32(-1e-5)
+    eps = np.float32(-EDGE_EPS)
     out = []
     for s0, s1 in zip(starts, ends, strict=True):
         kk = int(keys[s0])

@@ -20,6 +20,7 @@ import numpy as np
 
 from relight.directions import rigid_matrix
 from relight.errors import InputError
+from relight.numerics import EPS_VALUE
 
 #: Lucas-Kanade settings: window, pyramid levels, forward-backward tolerance (pixels).
 LK_WINDOW = 21
@@ -126,7 +127,7 @@ class Tracker:
         self.rng = np.random.default_rng(0)
 
     def _stats(self, img):
-        return float(img.mean()), float(img.std()) + 1e-6
+        return float(img.mean()), float(img.std()) + EPS_VALUE
 
     def _match_brightness(self, img: np.ndarray) -> np.ndarray:
         # The camera's exposure and the dark frames' residual light change brightness between

@@ -18,6 +18,7 @@ import numpy as np
 
 from relight.directions import direction_to_equirect_uv
 from relight.imageio import atomic_path, write_image
+from relight.numerics import EPS_VALUE
 
 
 def _plt():
@@ -136,7 +137,7 @@ def _maps(plt, arrays, meta, tri, geo, path):
         full = np.zeros((mh * mw, 3), dtype=np.float32)
         full[texels] = maps[j].T
         img = full.reshape(mh, mw, 3)
-        axes[0, j].imshow(np.clip(img / max(float(img.max()), 1e-6), 0, 1) ** (1 / 2.2))
+        axes[0, j].imshow(np.clip(img / max(float(img.max()), EPS_VALUE), 0, 1) ** (1 / 2.2))
         axes[0, j].set_title(f"pixel ({xs[p]}, {ys[p]})", fontsize=8)
         axes[0, j].axis("off")
         axes[1, j].imshow(geo.mask, cmap="gray")

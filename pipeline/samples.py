@@ -18,6 +18,7 @@ import numpy as np
 
 from relight.colour import luminance
 from relight.errors import InputError
+from relight.numerics import EPS_VALUE
 
 from . import flash as flash_stage
 from . import registration, sphere
@@ -174,7 +175,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     if not core.any():
         core = luminance(ambient) > 0.005
     core_s = core[::GAIN_STEP, ::GAIN_STEP]
-    amb_mean = ambient[::GAIN_STEP, ::GAIN_STEP][core_s].mean(axis=0) + 1e-6
+    amb_mean = ambient[::GAIN_STEP, ::GAIN_STEP][core_s].mean(axis=0) + EPS_VALUE
     gains = {d: ing.crops[d].sparse(GAIN_STEP).linear()[core_s].mean(axis=0) / amb_mean for d in dark_used}
     # From here on only the flash frames' crops (and the reference's) are read: the others are
     # let go (memory: a crop per frame of a long 1080p capture is about a gigabyte).
@@ -253,7 +254,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
         if opts.subtract_ambient:
             img = img - ambient
         # Each frame showed its share `level` of the flash: scale the mean to a full flash.
-        np.multiply(img, len(frames) / max(wsum, 1e-6), out=images[n_done])
+        np.multiply(img, len(frames) / max(wsum, EPS_VALUE), out=images[n_done])
         clipped[n_done] = clip
         dirs.append(dsum / np.linalg.norm(dsum))
         pulse_frames.append(frames)

@@ -23,8 +23,13 @@ EPS = 1e-12
 #: a length, area or weight below EPS_NORM is zero - not a direction, a degenerate triangle, a
 #: point on a plane - and EPS_NORM x trace is the ridge that keeps a Gram matrix positive definite;
 EPS_NORM = 1e-9
-#: the floor of a scale, energy or peak that a ratio is taken against (far below any radiance).
+#: the floor of a scale, energy or peak that a ratio is taken against (far below any radiance);
 TINY_SCALE = 1e-30
+#: a linear value, spread, length or statistic below EPS_VALUE (a millionth of the flash's
+#: light) is zero where something is normalised by it;
+EPS_VALUE = 1e-6
+#: singular values (or pivots) below RANK_REL times the largest are dropped from a basis.
+RANK_REL = 1e-6
 
 
 def require_finite(name: str, array: np.ndarray, *, user_input: bool = False) -> np.ndarray:

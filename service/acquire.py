@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from relight.numerics import TINY_SCALE
+from relight.numerics import RANK_REL, TINY_SCALE
 
 #: Directional lights the basis is rendered under (Fibonacci directions with z above this).
 BASIS_LIGHTS = 24
@@ -84,6 +84,10 @@ def _point_lit(relighter, direction) -> np.ndarray:
     return relighter.relight_texels(point_light(direction, relighter.map_size, relighter.texels), direct=0)
 
 
+#: Floor of a window's mean (linear) in the contrast test: flat black windows never score.
+MEAN_FLOOR = 1e-4
+
+
 class FaceFinder:
     """Searches frames for the face spanned by ``basis`` (m, h, w) float32 (reference crop whose
     top-left is reference pixel ``origin``), ``mask`` (h, w) bool the face's pixels."""
@@ -121,7 +125,7 @@ class FaceFinder:
         a = stack[:, m].astype(np.float64)
         a -= a.mean(axis=1, keepdims=True)
         _, sv, vt = np.linalg.svd(a, full_matrices=False)
-        k = min(BASIS_DIM, int((sv > 1e-6 * max(sv[0], TINY_SCALE)).sum()))
+        k = min(BASIS_DIM, int((sv > RANK_REL * max(sv[0], TINY_SCALE)).sum()))
         basis = np.zeros((k, *m.shape), np.float32)
         basis[:, m] = vt[:k]
         return cls(basis, m, origin=(x0 * scale, y0 * scale))
@@ -158,7 +162,7 @@ class FaceFinder:
         b = np.stack([warp(x) for x in self.basis])[:, m].astype(np.float64)
         b -= b.mean(axis=1, keepdims=True)
         q, r = np.linalg.qr(b.T)
-        keep = np.abs(np.diag(r)) > 1e-6 * max(float(np.abs(np.diag(r)).max()), TINY_SCALE)
+        keep = np.abs(np.diag(r)) > RANK_REL * max(float(np.abs(np.diag(r)).max()), TINY_SCALE)
         basis = np.zeros((int(keep.sum()), side, side), np.float32)
         basis[:, m] = q[:, keep].T
         out = (basis, m.astype(np.float32), ref_to_t)
@@ -179,7 +183,7 @@ class FaceFinder:
         for bj in basis:
             cj = cv2.matchTemplate(frame, bj, cv2.TM_CCORR)
             expl += cj * cj
-        floor = n * (MIN_CONTRAST * np.maximum(mean, 1e-4)) ** 2
+        floor = n * (MIN_CONTRAST * np.maximum(mean, MEAN_FLOOR)) ** 2
         score = np.where(var > floor, expl / np.maximum(var, TINY_SCALE), 0.0)
         return score.astype(np.float32), mean
 

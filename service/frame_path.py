@@ -21,7 +21,7 @@ import numpy as np
 from relight.colour import decode_srgb8
 from relight.directions import rotation_matrix
 from relight.errors import InputError
-from relight.numerics import EPS
+from relight.numerics import EPS, EPS_VALUE
 
 from . import composite
 from .live_light import SAMPLES, LightEstimator, LiveLight
@@ -138,7 +138,7 @@ def normalised_correlation(windows: np.ndarray, templates: np.ndarray) -> tuple[
     s1, s2 = box(ii), box(ii2)
     var = np.maximum(s2 - s1 * s1 / area, 0.0)
     den = np.sqrt(var * t_norm2[:, None, None])
-    tiny = 1e-6 * area  # a patch or template flatter than a thousandth of a code
+    tiny = EPS_VALUE * area  # a patch or template flatter than a thousandth of a code
     r = np.where(den > tiny, num / np.maximum(den, tiny), 0.0)
     return np.clip(r, -1.0, 1.0), np.sqrt(t_norm2 / area)
 
@@ -385,7 +385,9 @@ class FramePath:
         ref_index = ((np.arange(h)[:, None] + y0) * ref_w + (np.arange(w)[None, :] + x0)).astype(np.int64)
         fill = np.full((h, w), -1, dtype=np.int32)
         fill[mask_crop] = ref_index[mask_crop]
-        fringe = (self.alpha_crop > 1e-4) & ~mask_crop
+        from relight.kernels.compositor import ALPHA_FLOOR
+
+        fringe = (self.alpha_crop > ALPHA_FLOOR) & ~mask_crop
         fill[fringe] = ref_index[iy[fringe], ix[fringe]]
         self.fill_flat = fill.ravel()
         # Every 7th face pixel: enough for the median of the lighting ratio.
@@ -610,7 +612,7 @@ class FramePath:
             relit_l = flat[ref_px[ref_px >= 0]] @ _LUM
             num, den = float(np.median(live)) if live.size else 0.0, float(np.median(relit_l)) if relit_l.size else 0.0
             gain = num / den if num > composite.TINY and den > composite.TINY else 1.0
-        gain = float(np.exp(self.gain_filter([np.log(max(gain, 1e-6))], t)[0]))
+        gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
         tm["warp"] = (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
         t4 = time.perf_counter()
         out = self.compositor.run(rgb, box, coarse, GRID_STEP, mode=layer_mode, gain=gain * self.exposure,

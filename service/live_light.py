@@ -33,7 +33,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from relight.colour import LUMINANCE
-from relight.numerics import EPS, EPS_NORM, TINY_SCALE
+from relight.numerics import EPS, EPS_NORM, RANK_REL, TINY_SCALE
 
 #: Broad lobes over the sphere (Fibonacci directions) and their angular width (degrees, the von
 #: Mises-Fisher sigma).
@@ -131,7 +131,7 @@ class LightEstimator:
         dirs = fibonacci_sphere(LOBES)
         lobes = lobe_lights(self.texel_dirs, np.asarray(solid_angle, np.float64), dirs)  # (T, n)
         reach = (self.lum_maps @ lobes.astype(np.float32)).max(axis=0)
-        live = reach > 1e-6 * max(float(reach.max(initial=0.0)), TINY_SCALE)  # lobes the bundle can show
+        live = reach > RANK_REL * max(float(reach.max(initial=0.0)), TINY_SCALE)  # lobes the bundle can show
         self.lobe_dirs, self.lobes = dirs[live], lobes[:, live]
         self.lobe_lum = self.lum_maps @ self.lobes.astype(np.float32)  # (P_s, n)
         self.lobe_rgb = np.einsum("pct,tn->pcn", maps, self.lobes.astype(np.float32))  # (P_s, 3, n)

@@ -17,6 +17,7 @@ import numpy as np
 from relight.colour import encode_srgb8
 from relight.directions import direction_to_equirect_uv, sphere_point_for_light
 from relight.imageio import read_image, write_image
+from relight.numerics import EPS_VALUE
 from relight.video import read_frames
 
 TILE = (480, 270)
@@ -44,7 +45,7 @@ def _label(tile: np.ndarray, text: str) -> np.ndarray:
 
 def _tonemap(linear: np.ndarray, mask: np.ndarray) -> np.ndarray:
     vals = linear[mask].max(axis=1) if mask.any() else linear.reshape(-1, 3).max(axis=1)
-    scale = 0.8 / max(float(np.percentile(vals, 98)), 1e-6)
+    scale = 0.8 / max(float(np.percentile(vals, 98)), EPS_VALUE)
     return encode_srgb8(linear * scale)
 
 
@@ -153,10 +154,10 @@ def _bundle_row(bundle, meta, capture, mask, bb) -> list:
     pc = np.zeros((ch * cw, 3), dtype=np.float32)
     pc[pix] = pred_p
     pred[y0:y0 + ch, x0:x0 + cw] = pc.reshape(ch, cw, 3)
-    scale = 0.8 / max(float(np.percentile(truth[mask].max(axis=1), 98)), 1e-6)
+    scale = 0.8 / max(float(np.percentile(truth[mask].max(axis=1), 98)), EPS_VALUE)
     cheek = int(np.argmin(np.abs(pix - (ch // 2 * cw + cw // 3))))
     rmap = bundle.full_map(cheek)
-    rmap_img = encode_srgb8(rmap / max(float(rmap.max()), 1e-6))
+    rmap_img = encode_srgb8(rmap / max(float(rmap.max()), EPS_VALUE))
     return [
         _label(_fit(np.round(np.clip(full_n * 0.5 + 0.5, 0, 1) * 255 * has[..., None]).astype(np.uint8)[bb]),
                "captured normals (photometric stereo)"),

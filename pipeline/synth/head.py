@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from relight.kernels.shading import NO_SURFACE, Surface
-from relight.numerics import EPS_NORM
+from relight.numerics import EPS_NORM, EPS_VALUE
 
 #: Subsamples per pixel side for the anti-aliased silhouette.
 ALPHA_SUPERSAMPLE = 4
@@ -157,7 +157,7 @@ def _noise(rng: np.random.Generator, shape, sigma_px: float) -> np.ndarray:
     n = rng.standard_normal(shape).astype(np.float32)
     if sigma_px > 0:
         n = cv2.GaussianBlur(n, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
-        n /= max(float(n.std()), 1e-6)
+        n /= max(float(n.std()), EPS_VALUE)
     return n
 
 

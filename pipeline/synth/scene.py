@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from relight.envmap import sample_environment
-from relight.numerics import EPS_NORM, FLOAT
+from relight.numerics import EPS_NORM, EPS_VALUE, FLOAT
 
 #: Angular radius of the flash as seen from the face (degrees) and the sphere's reflectance.
 FLASH_RADIUS_DEG = 1.5
@@ -123,5 +123,5 @@ def wall(width: int, height: int, rng: np.random.Generator) -> np.ndarray:
     y = np.linspace(0.0, 1.0, height)[:, None]
     n = rng.standard_normal((height, width)).astype(np.float32)
     n = cv2.GaussianBlur(n, (0, 0), max(2.0, width / 200))
-    n /= max(float(n.std()), 1e-6)
+    n /= max(float(n.std()), EPS_VALUE)
     return (WALL_ALBEDO * (1.05 - 0.1 * y) * (1 + 0.03 * n)).astype(FLOAT)
