@@ -305,10 +305,7 @@ class Relighter:
         self.t_pad = padded_texels(int(self.texels.size))
         self._maps = None
         w, h = bundle.frame_size
-        x0, y0 = bundle.crop_origin
-        cw = bundle.mask_crop.shape[1]
-        pix = np.asarray(bundle.pixels, dtype=np.int64)
-        self.frame_index = ((pix // cw + y0) * w + (pix % cw + x0)).astype(np.int32)
+        self.frame_index = bundle.frame_index
         self.transport = self._load_transport(bundle)
         self.cone = transport.hull_cone(self.map_size, self.texels)
         self.tolerance = float(tolerance)

@@ -214,15 +214,6 @@ def _aligned_box(small_mask: np.ndarray, full_shape: tuple[int, int]):
     return (out_s[0], out_s[1], out_s[2], out_s[3]), (out_f[0], out_f[1], out_f[2], out_f[3])
 
 
-def _bundle_frame_index(bundle) -> np.ndarray:
-    """(P,) index in the reference frame of each bundle pixel (bundle.pixels are crop indices)."""
-    w = bundle.frame_size[0]
-    x0, y0 = bundle.crop_origin
-    cw = bundle.mask_crop.shape[1]
-    pix = np.asarray(bundle.pixels, dtype=np.int64)
-    return (pix // cw + y0) * w + (pix % cw + x0)
-
-
 def _sample_rgb(rgb: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """(N, 3) uint8 pixels of ``rgb`` nearest to points ``xy`` (clipped to the frame)."""
     h, w = rgb.shape[:2]
@@ -397,7 +388,7 @@ class FramePath:
 
         # Normals of the crop (nearest face pixel's off the face) for fading out turned-away surface.
         normal_full = np.zeros((ref_h * ref_w, 3), np.float32)
-        normal_full[_bundle_frame_index(bundle)] = np.asarray(bundle.normal, np.float32)
+        normal_full[bundle.frame_index] = np.asarray(bundle.normal, np.float32)
         nfill = np.where(fill >= 0, fill, ref_index[iy, ix].astype(np.int32))
         normal_crop = normal_full[nfill.ravel()].reshape(h, w, 3)
         self.compositor = Compositor(self.alpha_crop, fill, self.inv_ambient, normal_crop, self.origin,
@@ -412,7 +403,7 @@ class FramePath:
             good = good[np.linspace(0, good.size - 1, SAMPLES).round().astype(np.int64)]
         self.live_ref = np.stack([px[good] + x0, py[good] + y0], axis=1).astype(np.float32)
         self.live_normal = normals[good]
-        self.live_full = _bundle_frame_index(bundle)[good]
+        self.live_full = bundle.frame_index[good]
         self.live_box = (int(self.live_ref[:, 0].min(initial=0)) - 2, int(self.live_ref[:, 1].min(initial=0)) - 2,
                          int(self.live_ref[:, 0].max(initial=0)) + 3, int(self.live_ref[:, 1].max(initial=0)) + 3)
         maps = bundle.pixel_maps(good, padded=False).astype(np.float32) * np.float32(self.relighter.sample_scale)
