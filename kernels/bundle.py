@@ -114,6 +114,26 @@ KEEP_MADE_MAPS_BYTES = 512 << 20
 #: The ambient frame counts as a picture of the face under the room's light (:attr:`Bundle.room_light`)
 #: when its median over the face is at least this share of the reference frame's.
 ROOM_LIGHT_MIN_SHARE = 0.25
+#: The meta keys every bundle must hold, each a pair of whole numbers within the bound: the
+#: reference frame's (W, H), the stored crop's top-left pixel in it, the lat-long map's (W, H).
+META_PAIRS = {"frame_size": (1, 1 << 16), "crop_origin": (0, 1 << 16), "map_size": (2, 4096)}
+
+
+def check_meta(meta, where: str = "bundle") -> dict:
+    """``meta`` checked against the schema the readers rely on (:data:`META_PAIRS`; a
+    ``sample_scale``, when present, a positive finite number): InputError naming the key."""
+    if not isinstance(meta, dict):
+        raise InputError(f"{where}: its meta is not a JSON object; the file is corrupt")
+    for key, (lo, hi) in META_PAIRS.items():
+        v = meta.get(key)
+        if not (isinstance(v, list | tuple) and len(v) == 2
+                and all(isinstance(x, int) and not isinstance(x, bool) and lo <= x < hi for x in v)):
+            raise InputError(f"{where}: meta {key!r} is {v!r}, not two whole numbers in [{lo}, {hi}); "
+                             "the bundle is incomplete or corrupt: capture it again")
+    scale = meta.get("sample_scale", 1.0)
+    if not (isinstance(scale, int | float) and not isinstance(scale, bool) and np.isfinite(scale) and scale > 0):
+        raise InputError(f"{where}: meta 'sample_scale' is {scale!r}, not a positive number; capture it again")
+    return meta
 
 
 @dataclass
@@ -382,6 +402,7 @@ def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarr
         missing += [k for k in RECIPE if k not in arrays]
     if missing:
         raise InputError(f"bundle is missing required field(s): {', '.join(missing)}")
+    check_meta(meta, str(path))
     prepared = {}
     for name, a in arrays.items():
         a = np.asarray(a)
@@ -460,6 +481,7 @@ def load_bundle(path: str | os.PathLike, *, verify: bool = True) -> Bundle:
         raise InputError(f"{path}: header is not valid JSON ({exc}); the file is corrupt") from None
     if not isinstance(doc, dict) or doc.get("format") != "relight-bundle" or not isinstance(doc.get("arrays"), dict):
         raise InputError(f"{path}: header does not describe a relight bundle")
+    check_meta(doc.get("meta"), str(path))
     arrays = {}
     need = REQUIRED + (() if "maps_rows" in doc["arrays"] else RECIPE)
     if not any(k in doc["arrays"] for k in BACKGROUND):

@@ -123,3 +123,28 @@ def test_writes_are_atomic_and_checked(tmp_path):
         write_bundle(target, META, missing)
     assert target.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["f.bundle"]
+
+
+def test_the_meta_schema_is_checked_on_write_and_on_load(tmp_path):
+    """The bundle module owns the meta keys its readers rely on: a writer missing one, or a file
+    whose header (checksum made to match) says something else, gets an error naming the key."""
+    import zlib
+
+    for bad in ({**META, "frame_size": [40]}, {k: v for k, v in META.items() if k != "map_size"},
+                {**META, "crop_origin": [-1, 0]}, {**META, "sample_scale": float("nan")}):
+        with pytest.raises(InputError, match="meta '(frame_size|map_size|crop_origin|sample_scale)'"):
+            write_bundle(tmp_path / "bad.bundle", bad, _arrays())
+    assert not (tmp_path / "bad.bundle").exists()
+    path = write_bundle(tmp_path / "ok.bundle", META, _arrays())
+    data = path.read_bytes()
+    hlen = struct.unpack_from("<Q", data, 16)[0]
+    header = json.loads(data[24:24 + hlen])
+    header["meta"]["frame_size"] = ["40", 30]
+    new = json.dumps(header).encode().ljust(hlen)  # same length: the arrays' offsets hold
+    assert len(new) == hlen
+    forged = bytearray(data)
+    forged[24:24 + hlen] = new
+    struct.pack_into("<I", forged, 12, zlib.crc32(new))
+    (tmp_path / "forged.bundle").write_bytes(bytes(forged))
+    with pytest.raises(InputError, match="meta 'frame_size'"):
+        load_bundle(tmp_path / "forged.bundle")
