@@ -53,6 +53,7 @@ import numpy as np
 from relight.directions import fibonacci_sphere
 from relight.errors import InputError
 from relight.kernels import reflectance
+from relight.kernels.bundle import storage_scale
 from relight.numerics import flush_subnormal_halves
 from relight.pipeline import methods
 
@@ -372,7 +373,7 @@ def reference_maps(variant: str, problem: MapProblem, tri: reflectance.Triangula
     # The samples and horizons as a bundle stores them (production makes its maps from those:
     # 8-bit codes are the measurement, not the arithmetic under test), in the production's
     # storage units (divided by its power-of-two scale, multiplied back at the end).
-    unit = reflectance.storage_scale(problem.samples)
+    unit = storage_scale(problem.samples)
     codes, code_scale = recipe.encode_samples((problem.samples / unit).astype(np.float32))
     samples = (codes / 255.0) ** (1.0 / recipe.SAMPLE_GAMMA) * code_scale.astype(np.float64)[None]
     return unit * _reference_maps(opts, method, samples, problem, tri)

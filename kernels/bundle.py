@@ -136,6 +136,25 @@ def check_meta(meta, where: str = "bundle") -> dict:
     return meta
 
 
+#: Bundles store samples and maps as float16 (largest 65504, smallest normal 6.1e-5): samples
+#: are scaled by a power of two so their peak lies at most at ``STORE_PEAK`` (light adaptation
+#: may multiply a value by up to 1 / MIN_COS = 10) and at least at ``STORE_FLOOR``.
+STORE_PEAK = 2.0 ** 12
+STORE_FLOOR = 2.0 ** -4
+
+
+def storage_scale(samples: np.ndarray) -> float:
+    """Power of two to divide samples by before float16 storage: 1.0 when their peak is within
+    [STORE_FLOOR, STORE_PEAK] (every ordinary capture), else the one that brings the peak to
+    about 1. All-zero samples: 1.0."""
+    peak = float(np.max(samples)) if samples.size else 0.0
+    if not np.isfinite(peak):
+        raise InputError("light samples hold NaN or infinite values; check the input images")
+    if peak <= 0.0 or STORE_FLOOR <= peak <= STORE_PEAK:
+        return 1.0
+    return float(2.0 ** np.round(np.log2(peak)))
+
+
 @dataclass
 class Bundle:
     """A loaded reflectance bundle: ``meta`` (dict) and the arrays (read-only, memory-mapped).

@@ -56,7 +56,8 @@ def encode_samples(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise InputError("light samples hold NaN or infinite values; check the input images")
     peak = np.maximum(x.max(axis=0), 0.0) if x.shape[0] else np.zeros(x.shape[1:], np.float32)
     if float(peak.max(initial=0.0)) > float(np.finfo(np.float16).max):
-        raise InputError("light samples above the float16 range: scale them first (reflectance.storage_scale)")
+        raise InputError("light samples above the float16 range: scale them first "
+                         "(relight.kernels.bundle.storage_scale)")
     scale = half_ceil(peak)  # x / scale <= 1
     s = scale.astype(np.float32)
     inv = np.where(s > 0, 1.0 / np.where(s > 0, s, 1.0), 0.0).astype(np.float32)

@@ -21,7 +21,7 @@ from relight.colour import encode_srgb8, srgb_to_linear
 from relight.errors import InputError, NumericalError
 from relight.imageio import read_image
 from relight.kernels import reflectance
-from relight.kernels.bundle import write_bundle
+from relight.kernels.bundle import storage_scale, write_bundle
 from relight.kernels.heightfield import HORIZON_DIRS
 from relight.numerics import EPS_NORM, EPS_VALUE, flush_subnormal_halves
 
@@ -447,7 +447,7 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     texels (T,) map texel ids, scale, stored samples (K, P, 3) float32).
 
     The samples are divided by ``scale``, a power of two (1 for ordinary captures; see
-    :func:`relight.kernels.reflectance.storage_scale`) so that maps and samples fit float16;
+    :func:`relight.kernels.bundle.storage_scale`) so that maps and samples fit float16;
     the bundle records it as ``sample_scale`` and the renderer multiplies its light by it.
     ``horizon``: the pixels' horizon table for visibility (P, n_az), or (table, index) as
     :func:`horizon_rows` gives it, or None.
@@ -463,7 +463,7 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
 
     if not np.isfinite(samples).all():
         raise InputError("light samples hold NaN or infinite values; check the input images")
-    scale = reflectance.storage_scale(samples)
+    scale = storage_scale(samples)
     if scale != 1.0:
         samples = (samples / np.float32(scale)).astype(np.float32)
     codes, code_scale = rcp.encode_samples(samples)
