@@ -6,6 +6,8 @@ import pytest
 
 from relight.bench import accuracy
 
+from .tolerances import F32_EXACT, F64_CLOSE
+
 
 def test_env_metrics_fit_one_gain_and_follow_the_error():
     rng = np.random.default_rng(0)
@@ -19,7 +21,7 @@ def test_env_metrics_fit_one_gain_and_follow_the_error():
     a, b = noisy[mask].astype(np.float64), truth[mask].astype(np.float64)
     g = (a * b).sum() / (a * a).sum()
     want = 10 * np.log10(b.max() ** 2 / ((g * a - b) ** 2).mean())
-    assert m["psnr"] == pytest.approx(want, abs=1e-6) and 0.5 < m["ssim"] < 1.0
+    assert m["psnr"] == pytest.approx(want, abs=F32_EXACT) and 0.5 < m["ssim"] < 1.0
     worse = accuracy.env_metrics(truth + rng.normal(0, 0.1, truth.shape).astype(np.float32), truth, mask)
     assert worse["psnr"] < m["psnr"] - 10 and worse["ssim"] < m["ssim"]
 
@@ -34,7 +36,7 @@ def test_masked_ssim_is_scikit_images_inside_the_mask():
     inner[5:-5, 5:-5] = True  # scikit-image's mean leaves out the 11x11 window's half width
     want = structural_similarity(a, b, channel_axis=2, data_range=1.0, gaussian_weights=True, sigma=1.5,
                                  use_sample_covariance=False)
-    assert accuracy.masked_ssim(b, a, inner) == pytest.approx(want, rel=1e-9)
+    assert accuracy.masked_ssim(b, a, inner) == pytest.approx(want, rel=F64_CLOSE)
 
 
 def test_sparse_sides_thin_the_samples_at_wide_azimuths():

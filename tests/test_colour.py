@@ -3,7 +3,7 @@ import pytest
 
 from relight.colour import decode_srgb8, encode_srgb8, linear_to_srgb, luminance, srgb_to_linear
 
-from .tolerances import SRGB_ROUNDTRIP
+from .tolerances import F32_EXACT, F32_LOOSE, F32_ZERO, SRGB_ROUNDTRIP
 
 
 def test_reference_values():
@@ -11,7 +11,7 @@ def test_reference_values():
     assert srgb_to_linear(np.array([0.0, 1.0]))[0] == 0.0
     assert srgb_to_linear(np.array([1.0]))[0] == pytest.approx(1.0)
     assert srgb_to_linear(np.array([0.04045]))[0] == pytest.approx(0.04045 / 12.92)
-    assert linear_to_srgb(np.array([0.18]))[0] == pytest.approx(0.46135, abs=1e-4)
+    assert linear_to_srgb(np.array([0.18]))[0] == pytest.approx(0.46135, abs=F32_LOOSE)
 
 
 def test_round_trip_and_dtype():
@@ -32,9 +32,9 @@ def test_encode_lut_matches_formula_to_the_code():
 
 def test_decode_is_exact_per_code():
     codes = np.arange(256, dtype=np.uint8)
-    np.testing.assert_allclose(decode_srgb8(codes), srgb_to_linear(codes / 255.0), atol=1e-7)
+    np.testing.assert_allclose(decode_srgb8(codes), srgb_to_linear(codes / 255.0), atol=F32_ZERO)
     assert (encode_srgb8(decode_srgb8(codes)) == codes).all()
 
 
 def test_luminance_of_white_is_one():
-    assert luminance(np.ones(3)) == pytest.approx(1.0, abs=1e-6)
+    assert luminance(np.ones(3)) == pytest.approx(1.0, abs=F32_EXACT)

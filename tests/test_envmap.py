@@ -18,6 +18,8 @@ from relight.envmap import (
 from relight.errors import InputError
 from relight.imageio import write_image
 
+from .tolerances import F32_CLOSE, F32_EXACT, F64_CLOSE, ROTATED_POWER_REL
+
 
 def _power(env):
     h, w = env.shape[:2]
@@ -49,8 +51,8 @@ def test_point_light_lands_where_the_convention_says():
 
 def test_point_light_is_as_strong_as_a_flash():
     # Radiance integrates to pi: a white Lambertian surface facing it reads 1.
-    np.testing.assert_allclose(_power(load_environment("builtin:point:0.3,0.2,1")), np.pi, rtol=1e-6)
-    np.testing.assert_allclose(_power(load_environment("builtin:uniform")), 4 * np.pi, rtol=1e-6)
+    np.testing.assert_allclose(_power(load_environment("builtin:point:0.3,0.2,1")), np.pi, rtol=F32_EXACT)
+    np.testing.assert_allclose(_power(load_environment("builtin:uniform")), 4 * np.pi, rtol=F32_EXACT)
 
 
 @pytest.mark.parametrize("bad", ["builtin:nope", "builtin:point:1,2", "builtin:point:a,b,c", "builtin:point:0,0,0"])
@@ -81,7 +83,7 @@ def test_files_round_trip(tmp_path, ext):
 def test_ldr_files_are_decoded_from_srgb(tmp_path):
     grey = np.full((8, 16, 3), 128, dtype=np.uint8)
     write_image(tmp_path / "g.png", grey)
-    assert load_environment(tmp_path / "g.png")[0, 0, 0] == pytest.approx(0.2158605, abs=1e-5)
+    assert load_environment(tmp_path / "g.png")[0, 0, 0] == pytest.approx(0.2158605, abs=F32_CLOSE)
 
 
 def test_not_two_to_one(tmp_path):
@@ -173,7 +175,7 @@ def test_rotation_moves_a_light_where_the_matrix_says():
     row, col = np.unravel_index(np.argmax(luminance(rot)), rot.shape[:2])
     assert abs(row + 0.5 - v * 256) <= 1.5 and abs(col + 0.5 - u * 512) <= 1.5
     # Power is kept (a 2-degree light is neither lost nor doubled).
-    np.testing.assert_allclose(_power(rot), _power(env), rtol=0.03)
+    np.testing.assert_allclose(_power(rot), _power(env), rtol=ROTATED_POWER_REL)
 
 
 def test_rotation_round_trip_and_quarter_turns():
@@ -193,7 +195,7 @@ def test_lights_conserve_power_and_share_the_grid(pole):
     for name in BUILTINS:
         env = load_environment(f"builtin:{name}")
         lights = environment_to_lights(env, grid=(128, 64), pole=pole, keep_grid=True)
-        np.testing.assert_allclose(lights.power.sum(axis=0), _power(env), rtol=1e-9)
+        np.testing.assert_allclose(lights.power.sum(axis=0), _power(env), rtol=F64_CLOSE)
         np.testing.assert_allclose(lights.dirs[:lights.n_grid], grid_cell_directions(128, 64, pole))
     sun = environment_to_lights(load_environment("builtin:sunset"), pole=pole)
     own = sun.column < 0
@@ -207,5 +209,5 @@ def test_camera_grid_columns_are_image_directions():
     img = grid_directions(16)
     for col in range(16):
         xy = d[:, col, :2] / np.linalg.norm(d[:, col, :2], axis=1, keepdims=True)
-        np.testing.assert_allclose(xy[:, 0], img[col, 0], atol=1e-6)
-        np.testing.assert_allclose(-xy[:, 1], img[col, 1], atol=1e-6)
+        np.testing.assert_allclose(xy[:, 0], img[col, 0], atol=F32_EXACT)
+        np.testing.assert_allclose(-xy[:, 1], img[col, 1], atol=F32_EXACT)

@@ -12,7 +12,16 @@ from relight.directions import rotation_angles, rotation_matrix
 from relight.errors import InputError
 from relight.video import VideoWriter, read_frames
 
-from .tolerances import COMPOSITE_TWIN_CODES, POSE_SYNTHETIC_DEG, REFIND_MEDIAN_PX, WARP_AFFINE_PX
+from .tolerances import (
+    COMPOSITE_TWIN_CODES,
+    F32_EXACT,
+    F32_LOOSE,
+    F64_EXACT,
+    POSE_SYNTHETIC_DEG,
+    REFIND_MEDIAN_PX,
+    TIMESTAMP_S,
+    WARP_AFFINE_PX,
+)
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +86,7 @@ def _bump_head(seed: int, n: int):
 
 def test_pose_recovers_a_known_rotation():
     est, seen = _bump_head(1, 60)
-    assert np.allclose(est.solve(np.arange(60), seen((0.0, 0.0, 0.0))).rotation, np.eye(3), atol=1e-4)
+    assert np.allclose(est.solve(np.arange(60), seen((0.0, 0.0, 0.0))).rotation, np.eye(3), atol=F32_LOOSE)
     for angles in [(20, 0, 0), (-15, 10, 5), (0, -12, -8)]:
         xy = seen(angles)
         xy[:5] += 40.0  # outliers
@@ -147,10 +156,10 @@ def test_batched_correlation_matches_opencv_match_template():
     assert np.abs(r - ref).max() < 1e-5
     assert np.unravel_index(r[5].argmax(), r[5].shape) == (2, 6) and r[5].max() > 0.999999
     assert np.all(r[7] == 0.0)
-    np.testing.assert_allclose(contrast, tpl.reshape(40, -1).astype(np.float64).std(axis=1), rtol=1e-6)
+    np.testing.assert_allclose(contrast, tpl.reshape(40, -1).astype(np.float64).std(axis=1), rtol=F32_EXACT)
     # a parabola y = -(x - 0.3)^2 sampled at -1, 0, 1 peaks at 0.3; a flat or rising one at 0
     np.testing.assert_allclose(parabola_peaks(np.array([-1.69, 1.0]), np.array([-0.09, 1.0]),
-                                              np.array([-0.49, 1.0])), [0.3, 0.0], atol=1e-12)
+                                              np.array([-0.49, 1.0])), [0.3, 0.0], atol=F64_EXACT)
 
 
 @pytest.mark.parametrize("full", [(720, 1280), (540, 960), (360, 640), (1080, 1920), (271, 481)])
@@ -392,8 +401,8 @@ def test_filter_keeps_variable_frame_rate_timestamps(small_bundle, clip, tmp_pat
             v = c.streams.video[0]
             return [float(f.pts * v.time_base) for f in c.decode(v)]
 
-    assert np.allclose(times(out), times(src), atol=1e-3)
-    assert np.allclose(np.diff(times(src)), np.diff(pts) / 30.0, atol=1e-3)
+    assert np.allclose(times(out), times(src), atol=TIMESTAMP_S)
+    assert np.allclose(np.diff(times(src)), np.diff(pts) / 30.0, atol=TIMESTAMP_S)
 
 
 def test_virtual_camera_without_the_extra_says_how_to_install_it(small_bundle, clip, tmp_path, capsys):

@@ -6,6 +6,8 @@ import pytest
 from relight.errors import InputError
 from relight.pipeline.flash import estimate_flash_hz, precision_recall, separate
 
+from .tolerances import FLASH_HZ_ABS, FLASH_PEAKS_ABS
+
 
 def _trace(n=600, fps=30.0, hz=5.0, strengths=None, lag_at=(), noise=3e-4, seed=0):
     """A synthetic face-brightness trace: dark 0.05, flashes adding 0.2 x strength, 50 % duty."""
@@ -35,7 +37,7 @@ def test_regular_flashes_are_found():
     res = separate(trace, 30.0, 5.0)
     p, r = precision_recall(res.flash_frames, truth)
     assert p >= 0.98 and r >= 0.95
-    assert len(res.peaks) == pytest.approx(100, abs=2)
+    assert len(res.peaks) == pytest.approx(100, abs=FLASH_PEAKS_ABS)
     assert set(res.dark).isdisjoint(res.flash_frames)
     assert res.level[res.peaks].min() == 1.0
     assert (trace[res.dark] < 0.06).all()
@@ -43,9 +45,9 @@ def test_regular_flashes_are_found():
 
 def test_flash_rate_is_estimated():
     trace, _ = _trace(hz=4.2)
-    assert estimate_flash_hz(trace, 30.0) == pytest.approx(4.2, abs=0.05)
+    assert estimate_flash_hz(trace, 30.0) == pytest.approx(4.2, abs=FLASH_HZ_ABS)
     res = separate(trace, 30.0)
-    assert res.estimated and res.flash_hz == pytest.approx(4.2, abs=0.05)
+    assert res.estimated and res.flash_hz == pytest.approx(4.2, abs=FLASH_HZ_ABS)
     assert estimate_flash_hz(np.full(300, 0.1), 30.0) is None
 
 

@@ -9,6 +9,8 @@ import pytest
 from relight.errors import InputError
 from relight.kernels import recipe as rcp
 
+from .tolerances import F32_CLOSE, HALF_REL
+
 #: float16 storage of maps (relative), and the halves flushed to zero below HALF_TINY.
 HALF_RTOL = 2e-3
 
@@ -103,7 +105,7 @@ def test_texel_major_maps_are_the_maps_transposed_and_match_numpy(recipe):
     np.testing.assert_allclose(pm.astype(np.float32), tm.transpose(2, 1, 0), rtol=HALF_RTOL, atol=HALF_TINY)
     ref = rcp.recipe_maps(sub, backend="numpy", half=False)
     scale = float(ref.max())
-    np.testing.assert_allclose(tm.transpose(2, 1, 0), ref, rtol=1e-3, atol=1e-5 * scale)
+    np.testing.assert_allclose(tm.transpose(2, 1, 0), ref, rtol=HALF_REL, atol=F32_CLOSE * scale)
 
 
 def test_a_damaged_recipe_is_refused(small_bundle):

@@ -14,24 +14,26 @@ from relight.pipeline.registration import (
     warp_to_reference,
 )
 
+from .tolerances import F32_EXACT, F64_CLOSE
+
 
 def test_fit_rigid_is_exact_and_ransac_ignores_outliers():
     rng = np.random.default_rng(0)
     src = rng.uniform(0, 300, (80, 2))
     m = rigid_matrix(2.5, -1.25, 0.3, (150.0, 150.0))
     dst = src @ m[:, :2].T + m[:, 2]
-    np.testing.assert_allclose(fit_rigid(src, dst), m, atol=1e-9)
+    np.testing.assert_allclose(fit_rigid(src, dst), m, atol=F64_CLOSE)
     bad = dst.copy()
     bad[:25] += rng.uniform(-30, 30, (25, 2))
     est, inl = ransac_rigid(src, bad)
-    np.testing.assert_allclose(est, m, atol=1e-6)
+    np.testing.assert_allclose(est, m, atol=F32_EXACT)
     assert not inl[:25].any() and inl[25:].all()
 
 
 def test_motion_round_trip_and_interpolation():
     c = (120.0, 80.0)
     mot = (1.5, -0.75, 0.2)
-    assert matrix_to_motion(rigid_matrix(*mot, c), c) == pytest.approx(mot, abs=1e-9)
+    assert matrix_to_motion(rigid_matrix(*mot, c), c) == pytest.approx(mot, abs=F64_CLOSE)
     out = interpolate_motions({0: (0, 0, 0), 10: (1.0, 2.0, 0.5)}, [0, 5, 10, 12])
     assert out[5] == pytest.approx((0.5, 1.0, 0.25)) and out[12] == pytest.approx((1.0, 2.0, 0.5))
 

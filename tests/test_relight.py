@@ -12,6 +12,13 @@ from relight.imageio import read_image
 
 from .tolerances import (
     COMPACT_TOLERANCE_SLACK,
+    F32_CLOSE,
+    F32_LOOSE,
+    F32_ZERO,
+    F64_EXACT,
+    F64_TINY,
+    F64_ZERO,
+    HALF_REL,
     LINEARITY_REL,
     RELIGHT_TWIN_REL,
     ROTATION_EQUIV_REL,
@@ -61,7 +68,7 @@ def test_quarter_turns_are_exact(relighters):
     turned = np.array(exact.relight(env, rotation_matrix(yaw=90)))
     # The head turned by +90 degrees sees the environment turned by -90: a roll of the columns.
     rolled = np.array(exact.relight(np.roll(env, w // 4, axis=1)))
-    np.testing.assert_allclose(turned, rolled, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(turned, rolled, rtol=F32_CLOSE, atol=F32_ZERO)
 
 
 def test_turning_the_head_equals_turning_the_environment_back(relighters, small_bundle):
@@ -87,7 +94,7 @@ def test_hdr_extremes_stay_linear_and_finite(relighters, small_bundle):
     for ev in (1e-3, 1e3):
         scaled = np.array(exact.relight(sky, exposure=ev))
         assert np.isfinite(scaled).all()
-        np.testing.assert_allclose(scaled[m], base[m] * ev, rtol=1e-5, atol=1e-30)
+        np.testing.assert_allclose(scaled[m], base[m] * ev, rtol=F32_CLOSE, atol=F64_TINY)
 
 
 def test_bad_environments_rotations_and_settings(relighters, small_bundle):
@@ -251,7 +258,7 @@ def test_splat_keeps_power_and_the_hull_cone_skips_only_dark_texels(small_bundle
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     power = rng.random((4000, 3))
     splatted = transport.splat(dirs, power, small_bundle.map_size)
-    np.testing.assert_allclose(splatted.sum(axis=0), power.sum(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(splatted.sum(axis=0), power.sum(axis=0), rtol=F64_EXACT)
     lights = transport.EnvLights(dirs=dirs, power=power)
     texels = np.asarray(small_bundle.map_texels)
     cone = transport.hull_cone(small_bundle.map_size, texels)
@@ -261,7 +268,7 @@ def test_splat_keeps_power_and_the_hull_cone_skips_only_dark_texels(small_bundle
         r = rotation_matrix(*angles)
         np.testing.assert_allclose(transport.texel_light(lights, r, small_bundle.map_size, texels, cone=cone),
                                    transport.texel_light(lights, r, small_bundle.map_size, texels, cone=everything),
-                                   rtol=1e-12, atol=1e-15)
+                                   rtol=F64_EXACT, atol=F64_ZERO)
 
 
 def test_pocl_worker_threads_are_pinned_unless_the_user_chose(monkeypatch):
@@ -314,7 +321,7 @@ def test_kernel_basis_is_the_storage_rearranged(n_pix):
         got = (q8.astype(np.float32) * step).transpose(0, 3, 2, 1).reshape(-1, 3, kp)
         k = min(kp, 16)
         # dequantise_basis rounds to halves: the kernel's operands are the exact stored values
-        np.testing.assert_allclose(got[:n_pix, :, :k], ref[:, :, :k], rtol=1e-3, atol=1e-7)
+        np.testing.assert_allclose(got[:n_pix, :, :k], ref[:, :, :k], rtol=HALF_REL, atol=F32_ZERO)
         assert not got[n_pix:].any() and not got[:, :, k:].any()
     for kp in (rank - 16, 8):
         q4k, units4 = pack_nibbles(q4, scale4, kp, n_pix)
@@ -324,7 +331,7 @@ def test_kernel_basis_is_the_storage_rearranged(n_pix):
         step = units4.astype(np.float32)[:, None] / transport.V4_LEVELS
         got = (steps * step).transpose(0, 3, 2, 1).reshape(-1, 3, kp)
         k = min(kp, rank - 16)
-        np.testing.assert_allclose(got[:n_pix, :, :k], ref[:, :, 16:16 + k], rtol=1e-3, atol=1e-7)
+        np.testing.assert_allclose(got[:n_pix, :, :k], ref[:, :, 16:16 + k], rtol=HALF_REL, atol=F32_ZERO)
         assert not got[n_pix:].any() and not got[:, :, k:].any()
 
 
@@ -383,7 +390,7 @@ def test_an_environment_edited_in_place_is_relit_anew(relighters, small_bundle):
         first = rl.relight(env)
         env *= 2.0
         second = rl.relight(env)
-        assert np.allclose(second[m], 2.0 * first[m], rtol=1e-4, atol=1e-7)
+        assert np.allclose(second[m], 2.0 * first[m], rtol=F32_LOOSE, atol=F32_ZERO)
         # A frozen environment (read-only, owning its data) is recognised without hashing.
         from relight.kernels.relighter import frozen
 

@@ -16,6 +16,7 @@ from relight.kernels.spline import (
 from relight.kernels.triangulation import inside_hull, triangulate
 
 from .lights import front_directions
+from .tolerances import F32_CLOSE, F32_EXACT, F64_CLOSE, F64_SOLVE
 
 
 def test_weights_interpolate_the_samples_and_reproduce_linear_functions():
@@ -24,10 +25,10 @@ def test_weights_interpolate_the_samples_and_reproduce_linear_functions():
     query = query[inside_hull(dirs, query)]
     w = spline_weights(dirs, np.concatenate([dirs, query]))
     assert w is not None and np.isfinite(w).all()
-    np.testing.assert_allclose(w[:40], np.eye(40), atol=1e-8)  # passes through every sample
-    np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-9)
+    np.testing.assert_allclose(w[:40], np.eye(40), atol=F64_SOLVE)  # passes through every sample
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=F64_CLOSE)
     f = 0.7 + dirs @ [0.2, -0.1, 0.3]  # a linear polynomial of the direction is reproduced exactly
-    np.testing.assert_allclose(w[40:] @ f, 0.7 + query @ [0.2, -0.1, 0.3], atol=1e-9)
+    np.testing.assert_allclose(w[40:] @ f, 0.7 + query @ [0.2, -0.1, 0.3], atol=F64_CLOSE)
 
 
 def test_values_in_the_power_domain():
@@ -40,7 +41,7 @@ def test_values_in_the_power_domain():
     samples = np.repeat(lin(dirs)[:, None, None], 3, axis=2) ** (1 / SPLINE_GAMMA)
     out = spline_values(samples.astype(np.float64), w)
     assert out.dtype == np.float64 and out.shape == (5, 1, 3)
-    np.testing.assert_allclose(out[:, 0, 0], lin(query) ** (1 / SPLINE_GAMMA), rtol=1e-9)
+    np.testing.assert_allclose(out[:, 0, 0], lin(query) ** (1 / SPLINE_GAMMA), rtol=F64_CLOSE)
     assert spline_values(samples.astype(np.float32), w).dtype == np.float32
     # a lone bright sample among black ones: overshoot below zero is clipped, nothing non-finite
     spike = np.zeros((30, 1, 3), np.float32)
@@ -63,7 +64,7 @@ def test_leave_one_out_rows():
     assert 0 < len(idx) <= 50
     assert inside_hull(np.delete(dirs, idx[0], axis=0), dirs[idx[:1]])[0]
     for rows in (lin, spl):
-        np.testing.assert_allclose(rows.sum(axis=1), 1.0, atol=1e-9)
+        np.testing.assert_allclose(rows.sum(axis=1), 1.0, atol=F64_CLOSE)
         np.testing.assert_allclose(rows[np.arange(len(idx)), idx], 0.0)
     assert (lin >= 0).all() and ((lin > 0).sum(axis=1) <= 3).all()
     assert leave_one_out(dirs[:4]) is None
@@ -81,7 +82,7 @@ def test_stacking_picks_the_path_that_predicts_left_out_samples():
     num, den = stacking_terms(samples, model, trust, loo)
     w = stacking_weight(num, den, trust)
     assert w[0] == pytest.approx(1.0)  # the model explains pixel 0 exactly
-    assert w[1] == pytest.approx(0.0, abs=1e-6)  # the spline explains pixel 1 exactly
+    assert w[1] == pytest.approx(0.0, abs=F32_EXACT)  # the spline explains pixel 1 exactly
     # no evidence either way (both paths exact, den 0): the pixel keeps its trust
     assert stacking_weight(np.zeros(2), np.zeros(2), np.array([0.3, 0.8])).tolist() == [0.3, 0.8]
     # pooled over a window of neighbours on the image grid: one weight for the pair
@@ -104,7 +105,7 @@ def test_full_maps_blend_in_the_spline_only_where_it_predicts_better():
     act = np.flatnonzero(mt.active)
     inside = inside_hull(dirs, mt.texel_dirs[act])
     # the Lambertian pixel keeps the model (a spline of a clipped cosine would round its kink)
-    np.testing.assert_allclose(with_spline[0][:, :act.size], without[0][:, :act.size], atol=1e-5)
+    np.testing.assert_allclose(with_spline[0][:, :act.size], without[0][:, :act.size], atol=F32_CLOSE)
     # the other one follows the spline inside the hull, nearer the truth than barycentric
     truth = (0.4 + mt.texel_dirs[act][inside] @ [0.4, 0.3, 0.0]).clip(0.05) ** (1 / SPLINE_GAMMA)
     err = lambda m: np.abs(m[1, 0, :act.size][inside] - truth).mean()  # noqa: E731

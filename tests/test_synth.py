@@ -18,6 +18,8 @@ from relight.pipeline.synth.studio import OLAT_DIRECTIONS, TRUTH_GRID, Studio, S
 from relight.video import read_frames
 
 from .tolerances import (
+    F32_CLOSE,
+    F32_EXACT,
     FRAME_REPRO_BIAS_CODES,
     FRAME_REPRO_MEAN_CODES,
     FRAME_WRONG_LIGHT_MEAN_CODES,
@@ -61,7 +63,7 @@ def test_meta_contract(capture):
     assert frames[0].shape == (cfg.height, cfg.width, 3)
     assert sorted(int(k) for k in meta["light_dirs"]) == meta["flash_frames"]
     dirs = np.array(list(meta["light_dirs"].values()))
-    np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=F32_EXACT)
     assert (dirs[:, 2] > -0.2).all()  # the hand stays over the front hemisphere
     # 5 Hz for 6 s: ~30 pulses, about two to three frames lit by each for most of their exposure.
     assert 20 <= len(meta["pulses"]) <= 34
@@ -88,7 +90,7 @@ def test_truth_files(capture):
     mask = cv2.imread(str(res.truth / "mask.png"), cv2.IMREAD_GRAYSCALE) > 0
     normals = read_image(res.truth / "normals.exr")
     depth = read_image(res.truth / "depth.exr")[..., 0]
-    np.testing.assert_allclose(np.linalg.norm(normals[mask], axis=1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(normals[mask], axis=1), 1.0, atol=F32_CLOSE)
     assert (depth[~mask] == 0).all() and depth[mask].max() > 0.3 * meta["head_scale"]
     for rel in list(meta["files"]["relit"].values()) + list(meta["files"]["olat"].values()):
         img = read_image(res.out / rel)

@@ -86,3 +86,44 @@ LIGHT_REFIT_REL = 0.05
 #: than the unchanged input (the issue's goal is +6 dB; measured +16 to +18 at full size).
 REAL_CLIP_FOUND = 0.95
 REAL_CLIP_GAIN_DB = 6.0
+
+# ------------------------------------------------------------------ numeric precision classes
+#: Identities that hold to the arithmetic's precision, by the dtype the code computes in. A test
+#: comparing two computations of the same quantity picks the class of the less precise one.
+#: float64, exact up to rounding (a few operations) / after a solve or a long sum:
+F64_EXACT = 1e-12
+F64_CLOSE = 1e-9
+F64_SOLVE = 1e-8
+#: float64 values expected to be zero (absolute) and the floor under a relative comparison of
+#: values that span many decades (an HDR sun at exposure 2^-20):
+F64_ZERO = 1e-15
+F64_TINY = 1e-30
+#: float32: exact up to rounding / after a few dozen operations / after a fit or resampling,
+#: and float32 values expected to be zero (absolute):
+F32_EXACT = 1e-6
+F32_CLOSE = 1e-5
+F32_LOOSE = 1e-4
+F32_ZERO = 1e-7
+#: float16 storage (11 significant bits, 4.9e-4 relative) and one more rounding step:
+HALF_REL = 1e-3
+HALF_STORE_REL = 2e-3
+#: An ambient frame read from 16-bit PNG codes and stored as float16 (absolute, linear).
+AMBIENT_16BIT_ABS = 2e-5
+#: A sample read from 16-bit codes minus the ambient, stored as float16 (absolute, linear).
+SAMPLE_16BIT_ABS = 2e-3
+
+# ------------------------------------------------------------------ domain tolerances
+#: Transfer curves (PQ nits, HLG's 1/12 ratio) against their published reference values.
+CURVE_REL = 2e-3
+#: Video timestamps kept through the filter (seconds).
+TIMESTAMP_S = 1e-3
+#: Flash detection on a synthetic trace: the rate (Hz) and the count of peaks found.
+FLASH_HZ_ABS = 0.05
+FLASH_PEAKS_ABS = 2
+#: Photometric stereo on a synthetic sphere: the median albedo, relative.
+ALBEDO_REL = 0.02
+#: An environment's power kept by a rotation (bilinear resampling at 2x supersampling).
+ROTATED_POWER_REL = 0.03
+#: Order-2 SH irradiance of a point-like light against the clamped cosine (a share of pi: the
+#: ringing of the 9-term approximation).
+SH_COSINE_ABS = 0.1
