@@ -6,15 +6,15 @@ Blinn-Phong lobe; linear float32 samples) run through every variant of :data:`VA
 way production runs it, and compared with the same computation in float64:
 
 * **Production maps** are built exactly as :func:`relight.pipeline.capture.finish` builds
-  them: :func:`~relight.kernels.reflectance.triangulate`, then for the triangulated variants
-  :func:`~relight.kernels.reflectance.compute_maps` on the OpenCL device with float16 output
+  them: :func:`~relight.kernels.triangulation.triangulate`, then for the triangulated variants
+  :func:`~relight.kernels.interpolation.compute_maps` on the OpenCL device with float16 output
   (horizon from :func:`~relight.pipeline.capture.horizon_for` when visibility is on), for the
   fitted ones :func:`~relight.pipeline.methods.fit_and_evaluate` on the front texels; then
   stored as the bundle stores them (float16, subnormal halves flushed). ``detail`` also lists
   the builder's float32 result before that storage (the kernel run with float32 output): the
   arithmetic's own error, apart from the storage's.
 * **Reference maps**, triangulated variants: the NumPy twin
-  :func:`~relight.kernels.reflectance.build_maps` given float64 samples, normals and horizon.
+  :func:`~relight.kernels.interpolation.build_maps` given float64 samples, normals and horizon.
   It interpolates and light-adapts in float64 when given float64 input; only its visibility
   maps (values in [0, 1]) and its returned array are float32, so the reference itself is
   exact to 2^-24 relative, far below the production's float16 storage (2^-11). Same
@@ -52,7 +52,7 @@ import numpy as np
 
 from relight.directions import fibonacci_sphere
 from relight.errors import InputError
-from relight.kernels import reflectance
+from relight.kernels import interpolation, reflectance, triangulation
 from relight.kernels.bundle import storage_scale
 from relight.numerics import flush_subnormal_halves
 from relight.pipeline import methods
@@ -102,19 +102,19 @@ class MapProblem:
     _tri: dict = field(default_factory=dict, repr=False)
     _ref: dict = field(default_factory=dict, repr=False)
 
-    def triangulation(self, map_size) -> tuple[reflectance.Triangulation | InputError, float]:
+    def triangulation(self, map_size) -> tuple[triangulation.Triangulation | InputError, float]:
         """(triangulation, or the InputError it raised; seconds it took): float64 and the same
         for every variant, so made once per map size."""
         key = tuple(map_size)
         if key not in self._tri:
             t0 = time.perf_counter()
             try:
-                self._tri[key] = (reflectance.triangulate(self.dirs, key), time.perf_counter() - t0)
+                self._tri[key] = (triangulation.triangulate(self.dirs, key), time.perf_counter() - t0)
             except InputError as exc:
                 self._tri[key] = (exc, time.perf_counter() - t0)
         return self._tri[key]
 
-    def reference(self, variant: str, tri: reflectance.Triangulation) -> np.ndarray:
+    def reference(self, variant: str, tri: triangulation.Triangulation) -> np.ndarray:
         """:func:`reference_maps`, made once per distinct computation (``full -both`` and
         ``barycentric`` are the same one)."""
         opts = VARIANTS[variant]
@@ -338,11 +338,11 @@ CASES: dict[str, Case] = {c.name: c for c in [
 
 
 # ---------------------------------------------------------------------------------- production
-def builder_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulation, *,
+def builder_maps(variant: str, problem: MapProblem, tri: triangulation.Triangulation, *,
                  half: bool) -> tuple[np.ndarray, float]:
     """(maps (P, 3, T_pad), scale) as :func:`relight.pipeline.capture.reflectance_maps` - the
     maps stage of ``capture.finish`` - returns them (``tri``: the problem's
-    :func:`~relight.kernels.reflectance.triangulate`): the OpenCL kernel's float16 output with
+    :func:`~relight.kernels.triangulation.triangulate`): the OpenCL kernel's float16 output with
     ``half`` (production) or its float32 output; a fitted method's float32. The maps hold the
     samples divided by ``scale``."""
     from relight.pipeline.capture import CaptureOptions, reflectance_maps
@@ -357,14 +357,14 @@ def builder_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulati
     return maps, scale
 
 
-def production_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulation) -> np.ndarray:
+def production_maps(variant: str, problem: MapProblem, tri: triangulation.Triangulation) -> np.ndarray:
     """(P, 3, T_pad) float64: the maps as ``capture.finish`` stores them (float16, subnormals
     flushed) times the bundle's ``sample_scale`` - what the renderer reads."""
     maps, scale = builder_maps(variant, problem, tri, half=True)
     return flush_subnormal_halves(maps.astype(np.float16, copy=False)).astype(np.float64) * scale
 
 
-def reference_maps(variant: str, problem: MapProblem, tri: reflectance.Triangulation) -> np.ndarray:
+def reference_maps(variant: str, problem: MapProblem, tri: triangulation.Triangulation) -> np.ndarray:
     """(P, 3, T) float64-computed maps of the same method (see the module docstring)."""
     from relight.kernels import recipe
 
@@ -389,7 +389,7 @@ def _reference_maps(opts, method, samples, problem, tri):
         if horizon is not None:
             horizon = recipe.quantise_horizon(horizon).astype(np.float64)
         if horizon is not None:
-            vis = reflectance.visibility_maps(horizon.astype(np.float64), HORIZON_DIRS, tri.map_size)
+            vis = interpolation.visibility_maps(horizon.astype(np.float64), HORIZON_DIRS, tri.map_size)
         trend = opts["adaptation"] and not opts["paper_adaptation"]
         if opts["method"] == "full" and (trend or opts["extrapolation"] or opts["spline"]):
             maps, tri = reflectance.model_maps(samples, problem.normals.astype(np.float64), tri, horizon,
@@ -397,7 +397,7 @@ def _reference_maps(opts, method, samples, problem, tri):
                                                paper_adaptation=opts["adaptation"] and not trend,
                                                spline=opts["spline"], backend="numpy")
             return maps[:, :, :int(tri.active.sum())].astype(np.float64)
-        maps = reflectance.build_maps(samples, problem.normals.astype(np.float64), tri, visibility=vis,
+        maps = interpolation.build_maps(samples, problem.normals.astype(np.float64), tri, visibility=vis,
                                       adaptation=opts["adaptation"])
         return maps[:, :, :int(tri.active.sum())].astype(np.float64)
     dirs = tri.vertices[:tri.n_samples]
@@ -524,7 +524,7 @@ def _produce(prob, variant: str, map_size, bundles: BundleCache | None, clock: l
     return {"maps": maps, "float32": wide}, reference
 
 
-def evaluate(case: str, description: str, problems: list, variant: str, *, map_size=reflectance.DEFAULT_MAP_SIZE,
+def evaluate(case: str, description: str, problems: list, variant: str, *, map_size=triangulation.DEFAULT_MAP_SIZE,
              bundles: BundleCache | None = None) -> dict:
     """One row: the problems of a case through one variant, production against reference.
 
@@ -572,7 +572,7 @@ def evaluate(case: str, description: str, problems: list, variant: str, *, map_s
             "seconds": round(clock[0], 4), "detail": "; ".join(details + failures)}
 
 
-def run_stability(variants=None, *, map_size=reflectance.DEFAULT_MAP_SIZE, cases=None) -> list[dict]:
+def run_stability(variants=None, *, map_size=triangulation.DEFAULT_MAP_SIZE, cases=None) -> list[dict]:
     """Every case of :data:`CASES` (or the named ``cases``) through every variant of
     :data:`VARIANTS` (or the named ``variants``): one row per (case, variant), cases in order.
 

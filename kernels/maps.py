@@ -1,7 +1,7 @@
 """Host wrapper of ``reflectance.cl``: reflectance maps for many pixels on the OpenCL device.
 
-NumPy twins: :func:`relight.kernels.reflectance.visibility_maps` and
-:func:`relight.kernels.reflectance.build_maps` (same arguments, same maths).
+NumPy twins: :func:`relight.kernels.interpolation.visibility_maps` and
+:func:`relight.kernels.interpolation.build_maps` (same arguments, same maths).
 """
 
 from __future__ import annotations
@@ -147,11 +147,11 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     trend : None, or (offset (P, 3), coef (P, 3)[, spec (P, 3)]): each texel becomes
     ``interpolation - offset + (coef x max(n . l, 0) + spec x lobe(l)) x visibility(l)`` (the
     shading model added back; lobe: ``max(n . h, 0) ** spec_exponent`` where ``n . l > 0``, h the
-    half vector of l and the view +Z, as :func:`relight.kernels.reflectance.lobe`), then clipped at 0.
+    half vector of l and the view +Z, as :func:`relight.kernels.interpolation.lobe`), then clipped at 0.
     spline : None, or (raw (K', P, 3) the samples themselves, rows (Q,) indices into the active
     texels, weights (Q, K') their spline weights, blend (P,)): at those texels each map becomes
     ``blend x map + (1 - blend) x min(spline, brightest of the triangle's samples)``, clipped at
-    0 (:func:`relight.kernels.reflectance._blend_spline`; spline values from
+    0 (:func:`relight.kernels.reflectance.blend_spline`; spline values from
     :func:`relight.kernels.spline.spline_values`, by BLAS per chunk).
     """
     import pyopencl as cl

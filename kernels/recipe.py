@@ -33,10 +33,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from relight.directions import equirect_directions
 from relight.errors import InputError, NumericalError
 from relight.numerics import EPS, EPS_NORM, EPS_VALUE, half_ceil
 
+from . import interpolation as interp
 from . import reflectance as rf
+from . import triangulation
 from .maps import neighbourhoods
 from .spline import SPLINE_GAMMA, spline_weights
 
@@ -130,7 +133,7 @@ class Recipe:
     spec: np.ndarray
     trust: np.ndarray
     blend: np.ndarray
-    tri: rf.Triangulation
+    tri: triangulation.Triangulation
     active: np.ndarray
     n_az: int
     trend: bool = True
@@ -204,8 +207,9 @@ def recipe_from_arrays(arrays: dict, meta: dict, map_size) -> Recipe:
     if tex.size and (tex.min() < 0 or tex.max() >= w * h):
         raise InputError("the bundle's map_texels lie outside its map; capture it again")
     active[tex] = True
-    tri = rf.Triangulation(vertices=verts, n_samples=k, faces=np.asarray(arrays["tri_faces"], dtype=np.int64),
-                           texel_vertices=tv, texel_weights=tw, active=(tv < k).any(axis=1), map_size=(w, h))
+    tri = triangulation.Triangulation(vertices=verts, n_samples=k,
+                                      faces=np.asarray(arrays["tri_faces"], dtype=np.int64), texel_vertices=tv,
+                                      texel_weights=tw, active=(tv < k).any(axis=1), map_size=(w, h))
     opts = meta.get("recipe", {}) if isinstance(meta.get("recipe"), dict) else {}
     hz, hidx = arrays.get("horizon_code"), arrays.get("horizon_index")
     if hz is not None and not _horizon_fits(hz, hidx, p):
@@ -252,12 +256,12 @@ def recipe_arrays(recipe: Recipe) -> tuple[dict, dict]:
 
 # ---------------------------------------------------------------------- a few texels
 def smoothed_visibility(horizon: np.ndarray, n_az: int, map_size, texels: np.ndarray) -> np.ndarray:
-    """(p, n) the smoothed visibility (:func:`relight.kernels.reflectance.visibility_maps`) of
+    """(p, n) the smoothed visibility (:func:`relight.kernels.interpolation.visibility_maps`) of
     the map texels ``texels`` for each pixel of a horizon table (p, n_az) of elevations, float32."""
     w, h = map_size
     nb = neighbourhoods(map_size, texels)
     uniq, inv = np.unique(nb, return_inverse=True)
-    d = rf.equirect_directions(w, h).reshape(-1, 3)[uniq]
+    d = equirect_directions(w, h).reshape(-1, 3)[uniq]
     s = np.hypot(d[:, 0], d[:, 1])
     beta = np.mod(np.arctan2(d[:, 1], d[:, 0]), 2 * np.pi)
     pos = beta / (2 * np.pi) * n_az - 0.5
@@ -265,7 +269,7 @@ def smoothed_visibility(horizon: np.ndarray, n_az: int, map_size, texels: np.nda
     f = (pos - np.floor(pos)).astype(np.float32)
     hz = horizon[:, i0] * (1 - f) + horizon[:, (i0 + 1) % n_az] * f
     elev = np.arctan2(d[:, 2], np.maximum(s, EPS_NORM)).astype(np.float32)
-    soft = np.float32(rf.VIS_SOFT_TEXELS * np.pi / h)
+    soft = np.float32(interp.VIS_SOFT_TEXELS * np.pi / h)
     vis = np.clip(0.5 + (elev[None] - hz) / soft, 0.0, 1.0).astype(np.float32)
     vis[:, s < EPS_VALUE] = 1.0
     return vis[:, inv.reshape(nb.shape)].mean(axis=2, dtype=np.float32)
@@ -334,7 +338,7 @@ def _rows_chunk(r: Recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs
         # interpolation and the trend see open-sky pixels' horizon as far below every light.
         vis_m = smoothed_visibility(hz, r.n_az, r.tri.map_size, vtex)
         vis_m[open_sky] = 1.0
-        hz_i = np.where(open_sky[:, None], np.float32(rf.OPEN_SKY), hz)
+        hz_i = np.where(open_sky[:, None], np.float32(interp.OPEN_SKY), hz)
         both = smoothed_visibility(hz_i, r.n_az, r.tri.map_size, np.concatenate([texels, vtex]))
         vis_t, vis_iv = both[:, :n_t], both[:, n_t:]
     sm = rf.ShadingModel(albedo=albedo, spec=spec, trust=trust)
@@ -380,7 +384,7 @@ def _rows_chunk(r: Recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs
         coef = trust[:, None] * albedo
         spc = trust[:, None] * spec
         lit_t = np.clip(normals @ tdirs.T.astype(np.float32), 0.0, None) * vis_t  # (p, n)
-        lobe_t = rf.lobe(normals, tdirs.astype(np.float32)) * vis_t
+        lobe_t = interp.lobe(normals, tdirs.astype(np.float32)) * vis_t
         regular = regular + lit_t.T[..., None] * coef[None] + lobe_t.T[..., None] * spc[None]
     m = np.clip(regular, 0.0, None)  # (n, p, 3)
     if spl_w is not None:

@@ -28,6 +28,7 @@ class RecipeRows:
     def __init__(self, recipe, rows: np.ndarray, rows_buf=None):
         import pyopencl as cl
 
+        from . import interpolation as interp
         from . import recipe as rcp
         from . import reflectance as rf
 
@@ -74,8 +75,8 @@ class RecipeRows:
         self._elevation = dev(rcp.decode_horizon(np.arange(256, dtype=np.uint8)))
         w, h_ = recipe.tri.map_size
         self._taz = texel_azimuths(recipe.tri.texel_dirs, recipe.n_az).astype(np.float32)
-        self.inv_soft = 1.0 / (rf.VIS_SOFT_TEXELS * np.pi / h_)
-        self.open_elev = float(rf.OPEN_SKY)
+        self.inv_soft = 1.0 / (interp.VIS_SOFT_TEXELS * np.pi / h_)
+        self.open_elev = float(interp.OPEN_SKY)
         self.rows = rows
         self.rows_buf = rows_buf if rows_buf is not None else cl.Buffer(
             ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=rows)
@@ -117,7 +118,7 @@ class RecipeRows:
         import pyopencl as cl
 
         from . import recipe as rcp
-        from .reflectance import SPEC_EXPONENT
+        from .interpolation import SPEC_EXPONENT
         from .spline import SPLINE_GAMMA
 
         if SPLINE_GAMMA != 0.4:  # the kernel undoes the spline's power as x * x * sqrt(x)

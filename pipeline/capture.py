@@ -20,7 +20,7 @@ from relight import __version__
 from relight.colour import encode_srgb8, srgb_to_linear
 from relight.errors import InputError, NumericalError
 from relight.imageio import read_image
-from relight.kernels import reflectance
+from relight.kernels import interpolation, reflectance, triangulation
 from relight.kernels.bundle import storage_scale, write_bundle
 from relight.kernels.heightfield import HORIZON_DIRS
 from relight.numerics import EPS_NORM, EPS_VALUE, flush_subnormal_halves
@@ -56,7 +56,7 @@ class CaptureOptions:
     paper_adaptation: bool = False
     spline: bool = True
     model_reach: float = reflectance.MODEL_REACH_DEG
-    map_size: tuple[int, int] = reflectance.DEFAULT_MAP_SIZE
+    map_size: tuple[int, int] = triangulation.DEFAULT_MAP_SIZE
     samples: SampleOptions = field(default_factory=SampleOptions)
     face: tuple[int, int, int, int] | None = None
     mesh: str | None = None
@@ -339,7 +339,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
 
     # The normals as the bundle stores them (float16): its recipe makes the maps from those.
     normals = stored_precision(geo.normal.reshape(-1, 3)[pix].astype(np.float32))
-    tri = reflectance.triangulate(prep.dirs, opts.map_size)
+    tri = triangulation.triangulate(prep.dirs, opts.map_size)
     horizon = None
     if opts.visibility and opts.method == "full":
         horizon = horizon_rows(geo.depth, geo.mask)
@@ -502,7 +502,7 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
                                                   paper_adaptation=adapt and not trend, spline=opts.spline,
                                                   backend=opts.backend, half=half, progress=progress)
         return maps, np.flatnonzero(map_tri.active), scale, samples
-    maps = reflectance.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS, adaptation=adapt,
+    maps = interpolation.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS, adaptation=adapt,
                                     backend=opts.backend, half=half, progress=progress)
     return maps, np.flatnonzero(tri.active), scale, samples
 

@@ -84,7 +84,7 @@ def fit_and_evaluate(method: str, dirs: np.ndarray, samples: np.ndarray, texel_d
     """Fit ``method`` to samples (K, P, 3) at ``dirs`` (K, 3); evaluate at texel_dirs (T, 3).
 
     Returns pixel-major maps (P, 3, T_pad) float32 (the layout of
-    :func:`relight.kernels.reflectance.compute_maps`).
+    :func:`relight.kernels.interpolation.compute_maps`).
     """
     dirs = np.asarray(dirs, dtype=np.float64)
     k = len(dirs)

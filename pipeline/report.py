@@ -150,7 +150,7 @@ def _maps(plt, arrays, meta, tri, geo, path):
 
 def _visibility(plt, arrays, tri, geo, picks, path):
     from relight.kernels.heightfield import HORIZON_DIRS, NO_SURFACE, horizon_table
-    from relight.kernels.reflectance import visibility_maps
+    from relight.kernels.interpolation import visibility_maps
 
     pix = arrays["pixels"]
     hgt = np.where(geo.mask, geo.depth, NO_SURFACE).astype(np.float32)

@@ -132,7 +132,7 @@ def _directions_plot(meta: dict) -> np.ndarray:
 
 def _bundle_row(bundle, meta, capture, mask, bb) -> list:
     """Estimated normals, a reflectance map, and a predicted one-light image next to the truth's."""
-    from relight.kernels.reflectance import sample_map
+    from relight.kernels.interpolation import sample_map
 
     h, w = mask.shape
     x0, y0 = bundle.crop_origin
