@@ -127,3 +127,29 @@ ROTATED_POWER_REL = 0.03
 #: Order-2 SH irradiance of a point-like light against the clamped cosine (a share of pi: the
 #: ringing of the 9-term approximation).
 SH_COSINE_ABS = 0.1
+
+# ------------------------------------------------------------------ the per-frame path (test_filter)
+#: The One Euro filter: the spread (deg) left of a 0.5-deg jitter at rest, and the lag (deg) behind
+#: a 30 deg/s turn after two seconds.
+ONE_EURO_REST_STD = 0.2
+ONE_EURO_LAG_DEG = 1.5
+#: Head pose with a fifth of the landmarks displaced as outliers (RANSAC): degrees off.
+POSE_OUTLIER_DEG = 0.5
+#: Re-anchoring: share of the landmarks it must find, and the median error (px) the misplaced
+#: pose must start from for the test to mean something.
+REFIND_FOUND_SHARE = 0.5
+REFIND_START_PX = 1.5
+#: The batched normalised correlation: a template cut from its window peaks at (nearly) 1.
+NCC_SELF_PEAK = 0.999999
+#: The coarse inverse warp covers at least this share of the control points' hull.
+WARP_HULL_SHARE = 0.8
+#: A still head's estimated rotation, degrees per angle (synthetic clip; and a frame of another size).
+STILL_HEAD_DEG = 3.0
+STILL_HEAD_RESIZED_DEG = 4.0
+#: Share of the bundle's face pixels a new light must visibly change (> 3 codes).
+RELIT_SHARE = 0.3
+#: The two-stage pipeline against the serial path: mean absolute difference (8-bit codes) per frame.
+PIPELINE_VS_SERIAL_CODES = 2.0
+#: Live trust in the layer: at least this share of the face distrusted (< 0.05) and trusted (> 0.95).
+TRUST_LOW_SHARE = 0.02
+TRUST_HIGH_SHARE = 0.2
