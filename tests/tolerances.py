@@ -153,3 +153,41 @@ PIPELINE_VS_SERIAL_CODES = 2.0
 #: Live trust in the layer: at least this share of the face distrusted (< 0.05) and trusted (> 0.95).
 TRUST_LOW_SHARE = 0.02
 TRUST_HIGH_SHARE = 0.2
+
+# ------------------------------------------------------------------ the synthetic live clips (test_synth_live)
+#: The audio track: its duration (s) against the video's, the tone's frequency (Hz), the RMS and
+#: peak bounds of a 440 Hz tone at -20 dBFS peak (RMS 0.0707), and of white noise at RMS 0.05.
+AUDIO_DURATION_S = 0.025
+TONE_HZ_ABS = 2.0
+TONE_RMS_RANGE = (0.05, 0.09)
+TONE_PEAK_MAX = 0.2
+NOISE_RMS_RANGE = (0.04, 0.06)
+#: Pose tracks: each channel spans at least this share of its +-amplitude range, and moves by at
+#: most this share of the amplitude between frames.
+POSE_RANGE_SHARE = 1.6
+POSE_STEP_SHARE = 0.15
+#: Silhouettes (IoU) of the live head against the studio's, straight on; a mirrored pose must be
+#: clearly worse.
+SILHOUETTE_IOU = 0.97
+SILHOUETTE_RIGHT_IOU = 0.95
+SILHOUETTE_MIRRORED_IOU = 0.85
+#: The live clip's reference frame against the static studio's: median relative difference of the
+#: head's colour, mean absolute difference on the wall (linear), and the coverage's mean error.
+REFERENCE_HEAD_REL = 0.05
+REFERENCE_WALL_ABS = 0.003
+COVERAGE_MEAN_ABS = 0.005
+#: The head's radiance straight on against the studio's: mean and 95th-percentile relative error.
+RADIANCE_MEAN_REL = 0.05
+RADIANCE_P95_REL = 0.2
+#: A landmark's rendered position against its predicted one (px).
+LANDMARK_PX = 1.5
+#: Shading follows the light: the brighter side at least this many times the other.
+SHADING_TOP_RATIO = 1.1
+SHADING_BOTTOM_RATIO = 1.2
+SHADING_SIDE_RATIO = 1.05
+#: The chin's bottom row of a turned head against the straight one's width (share range).
+CHIN_ROW_RANGE = (0.8, 1.3)
+#: A decoded frame against its own pose's render (8-bit codes, mean over the head), and how much
+#: worse another pose's must be.
+FRAME_RENDER_CODES = 2.5
+FRAME_OTHER_POSE_RATIO = 2.0
