@@ -191,3 +191,21 @@ CHIN_ROW_RANGE = (0.8, 1.3)
 #: worse another pose's must be.
 FRAME_RENDER_CODES = 2.5
 FRAME_OTHER_POSE_RATIO = 2.0
+
+# ------------------------------------------------------------------ capture and relighting (test_capture, test_relight)
+#: The captured head mask against the truth's (IoU).
+CAPTURE_MASK_IOU = 0.85
+#: A --face-pixels capture keeps about that many face pixels (relative).
+FACE_PIXELS_REL = 0.5
+#: The background's sRGB encoding: mean bias (8-bit codes) of the JPEG-stored frame, and the
+#: bias a plain 1/2.2 power would show on the same values.
+SRGB_BIAS_CODES = 0.3
+POWER_BIAS_CODES = 1.0
+#: Normals of a capture given the truth's own mesh (--mesh): median angle to the truth (deg).
+MESH_NORMAL_DEG = 3.0
+#: The low-rank part alone against the exact maps for a light (relative L2), and a one-light
+#: relight against the point environment it approximates (a 1-degree disc: relative L2).
+LOW_RANK_LIGHT_REL = 0.05
+POINT_LIGHT_VS_DISC_REL = 0.05
+#: A one-light relight in flash units against the truth's one-light image: the least-squares gain.
+FLASH_UNIT_GAIN_RANGE = (0.8, 1.3)
