@@ -18,7 +18,7 @@ from relight.envmap import (
 from relight.errors import InputError
 from relight.imageio import write_image
 
-from .tolerances import F32_CLOSE, F32_EXACT, F64_CLOSE, ROTATED_POWER_REL
+from .tolerances import F32_CLOSE, F32_EXACT, F64_CLOSE, ROTATE_ROUND_TRIP_REL, ROTATED_POWER_REL, TEXEL_POSITION
 
 
 def _power(env):
@@ -173,7 +173,7 @@ def test_rotation_moves_a_light_where_the_matrix_says():
     rot = rotate_environment(env, r)
     u, v = direction_to_equirect_uv(r @ (d / np.linalg.norm(d)))
     row, col = np.unravel_index(np.argmax(luminance(rot)), rot.shape[:2])
-    assert abs(row + 0.5 - v * 256) <= 1.5 and abs(col + 0.5 - u * 512) <= 1.5
+    assert abs(row + 0.5 - v * 256) <= TEXEL_POSITION and abs(col + 0.5 - u * 512) <= TEXEL_POSITION
     # Power is kept (a 2-degree light is neither lost nor doubled).
     np.testing.assert_allclose(_power(rot), _power(env), rtol=ROTATED_POWER_REL)
 
@@ -183,7 +183,7 @@ def test_rotation_round_trip_and_quarter_turns():
     r = rotation_matrix(yaw=25, pitch=10, roll=-5)
     back = rotate_environment(rotate_environment(env, r), r.T)
     err = np.abs(back - env).mean() / env.mean()
-    assert err < 0.05
+    assert err < ROTATE_ROUND_TRIP_REL
     quarter = rotate_environment(env, rotation_matrix(yaw=90))
     np.testing.assert_array_equal(rotate_environment(quarter, rotation_matrix(yaw=-90)), env)
     # +Z content moves to +X under a 90-degree yaw.

@@ -6,7 +6,7 @@ import pytest
 from relight.errors import InputError
 from relight.pipeline.flash import estimate_flash_hz, precision_recall, separate
 
-from .tolerances import FLASH_HZ_ABS, FLASH_PEAKS_ABS
+from .tolerances import FLASH_HZ_ABS, FLASH_PEAKS_ABS, TRACE_DARK_MAX, TRACE_PRECISION, TRACE_RECALL, TRACE_RECALL_NOISY
 
 
 def _trace(n=600, fps=30.0, hz=5.0, strengths=None, lag_at=(), noise=3e-4, seed=0):
@@ -36,11 +36,11 @@ def test_regular_flashes_are_found():
     trace, truth = _trace()
     res = separate(trace, 30.0, 5.0)
     p, r = precision_recall(res.flash_frames, truth)
-    assert p >= 0.98 and r >= 0.95
+    assert p >= TRACE_PRECISION and r >= TRACE_RECALL
     assert len(res.peaks) == pytest.approx(100, abs=FLASH_PEAKS_ABS)
     assert set(res.dark).isdisjoint(res.flash_frames)
     assert res.level[res.peaks].min() == 1.0
-    assert (trace[res.dark] < 0.06).all()
+    assert (trace[res.dark] < TRACE_DARK_MAX).all()
 
 
 def test_flash_rate_is_estimated():
@@ -58,7 +58,7 @@ def test_missed_and_lagging_flashes():
     trace, truth = _trace(strengths=strengths, lag_at=(20, 55))
     res = separate(trace, 30.0, 5.0)
     p, r = precision_recall(res.flash_frames, truth)
-    assert p >= 0.98 and r >= 0.9
+    assert p >= TRACE_PRECISION and r >= TRACE_RECALL_NOISY
     # 20 s hold 99 pulses with the two lags; 4 of them never lit the face.
     assert len(res.peaks) == 95
 

@@ -13,7 +13,14 @@ from relight.pipeline.geometry import (
     rasterize_mesh,
 )
 
-from .tolerances import ALBEDO_REL
+from .tolerances import (
+    ALBEDO_REL,
+    HEAD_MASK_AGREE,
+    INTEGRATION_PX,
+    PS_NORMAL_MEDIAN_DEG,
+    PS_NORMAL_P99_DEG,
+    RASTER_NORMAL_DEG,
+)
 
 
 def _dome(h=80, w=100, r=34.0):
@@ -47,7 +54,7 @@ def test_photometric_stereo_recovers_normals_and_albedo():
     clipped[5, 20:30] = True
     nn, alb, _ = photometric_stereo(images, dirs, mask, clipped)
     ang = angle_between_deg(nn[mask], n[mask])
-    assert np.median(ang) < 0.5 and np.percentile(ang, 99) < 3.0
+    assert np.median(ang) < PS_NORMAL_MEDIAN_DEG and np.percentile(ang, 99) < PS_NORMAL_P99_DEG
     np.testing.assert_allclose(np.median(alb[mask], axis=0), albedo, rtol=ALBEDO_REL)
     assert (nn[~mask] == 0).all()
 
@@ -57,7 +64,7 @@ def test_depth_integration_matches_the_shape():
     depth = integrate_normals(n, mask)
     err = (depth - z)[mask]
     err -= err.mean()
-    assert np.abs(err).max() < 0.5  # pixels, on a 34-pixel dome
+    assert np.abs(err).max() < INTEGRATION_PX  # pixels, on a 34-pixel dome
 
 
 def test_mesh_round_trip():
@@ -67,7 +74,7 @@ def test_mesh_round_trip():
     inner = mask & np.roll(mask, 1, 0) & np.roll(mask, -1, 0) & np.roll(mask, 1, 1) & np.roll(mask, -1, 1)
     assert cover[inner].all()
     assert np.abs(depth - z)[inner].max() < 1e-4  # float32 depth
-    assert np.median(angle_between_deg(normal[inner], n[inner])) < 3.0
+    assert np.median(angle_between_deg(normal[inner], n[inner])) < RASTER_NORMAL_DEG
     with pytest.raises(InputError):
         mesh.vertices[0, 0] = np.nan
         rasterize_mesh(mesh, mask.shape)
@@ -82,4 +89,4 @@ def test_head_mask_uses_the_flash_falloff():
     flash[:, head] = 0.4
     flash[:, 28:31, 35:38] = 0.01  # a dark pupil stays inside (holes are filled)
     mask = head_mask(flash, ambient, (30, 15, 20, 30))
-    assert (mask == head).mean() > 0.98
+    assert (mask == head).mean() > HEAD_MASK_AGREE

@@ -7,6 +7,8 @@ from relight.directions import angle_between_deg, sphere_point_for_light
 from relight.pipeline.sphere import find_highlight, light_direction, refine_circle
 from relight.pipeline.synth.scene import MirrorSphere
 
+from .tolerances import SPHERE_FIT_PX, SPHERE_LIGHT_DEG, SPHERE_PROJECTION_DEG
+
 
 def _disc(shape, cx, cy, r, inside=0.1, outside=0.4, ss=8):
     h, w = shape
@@ -21,7 +23,7 @@ def test_outline_refinement_is_subpixel():
     rng = np.random.default_rng(0)
     img = _disc((120, 120), 60.37, 58.81, 31.6) + 0.01 * rng.standard_normal((120, 120)).astype(np.float32)
     cx, cy, r = refine_circle(img, (61.5, 57.5, 30.0))
-    assert abs(cx - 60.37) < 0.05 and abs(cy - 58.81) < 0.05 and abs(r - 31.6) < 0.05
+    assert abs(cx - 60.37) < SPHERE_FIT_PX and abs(cy - 58.81) < SPHERE_FIT_PX and abs(r - 31.6) < SPHERE_FIT_PX
 
 
 def test_highlight_position_follows_the_mirror_law():
@@ -37,7 +39,7 @@ def test_highlight_position_follows_the_mirror_law():
         assert hl.xy is not None
         got = light_direction(hl.xy, local)
         errs.append(float(angle_between_deg(got, d)))
-    assert max(errs) < 0.3
+    assert max(errs) < SPHERE_LIGHT_DEG
 
 
 def test_no_highlight_and_ambiguous():
@@ -56,7 +58,7 @@ def test_perspective_tends_to_orthographic():
     xy = sphere_point_for_light(d / np.linalg.norm(d), circle)
     ortho = light_direction(xy, circle)
     persp = light_direction(xy, circle, focal=1e6, image_size=(600, 400))
-    assert float(angle_between_deg(ortho, persp)) < 0.01
+    assert float(angle_between_deg(ortho, persp)) < SPHERE_PROJECTION_DEG
     near = light_direction(xy, circle, focal=500.0, image_size=(600, 400))
     assert 0.5 < float(angle_between_deg(ortho, near)) < 20  # a real, bounded difference
     assert np.isfinite(near).all()

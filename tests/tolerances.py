@@ -209,3 +209,46 @@ LOW_RANK_LIGHT_REL = 0.05
 POINT_LIGHT_VS_DISC_REL = 0.05
 #: A one-light relight in flash units against the truth's one-light image: the least-squares gain.
 FLASH_UNIT_GAIN_RANGE = (0.8, 1.3)
+
+# ------------------------------------------------------------------ stages and I/O (the other test files)
+#: Flash detection on synthetic traces: precision and recall (clean trace; noisy, irregular one),
+#: and the largest normalised level a frame called dark may have.
+TRACE_PRECISION = 0.98
+TRACE_RECALL = 0.95
+TRACE_RECALL_NOISY = 0.9
+TRACE_DARK_MAX = 0.06
+#: Photometric stereo on a synthetic dome: normals' median and 99th-percentile error (deg); the
+#: integrated depth's largest error (px, a 34-pixel dome); a rasterised mesh's normals (deg,
+#: median); the head mask's agreement with the truth (share of pixels).
+PS_NORMAL_MEDIAN_DEG = 0.5
+PS_NORMAL_P99_DEG = 3.0
+INTEGRATION_PX = 0.5
+RASTER_NORMAL_DEG = 3.0
+HEAD_MASK_AGREE = 0.98
+#: Registration: a recovered rigid motion's largest displacement error over the frame (px), and a
+#: frame warped there and back (mean absolute difference, linear x 255 codes).
+RIGID_FIT_PX = 0.1
+WARP_ROUND_TRIP = 0.5
+#: The mirror sphere: its fitted centre and radius (px), a light direction from its highlight
+#: (deg), and an orthographic against a perspective reading of a centred sphere (deg).
+SPHERE_FIT_PX = 0.05
+SPHERE_LIGHT_DEG = 0.3
+SPHERE_PROJECTION_DEG = 0.01
+#: Environment maps: turned and turned back (mean relative difference), and a texel's position
+#: from its direction (texels).
+ROTATE_ROUND_TRIP_REL = 0.05
+TEXEL_POSITION = 1.5
+#: The live light's fit on its own model's frame (relative residual); the face finder's score on a
+#: real face, and how far its similarity puts the landmarks (px).
+LIGHT_FIT_RESIDUAL = 0.05
+FACE_FINDER_SCORE = 0.8
+FACE_FINDER_PX = 6.0
+#: Video written and read back: mean signed and mean absolute difference (8-bit codes: colour
+#: conversion only); a phone's display-rotated video shown upright (mean codes over the inside).
+VIDEO_BIAS_CODES = 0.1
+VIDEO_MEAN_CODES = 0.6
+DISPLAY_MATRIX_CODES = 3.0
+#: The fast sRGB encoder against the exact curve: share of codes that may differ (by one).
+FAST_SRGB_MISMATCH = 0.01
+#: The sensor's noise field: mean, unit deviation and lag-1 correlation within this.
+NOISE_STATS_ABS = 0.01
