@@ -16,7 +16,7 @@ from relight.kernels.spline import (
 from relight.kernels.triangulation import inside_hull, triangulate
 
 from .lights import front_directions
-from .tolerances import F32_CLOSE, F32_EXACT, F64_CLOSE, F64_SOLVE
+from .tolerances import F32_CLOSE, F32_EXACT, F64_CLOSE, F64_SOLVE, SPLINE_GAIN
 
 
 def test_weights_interpolate_the_samples_and_reproduce_linear_functions():
@@ -109,5 +109,5 @@ def test_full_maps_blend_in_the_spline_only_where_it_predicts_better():
     # the other one follows the spline inside the hull, nearer the truth than barycentric
     truth = (0.4 + mt.texel_dirs[act][inside] @ [0.4, 0.3, 0.0]).clip(0.05) ** (1 / SPLINE_GAMMA)
     err = lambda m: np.abs(m[1, 0, :act.size][inside] - truth).mean()  # noqa: E731
-    assert err(with_spline) < 0.5 * err(without)
+    assert err(with_spline) < SPLINE_GAIN * err(without)
     assert np.isfinite(with_spline).all()

@@ -252,3 +252,29 @@ DISPLAY_MATRIX_CODES = 3.0
 FAST_SRGB_MISMATCH = 0.01
 #: The sensor's noise field: mean, unit deviation and lag-1 correlation within this.
 NOISE_STATS_ABS = 0.01
+
+# ------------------------------------------------------------------ effect sizes (an option must matter this much)
+#: Largest change of a map value (flash units) when visibility is switched off, and when the
+#: shading model's trend or the paper's adaptation is switched.
+VISIBILITY_EFFECT = 0.05
+TREND_EFFECT = 0.1
+#: --sparse-sides scenes: the sides still reached (share of the azimuth range), and their share of
+#: the samples at most this share of the dense scene's.
+SPARSE_SIDES_REACH = 0.9
+SPARSE_SIDES_SHARE = 0.5
+#: One-light error of every variant below this (relative RMSE), and extrapolation must cut the
+#: whole-sphere error of `full` at least to this share.
+OLAT_REL_RMSE_MAX = 1.5
+EXTRAPOLATION_GAIN = 0.9
+#: The nose's shadow: share of the cheek beside it in shadow, and of the lit cheek.
+NOSE_SHADOW_SHARE = 0.3
+LIT_CHEEK_SHADOW_SHARE = 0.05
+#: Camera drift: the exposure gain's range over a clip, the red white-balance's spread, and the
+#: correlation of the wall's brightness with the recorded gains.
+DRIFT_GAIN_RANGE = (0.05, 0.6)
+DRIFT_WB_STD = 0.002
+DRIFT_WALL_CORR = 0.8
+#: The spline halves the interpolation error of a smooth field at least.
+SPLINE_GAIN = 0.5
+#: Changes the compositor makes outside the warped face (share of all changed pixels).
+OUTSIDE_FACE_SHARE = 0.03
