@@ -44,7 +44,10 @@ class Engine:
         # The service's current environment (PUT /v1/environment): used when a request names none.
         self.default_rotation: tuple[float, float, float] | None = None
         self.default_exposure = 0.0
-        self.path = FramePath(self.bundle, self.environment(config.env), mode=config.mode, focal=config.focal)
+        # The environment array the frame path was last given (the engine's cached arrays are
+        # never edited in place, so identity says whether it changed; FramePath copies it).
+        self._path_env = self.environment(config.env)
+        self.path = FramePath(self.bundle, self._path_env, mode=config.mode, focal=config.focal)
         self.lock = asyncio.Lock()
 
     def set_uploaded(self, name: str, env: np.ndarray) -> None:
@@ -75,7 +78,10 @@ class Engine:
         fp = self.path
         if env is None and rotation is None:
             rotation = self.default_rotation
-        fp.set_environment(self.environment(env or self.env_name, rotation))
+        env_array = self.environment(env or self.env_name, rotation)
+        if env_array is not self._path_env:  # not copied and hashed again every frame
+            fp.set_environment(env_array)
+            self._path_env = env_array
         fp.set_mode(mode or self.config.mode)
         fp.set_strength(1.0 if strength is None else strength)
         fp.set_exposure(self.default_exposure if exposure is None else exposure)
