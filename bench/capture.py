@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-from .machine import steal_and_total
+from .machine import cpu_jiffies, steal_share_of_all
 
 #: Peak memory every capture should stay within (MB).
 MEMORY_GOAL_MB = 3072.0
@@ -126,10 +126,10 @@ def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool =
         code = (f"from relight.bench.capture import _child; _child({str(video)!r}, "
                 f"{str(out / (key + '.bundle'))!r}, {str(cap / 'truth')!r})")
         t0 = time.perf_counter()
-        cpu0 = steal_and_total()
+        cpu0 = cpu_jiffies()
         proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         wall = time.perf_counter() - t0
-        cpu1 = steal_and_total()
+        cpu1 = cpu_jiffies()
         if proc.returncode != 0:
             raise RuntimeError(f"capture of {sc['name']} failed:\n{proc.stderr[-2000:]}")
         fig = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -137,8 +137,7 @@ def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool =
         fig["wall_s"] = wall
         fig["realtime_x"] = wall / sc["duration"]
         # The hypervisor's steal over the run (share of all CPU time): a shared host's noise.
-        fig["steal_share"] = (None if cpu0 is None or cpu1 is None or cpu1[1] <= cpu0[1]
-                              else (cpu1[0] - cpu0[0]) / (cpu1[1] - cpu0[1]))
+        fig["steal_share"] = steal_share_of_all(cpu0, cpu1)
         rows.append(fig)
         (out / (key + ".bundle")).unlink(missing_ok=True)
     doc = {"scenarios": rows, "memory_goal_mb": MEMORY_GOAL_MB}

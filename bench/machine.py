@@ -22,7 +22,10 @@ def cpu_jiffies() -> np.ndarray | None:
     """The machine's CPU time counters (``/proc/stat``: user nice system idle iowait irq softirq
     steal), or None off Linux."""
     try:
-        return np.array([int(v) for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:9]], np.int64)
+        fields = Path("/proc/stat").read_text().splitlines()[0].split()
+        if fields[0] != "cpu" or len(fields) < 9:
+            return None
+        return np.array([int(v) for v in fields[1:9]], np.int64)
     except (OSError, ValueError, IndexError):
         return None
 
@@ -37,13 +40,11 @@ def steal_share(before, after) -> float | None:
     return float(d[7]) / busy if busy > 0 else None
 
 
-def steal_and_total() -> tuple[int, int] | None:
-    """(steal, total) CPU ticks of the machine from /proc/stat (Linux), or None."""
-    try:
-        fields = Path("/proc/stat").read_text().splitlines()[0].split()
-    except (OSError, IndexError):
+def steal_share_of_all(before, after) -> float | None:
+    """Share of all the machine's CPU time (idle included) the hypervisor took between two
+    :func:`cpu_jiffies` readings: a shared host's noise over a long run."""
+    if before is None or after is None:
         return None
-    if fields[0] != "cpu" or len(fields) < 9:
-        return None
-    ticks = [int(v) for v in fields[1:]]
-    return ticks[7], sum(ticks[:8])
+    d = after - before
+    total = float(d.sum())
+    return float(d[7]) / total if total > 0 else None

@@ -30,6 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from relight.service.composite import MODES
+
 #: The clip: frames, rate, canvas (rows, columns), motion amplitudes, canvas level (sRGB code).
 CLIP_FRAMES = 50
 CLIP_FPS = 25
@@ -41,8 +43,6 @@ CANVAS_CODE = 64
 #: Face pixels scored: the photo's frame eroded by this many pixels (its warped edge blends
 #: with the canvas).
 EDGE_PX = 3
-#: Modes filtered (``relight filter --mode``).
-MODES = ("transfer", "ambient", "paste")
 
 
 def clip_motion(n: int = CLIP_FRAMES) -> np.ndarray:

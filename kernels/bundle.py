@@ -82,6 +82,7 @@ import os
 import struct
 import zlib
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -188,20 +189,17 @@ class Bundle:
         w, h = self.meta["map_size"]
         return int(w), int(h)
 
-    @property
+    @cached_property
     def frame_index(self) -> np.ndarray:
         """(P,) int32: each head pixel's flat index in the reference frame (row-major; the
-        ``pixels`` field indexes the stored crop). Computed once."""
-        cached = self.__dict__.get("_frame_index")
-        if cached is None:
-            w = self.frame_size[0]
-            x0, y0 = self.crop_origin
-            cw = np.asarray(self.arrays["mask_crop"]).shape[1]
-            pix = np.asarray(self.arrays["pixels"], dtype=np.int64)
-            cached = ((pix // cw + y0) * w + (pix % cw + x0)).astype(np.int32)
-            cached.flags.writeable = False
-            self.__dict__["_frame_index"] = cached
-        return cached
+        ``pixels`` field indexes the stored crop). Computed once, read-only."""
+        w = self.frame_size[0]
+        x0, y0 = self.crop_origin
+        cw = np.asarray(self.arrays["mask_crop"]).shape[1]
+        pix = np.asarray(self.arrays["pixels"], dtype=np.int64)
+        index = ((pix // cw + y0) * w + (pix % cw + x0)).astype(np.int32)
+        index.flags.writeable = False
+        return index
 
     @property
     def mask(self) -> np.ndarray:

@@ -552,7 +552,6 @@ class Relighter:
         """The Relighter's own frame was overwritten: the next relight into it runs again."""
         if self._last_frame is self.frame:
             self._last_key = None
-            self._last_buf = self._frame_buf
 
     def relight_texels(self, lp: np.ndarray, *, slot: str = "main", direct: int | None = None) -> np.ndarray:
         """The reference frame under a light given in the map's texels: ``lp`` (T, 3) the power

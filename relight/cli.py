@@ -680,16 +680,17 @@ def _filter_command(args) -> int:
 
 
 def _serve_arguments(p) -> None:
-    from .service.composite import DEFAULT_MODE, MODES
+    from .service.composite import MODES
+    from .service.settings import ServeConfig  # the defaults: the service's own settings
 
     p.add_argument("bundle", type=Path, help="reflectance bundle to serve (relight capture)")
-    p.add_argument("--env", default="builtin:studio", metavar="FILE|builtin:NAME", help="starting environment")
+    p.add_argument("--env", default=ServeConfig.env, metavar="FILE|builtin:NAME", help="starting environment")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")
     p.add_argument("--port", type=int, default=8000, help="port to listen on")
-    p.add_argument("--mode", choices=MODES, default=DEFAULT_MODE,
+    p.add_argument("--mode", choices=MODES, default=ServeConfig.mode,
                    help="transfer: the live light measured from the face and swapped for the target; ambient: the "
                         "ratio to the capture room's light; paste: the relit reference face (the paper)")
-    p.add_argument("--max-clients", type=int, default=4, help="most stream clients at once")
+    p.add_argument("--max-clients", type=int, default=ServeConfig.max_clients, help="most stream clients at once")
     p.add_argument("--focal", type=_focal, default=None, metavar="PIXELS|ortho",
                    help="the frames' focal length in pixels, or 'ortho' (default: 0.85 x the frame's larger side)")
 

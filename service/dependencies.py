@@ -4,21 +4,22 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Request
+from fastapi import Depends
+from starlette.requests import HTTPConnection
 
 from .engine import Engine, Metrics
 from .errors import ServiceError
 from .settings import ServeConfig, get_settings
 
 
-def get_metrics(request: Request) -> Metrics:
-    """The app's Prometheus metrics."""
-    return request.app.state.metrics
+def get_metrics(conn: HTTPConnection) -> Metrics:
+    """The app's Prometheus metrics (HTTP requests and websockets alike)."""
+    return conn.app.state.metrics
 
 
-def get_engine(request: Request) -> Engine:
+def get_engine(conn: HTTPConnection) -> Engine:
     """The loaded engine, or 503 while the bundle is still loading."""
-    engine = request.app.state.engine
+    engine = conn.app.state.engine
     if engine is None:
         raise ServiceError(503, "not_ready", "the service is still loading its bundle; retry shortly")
     return engine

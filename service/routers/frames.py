@@ -11,6 +11,7 @@ from fastapi import APIRouter, Query, Request, Response
 from relight.errors import RelightError
 
 from ..codec import CONTENT_TYPES, binary_body, decode_frame, encode_frame, parse_rotation, read_body
+from ..composite import MODES
 from ..dependencies import EngineDep, MetricsDep, SettingsDep
 from ..errors import ServiceError
 from ..settings import PRESETS
@@ -25,7 +26,7 @@ async def relight_frame(request: Request, engine: EngineDep, metrics: MetricsDep
                         rotation: str | None = Query(None, description="environment yaw,pitch,roll (degrees)"),
                         exposure: float | None = Query(None, ge=-20, le=20, description="stops (EV)"),
                         strength: float | None = Query(None, ge=0, le=1, description="blend, 0 to 1"),
-                        mode: str | None = Query(None, pattern="^(transfer|ambient|paste)$",
+                        mode: str | None = Query(None, pattern=f"^({'|'.join(MODES)})$",
                                                  description="transfer (the live light measured and swapped), "
                                                              "ambient (ratio to the capture room), paste")):
     if env is not None and env not in PRESETS:

@@ -13,7 +13,7 @@ from relight.imageio import image_size
 
 from ..codec import parse_rotation
 from ..composite import MODES
-from ..dependencies import SettingsDep
+from ..dependencies import MetricsDep, SettingsDep
 from ..engine import decode_relight_encode
 from ..errors import ServiceError
 from ..settings import PRESETS
@@ -22,14 +22,14 @@ router = APIRouter()
 
 
 @router.websocket("/v1/stream")
-async def stream(ws: WebSocket, config: SettingsDep):
+async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
     """Binary messages: encoded frames in, relit frames out (latest frame wins: a frame that
     arrives while another waits replaces it and counts as dropped). Text messages: JSON
     controls ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8, "mode":
     "paste", "exposure": 0}`` and ``{"stats": true}``; after each relit frame a JSON text
     message ``{"frame", "latency_ms", "dropped", "face", "timings"}``."""
     state = ws.app.state
-    engine, metrics = state.engine, state.metrics
+    engine = state.engine  # None while loading: the socket is closed with 1013, not refused
     await ws.accept()  # (closing before the handshake would be an HTTP 403, not a close code)
     if engine is None:
         await ws.close(code=1013, reason="loading; try again shortly")
