@@ -91,6 +91,10 @@ from relight.directions import equirect_solid_angles
 from relight.errors import InputError, NumericalError
 from relight.imageio import atomic_path
 
+# The format's padding rule, re-exported (defined in layout.py, a leaf below the maths).
+from .layout import TEXEL_ALIGN as TEXEL_ALIGN
+from .layout import padded_texels as padded_texels
+
 MAGIC = b"RLBUNDLE"
 VERSION = 4
 #: Format versions this relight reads (versions 1 and 2 store the maps, not their recipe).
@@ -324,8 +328,6 @@ class Bundle:
         slice into ``pixels``; None: all), zero padded to Tp texels (a multiple of 16) unless
         ``padded`` is False. From ``maps`` when the bundle stores it, else gathered from
         ``maps_rows`` (memory: the result only)."""
-        from .maps import padded_texels
-
         if "maps" in self.arrays:
             sel = self.arrays["maps"] if index is None else self.arrays["maps"][index]
             out = np.asarray(sel)

@@ -217,7 +217,7 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
             out[t0:t0 + len(ts), ps] = np.clip(regular, 0.0, None).transpose(1, 0, 2)
     if not np.isfinite(out).all():  # pragma: no cover - guarded above
         raise NumericalError("non-finite reflectance")
-    from .maps import padded_texels
+    from .layout import padded_texels
 
     pm = np.zeros((p, 3, padded_texels(act.size)), dtype=np.float32)
     pm[:, :, :act.size] = out.transpose(1, 2, 0)

@@ -11,19 +11,11 @@ import numpy as np
 from relight.errors import InputError
 from relight.numerics import EPS_NORM, EPS_VALUE
 
+from .layout import padded_texels
 from .runtime import aligned_zeros, build_program, get_runtime
 
 #: Pixels per launch (bounds the visibility scratch: PIXEL_CHUNK x texels floats, twice).
 PIXEL_CHUNK = 8192
-#: Stored texel counts are padded to a multiple of this (the relighting kernels read 16 at once).
-TEXEL_ALIGN = 16
-
-
-def padded_texels(n: int) -> int:
-    """``n`` rounded up to a multiple of TEXEL_ALIGN (at least TEXEL_ALIGN)."""
-    return max((n + TEXEL_ALIGN - 1) // TEXEL_ALIGN * TEXEL_ALIGN, TEXEL_ALIGN)
-
-
 def neighbourhoods(map_size, texels: np.ndarray) -> np.ndarray:
     """(n, 9) texel ids of each texel's 3x3 neighbourhood (wrapping in azimuth, clamped at the poles)."""
     w, h = map_size

@@ -23,7 +23,7 @@ from relight.errors import InputError
 from relight.numerics import EPS_NORM, flush_subnormal_halves, read_halves
 
 from . import transport
-from .maps import padded_texels
+from .bundle import padded_texels
 from .runtime import aligned_zeros, build_program, get_runtime
 
 #: Largest accepted deviation of a rotation matrix from orthonormal.

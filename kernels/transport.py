@@ -329,7 +329,7 @@ def dequantise_basis(q: np.ndarray, scale: np.ndarray, q4: np.ndarray | None = N
                      scale4: np.ndarray | None = None) -> np.ndarray:
     """float16 blocked basis images (P / 16, 3, Kp, 16) (ranks zero padded to a multiple of 16)
     of :func:`quantise_basis` storage."""
-    from .maps import padded_texels
+    from .bundle import padded_texels
 
     nb, _, k8, blk = q.shape
     k4 = 0 if q4 is None else q4.shape[2]
@@ -518,7 +518,7 @@ def _stored_transport(v_all: np.ndarray, u: np.ndarray, k: int, sig2, resid, tot
     basis u (T, >= k): basis images in 8 and 4 bits, and each rank's error with their rounding noise
     (resid (ranks, E) the truncation's residual energy, total (E,) each validation relight's
     energy, coef (ranks, 3, E) its coefficients; see :func:`factorize`)."""
-    from .maps import padded_texels
+    from .bundle import padded_texels
 
     p = v_all.shape[0]
     kp = padded_texels(k)

@@ -162,6 +162,7 @@ def test_downscaled_capture_meets_the_goals_and_relights_full_size_frames(synth_
     report = json.loads((report_dir / "report.json").read_text())
     b = load_bundle(tmp_path / "s.bundle")
     s = b.meta["capture_scale"]
+    # the 480x270 source's scale to the capture frame lies inside the head's range (definitional bound, not a tolerance)
     assert 0.3 < s < 0.8 and b.meta["source_size"] == [480, 270]
     assert b.frame_size == (round(480 * s), round(270 * s)) and b.background.shape[:2] == b.frame_size[::-1]
     assert abs(b.pixels.size - DOWNSCALED_FACE_PIXELS) < FACE_PIXELS_REL * DOWNSCALED_FACE_PIXELS

@@ -375,10 +375,12 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     if mode == "live":
         s = layer[0][..., 3][fp.alpha_crop > 0.5]
         # the live pixel trusted in places, and distrusted in others
+        # trust spans both ends (0.05/0.95: 'near 0', 'near 1') (definitional bound, not a tolerance)
         assert (s < 0.05).mean() > TRUST_LOW_SHARE and (s > 0.95).mean() > TRUST_HIGH_SHARE
     want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.origin, layer, mode=mode)
     diff = np.abs(got.astype(int) - want.astype(int))
     assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
+    # differing pixels: a rounding-level share (1 %) (definitional bound, not a tolerance)
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
 
 

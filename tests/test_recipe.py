@@ -28,7 +28,9 @@ def test_sample_codes_keep_relative_precision_and_never_exceed_the_scale():
     bright = x > 0.1 * top
     # 8-bit codes at gamma 2.5: a step is 2.5 / code relative, half a step of error at most.
     rel = np.abs(y - x)[bright] / x[bright]
+    # half an 8-bit step at the gamma-2.5 code's steepest point, + float32 slack (definitional bound, not a tolerance)
     assert rel.max() < 0.5 * 2.5 / (255 * 0.1 ** 0.4) + 1e-3
+    # half an 8-bit step of the peak, + 1 % for the scale's float16 rounding (definitional bound, not a tolerance)
     assert np.abs(y - x).max() <= 0.5 * 2.5 / 255 * top.max() * 1.01
 
 
@@ -42,6 +44,7 @@ def test_sample_codes_reject_what_float16_cannot_hold():
 def test_horizon_codes_round_trip_within_half_a_step():
     e = np.linspace(-np.pi / 2, np.pi / 2, 1001).astype(np.float32)
     back = rcp.decode_horizon(rcp.encode_horizon(e))
+    # half an 8-bit step of the horizon's [0, pi] range (definitional bound, not a tolerance)
     assert np.abs(back - e).max() <= 0.5 * np.pi / 255 + 1e-6
 
 

@@ -151,6 +151,7 @@ def test_reference_files_show_the_static_studios_head(live, scene):
     out, _ = live
     studio = scene.studio
     mask = read_image(out / "truth" / "mask_reference.png", linearize=False)[..., 0] > 0.5
+    # alpha 0.5: the silhouette's edge (definitional bound, not a tolerance)
     assert _iou(mask, studio.head.alpha > 0.5) > SILHOUETTE_IOU
     # The reference frame against the static capture's reference frame (no flash, no noise).
     ref = read_image(out / "truth" / "reference.png")
@@ -170,6 +171,7 @@ def test_reference_pose_matches_the_static_head(scene):
     head, mesh = scene.head, scene.mesh
     box, img, cov = mesh.render(np.eye(3), (0.0, 0.0))
     cov = _full(box, cov, head.mask.shape)
+    # coverage/alpha 0.5: the silhouette's edge (definitional bound, not a tolerance)
     assert _iou(cov > 0.5, head.alpha > 0.5) > SILHOUETTE_IOU
     assert np.abs(cov - head.alpha).mean() < COVERAGE_MEAN_ABS
     rad = _full(box, img, head.mask.shape)
@@ -330,6 +332,7 @@ def test_neck_stays_on_the_bottom_edge(scene, pose):
     box, _, cov = mesh.render(rotation_matrix(*pose), (0.0, -lift))
     bottom = _full(box, cov, head.mask.shape)[-1]
     ref_bottom = (head.alpha[-1] > 0.5).sum()
+    # 0.5: the silhouette's edge (definitional bound, not a tolerance)
     assert CHIN_ROW_RANGE[0] * ref_bottom < (bottom > 0.5).sum() < CHIN_ROW_RANGE[1] * ref_bottom
 
 
