@@ -336,11 +336,23 @@ class FramePipeline:
         self.done = None
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="relight-back")
         self._pending = None
+        self.wake = None  # called (on the worker) when a frame's second stage ends: see poll()
 
     def put(self, rgb, t: float, index: int, pts) -> None:
         front = self.fp.front(rgb, t)
         self.drain()
-        self._pending = (self._pool.submit(self.fp.back, front, True), rgb, index, pts)
+        fut = self._pool.submit(self.fp.back, front, True)
+        if self.wake is not None:
+            fut.add_done_callback(lambda _f: self.wake())
+        self._pending = (fut, rgb, index, pts)
+
+    def poll(self) -> bool:
+        """Hand the frame in flight to ``done`` if its second stage has ended (a live source
+        does not wait for the next frame to deliver this one: a frame's less latency)."""
+        if self._pending is not None and self._pending[0].done():
+            self.drain()
+            return True
+        return False
 
     def drain(self) -> None:
         """Finish the frame in flight (if any) and hand it to ``done``."""

@@ -41,3 +41,16 @@ def small_bundle(small_capture, tmp_path_factory):
     folder = made_once(tmp_path_factory, "small-bundle",
                        lambda folder: capture(res.video, folder / "face.bundle", progress=False))
     return load_bundle(folder / "face.bundle")
+
+
+@pytest.fixture(scope="session")
+def live_clip(tmp_path_factory) -> Path:
+    """A 2 s live clip (MP4) of the small capture's head (seed 3, 320x180), turning a little:
+    the camera of `relight live`'s tests and the browser's fake webcam."""
+    from relight.pipeline.synth.live import LiveConfig, synthesize_live
+
+    def make(folder: Path):
+        synthesize_live(folder, LiveConfig(width=320, height=180, duration=2.0, seed=3, yaw=10.0, pitch=5.0,
+                                           roll=3.0, audio="none"), progress=False)
+
+    return made_once(tmp_path_factory, "live-clip", make) / "live.mp4"
