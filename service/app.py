@@ -39,8 +39,12 @@ from .codec import MAX_BODY
 from .composite import DEFAULT_MODE
 from .engine import Engine, Metrics
 from .errors import ServiceError
-from .routers import environment, frames, health, stream
+from .routers import environment, frames, health, stream, webrtc
 from .settings import ServeConfig
+from .webrtc import WebRTCSessions
+
+#: Seconds a 503 (loading, at the client cap) asks the client to wait (Retry-After).
+RETRY_AFTER_S = 2
 
 
 def create_app(config: ServeConfig) -> FastAPI:
@@ -57,6 +61,7 @@ def create_app(config: ServeConfig) -> FastAPI:
         if config.announce:
             print(config.announce, flush=True)
         yield
+        await app.state.webrtc.close_all()
 
     app = FastAPI(title="relight", version="0.1.0", lifespan=lifespan,
                   description="Relight the face in video frames with a reflectance bundle.")
@@ -64,14 +69,16 @@ def create_app(config: ServeConfig) -> FastAPI:
     app.state.metrics = Metrics()
     app.state.engine = None  # set by the lifespan once the bundle is loaded
     app.state.load_error = None
-    app.state.clients = 0  # connected stream clients
+    app.state.clients = 0  # connected stream clients (websockets and WebRTC sessions)
+    app.state.webrtc = WebRTCSessions(app.state, app.state.metrics, config)
 
     @app.exception_handler(ServiceError)
     async def _service_error(request, exc: ServiceError):
         app.state.metrics.errors.labels(kind=exc.kind).inc()
-        return JSONResponse({"error": exc.message, "kind": exc.kind}, status_code=exc.status)
+        headers = {"Retry-After": str(RETRY_AFTER_S)} if exc.status == 503 else None
+        return JSONResponse({"error": exc.message, "kind": exc.kind}, status_code=exc.status, headers=headers)
 
-    for router in (health.router, frames.router, environment.router, stream.router):
+    for router in (health.router, frames.router, environment.router, stream.router, webrtc.router):
         app.include_router(router)
     return app
 

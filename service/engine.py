@@ -26,11 +26,28 @@ class Metrics:
         self.latency = Histogram("relight_frame_latency_seconds", "Time to relight one frame (s)",
                                  buckets=(0.005, 0.01, 0.015, 0.02, 0.03, 0.05, 0.1, 0.25, 1.0),
                                  registry=self.registry)
-        self.clients = Gauge("relight_clients", "Connected stream clients", registry=self.registry)
+        self.clients = Gauge("relight_clients", "Connected stream clients (websocket and WebRTC)",
+                             registry=self.registry)
+        self.webrtc_sessions = Gauge("relight_webrtc_sessions", "Open WebRTC sessions", registry=self.registry)
+        self.webrtc_sessions_total = Counter("relight_webrtc_sessions_opened", "WebRTC sessions opened",
+                                             registry=self.registry)
+        self.webrtc_frames = Counter("relight_webrtc_frames", "Frames relit on WebRTC tracks", registry=self.registry)
+        self.webrtc_closed = Counter("relight_webrtc_sessions_closed", "WebRTC sessions closed, by reason",
+                                     ["reason"], registry=self.registry)
+
+
+class Session:
+    """One client's per-frame path: its own tracker, filters and live light (a stream client's
+    head is not another's), sharing the engine's :class:`~relight.kernels.relighter.Relighter`."""
+
+    def __init__(self, path, env: np.ndarray):
+        self.path = path
+        self.env = env  # the environment array the path was last given (identity: unchanged)
 
 
 class Engine:
-    """The loaded bundle and per-frame path, one frame at a time; environments cached by name."""
+    """The loaded bundle and per-frame path, one frame at a time; environments cached by name.
+    Each stream client gets a :class:`Session` (:meth:`session`); single requests share one."""
 
     def __init__(self, config: ServeConfig):
         import relight
@@ -46,9 +63,19 @@ class Engine:
         self.default_exposure = 0.0
         # The environment array the frame path was last given (the engine's cached arrays are
         # never edited in place, so identity says whether it changed; FramePath copies it).
-        self._path_env = self.environment(config.env)
-        self.path = FramePath(self.bundle, self._path_env, mode=config.mode, focal=config.focal)
+        env = self.environment(config.env)
+        self.shared = Session(FramePath(self.bundle, env, mode=config.mode, focal=config.focal), env)
+        self.path = self.shared.path
         self.lock = asyncio.Lock()
+
+    def session(self) -> Session:
+        """A new client's own per-frame path (~0.5 s for a small bundle: call it off the event loop,
+        under :attr:`lock` - it relights with the shared relighter)."""
+        from .frame_path import FramePath
+
+        env = self.environment(self.env_name)
+        return Session(FramePath(self.bundle, env, mode=self.config.mode, focal=self.config.focal,
+                                 relighter=self.path.relighter), env)
 
     def set_uploaded(self, name: str, env: np.ndarray) -> None:
         """An uploaded (validated) environment becomes the current one under ``name``."""
@@ -74,22 +101,26 @@ class Engine:
         return env
 
     def relight(self, rgb: np.ndarray, *, env: str | None, rotation, exposure: float | None, strength: float | None,
-                mode: str | None):
-        fp = self.path
+                mode: str | None, session: Session | None = None):
+        """The relit frame and its FrameInfo, through ``session``'s path (None: the shared one).
+        Call it under :attr:`lock` (the sessions share the relighter)."""
+        session = session or self.shared
+        fp = session.path
         if env is None and rotation is None:
             rotation = self.default_rotation
         env_array = self.environment(env or self.env_name, rotation)
-        if env_array is not self._path_env:  # not copied and hashed again every frame
+        if env_array is not session.env:  # not copied and hashed again every frame
             fp.set_environment(env_array)
-            self._path_env = env_array
+            session.env = env_array
         fp.set_mode(mode or self.config.mode)
         fp.set_strength(1.0 if strength is None else strength)
         fp.set_exposure(self.default_exposure if exposure is None else exposure)
         return fp.process(rgb, time.perf_counter())
 
 
-def decode_relight_encode(engine: Engine, data: bytes, ctype: str, max_pixels: int, settings: dict):
+def decode_relight_encode(engine: Engine, data: bytes, ctype: str, max_pixels: int, settings: dict,
+                          session: Session | None = None):
     """(encoded relit frame, FrameInfo) of an encoded frame (raises ServiceError/RelightError)."""
     rgb = decode_frame(data, ctype, max_pixels)
-    out, info = engine.relight(rgb, **settings)
+    out, info = engine.relight(rgb, session=session, **settings)
     return encode_frame(out, ctype), info

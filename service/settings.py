@@ -26,6 +26,11 @@ class ServeConfig:
     max_body: int = MAX_BODY
     max_pixels: int = MAX_PIXELS
     focal: float | str | None = None
+    #: STUN/TURN servers for WebRTC (none: host candidates, for this machine and its network).
+    ice_servers: tuple[str, ...] = ()
+    #: A WebRTC session closes after this many seconds, or after idle_timeout without a frame.
+    session_timeout: float = 4 * 3600.0
+    idle_timeout: float = 20.0
     announce: str | None = None  # printed once the service is ready (relight-serve: the page's URL)
 
 

@@ -11,12 +11,10 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from relight.errors import RelightError
 from relight.imageio import image_size
 
-from ..codec import parse_rotation
-from ..composite import MODES
+from ..controls import apply_control, new_settings
 from ..dependencies import MetricsDep, SettingsDep
 from ..engine import decode_relight_encode
 from ..errors import ServiceError
-from ..settings import PRESETS
 
 router = APIRouter()
 
@@ -40,7 +38,14 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
         return
     state.clients += 1
     metrics.clients.inc()
-    settings: dict = {"env": None, "rotation": None, "strength": None, "mode": None, "exposure": None}
+    try:
+        async with engine.lock:  # (made with the shared relighter: one user at a time)
+            session = await asyncio.to_thread(engine.session)  # this client's own tracker and filters
+    except BaseException:
+        state.clients -= 1
+        metrics.clients.dec()
+        raise
+    settings = new_settings()
     latest: dict = {"data": None, "type": None, "t": 0.0, "tag": None}
     pending: dict = {}
     counts = {"frames": 0, "dropped": 0}
@@ -52,26 +57,6 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
             await ws.send_json(doc)
         except (WebSocketDisconnect, RuntimeError):
             closed.set()
-
-    def control(doc: dict):
-        if not isinstance(doc, dict):
-            raise ServiceError(422, "bad_control", "control messages are JSON objects")
-        if "env" in doc:
-            if doc["env"] not in PRESETS:
-                raise ServiceError(422, "bad_control", f"env {doc['env']!r}: use one of {', '.join(PRESETS)}")
-            settings["env"] = f"builtin:{doc['env']}"
-        if "rotation" in doc:
-            settings["rotation"] = parse_rotation(",".join(str(v) for v in doc["rotation"]))
-        for key, lo, hi in (("strength", 0.0, 1.0), ("exposure", -20.0, 20.0)):
-            if key in doc:
-                v = doc[key]
-                if not isinstance(v, int | float) or not (lo <= v <= hi):
-                    raise ServiceError(422, "bad_control", f"{key} {v!r}: use {lo:g} to {hi:g}")
-                settings[key] = float(v)
-        if "mode" in doc:
-            if doc["mode"] not in MODES:
-                raise ServiceError(422, "bad_control", f"mode: one of {', '.join(MODES)}")
-            settings["mode"] = doc["mode"]
 
     async def reader():
         try:
@@ -98,7 +83,7 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
                         elif isinstance(doc, dict) and set(doc) == {"tag"}:
                             pending["tag"] = doc["tag"]  # echoed with the next frame's result
                         else:
-                            control(doc)
+                            apply_control(settings, doc)
                     except (ValueError, ServiceError) as exc:
                         metrics.errors.labels(kind="bad_control").inc()
                         await send_json({"error": str(exc), "kind": "bad_control"})
@@ -125,7 +110,7 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
                     # Decode, relight and encode in one hop off the event loop (which keeps
                     # reading the other clients' frames meanwhile).
                     payload, info = await asyncio.to_thread(decode_relight_encode, engine, data, ctype,
-                                                            config.max_pixels, settings)
+                                                            config.max_pixels, settings, session)
             except (ServiceError, RelightError) as exc:
                 kind = exc.kind if isinstance(exc, ServiceError) else "bad_request"
                 metrics.errors.labels(kind=kind).inc()

@@ -1,0 +1,48 @@
+"""The JSON controls a live client sends (the websocket's text messages, the WebRTC data
+channel's): ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8, "mode":
+"paste", "exposure": 0}``, any subset. One parser for both transports."""
+
+from __future__ import annotations
+
+from .codec import parse_rotation
+from .composite import MODES
+from .errors import ServiceError
+from .settings import PRESETS
+
+#: Ranges of the numeric controls.
+RANGES = {"strength": (0.0, 1.0), "exposure": (-20.0, 20.0)}
+#: Longest control message read (bytes).
+MAX_CONTROL = 4096
+
+
+def new_settings() -> dict:
+    """A client's settings before any control (None: the service's own)."""
+    return {"env": None, "rotation": None, "strength": None, "mode": None, "exposure": None}
+
+
+def apply_control(settings: dict, doc) -> None:
+    """Check the control message ``doc`` (parsed JSON) and apply it to ``settings``; raises
+    ServiceError (422, kind ``bad_control``) saying what to change, leaving ``settings`` as it was."""
+    if not isinstance(doc, dict):
+        raise ServiceError(422, "bad_control", "control messages are JSON objects")
+    new = {}
+    if "env" in doc:
+        if doc["env"] not in PRESETS:
+            raise ServiceError(422, "bad_control", f"env {doc['env']!r}: use one of {', '.join(PRESETS)}")
+        new["env"] = f"builtin:{doc['env']}"
+    if "rotation" in doc:
+        rot = doc["rotation"]
+        if not isinstance(rot, list) or len(rot) != 3:
+            raise ServiceError(422, "bad_control", "rotation: a list of three numbers [yaw, pitch, roll] (degrees)")
+        new["rotation"] = parse_rotation(",".join(str(v) for v in rot))
+    for key, (lo, hi) in RANGES.items():
+        if key in doc:
+            v = doc[key]
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (lo <= v <= hi):
+                raise ServiceError(422, "bad_control", f"{key} {v!r}: use {lo:g} to {hi:g}")
+            new[key] = float(v)
+    if "mode" in doc:
+        if doc["mode"] not in MODES:
+            raise ServiceError(422, "bad_control", f"mode: one of {', '.join(MODES)}")
+        new["mode"] = doc["mode"]
+    settings.update(new)
