@@ -453,6 +453,19 @@ def _add_bench(sub) -> None:
     sv.add_argument("--quick", action="store_true", help="8 s of load and 640x360 for the single client (for CI)")
     sv.add_argument("--quiet", action="store_true", help="no progress output")
     sv.set_defaults(func=_run_bench_serve)
+    lv = bsub.add_parser("live", help="relight live and the browser page (WebRTC vs websocket) on one clip",
+                         description="relight live with a synthetic clip played as the camera (640x360 and "
+                                     "1280x720, recorded): fps in/relit/out, dropped, latency, CPU; then the browser "
+                                     "page in headless Chromium over WebRTC and over the websocket on the same "
+                                     "640x360 clip: fps, round trip from the frames' bar codes, bandwidth. Writes "
+                                     "bench.json.",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    lv.add_argument("-o", "--out", type=Path, default=Path("out/bench-live"), help="output and cache folder")
+    lv.add_argument("--seconds", type=float, default=15.0, help="seconds measured per case")
+    lv.add_argument("--no-browser", action="store_true", help="leave out the browser page")
+    lv.add_argument("--quick", action="store_true", help="640x360 only, 6 s per case (for CI)")
+    lv.add_argument("--quiet", action="store_true", help="no progress output")
+    lv.set_defaults(func=_run_bench_live)
     a = bsub.add_parser("accuracy", help="every method against the truth and real held-out photos: one report",
                         description="Synthesise several captures (cached), build a bundle per method (full, its "
                                     "ablations, barycentric, PTM, HSH orders 3 and 2, RBF) from the same samples, "
@@ -531,6 +544,19 @@ def _run_bench_video(args) -> int:
     print(benchmark.table(doc))
     print(f"wrote {args.out / 'bench.json'}, {args.out / 'video_pose.png'}, {args.out / 'video_frames.png'} and a "
           "before/after sheet per real face (faces/*/sheet.png)")
+    return 0
+
+
+def _run_bench_live(args) -> int:
+    from .bench import live
+    from .errors import InputError
+
+    if not (1 <= args.seconds <= 600):
+        raise InputError(f"--seconds {args.seconds}: use 1 to 600")
+    doc = live.run(args.out, quick=args.quick, progress=not args.quiet, seconds=args.seconds,
+                   browser=not args.no_browser)
+    print(live.table(doc))
+    print(f"wrote {args.out / 'bench.json'}")
     return 0
 
 

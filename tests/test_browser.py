@@ -1,29 +1,29 @@
 """The browser page in a real headless Chromium: webcam (a fake device playing a `relight synth
---live` clip) -> websocket -> relit frames in the page. Chromium comes from Debian's `chromium`
-package, which `make install-system` installs (CI calls it); without it the test skips and says so."""
+--live` clip with frame-number bar codes) -> WebRTC or websocket -> relit frames in the page,
+their round trip measured from the bar codes (:mod:`relight.bench.browser`). Chromium comes
+from Debian's `chromium` package, which `make install-system` installs (CI calls it); without it
+the test skips and says so."""
 
-import base64
 import json
-import shutil
-import subprocess
-import time
 
 import cv2
+import httpx
 import numpy as np
 import pytest
 
-httpx = pytest.importorskip("httpx", reason="httpx (a test extra) is the client")
+from relight.bench.browser import barcoded_y4m, chromium_page, find_chromium, measure_page
 
-from .serving import free_port, running_server  # noqa: E402 (after the skip: it needs httpx)
+from .serving import running_server
+from .tolerances import LIVE_CHANGED_CODES
 
-#: Relit frames the page must show, and how long it may take (s).
+#: Relit frames the page must show before measuring, and the seconds measured per transport.
 PAGE_FRAMES = 3
-PAGE_TIMEOUT = 90
+MEASURE_S = 4.0
 
 
 @pytest.fixture(scope="module")
 def chromium():
-    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    exe = find_chromium()
     if exe is None:
         pytest.skip("Chromium is not installed: `make install-system` installs it (Debian's apt, as root), "
                     "or install the 'chromium' package yourself")
@@ -31,102 +31,62 @@ def chromium():
 
 
 @pytest.fixture(scope="module")
-def y4m_clip(tmp_path_factory):
-    """A 2 s live clip of the small capture's head (seed 3, 320x180) as .y4m for the fake camera."""
-    import av
-
-    from relight.pipeline.synth.live import LiveConfig, synthesize_live
+def y4m_clip(live_clip, tmp_path_factory):
     from relight.video import read_frames
 
-    out = tmp_path_factory.mktemp("live")
-    res = synthesize_live(out, LiveConfig(width=320, height=180, duration=2.0, seed=3, yaw=10.0, pitch=5.0,
-                                          roll=3.0, audio="none"), progress=False)
-    path = out / "live.y4m"
-    with av.open(str(path), "w", format="yuv4mpegpipe") as c:
-        st = c.add_stream("rawvideo", rate=30)
-        st.width, st.height, st.pix_fmt = 320, 180, "yuv420p"
-        for f in read_frames(res.video):
-            for p in st.encode(av.VideoFrame.from_ndarray(f, format="rgb24").reformat(format="yuv420p")):
-                c.mux(p)
-        for p in st.encode(None):
-            c.mux(p)
-    return path
+    return barcoded_y4m(list(read_frames(live_clip)), tmp_path_factory.mktemp("y4m") / "live.y4m")
 
 
 @pytest.fixture(scope="module")
 def server(small_bundle):
     from relight.service.settings import ServeConfig
 
-    with running_server(ServeConfig(bundle=small_bundle.path)) as base:
+    with running_server(ServeConfig(bundle=small_bundle.path, focal="ortho")) as base:
         yield base
 
 
-class _DevTools:
-    """Just enough of the Chrome DevTools protocol: call a method, wait for its result."""
-
-    def __init__(self, ws):
-        self.ws, self.n = ws, 0
-
-    def __call__(self, method, **params):
-        self.n += 1
-        self.ws.send(json.dumps({"id": self.n, "method": method, "params": params}))
-        while True:
-            msg = json.loads(self.ws.recv(timeout=30))
-            if msg.get("id") == self.n:
-                if "error" in msg:
-                    raise RuntimeError(f"{method}: {msg['error']}")
-                return msg.get("result", {})
-
-    def js(self, expression):
-        return self("Runtime.evaluate", expression=expression, returnByValue=True)["result"].get("value")
-
-
-def test_browser_page_streams_the_camera_and_shows_relit_frames(chromium, y4m_clip, server, tmp_path):
-    from websockets.sync.client import connect
-
-    port = free_port()
-    proc = subprocess.Popen([chromium, "--headless=new", "--no-sandbox", "--disable-gpu",
-                             "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
-                             f"--use-file-for-fake-video-capture={y4m_clip}", "--window-size=1280,800",
-                             f"--remote-debugging-port={port}", f"--user-data-dir={tmp_path / 'profile'}",
-                             "about:blank"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.time() + 60
-        page = None
-        while page is None:
-            try:
-                page = next(p for p in httpx.get(f"http://127.0.0.1:{port}/json/list", timeout=2).json()
-                            if p.get("type") == "page")
-            except (httpx.TransportError, StopIteration, ValueError):
-                if time.time() > deadline:
-                    pytest.fail("Chromium's DevTools endpoint did not come up")
-                time.sleep(0.2)
-        with connect(page["webSocketDebuggerUrl"], max_size=None) as ws:
-            dev = _DevTools(ws)
-            dev("Page.enable")
-            dev("Page.navigate", url=f"{server}/")
-            shown, deadline = 0, time.time() + PAGE_TIMEOUT
-            while shown < PAGE_FRAMES and time.time() < deadline:
-                shown = int(dev.js("((document.getElementById('relit') || {dataset: {}}).dataset.frames) || '0'")
-                            or 0)
-                time.sleep(0.25)
-            status = dev.js("document.getElementById('status').textContent")
-            assert shown >= PAGE_FRAMES, f"the page showed {shown} relit frames; status: {status}"
-            assert "fps" in status and "latency" in status
-            rects = json.loads(dev.js("JSON.stringify(['camera', 'relit'].map(i => "
-                                      "document.getElementById(i).getBoundingClientRect()))"))
-            png = base64.b64decode(dev("Page.captureScreenshot", format="png")["data"])
-    finally:
-        proc.terminate()
-        proc.wait(timeout=20)
-    (tmp_path / "page.png").write_bytes(png)
-    shot = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+@pytest.mark.parametrize("transport", ["webrtc", "websocket"])
+def test_browser_page_streams_the_camera_and_shows_relit_frames(chromium, y4m_clip, server, transport, tmp_path):
+    shot = tmp_path / "page.png"
+    with chromium_page(chromium, y4m_clip) as dev:
+        res = measure_page(dev, server, transport, MEASURE_S, min_frames=PAGE_FRAMES, screenshot=shot)
+        visible = "relit-video" if transport == "webrtc" else "relit-img"
+        rects = json.loads(dev.js(f"JSON.stringify(['camera', '{visible}'].map(i => "
+                                  "document.getElementById(i).getBoundingClientRect()))"))
+    assert res["ok"], f"the page showed {res['frames']} relit frames; status: {res['status']}"
+    assert res["transport"] == transport  # WebRTC did not fall back to the websocket
+    assert res["frames"] >= PAGE_FRAMES and "fps" in res["status"] and "latency" in res["status"]
+    # Round trips from the frames' bar codes: camera frame shown -> its relit frame shown.
+    assert res["rtt_n"] >= PAGE_FRAMES and 0 < res["rtt_median_ms"] <= res["rtt_p95_ms"]
+    assert res["up_kbps"] > 0 and res["down_kbps"] > 0
+    img = cv2.imread(str(shot), cv2.IMREAD_COLOR)
     cam, rel = rects
-    assert abs(cam["top"] - rel["top"]) < 2 and rel["left"] > cam["left"] + cam["width"] - 1  # side by side
+    assert abs(cam["top"] - rel["top"]) < 40 and rel["left"] > cam["left"] + cam["width"] - 1  # side by side
     for r in (cam, rel):  # both panes show a picture, not a blank box
-        crop = shot[int(r["top"]) + 2:int(r["top"] + r["height"]) - 2,
-                    int(r["left"]) + 2:int(r["left"] + r["width"]) - 2]
+        crop = img[int(r["top"]) + 2:int(r["top"] + r["height"]) - 2,
+                   int(r["left"]) + 2:int(r["left"] + r["width"]) - 2]
         assert crop.size and crop.std() > 5
+    name = "relight_webrtc_frames_total" if transport == "webrtc" else "relight_frames_total"
     frames = [float(line.split()[-1]) for line in httpx.get(f"{server}/metrics").text.splitlines()
-              if line.startswith("relight_frames_total")]
+              if line.startswith(name)]
     assert frames and frames[0] >= PAGE_FRAMES
+
+
+def test_bar_codes_survive_the_relight(small_bundle, live_clip, tmp_path):
+    """The bar code sits outside the face: a relit frame keeps it (else round trips are not measured)."""
+    import relight
+    from relight.bench.browser import CODE_BITS, CODE_BLOCK
+    from relight.service.frame_path import FramePath
+    from relight.video import read_frames
+
+    frames = list(read_frames(live_clip))[:8]
+    y4m = barcoded_y4m(frames, tmp_path / "c.y4m")
+    coded = list(read_frames(y4m))
+    fp = FramePath(small_bundle, relight.load_environment("builtin:sunset"), focal="ortho")
+    for i, f in enumerate(coded):
+        out, info = fp.process(f, i / 30)
+        mid = CODE_BLOCK // 2
+        bits = [out[mid, b * CODE_BLOCK + mid].mean() > 128 for b in range(CODE_BITS + 2)]
+        assert sum(int(v) << b for b, v in enumerate(bits[:CODE_BITS])) == i and bits[CODE_BITS:] == [True, False]
+    assert info.face
+    assert np.abs(out.astype(int) - coded[-1].astype(int)).max() > LIVE_CHANGED_CODES  # and the face was relit
