@@ -2,9 +2,12 @@ import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from relight.cli import build_parser, main
+
+from .tolerances import LIVE_CHANGED_CODES, LIVE_CHANGED_SHARE
 
 
 def _flags(help_text):
@@ -47,9 +50,22 @@ def test_demo_writes_a_contact_sheet(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "contact sheet:" in out and "accuracy against the truth" in out
-    assert out.rstrip().splitlines()[-1].endswith(f"relight serve {tmp_path / 'face.bundle'}")
+    assert f"relight serve {tmp_path / 'face.bundle'}" in out.rstrip().splitlines()[-1]
     sheet = cv2.imread(str(tmp_path / "contact_sheet.png"))
     assert sheet.shape == (5 * 270, 4 * 480, 3) and sheet.std() > 10
+    # The relit live clip under each environment, and the before/after sheet (before + 3 envs, 3 moments).
+    from relight.cli import DEMO_ENVS
+    from relight.video import probe_video
+
+    for name in DEMO_ENVS:
+        assert probe_video(tmp_path / f"relit-{name}.mp4").frame_count == \
+            probe_video(tmp_path / "live" / "live.mp4").frame_count
+        assert f"relit under {name}" in out
+    ba = cv2.imread(str(tmp_path / "before_after.png"))
+    assert ba.shape == (3 * 270, (1 + len(DEMO_ENVS)) * 480, 3)
+    before, after = ba[270:540, :480].astype(int), ba[270:540, 480:960].astype(int)
+    assert (np.abs(before - after).max(axis=2) > LIVE_CHANGED_CODES).mean() > LIVE_CHANGED_SHARE
+    assert "\r" not in out and len(out.splitlines()) < 30  # a log gets one line per stage, no bars
     assert (tmp_path / "face.bundle").stat().st_size > 1e6 and (tmp_path / "report" / "report.json").exists()
 
 

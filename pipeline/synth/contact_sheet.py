@@ -166,3 +166,20 @@ def _bundle_row(bundle, meta, capture, mask, bb) -> list:
         _label(_fit(encode_srgb8(pred * scale)[bb]), f"{name} predicted from the bundle"),
         _label(_fit(encode_srgb8(truth * scale)[bb]), f"{name} truth"),
     ]
+
+
+def before_after_sheet(before: str | Path, relit: dict[str, str | Path], out: str | Path,
+                       rows: int = 3) -> Path:
+    """A PNG of ``rows`` moments of a clip: the camera's frame, then the same frame in each relit
+    clip (``relit``: label -> video, e.g. one per environment; same frame count as ``before``)."""
+    clips = {"before": Path(before), **{k: Path(v) for k, v in relit.items()}}
+    frames = {k: list(read_frames(v)) for k, v in clips.items()}
+    n = min(len(f) for f in frames.values())
+    if n == 0:
+        raise ValueError(f"{before}: no frames")
+    picks = np.linspace(0, n - 1, rows + 2)[1:-1].round().astype(int)
+    grid = []
+    for i in picks:
+        grid.append(np.concatenate([_label(_fit(frames[k][i]), f"{k}  (frame {i})") for k in clips], axis=1))
+    write_image(out, np.concatenate(grid, axis=0))
+    return Path(out)
