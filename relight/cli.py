@@ -853,7 +853,14 @@ def _serve_arguments(p) -> None:
 
     p.add_argument("bundle", type=Path, help="reflectance bundle to serve (relight capture)")
     p.add_argument("--env", default=ServeConfig.env, metavar="FILE|builtin:NAME", help="starting environment")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    p.add_argument("--host", default=ServeConfig.host,
+                   help="address to listen on (beyond loopback - e.g. 0.0.0.0 - a --token is required)")
+    p.add_argument("--token", default=None,
+                   help="a secret every request must carry (Authorization: Bearer TOKEN or ?token=TOKEN; the "
+                        "page's URL is printed with it); default: $RELIGHT_TOKEN, or none on loopback")
+    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
+                   help="a web page origin (https://example.org) allowed to drive this server besides its own "
+                        "page; give it again for more")
     p.add_argument("--port", type=int, default=8000, help="port to listen on")
     p.add_argument("--mode", choices=MODES, default=ServeConfig.mode,
                    help="transfer: the live light measured from the face and swapped for the target; ambient: the "
@@ -878,8 +885,23 @@ def _serve_command(args) -> int:
         raise InputError(f"--port {args.port}: use 1 to 65535")
     if not (1 <= args.max_clients <= 1024):
         raise InputError(f"--max-clients {args.max_clients}: use 1 to 1024")
+    import os
+
+    from .service.security import check_token, is_loopback
+
+    try:
+        token = check_token(args.token if args.token is not None else os.environ.get("RELIGHT_TOKEN"))
+    except ValueError as exc:
+        raise InputError(f"--token: {exc}") from None
+    if token is None and not is_loopback(args.host):
+        raise InputError(f"--host {args.host} opens the service to the network: give --token (or set "
+                         "RELIGHT_TOKEN) so only its user can drive it, or listen on 127.0.0.1")
+    for o in args.allow_origin:
+        if o != "*" and not re.match(r"^https?://[^/\s]+$", o):
+            raise InputError(f"--allow-origin {o!r}: write an origin as scheme://host[:port], e.g. https://example.org")
     return serve(args.bundle, env=args.env, host=args.host, port=args.port, mode=args.mode,
-                 max_clients=args.max_clients, focal=args.focal)
+                 max_clients=args.max_clients, focal=args.focal, token=token,
+                 allowed_origins=tuple(args.allow_origin))
 
 
 def serve_main(argv: list[str] | None = None) -> int:

@@ -40,6 +40,7 @@ from .composite import DEFAULT_MODE
 from .engine import Engine, Metrics
 from .errors import ServiceError
 from .routers import environment, frames, health, stream, webrtc
+from .security import AccessGuard
 from .settings import ServeConfig
 from .webrtc import WebRTCSessions
 
@@ -78,13 +79,18 @@ def create_app(config: ServeConfig) -> FastAPI:
         headers = {"Retry-After": str(RETRY_AFTER_S)} if exc.status == 503 else None
         return JSONResponse({"error": exc.message, "kind": exc.kind}, status_code=exc.status, headers=headers)
 
+    app.state.pending = 0  # POST /v1/relight frames relit or waiting
+    app.add_middleware(AccessGuard, bind_host=config.host, token=config.token,
+                       allowed_origins=config.allowed_origins,
+                       on_refuse=lambda kind: app.state.metrics.errors.labels(kind=kind).inc())
     for router in (health.router, frames.router, environment.router, stream.router, webrtc.router):
         app.include_router(router)
     return app
 
 
 def serve(bundle: Path, *, env: str = "builtin:studio", host: str = "127.0.0.1", port: int = 8000,
-          mode: str = DEFAULT_MODE, max_clients: int = 4, focal=None) -> int:
+          mode: str = DEFAULT_MODE, max_clients: int = 4, focal=None, token: str | None = None,
+          allowed_origins: tuple[str, ...] = ()) -> int:
     """Serve ``bundle`` with uvicorn until stopped (``relight serve`` / ``relight-serve``; the
     command line checks its arguments first: :mod:`relight.cli`)."""
     import uvicorn
@@ -92,10 +98,11 @@ def serve(bundle: Path, *, env: str = "builtin:studio", host: str = "127.0.0.1",
     shown = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
     shown = f"[{shown}]" if ":" in shown else shown
     url = f"http://{shown}:{port}"
-    announce = (f"relight: serving {bundle} - open {url}/ (webcam page), {url}/docs (API), "
+    query = f"?token={token}" if token else ""
+    announce = (f"relight: serving {bundle} - open {url}/{query} (webcam page), {url}/docs (API), "
                 f"{url}/metrics; Ctrl-C stops")
     app = create_app(ServeConfig(bundle=bundle, env=env, mode=mode, max_clients=max_clients, focal=focal,
-                                 announce=announce))
+                                 announce=announce, host=host, token=token, allowed_origins=tuple(allowed_origins)))
     uvicorn.run(app, host=host, port=port, log_level=os.environ.get("RELIGHT_LOG_LEVEL", "info"),
                 ws_max_size=MAX_BODY + 1024)
     return 0

@@ -26,6 +26,14 @@ class ServeConfig:
     max_body: int = MAX_BODY
     max_pixels: int = MAX_PIXELS
     focal: float | str | None = None
+    #: Where it listens (the access checks depend on whether that is loopback).
+    host: str = "127.0.0.1"
+    #: Required of every request but the probes when set (always when binding beyond loopback).
+    token: str | None = None
+    #: Web page origins allowed to drive it besides this server's own (``*``: any).
+    allowed_origins: tuple[str, ...] = ()
+    #: POST /v1/relight frames relit or waiting at once; more get 503 + Retry-After.
+    max_pending: int = 4
     #: STUN/TURN servers for WebRTC (none: host candidates, for this machine and its network).
     ice_servers: tuple[str, ...] = ()
     #: A WebRTC session closes after this many seconds, or after idle_timeout without a frame.

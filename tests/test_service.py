@@ -175,7 +175,10 @@ def test_stream_limits_clients_and_message_size(server, frame):
             with pytest.raises(ConnectionClosed) as info:
                 extra.recv(timeout=10)
             assert info.value.rcvd.code == 1013
-    time.sleep(0.3)
+    # The four slots come free once their handlers end (each made its own per-frame path first).
+    deadline = time.time() + 30
+    while time.time() < deadline and "relight_clients 0.0" not in httpx.get(f"{server}/metrics").text:
+        time.sleep(0.1)
     with connect(url, max_size=None, open_timeout=10) as ws:
         ws.send(b"\x89PNG" + b"\x00" * 2_100_000)
         with pytest.raises(ConnectionClosed) as info:

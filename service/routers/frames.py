@@ -35,6 +35,18 @@ async def relight_frame(request: Request, engine: EngineDep, metrics: MetricsDep
     ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
     if ctype not in CONTENT_TYPES:
         raise ServiceError(415, "content_type", f"content type {ctype or 'none'!r}: send image/png or image/jpeg")
+    state = request.app.state
+    if state.pending >= config.max_pending:  # a bounded wait, never an unbounded queue
+        metrics.errors.labels(kind="busy").inc()
+        raise ServiceError(503, "busy", f"{state.pending} frames are being relit or wait; retry shortly")
+    state.pending += 1
+    try:
+        return await _relight(request, engine, metrics, config, ctype, env, rot, exposure, strength, mode)
+    finally:
+        state.pending -= 1
+
+
+async def _relight(request, engine, metrics, config, ctype, env, rot, exposure, strength, mode):
     rgb = decode_frame(await read_body(request, config.max_body), ctype, config.max_pixels)
     accept = (request.headers.get("accept") or "").lower()
     out_type = "image/jpeg" if "image/jpeg" in accept and "image/png" not in accept else \
