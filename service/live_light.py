@@ -173,8 +173,9 @@ class LightEstimator:
         use &= ~clipped & ~black
         if int(use.sum()) < MIN_PIXELS:
             notes.append(f"{int(use.sum())} usable face pixels (need {MIN_PIXELS}): the last light is kept")
-            return self._report(rotation, residual=float("nan"), pixels=int(use.sum()), status="few pixels",
-                                notes=notes)
+            # A saturated or black face says so (the reason there are few pixels), else "few pixels".
+            return self._report(rotation, residual=float("nan"), pixels=int(use.sum()),
+                                status=status if status != "ok" else "few pixels", notes=notes)
         idx = np.flatnonzero(use)
         y = live[idx]
         yl = y @ LUMINANCE.astype(np.float64)

@@ -290,3 +290,12 @@ LIVE_FRAME_SHARE = 0.5
 #: its pixels (the face's light changed).
 LIVE_CHANGED_CODES = 20
 LIVE_CHANGED_SHARE = 0.005
+
+# The live path's extreme cases (tests/test_live_stability.py)
+#: The live light fit is linear in the frame's exposure (robust weights and ridge are scale-free):
+#: intensity at exposure s against s x the unscaled fit, relative.
+LIVE_LIGHT_SCALE_RTOL = 1e-6
+#: ... and when some pixels fall under the noise floor or clip (fitted on the rest), relative.
+LIVE_LIGHT_PARTIAL_RTOL = 0.05
+#: ... its direction then within this angle of the unscaled fit's (degrees; exact scaling: 0.1).
+LIVE_LIGHT_PARTIAL_DEG = 2.0
