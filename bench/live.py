@@ -20,15 +20,9 @@ SIZES = ((640, 360), (1280, 720))
 
 
 def _clip(out: Path, size, progress: bool) -> Path:
-    from relight.pipeline.synth.live import LiveConfig, synthesize_live
+    from .video import synth_live
 
-    live = out / f"live-{size[0]}x{size[1]}-4s"
-    if not (live / "live.mp4").exists():
-        if progress:
-            print(f"synthesising a {size[0]}x{size[1]} live clip ...", flush=True)
-        synthesize_live(live, LiveConfig(width=size[0], height=size[1], duration=4.0, seed=0, audio="none"),
-                        progress=progress)
-    return live / "live.mp4"
+    return synth_live(out, size, 4.0, progress) / "live.mp4"
 
 
 def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float = 15.0,

@@ -99,15 +99,11 @@ def _frames(out: Path, progress: bool, size: tuple[int, int] = (640, 360)) -> li
     """JPEG frames (quality 85) of a 4 s synthetic live clip at ``size`` (cached in ``out``)."""
     import cv2
 
-    from relight.pipeline.synth.live import LiveConfig, synthesize_live
     from relight.video import read_frames
 
-    live = out / f"live-{size[0]}x{size[1]}-4s"
-    if not (live / "live.mp4").exists():
-        if progress:
-            print(f"synthesising a {size[0]}x{size[1]} live clip ...", flush=True)
-        synthesize_live(live, LiveConfig(width=size[0], height=size[1], duration=4.0, seed=0, audio="none"),
-                        progress=progress)
+    from .video import synth_live
+
+    live = synth_live(out, size, 4.0, progress)
     return [cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
             for f in read_frames(live / "live.mp4")]
 

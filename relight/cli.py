@@ -798,7 +798,8 @@ def _live_command(args) -> int:
 
     from .errors import InputError
     from .imageio import atomic_path
-    from .service.live import VirtualCameraMissing, check_virtual_camera_backend, run_live
+    from .service.live import run_live
+    from .service.virtual_camera import VirtualCameraMissing, check_virtual_camera_backend
 
     if not (args.virtual_camera or args.preview or args.record):
         raise InputError("nothing to send the frames to: add --virtual-camera, --preview and/or --record OUT.mp4")

@@ -91,27 +91,6 @@ def _read_rgb8(path: Path) -> np.ndarray:
     return encode_srgb8(np.clip(img[..., :3], 0.0, 1.0))
 
 
-class _VirtualCamera:
-    """Frames to a virtual camera through pyvirtualcam (an optional extra)."""
-
-    def __init__(self, size, fps):
-        try:
-            import pyvirtualcam
-        except ImportError:
-            raise InputError("--virtual-camera needs pyvirtualcam: pip install 'relight[virtualcam]' "
-                             "(and a virtual camera driver such as v4l2loopback on Linux)") from None
-        try:
-            self.cam = pyvirtualcam.Camera(width=size[0], height=size[1], fps=fps)
-        except Exception as exc:  # the library raises RuntimeError and others when no device exists
-            raise InputError(f"no virtual camera device available ({exc}); on Linux load v4l2loopback") from None
-
-    def send(self, rgb):
-        self.cam.send(rgb)
-
-    def close(self):
-        self.cam.close()
-
-
 def _threaded(gen_fn, maxsize: int = 4):
     """Run the generator ``gen_fn()`` on a thread and yield its items here (its exceptions are
     re-raised here; leaving early stops it)."""
@@ -226,7 +205,9 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
             stages[k].append(info.timings.get(k, 0.0))
         if virtual_camera:
             if cam is None:
-                cam = _VirtualCamera((rgb.shape[1], rgb.shape[0]), fps)
+                from .virtual_camera import VirtualCamera
+
+                cam = VirtualCamera((rgb.shape[1], rgb.shape[0]), fps)
             cam.send(frame_out)
         return frame_out
 

@@ -39,6 +39,7 @@ import numpy as np
 from relight.errors import InputError
 
 from .composite import DEFAULT_MODE, MODES
+from .virtual_camera import VirtualCamera, check_virtual_camera_backend
 
 #: Strength steps SIGUSR2 cycles through, and a key's strength step.
 STRENGTH_CYCLE = (1.0, 0.5, 0.0)
@@ -51,54 +52,6 @@ MAX_CAMERA_PIXELS = 3840 * 2160
 RECORD_PRESET = "ultrafast"
 #: The MJPEG preview's JPEG quality.
 PREVIEW_QUALITY = 80
-
-
-class VirtualCameraMissing(InputError):
-    """No virtual-camera backend on this machine (``relight live`` exits 2 with :func:`backend_hint`)."""
-
-
-def backend_hint(system: str | None = None) -> str:
-    """What to install for a virtual camera on this OS (``platform.system()`` names)."""
-    system = system or platform.system()
-    pip = "pip install 'relight[virtualcam]' (pyvirtualcam)"
-    if system == "Linux":
-        return (f"{pip}, and the v4l2loopback kernel module: sudo apt install v4l2loopback-dkms && "
-                "sudo modprobe v4l2loopback devices=1 exclusive_caps=1 card_label=relight")
-    if system == "Darwin":
-        return (f"{pip}, and OBS Studio 30 or later: start its Virtual Camera once (Tools > Start Virtual "
-                "Camera) so macOS registers the camera extension, then stop it")
-    if system == "Windows":
-        return f"{pip}, and OBS Studio 26.1 or later (its Virtual Camera) or Unity Capture"
-    return f"{pip}; pyvirtualcam has no backend for {system}: use --record or --preview"
-
-
-def check_virtual_camera_backend() -> None:
-    """Raise :class:`VirtualCameraMissing` unless pyvirtualcam imports (the device itself is
-    opened, and checked, once the first frame's size is known)."""
-    try:
-        import pyvirtualcam  # noqa: F401
-    except ImportError:
-        raise VirtualCameraMissing(f"no virtual-camera backend: {backend_hint()}") from None
-
-
-class VirtualCamera:
-    """Frames to a virtual camera through pyvirtualcam (RGB, fixed size and rate)."""
-
-    def __init__(self, size: tuple[int, int], fps: float):
-        check_virtual_camera_backend()
-        import pyvirtualcam
-
-        try:
-            self.cam = pyvirtualcam.Camera(width=size[0], height=size[1], fps=fps)
-        except Exception as exc:  # pyvirtualcam raises RuntimeError and others when no device exists
-            raise VirtualCameraMissing(f"no virtual camera device ({exc}): {backend_hint()}") from None
-        self.device = self.cam.device
-
-    def send(self, rgb: np.ndarray) -> None:
-        self.cam.send(rgb)
-
-    def close(self) -> None:
-        self.cam.close()
 
 
 # ---------------------------------------------------------------------------------- camera
@@ -460,18 +413,18 @@ class StatusLine:
         self.period = period
         self.t_last = time.perf_counter()
         self.cpu_last = time.process_time()
-        self.counts_last = (0, 0, 0)
+        self.counts_last = (0, 0)
         self.latencies: list[float] = []
         self.light = ""
 
     def due(self) -> bool:
         return time.perf_counter() - self.t_last >= self.period
 
-    def show(self, frames_in: int, relit: int, out: int, dropped: int, controls: Controls) -> float:
+    def show(self, frames_in: int, relit: int, dropped: int, controls: Controls) -> float:
         now, cpu = time.perf_counter(), time.process_time()
         dt = max(now - self.t_last, 1e-6)
         cpu_share = 100.0 * (cpu - self.cpu_last) / dt
-        a, b, c = self.counts_last
+        a, b = self.counts_last
         lat = f"{np.median(self.latencies):.0f} ms" if self.latencies else "-"
         env = Path(controls.envs[controls.env_i]).name if not controls.envs[controls.env_i].startswith("builtin:") \
             else controls.envs[controls.env_i]
@@ -480,7 +433,7 @@ class StatusLine:
                 f"{'  light ' + self.light if self.light else ''}")
         self.stream.write(("\r\x1b[2K" + line) if self.tty else line + "\n")
         self.stream.flush()
-        self.t_last, self.cpu_last, self.counts_last = now, cpu, (frames_in, relit, out)
+        self.t_last, self.cpu_last, self.counts_last = now, cpu, (frames_in, relit)
         self.latencies = []
         return cpu_share
 
@@ -545,9 +498,8 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     def record_frame(rgb, frame_out, info, index):
         return frame_out, info
 
-    def done(item, pts):
+    def done(item, t_cam):  # the pipeline's pts: the camera frame's read time
         frame_out, info = item
-        t_cam = pts
         now = time.perf_counter()
         relit_slot.put(RelitFrame(frame_out, t_cam, now, stage["relit"]))
         stage["relit"] += 1
@@ -634,7 +586,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                     res.size = (item.rgb.shape[1], item.rgb.shape[0])
                     pipe.put(item.rgb, item.t, item.index, item.t)
                 if status.due():
-                    res.cpu_percent = status.show(reader.slot.put_count, stage["relit"], stage["out"],
+                    res.cpu_percent = status.show(reader.slot.put_count, stage["relit"],
                                                   reader.slot.dropped, controls)
             pipe.drain()
     finally:

@@ -54,3 +54,18 @@ def live_clip(tmp_path_factory) -> Path:
                                            roll=3.0, audio="none"), progress=False)
 
     return made_once(tmp_path_factory, "live-clip", make) / "live.mp4"
+
+
+@pytest.fixture(scope="session")
+def frame(small_capture):
+    """A no-flash frame of ``small_capture`` (RGB uint8): what the service tests send."""
+    import json
+
+    from relight.video import read_frames
+
+    res, _ = small_capture
+    meta = json.loads((res.truth / "meta.json").read_text())
+    dark = [i for i, f in enumerate(meta["flash_fraction"]) if f == 0.0]
+    for i, f in enumerate(read_frames(res.video)):
+        if i == dark[0]:
+            return f

@@ -15,7 +15,8 @@ import time
 import numpy as np
 import pytest
 
-from relight.service.live import LatestFrame, backend_hint, device_input
+from relight.service.live import LatestFrame, device_input
+from relight.service.virtual_camera import backend_hint
 
 from .tolerances import LIVE_CHANGED_CODES, LIVE_CHANGED_SHARE, LIVE_FRAME_SHARE, LIVE_RATE_SHARE
 

@@ -122,17 +122,3 @@ def test_a_burst_of_frames_gets_503_with_retry_after_not_a_queue(small_bundle, f
         assert all(r.headers["retry-after"] and r.json()["kind"] == "busy" for r in busy)
         assert httpx.post(base + "/v1/relight", content=png, headers={"content-type": "image/png"},
                           timeout=60).status_code == 200  # served again once the burst is through
-
-
-@pytest.fixture(scope="module")
-def frame(small_capture):
-    import json
-
-    from relight.video import read_frames
-
-    res, _ = small_capture
-    meta = json.loads((res.truth / "meta.json").read_text())
-    dark = [i for i, f in enumerate(meta["flash_fraction"]) if f == 0.0]
-    for i, f in enumerate(read_frames(res.video)):
-        if i == dark[0]:
-            return f

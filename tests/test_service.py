@@ -24,19 +24,6 @@ def server(small_bundle):
         yield base
 
 
-@pytest.fixture(scope="module")
-def frame(small_capture):
-    import json
-
-    from relight.video import read_frames
-
-    res, _ = small_capture
-    meta = json.loads((res.truth / "meta.json").read_text())
-    dark = [i for i, f in enumerate(meta["flash_fraction"]) if f == 0.0]
-    for i, f in enumerate(read_frames(res.video)):
-        if i == dark[0]:
-            return f
-
 
 def _png(rgb):
     return cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))[1].tobytes()
