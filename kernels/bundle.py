@@ -89,7 +89,7 @@ import numpy as np
 
 from relight.directions import equirect_solid_angles
 from relight.errors import InputError, NumericalError
-from relight.imageio import atomic_path
+from relight.imageio import atomic_path, image_size
 
 # The format's padding rule, re-exported (defined in layout.py, a leaf below the maths).
 from .layout import TEXEL_ALIGN as TEXEL_ALIGN
@@ -509,14 +509,16 @@ def load_bundle(path: str | os.PathLike, *, verify: bool = True) -> Bundle:
         if name not in doc["arrays"]:
             raise InputError(f"{path}: field {name!r} is missing; the bundle is incomplete")
     for name, spec in doc["arrays"].items():
+        if not isinstance(spec, dict) or not isinstance(spec.get("dtype"), str) or spec["dtype"] not in _ALLOWED_DTYPES:
+            raise InputError(f"{path}: field {name!r} has a malformed description or an unsupported type")
         try:
             dtype = np.dtype(spec["dtype"])
             shape = tuple(int(s) for s in spec["shape"])
             offset, nbytes = int(spec["offset"]), int(spec["nbytes"])
         except (KeyError, TypeError, ValueError):
             raise InputError(f"{path}: field {name!r} has a malformed description") from None
-        if spec["dtype"] not in _ALLOWED_DTYPES or any(s < 0 for s in shape):
-            raise InputError(f"{path}: field {name!r} has an unsupported type {spec['dtype']!r}")
+        if any(s < 0 for s in shape):
+            raise InputError(f"{path}: field {name!r} has a negative size in its shape {shape}")
         if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize != nbytes:
             raise InputError(f"{path}: field {name!r}: shape {shape} does not match its {nbytes} bytes")
         if offset < _PREFIX.size + hlen or offset + nbytes > size:
@@ -529,4 +531,78 @@ def load_bundle(path: str | os.PathLike, *, verify: bool = True) -> Bundle:
             raise InputError(f"{path}: field {name!r} fails its checksum; the bundle is corrupt, re-run capture")
         arrays[name] = mm
     meta = doc.get("meta") if isinstance(doc.get("meta"), dict) else {}
+    check_fields(meta, arrays, str(path))
     return Bundle(path=path, meta=meta, arrays=arrays)
+
+
+#: Fields whose values are checked finite on load (the small ones; the maps, samples and
+#: transport bases are checked by the products made from them).
+FINITE_CHECKED_BYTES = 16 << 20
+
+
+def check_fields(meta: dict, arrays: dict, where: str = "bundle") -> None:
+    """The fields' shapes checked against each other and the meta (a crafted header with right
+    checksums must not reach the relighter: its kernels index frames, crops and maps with these
+    numbers), the head pixels inside the crop and the crop inside the frame; InputError naming
+    the field otherwise."""
+    def bad(name: str, why: str):
+        raise InputError(f"{where}: field {name!r} {why}; the bundle is damaged or not made by relight - "
+                         "capture it again")
+
+    def need(name: str, shape: tuple, kinds: str = "fiub"):
+        a = arrays.get(name)
+        if a is None:
+            return None
+        if a.ndim != len(shape) or any(w is not None and g != w for g, w in zip(a.shape, shape, strict=True)):
+            bad(name, f"has shape {a.shape}, expected {tuple('*' if d is None else d for d in shape)}")
+        if a.dtype.kind not in kinds:
+            bad(name, f"has type {a.dtype}, expected {'an integer' if kinds == 'iu' else 'a number'} type")
+        return a
+
+    fw, fh = meta["frame_size"]
+    x0, y0 = meta["crop_origin"]
+    mw, mh = meta["map_size"]
+    crop = need("mask_crop", (None, None), "b")
+    ch, cw = crop.shape
+    if x0 + cw > fw or y0 + ch > fh:
+        bad("mask_crop", f"of {cw}x{ch} at ({x0}, {y0}) does not fit the {fw}x{fh} frame")
+    pixels = need("pixels", (None,), "iu")
+    p = pixels.shape[0]
+    if p and (int(pixels.min()) < 0 or int(pixels.max()) >= ch * cw or np.any(np.diff(pixels) <= 0)):
+        bad("pixels", f"holds indices outside the {cw}x{ch} crop or out of order")
+    if p != int(np.count_nonzero(crop)):
+        bad("pixels", f"lists {p} head pixels but mask_crop marks {int(np.count_nonzero(crop))}")
+    need("ambient", (ch, cw, 3)), need("depth", (ch, cw)), need("normal", (p, 3)), need("albedo", (p, 3))
+    need("background", (fh, fw, 3), "u"), need("landmarks", (None, 2))
+    jpeg = need("background_jpeg", (None,), "u")
+    if jpeg is not None and image_size(bytes(jpeg[:1 << 16])) != (fw, fh):
+        bad("background_jpeg", f"is not a {fw}x{fh} JPEG (the frame size the meta gives)")
+    need("light_dirs", (None, 3))
+    tex = need("map_texels", (None,), "iu")
+    t = tex.shape[0]
+    if t and (int(tex.min()) < 0 or int(tex.max()) >= mw * mh):
+        bad("map_texels", f"holds texels outside the {mw}x{mh} map")
+    need("maps_rows", (t, 3, p)), need("maps", (p, 3, padded_texels(t))), need("samples", (None, p, 3))
+    need("samples_code", (None, p, 3), "u"), need("samples_scale", (p, 3)), need("horizon_index", (p,), "iu")
+    need("horizon_code", (None, None), "u")
+    for name in ("model_albedo", "model_spec"):
+        need(name, (p, 3))
+    for name in ("model_trust", "spline_blend"):
+        need(name, (p,))
+    need("tri_texel_vertices", (mw * mh, 3), "iu"), need("tri_texel_weights", (mw * mh, 3))
+    need("tri_vertices", (None, 3)), need("tri_faces", (None, 3), "iu")
+    u = need("transport_u", (t, None))
+    if u is not None:
+        r = u.shape[1]
+        need("transport_errors", (r,)), need("transport_sigma", (r,))
+        nb = -(-p // 16)
+        v = need("transport_v", (nb, 3, None, 16))
+        need("transport_v_scale", (nb * 16, 3)), need("transport_v4", (nb, 3, None, 8), "u")
+        need("transport_v4_scale", (nb * 16, 3))
+        if v is not None and v.dtype == np.int8:
+            k8 = v.shape[2] + (arrays["transport_v4"].shape[2] if "transport_v4" in arrays else 0)
+            if k8 != r:
+                bad("transport_v", f"holds {k8} ranks, transport_u {r}")
+    for name, a in arrays.items():
+        if a.dtype.kind == "f" and a.nbytes <= FINITE_CHECKED_BYTES and not np.isfinite(a).all():
+            bad(name, "holds NaN or infinite values")

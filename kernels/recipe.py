@@ -188,6 +188,10 @@ def recipe_maps(recipe: Recipe, *, backend: str = "opencl", half: bool = True, t
     return maps
 
 
+#: Most horizon azimuths a bundle's recipe may name (capture uses 64).
+MAX_AZIMUTHS = 1024
+
+
 def recipe_from_arrays(arrays: dict, meta: dict, map_size) -> Recipe:
     """The recipe a bundle stores (:mod:`relight.kernels.bundle`, fields marked (r))."""
     verts = np.asarray(arrays["tri_vertices"], dtype=np.float64)
@@ -214,11 +218,16 @@ def recipe_from_arrays(arrays: dict, meta: dict, map_size) -> Recipe:
     hz, hidx = arrays.get("horizon_code"), arrays.get("horizon_index")
     if hz is not None and not _horizon_fits(hz, hidx, p):
         raise InputError("the bundle's horizon fields do not fit its pixels; the bundle is damaged - capture it again")
+    n_az = opts.get("n_az", 64 if hz is None else hz.shape[1])
+    if isinstance(n_az, bool) or not isinstance(n_az, int) or not (1 <= n_az <= MAX_AZIMUTHS) \
+            or (hz is not None and n_az != hz.shape[1]):
+        raise InputError(f"the bundle's recipe says {n_az!r} horizon azimuths, its horizon_code holds "
+                         f"{None if hz is None else hz.shape[1]}; the bundle is damaged - capture it again")
     return Recipe(codes=codes, scale=arrays["samples_scale"], normals=arrays["normal"],
                   horizon=hz, horizon_index=None if hz is None else hidx, albedo=arrays["model_albedo"],
                   spec=arrays["model_spec"],
                   trust=arrays["model_trust"], blend=arrays["spline_blend"], tri=tri, active=active,
-                  n_az=int(opts.get("n_az", 64)), trend=bool(opts.get("trend", True)),
+                  n_az=n_az, trend=bool(opts.get("trend", True)),
                   extrapolate=bool(opts.get("extrapolate", True)), spline=bool(opts.get("spline", True)))
 
 

@@ -23,7 +23,7 @@ from relight.imageio import read_image
 from relight.kernels import interpolation, reflectance, triangulation
 from relight.kernels.bundle import storage_scale, write_bundle
 from relight.kernels.heightfield import HORIZON_DIRS
-from relight.numerics import EPS_NORM, EPS_VALUE, flush_subnormal_halves
+from relight.numerics import EPS_VALUE, flush_subnormal_halves
 
 from . import geometry, methods
 from .ingest import DEFAULT_FACE_PIXELS, ingest
@@ -217,8 +217,10 @@ def read_lp(path: Path) -> list[tuple[str, np.ndarray]]:
             d = np.array([float(v) for v in parts[1:4]])
         except ValueError:
             raise InputError(f"{path}:{i}: x y z must be numbers, got {parts[1:4]}") from None
-        if not np.isfinite(d).all() or np.linalg.norm(d) < EPS_NORM:
+        peak = float(np.max(np.abs(d))) if np.isfinite(d).all() else 0.0
+        if peak == 0.0:
             raise InputError(f"{path}:{i}: light direction {parts[1:4]} is not a finite non-zero vector")
+        d = d / peak  # first to about 1: the norm of 1e308-sized or subnormal entries stays finite
         out.append((name, d / np.linalg.norm(d)))
     return out
 

@@ -466,6 +466,23 @@ def _add_bench(sub) -> None:
     lv.add_argument("--quick", action="store_true", help="640x360 only, 6 s per case (for CI)")
     lv.add_argument("--quiet", action="store_true", help="no progress output")
     lv.set_defaults(func=_run_bench_live)
+    fz = bsub.add_parser("fuzz", help="every reader of hostile input fed mutated real files (Hypothesis)",
+                         description="Fuzz the bundle loader (and the relighter on what it accepts), the .lp parser, "
+                                     "the environment upload's loader, POST /v1/relight's image decoder, the "
+                                     "websocket's control messages and the video prober with mutations of real "
+                                     "files (../shared/data and files made from them), each target in its own "
+                                     "process: inputs tried, accepted, refused with our error, crashes (shrunk "
+                                     "and kept), the largest allocation one input made. Writes bench.json.",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    fz.add_argument("-o", "--out", type=Path, default=Path("out/bench-fuzz"), help="output and seed folder")
+    fz.add_argument("--examples", type=int, default=None,
+                    help="inputs per target (default 1500; 60 with --quick)")
+    fz.add_argument("--target", action="append", default=None, metavar="NAME",
+                    help="fuzz only this target (repeatable): bundle, lp, envmap, frame, control, video")
+    fz.add_argument("--seed", type=int, default=0, help="random seed (another seed tries other inputs)")
+    fz.add_argument("--quick", action="store_true", help="60 inputs per target (for CI)")
+    fz.add_argument("--quiet", action="store_true", help="no progress output")
+    fz.set_defaults(func=_run_bench_fuzz)
     a = bsub.add_parser("accuracy", help="every method against the truth and real held-out photos: one report",
                         description="Synthesise several captures (cached), build a bundle per method (full, its "
                                     "ablations, barycentric, PTM, HSH orders 3 and 2, RBF) from the same samples, "
@@ -558,6 +575,22 @@ def _run_bench_live(args) -> int:
     print(live.table(doc))
     print(f"wrote {args.out / 'bench.json'}")
     return 0
+
+
+def _run_bench_fuzz(args) -> int:
+    from .bench import fuzz
+    from .errors import InputError
+
+    examples = args.examples or (fuzz.QUICK_EXAMPLES if args.quick else fuzz.DEFAULT_EXAMPLES)
+    if not (1 <= examples <= 10_000_000):
+        raise InputError(f"--examples {examples}: use 1 to 10000000")
+    unknown = sorted(set(args.target or ()) - set(fuzz.TARGETS))
+    if unknown:
+        raise InputError(f"--target {', '.join(unknown)}: choose from {', '.join(fuzz.TARGETS)}")
+    doc = fuzz.run(args.out, targets=args.target, examples=examples, seed=args.seed, progress=not args.quiet)
+    print(fuzz.table(doc))
+    print(f"wrote {args.out / 'bench.json'}")
+    return 1 if any(r.get("crashes") for r in doc["targets"]) else 0
 
 
 def _run_bench_serve(args) -> int:

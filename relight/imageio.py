@@ -53,6 +53,15 @@ def _oiio():
     return oiio
 
 
+def _error_text(source) -> str:
+    """OpenImageIO's last error of ``source`` (the module, an ImageInput or ImageOutput) as text;
+    a damaged file's bytes can reach the message, which the binding then fails to decode."""
+    try:
+        return source.geterror()
+    except UnicodeDecodeError:
+        return "its error message is not readable text"
+
+
 def probe_image(path: str | os.PathLike, *, max_dim: int = MAX_IMAGE_DIM,
                 max_pixels: int = MAX_IMAGE_PIXELS, max_bytes: int = MAX_FILE_BYTES) -> ImageInfo:
     """Read and validate an image header without decoding pixels."""
@@ -67,7 +76,7 @@ def probe_image(path: str | os.PathLike, *, max_dim: int = MAX_IMAGE_DIM,
         raise InputError(f"{path}: {size} bytes is more than the {max_bytes}-byte limit; use a smaller image")
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise InputError(f"{path}: not a readable image ({oiio.geterror() or 'unknown format'}); "
+        raise InputError(f"{path}: not a readable image ({_error_text(oiio) or 'unknown format'}); "
                          "use EXR, HDR, PNG or JPEG")
     try:
         spec = inp.spec()
@@ -98,10 +107,10 @@ def read_image(path: str | os.PathLike, *, linearize: bool = True, **limits) -> 
     info = probe_image(path, **limits)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:  # pragma: no cover - probe_image opened it a moment ago
-        raise InputError(f"{path}: could not be reopened ({oiio.geterror()})")
+        raise InputError(f"{path}: could not be reopened ({_error_text(oiio)})")
     try:
         pixels = inp.read_image(0, 0, 0, info.channels, "float")
-        err = inp.geterror()
+        err = _error_text(inp)
     finally:
         inp.close()
     if pixels is None or err:
@@ -181,9 +190,9 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, encode_srgb: bool
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:  # pragma: no cover - format plugins ship with the wheel
-            raise InputError(f"{path}: no writer for {ext} ({oiio.geterror()})")
+            raise InputError(f"{path}: no writer for {ext} ({_error_text(oiio)})")
         ok = out.open(str(tmp), spec) and out.write_image(np.ascontiguousarray(data))
-        err = out.geterror()
+        err = _error_text(out)
         out.close()
         if not ok:
             raise OSError(f"{path}: write failed ({err})")

@@ -4,6 +4,8 @@ channel's): ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8,
 
 from __future__ import annotations
 
+import json
+
 from .codec import parse_rotation
 from .composite import MODES
 from .errors import ServiceError
@@ -18,6 +20,18 @@ MAX_CONTROL = 4096
 def new_settings() -> dict:
     """A client's settings before any control (None: the service's own)."""
     return {"env": None, "rotation": None, "strength": None, "mode": None, "exposure": None}
+
+
+def parse_control(text) -> object:
+    """A control message's text -> its JSON value; ServiceError (422, ``bad_control``) for binary
+    data, text over :data:`MAX_CONTROL` bytes or anything that is not JSON (nesting too deep for
+    the parser included)."""
+    if not isinstance(text, str) or len(text) > MAX_CONTROL:
+        raise ServiceError(422, "bad_control", f"controls are JSON text of at most {MAX_CONTROL} bytes")
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise ServiceError(422, "bad_control", f"control message is not JSON ({type(exc).__name__})") from None
 
 
 def apply_control(settings: dict, doc) -> None:

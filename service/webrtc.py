@@ -27,7 +27,7 @@ import uuid
 
 from relight.errors import RelightError
 
-from .controls import MAX_CONTROL, apply_control, new_settings
+from .controls import apply_control, new_settings, parse_control
 from .errors import ServiceError
 
 #: Largest SDP offer read (bytes); a browser's is 3-8 KB.
@@ -114,9 +114,7 @@ class WebRTCSession:
     def control(self, message) -> None:
         """A data channel message: controls (or ``{"stats": true}``); errors go back on the channel."""
         try:
-            if isinstance(message, bytes) or len(message) > MAX_CONTROL:
-                raise ServiceError(422, "bad_control", f"controls are JSON text of at most {MAX_CONTROL} bytes")
-            doc = json.loads(message)
+            doc = parse_control(message)
             if isinstance(doc, dict) and doc.get("stats"):
                 self.send({"frames": self.frames_out, "dropped": self.dropped, "frames_in": self.frames_in})
                 return

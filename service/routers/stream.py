@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import json
 import time
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
@@ -11,7 +10,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from relight.errors import RelightError
 from relight.imageio import image_size
 
-from ..controls import apply_control, new_settings
+from ..controls import apply_control, new_settings, parse_control
 from ..dependencies import MetricsDep, SettingsDep
 from ..engine import decode_relight_encode
 from ..errors import ServiceError
@@ -77,7 +76,7 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
                     wake.set()
                 elif msg.get("text") is not None:
                     try:
-                        doc = json.loads(msg["text"])
+                        doc = parse_control(msg["text"])
                         if isinstance(doc, dict) and doc.get("stats"):
                             await send_json({"frames": counts["frames"], "dropped": counts["dropped"]})
                         elif isinstance(doc, dict) and set(doc) == {"tag"}:
