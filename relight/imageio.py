@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import struct
 import tempfile
 from dataclasses import dataclass
@@ -127,20 +128,77 @@ def read_image(path: str | os.PathLike, *, linearize: bool = True, **limits) -> 
     return np.ascontiguousarray(pixels, dtype=FLOAT)
 
 
+def temp_prefix(name: str) -> str:
+    """Prefix of a writer's temporary file or folder for the target ``name``: temporaries are
+    named ``.{name}.{pid}.{random}.tmp{ext}``, so one a killed writer left behind is known by
+    its target and its (gone) process - see :func:`clean_stale_temps`."""
+    return f".{name}.{os.getpid()}."
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True  # another user's process (or not a pid we can ask about): left alone
+    return True
+
+
+def clean_stale_temps(folder: str | os.PathLike, name: str, *, prefix: str | None = None) -> list[Path]:
+    """Remove the temporaries of target ``name`` in ``folder`` whose writer process is gone
+    (killed before its rename); the ones of live writers are left. ``prefix`` replaces the
+    ``.{name}.`` start of the names (the service's upload folders). Returns what was removed."""
+    import shutil
+
+    start = re.escape(prefix if prefix is not None else f".{name}.")
+    pattern = re.compile(rf"^{start}(\d+)[.-][^.]+(\.tmp|$)")
+    removed = []
+    try:
+        entries = list(Path(folder).iterdir())
+    except OSError:
+        return removed
+    for e in entries:
+        m = pattern.match(e.name)
+        if not m or int(m.group(1)) == os.getpid() or _alive(int(m.group(1))):
+            continue
+        with contextlib.suppress(OSError):
+            if e.is_dir() and not e.is_symlink():
+                shutil.rmtree(e)
+            else:
+                e.unlink()
+            removed.append(e)
+    return removed
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (a power cut after it keeps the new file)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path beside ``path``; rename it over ``path`` on success.
 
     The temporary name keeps the extension (image writers pick the format from it). On any
-    exception the temporary file is removed and ``path`` is left as it was.
+    exception the temporary file is removed and ``path`` is left as it was; a writer killed
+    outright (``kill -9``, power loss) leaves its temporary, which the next write of ``path``
+    removes (:func:`clean_stale_temps`). ``path`` is never a partly written file.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    clean_stale_temps(path.parent, path.stem)
+    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path.stem), suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)
     try:
         yield Path(tmp)
         os.replace(tmp, path)
+        _fsync_dir(path.parent)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)

@@ -34,6 +34,9 @@ from .video_colour import (
 #: Largest frame a reader accepts (8K UHD) and the longest video, in frames.
 MAX_VIDEO_DIM = 7680
 MAX_VIDEO_FRAMES = 200_000
+#: Container metadata (titles, tags) that is not UTF-8 is read with replacement characters
+#: (PyAV's default, "strict", raised UnicodeDecodeError out of the readers).
+METADATA_ERRORS = "replace"
 #: Audio written beside the video: sample rate (Hz) and AAC bit rate (bits/s, mono).
 AUDIO_RATE = 48_000
 AUDIO_BIT_RATE = 96_000
@@ -294,7 +297,7 @@ def read_luma(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) ->
     probe_video(path)
     count = 0
     try:
-        with av.open(str(path)) as container:
+        with av.open(str(path), metadata_errors=METADATA_ERRORS) as container:
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
             for frame in container.decode(stream):
@@ -576,7 +579,7 @@ def read_frames_raw(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAM
     info = probe_video(path)
     count = 0
     try:
-        with av.open(str(path)) as container:
+        with av.open(str(path), metadata_errors=METADATA_ERRORS) as container:
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
             for frame in container.decode(stream):
@@ -634,10 +637,13 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
     if not path.is_file():
         raise InputError(f"{path}: no such video file; check the path")
     try:
-        with av.open(str(path)) as container:
+        with av.open(str(path), metadata_errors=METADATA_ERRORS) as container:
             if not container.streams.video:
                 raise InputError(f"{path}: the file has no video stream")
             s = container.streams.video[0]
+            if s.codec_context is None:
+                raise InputError(f"{path}: no decoder for its video stream's codec; "
+                                 "re-encode it as H.264 or HEVC")
             w, h = s.codec_context.width, s.codec_context.height
             rate = s.average_rate or s.guessed_rate or 0
             n = s.frames or 0
@@ -670,7 +676,7 @@ def read_frames(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) 
     info = probe_video(path)
     count = 0
     try:
-        with av.open(str(path)) as container:
+        with av.open(str(path), metadata_errors=METADATA_ERRORS) as container:
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
             for frame in container.decode(stream):

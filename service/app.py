@@ -52,8 +52,11 @@ def create_app(config: ServeConfig) -> FastAPI:
     """The FastAPI application (the bundle loads in the lifespan handler; /readyz says when)."""
     from relight.errors import RelightError
 
+    from .codec import clean_stale_uploads
+
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        clean_stale_uploads()  # folders a killed server left while validating an upload
         try:
             app.state.engine = await asyncio.to_thread(Engine, config)
         except RelightError as exc:

@@ -5,6 +5,7 @@ environment's tone-mapped preview, query values parsed. Every failure is a
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -87,6 +88,20 @@ async def read_body(request, cap: int) -> bytes:
     return b"".join(chunks)
 
 
+#: Prefix of the folder an upload is validated in (``{prefix}{pid}-{random}`` in the system's
+#: temporary folder): a server killed while reading one leaves it, the next start removes it.
+UPLOAD_PREFIX = "relight-env-"
+
+
+def clean_stale_uploads() -> list[Path]:
+    """Remove upload folders whose server process is gone (see :data:`UPLOAD_PREFIX`)."""
+    import tempfile
+
+    from relight.imageio import clean_stale_temps
+
+    return clean_stale_temps(tempfile.gettempdir(), "", prefix=UPLOAD_PREFIX)
+
+
 def load_uploaded_environment(body: bytes, suffix: str) -> np.ndarray:
     """Validate an uploaded environment exactly as a file would be (written to a temporary file)."""
     import tempfile
@@ -94,7 +109,7 @@ def load_uploaded_environment(body: bytes, suffix: str) -> np.ndarray:
     import relight
     from relight.errors import RelightError
 
-    with tempfile.TemporaryDirectory(prefix="relight-env-") as tmp:
+    with tempfile.TemporaryDirectory(prefix=f"{UPLOAD_PREFIX}{os.getpid()}-") as tmp:
         path = Path(tmp) / f"upload{suffix}"
         path.write_bytes(body)
         try:

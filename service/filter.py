@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from relight.errors import InputError
-from relight.imageio import atomic_path
+from relight.imageio import atomic_path, clean_stale_temps, temp_prefix
 from relight.numerics import EPS_NORM
 
 from .composite import DEFAULT_MODE
@@ -285,7 +285,8 @@ def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
     import tempfile
 
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    clean_stale_temps(out.parent, out.name)  # a killed run's folder
+    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(out.name), suffix=".tmp", dir=out.parent))
     try:
         for i, f in enumerate(tqdm(files, desc="filter", unit="frame", disable=not progress)):
             rgb = first if i == 0 else _read_rgb8(f)
@@ -359,7 +360,7 @@ class FramePipeline:
 def _filter_video(inp, out, pipeline, crf, res, progress, tqdm):
     import av
 
-    from relight.video import MAX_VIDEO_FRAMES, frame_to_rgb, probe_video, release_frames, to_yuv
+    from relight.video import MAX_VIDEO_FRAMES, METADATA_ERRORS, frame_to_rgb, probe_video, release_frames, to_yuv
 
     info = probe_video(inp)
     suffix = out.suffix.lower()
@@ -367,7 +368,8 @@ def _filter_video(inp, out, pipeline, crf, res, progress, tqdm):
         raise InputError(f"{out}: write {', '.join(VIDEO_CODECS)} (or give a folder for PNG frames)")
     if info.width % 2 or info.height % 2:
         raise InputError(f"{inp}: {info.width}x{info.height}; the output codec needs even sizes (crop the video)")
-    with atomic_path(out) as tmp, av.open(str(inp)) as src, av.open(str(tmp), mode="w") as dst:
+    with atomic_path(out) as tmp, av.open(str(inp), metadata_errors=METADATA_ERRORS) as src, \
+            av.open(str(tmp), mode="w") as dst:
         vin = src.streams.video[0]
         vin.thread_type = "AUTO"
         ain = src.streams.audio[0] if src.streams.audio else None

@@ -451,6 +451,7 @@ class FramePath:
         """Forget the track and the filters (a new, unrelated video follows)."""
         self.tracker.drop()
         self.tracker.prev = None
+        self.tracker.search_wait = self.tracker.search_gap = 0
         self.angle_filter.reset()
         self.gain_filter.reset()
         self.light_estimator.reset()

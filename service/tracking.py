@@ -43,6 +43,11 @@ REANCHOR_BELOW = 0.6
 #: The reference is resampled into the frame's geometry before LK when the frame's size differs
 #: or the face's scale differs by more than this share.
 REWARP_SCALE = 0.08
+#: While no face is in view, the subspace search (~0.7 s a 320x240 frame here, the Haar box 30
+#: ms) runs again after 1, 2, 4, then every SEARCH_BACKOFF_MAX frames: an empty room costs an
+#: eighth of that per frame instead of all of it, a face that comes back is found within
+#: SEARCH_BACKOFF_MAX frames (or at once when the Haar box sees it).
+SEARCH_BACKOFF_MAX = 8
 #: Haar detection runs on a copy at most this many rows high.
 DETECT_ROWS = 360
 #: A point found again by re-anchoring replaces the followed one (or joins, when it was lost) only
@@ -112,6 +117,9 @@ class FaceTracker:
         self.lit_reference: np.ndarray | None = None
         self.anchored = len(self.landmarks)  # points the track had when last found or re-anchored
         self.age = 0
+        # Back-off of the subspace search while no face is found: frames to skip, and the gap.
+        self.search_wait = 0
+        self.search_gap = 0
 
     def _lk_params(self, rows: int) -> tuple[dict, float]:
         s = rows / 540.0
@@ -233,6 +241,17 @@ class FaceTracker:
                 return track
         if self.finder is None:
             return None
+        if self.search_wait > 0:  # a recent search found nothing: the Haar box alone this frame
+            self.search_wait -= 1
+            return None
+        track = self._search(grey)
+        if track is None:
+            self._back_off()
+        else:
+            self.search_gap = 0
+        return track
+
+    def _search(self, grey: np.ndarray) -> Track | None:
         from relight.colour import decode_srgb8
 
         found = self.finder.find(decode_srgb8(grey))
@@ -299,6 +318,12 @@ class FaceTracker:
         return track
 
     def drop(self) -> None:
-        """Forget the current track (the next frame acquires the face again)."""
+        """Forget the current track, found to be no face (no consistent pose): the next frames
+        acquire the face again, the subspace search backing off as after a search that found none."""
         self.track = None
         self.lit_reference = None
+        self._back_off()
+
+    def _back_off(self) -> None:
+        self.search_gap = min(max(1, 2 * self.search_gap), SEARCH_BACKOFF_MAX)
+        self.search_wait = self.search_gap

@@ -97,3 +97,24 @@ def test_control_messages_refused(text):
     with pytest.raises(ServiceError) as err:
         apply_control(new_settings(), parse_control(text))
     assert err.value.status == 422
+
+
+def test_video_with_damaged_metadata_or_unknown_codec(seeds, tmp_path):
+    """Container tags that are not UTF-8 raised UnicodeDecodeError out of PyAV (now read with
+    replacement characters); a stream of a codec FFmpeg has no decoder for raised AttributeError."""
+    from relight.video import probe_video, read_frames
+
+    data = bytearray((seeds / "seed.mp4").read_bytes())
+    tagged = bytearray(data)
+    i = tagged.find(b"Lavf")  # the muxer's name in the file's tags
+    tagged[i + 1] = 0xB2
+    f = tmp_path / "tagged.mp4"
+    f.write_bytes(bytes(tagged))
+    assert probe_video(f).width == 96 and len(list(read_frames(f))) == 6
+    unknown = bytearray(data)
+    j = unknown.rfind(b"avc1")  # the sample description's codec
+    unknown[j:j + 4] = b"zzzz"
+    f = tmp_path / "unknown.mp4"
+    f.write_bytes(bytes(unknown))
+    with pytest.raises(InputError, match="no decoder"):
+        probe_video(f)
