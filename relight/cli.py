@@ -483,6 +483,32 @@ def _add_bench(sub) -> None:
     fz.add_argument("--quick", action="store_true", help="60 inputs per target (for CI)")
     fz.add_argument("--quiet", action="store_true", help="no progress output")
     fz.set_defaults(func=_run_bench_fuzz)
+    cr = bsub.add_parser("crash", help="writers killed with SIGKILL at random moments: no damaged file",
+                         description="Kill relight capture (bundle), relight filter (video) and relight-serve taking "
+                                     "an environment upload with SIGKILL at random moments (half in the last fifth "
+                                     "of a run) while a previous result is in place; check the target is the "
+                                     "previous file or a whole new one, and that temporaries left are removed by "
+                                     "the next run. Needs ../shared/data (real faces). Writes bench.json.",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    cr.add_argument("-o", "--out", type=Path, default=Path("out/bench-crash"), help="output and work folder")
+    cr.add_argument("--kills", type=int, default=None, help="kills per writer (default 25; 4 with --quick)")
+    cr.add_argument("--seed", type=int, default=0, help="random seed of the kill times")
+    cr.add_argument("--quick", action="store_true", help="4 kills per writer (for CI)")
+    cr.add_argument("--quiet", action="store_true", help="no progress output")
+    cr.set_defaults(func=_run_bench_crash)
+    so = bsub.add_parser("soak", help="relight-serve for minutes with good and misbehaving clients",
+                         description="A real relight-serve with 4 websocket clients at 10 fps for --minutes, beside "
+                                     "clients that vanish, send garbage, never read, or post broken frames: errors "
+                                     "seen by the good clients, round trip p50/p95/p99 per minute, the server's "
+                                     "RSS, open file descriptors and threads with their slopes. Writes bench.json "
+                                     "and soak.png.",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    so.add_argument("-o", "--out", type=Path, default=Path("out/bench-soak"), help="output and cache folder")
+    so.add_argument("--minutes", type=float, default=10.0, help="length of the soak")
+    so.add_argument("--bundle", type=Path, default=None, help="bundle to serve (default: a synthetic 640x360 one)")
+    so.add_argument("--quick", action="store_true", help="2 minutes (for CI)")
+    so.add_argument("--quiet", action="store_true", help="no progress output")
+    so.set_defaults(func=_run_bench_soak)
     a = bsub.add_parser("accuracy", help="every method against the truth and real held-out photos: one report",
                         description="Synthesise several captures (cached), build a bundle per method (full, its "
                                     "ablations, barycentric, PTM, HSH orders 3 and 2, RBF) from the same samples, "
@@ -591,6 +617,32 @@ def _run_bench_fuzz(args) -> int:
     print(fuzz.table(doc))
     print(f"wrote {args.out / 'bench.json'}")
     return 1 if any(r.get("crashes") for r in doc["targets"]) else 0
+
+
+def _run_bench_crash(args) -> int:
+    from .bench import crash
+    from .errors import InputError
+
+    kills = args.kills or (crash.QUICK_KILLS if args.quick else crash.DEFAULT_KILLS)
+    if not (1 <= kills <= 10_000):
+        raise InputError(f"--kills {kills}: use 1 to 10000")
+    doc = crash.run(args.out, kills=kills, seed=args.seed, progress=not args.quiet)
+    print(crash.table(doc))
+    print(f"wrote {args.out / 'bench.json'}")
+    return 1 if any(r["damaged_total"] for r in doc["writers"]) else 0
+
+
+def _run_bench_soak(args) -> int:
+    from .bench import soak
+    from .errors import InputError
+
+    minutes = 2.0 if args.quick else args.minutes
+    if not (0.5 <= minutes <= 24 * 60):
+        raise InputError(f"--minutes {minutes}: use 0.5 to 1440")
+    doc = soak.run(args.out, minutes=minutes, bundle=args.bundle, progress=not args.quiet)
+    print(soak.table(doc))
+    print(f"wrote {args.out / 'bench.json'} and {args.out / 'soak.png'}")
+    return 0 if doc["good"]["errors"] == 0 and doc["ready_after"] else 1
 
 
 def _run_bench_serve(args) -> int:
