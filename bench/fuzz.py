@@ -349,7 +349,7 @@ def _control_target(work: Path, scratch: _Scratch) -> Target:
 
 
 def _video_target(work: Path, scratch: _Scratch) -> Target:
-    from relight.video import probe_video, read_frames
+    from relight.video import MAX_VIDEO_DIM, probe_video, read_frames
 
     seeds = _seed_videos(work)
     ext = {b"ftypisom": ".mp4", b"ftypqt  ": ".mov"}
@@ -365,7 +365,7 @@ def _video_target(work: Path, scratch: _Scratch) -> Target:
                 break
 
     return Target("video", "probe_video + first frames (MP4 H.264, MOV HEVC HDR portrait, WebM VP9)", seeds, run,
-                  caps=f"{'7680'} px per side; decode stops at 3 frames here")
+                  caps=f"{MAX_VIDEO_DIM} px per side; decode stops at 3 frames here")
 
 
 TARGETS = {"bundle": _bundle_target, "lp": _lp_target, "envmap": _envmap_target, "frame": _frame_target,
