@@ -203,9 +203,9 @@ def _serve_cmd() -> list[str]:
 
 
 def _probe_source():
-    from .fuzz import _shared
+    from .fuzz import shared_data
 
-    shared = _shared()
+    shared = shared_data()
     return shared / "envmaps" / "uffizi.hdr" if shared is not None else "builtin:window"
 
 
@@ -216,9 +216,9 @@ def _face_inputs(work: Path, progress: bool) -> tuple[Path, Path, int]:
 
     from relight.video import VideoWriter
 
-    from .fuzz import _shared, _yale_frames
+    from .fuzz import real_face_frames, shared_data
 
-    shared = _shared()
+    shared = shared_data()
     images = work / "yale4"
     if not images.exists():
         if shared is not None:
@@ -227,7 +227,7 @@ def _face_inputs(work: Path, progress: bool) -> tuple[Path, Path, int]:
         else:
             raise RuntimeError("relight bench crash needs ../shared/data (the real faces)")
     clip = work / "clip.mp4"
-    frames = _yale_frames(10, (320, 240))
+    frames = real_face_frames(10, (320, 240))
     n = 90
     if not clip.exists():
         with VideoWriter(clip, 30, (320, 240)) as wr:

@@ -50,7 +50,7 @@ INTERESTING_TEXT = ("0", "-1", "1e308", "-1e308", "nan", "inf", "-0", "429496729
                     "1e-320", "", " ", "\x00", "NaN", "1.5", "0x10")
 
 
-def _shared() -> Path | None:
+def shared_data() -> Path | None:
     p = Path(__file__).resolve().parents[1].parent / "shared" / "data"
     return p if p.is_dir() else None
 
@@ -374,11 +374,11 @@ TARGETS = {"bundle": _bundle_target, "lp": _lp_target, "envmap": _envmap_target,
 
 # --------------------------------------------------------------------------------------- seeds
 
-def _yale_frames(n: int, size: tuple[int, int]) -> list[np.ndarray]:
+def real_face_frames(n: int, size: tuple[int, int]) -> list[np.ndarray]:
     """``n`` real face photos (Yale B01) as (h, w, 3) uint8, or the synthetic studio's head."""
     import cv2
 
-    shared = _shared()
+    shared = shared_data()
     if shared is not None:
         files = sorted((shared / "faces-yale" / "yaleB01").glob("*.png"))[:n]
         imgs = [cv2.imread(str(f), cv2.IMREAD_COLOR) for f in files]
@@ -401,7 +401,7 @@ def _seed_bundle(work: Path) -> bytes:
     if not path.exists():
         from relight.pipeline.capture import capture
 
-        shared = _shared()
+        shared = shared_data()
         if shared is not None:
             from .accuracy import scaled_rti
             src = scaled_rti(shared / "faces-yale" / "yaleB01", work / "yale4", 4)
@@ -414,7 +414,7 @@ def _seed_bundle(work: Path) -> bytes:
 
 
 def _seed_lp(work: Path) -> list[bytes]:
-    shared = _shared()
+    shared = shared_data()
     if shared is not None:
         return [(shared / "rti-dome" / d / "dirs.lp").read_bytes() for d in ("Dome", "Test")]
     rng = np.random.default_rng(0)
@@ -430,7 +430,7 @@ def _seed_envmaps(work: Path) -> list[bytes]:
     from relight import load_environment
     from relight.imageio import write_image
 
-    shared = _shared()
+    shared = shared_data()
     sources = sorted((shared / "envmaps").glob("*.hdr")) if shared is not None else []
     out = [p.read_bytes() for p in sources]
     env = load_environment(sources[0]) if sources else load_environment("builtin:sunset", width=64)
@@ -445,12 +445,12 @@ def _seed_frames(work: Path) -> list[bytes]:
     """Real photos as the service receives them: Yale faces (PNG) and RTI dome photos (JPEG)."""
     import cv2
 
-    shared = _shared()
+    shared = shared_data()
     out = []
     if shared is not None:
         out += [f.read_bytes() for f in sorted((shared / "faces-yale" / "yaleB01").glob("*.png"))[:2]]
         out += [f.read_bytes() for f in sorted((shared / "rti-dome" / "Dome").glob("*.jpg"))[:2]]
-    for im in _yale_frames(1, (96, 72)):
+    for im in real_face_frames(1, (96, 72)):
         out.append(cv2.imencode(".png", im[..., ::-1])[1].tobytes())
         out.append(cv2.imencode(".jpg", im[..., ::-1], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])[1].tobytes())
     return out
@@ -461,7 +461,7 @@ def _seed_videos(work: Path) -> list[bytes]:
     rotation 90) and a WebM (VP9)."""
     import av
 
-    frames = _yale_frames(6, (96, 72))
+    frames = real_face_frames(6, (96, 72))
     out = []
     for name, codec, fmt, rot in (("seed.mp4", "libx264", "yuv420p", 0), ("seed.mov", "libx265", "yuv420p10le", 90),
                                   ("seed.webm", "libvpx-vp9", "yuv420p", 0)):
@@ -487,6 +487,11 @@ def _seed_videos(work: Path) -> list[bytes]:
                     c.mux(pkt)
         out.append(path.read_bytes())
     return out
+
+
+def make_seeds(folder: Path) -> None:
+    """Make the seeds that take a while (the bundle, the clips, the environment files) in ``folder``."""
+    _seed_bundle(folder), _seed_videos(folder), _seed_envmaps(folder)
 
 
 # -------------------------------------------------------------------------------------- runner
@@ -628,7 +633,7 @@ def run(out: Path, *, targets=None, examples: int = DEFAULT_EXAMPLES, seed: int 
         if progress:
             print(f"  {row.get('inputs', 0)} inputs, {row.get('crashes', 0)} crashes, "
                   f"{row.get('seconds', 0):.1f} s", flush=True)
-    doc = {"examples": examples, "seed": seed, "real_seeds": _shared() is not None, "targets": rows}
+    doc = {"examples": examples, "seed": seed, "real_seeds": shared_data() is not None, "targets": rows}
     with atomic_path(out / "bench.json") as tmp:
         tmp.write_text(json.dumps(doc, indent=2))
     return doc

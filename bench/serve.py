@@ -95,7 +95,7 @@ def _run(url: str, frames, clients: int, fps: float, duration: float) -> dict:
             "failures": [o["failure"] for o in outs if "failure" in o], "rtt_ms": pct, "cpu_steal": steal}
 
 
-def _frames(out: Path, progress: bool, size: tuple[int, int] = (640, 360)) -> list[bytes]:
+def live_jpegs(out: Path, progress: bool, size: tuple[int, int] = (640, 360)) -> list[bytes]:
     """JPEG frames (quality 85) of a 4 s synthetic live clip at ``size`` (cached in ``out``)."""
     import cv2
 
@@ -108,7 +108,7 @@ def _frames(out: Path, progress: bool, size: tuple[int, int] = (640, 360)) -> li
             for f in read_frames(live / "live.mp4")]
 
 
-def _start(bundle: Path, port: int, clients: int) -> tuple[subprocess.Popen, float]:
+def start_server(bundle: Path, port: int, clients: int) -> tuple[subprocess.Popen, float]:
     """``relight serve`` in a fresh process and the seconds until /readyz answers 200."""
     env = dict(os.environ, RELIGHT_LOG_LEVEL="warning")
     t0 = time.perf_counter()
@@ -116,12 +116,12 @@ def _start(bundle: Path, port: int, clients: int) -> tuple[subprocess.Popen, flo
                              "--max-clients", str(max(clients, 1)), "--focal", "ortho"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     if not wait_ready(f"http://127.0.0.1:{port}", 120, alive=lambda: proc.poll() is None):
-        _stop(proc)
+        stop_server(proc)
         raise RuntimeError(f"relight serve did not become ready: {proc.stderr.read()[-500:]}")
     return proc, time.perf_counter() - t0
 
 
-def _stop(proc: subprocess.Popen) -> None:
+def stop_server(proc: subprocess.Popen) -> None:
     proc.terminate()
     try:
         proc.wait(timeout=20)
@@ -149,11 +149,11 @@ def run(out: Path, bundle: Path | None = None, clients: int = 4, fps: float = 30
         from relight.bench.video import synth_bundle
 
         bundle = synth_bundle(out, (640, 360), 20.0 if quick else 30.0, progress)
-    frames = _frames(out, progress)
-    single_frames = frames if single_size == (640, 360) else _frames(out, progress, single_size)
+    frames = live_jpegs(out, progress)
+    single_frames = frames if single_size == (640, 360) else live_jpegs(out, progress, single_size)
     port = free_port()
     base = f"http://127.0.0.1:{port}"
-    proc, first_start = _start(bundle, port, clients)
+    proc, first_start = start_server(bundle, port, clients)
     try:
         url = f"ws://127.0.0.1:{port}/v1/stream"
         _run(url, frames, 1, fps, 2.0)  # warm-up
@@ -173,15 +173,15 @@ def run(out: Path, bundle: Path | None = None, clients: int = 4, fps: float = 30
         metrics = httpx.get(f"{base}/metrics").text
         alive = httpx.get(f"{base}/readyz").status_code == 200
     finally:
-        _stop(proc)
+        stop_server(proc)
     # Start-up: the served bundle again (kernel cache warm), or twice the one given to time it
     # with (e.g. a 1080p capture's).
     timed = Path(start_bundle) if start_bundle is not None else bundle
     if start_bundle is not None:
-        proc, first_start = _start(timed, port, clients)
-        _stop(proc)
-    proc, warm_start = _start(timed, port, clients)
-    _stop(proc)
+        proc, first_start = start_server(timed, port, clients)
+        stop_server(proc)
+    proc, warm_start = start_server(timed, port, clients)
+    stop_server(proc)
     doc = {"load": load, "single": single, "rss_mb": {"start": rss_start, "end": rss_end},
            "start_s": {"first": first_start, "warm": warm_start}, "bundle": str(bundle), "start_bundle": str(timed),
            "ready_after": alive, "server_errors": [ln for ln in metrics.splitlines()

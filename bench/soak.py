@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .machine import rss_mb
-from .serve import _frames, _start, _stop
+from .serve import live_jpegs, start_server, stop_server
 from .server import free_port
 
 #: Good clients, their frame rate, the sampling period of the server's resources (s).
@@ -205,10 +205,10 @@ def run(out: Path, *, minutes: float = 10.0, bundle: Path | None = None, progres
         from .video import synth_bundle
 
         bundle = synth_bundle(out, (640, 360), 20.0, progress)
-    frames = _frames(out, progress)
+    frames = live_jpegs(out, progress)
     port = free_port()
     base, url = f"http://127.0.0.1:{port}", f"ws://127.0.0.1:{port}/v1/stream"
-    proc, _ = _start(bundle, port, CLIENTS + 3)  # the good clients and room for the bad ones
+    proc, _ = start_server(bundle, port, CLIENTS + 3)  # the good clients and room for the bad ones
     duration = minutes * 60.0
     samples = []
     try:
@@ -234,7 +234,7 @@ def run(out: Path, *, minutes: float = 10.0, bundle: Path | None = None, progres
         ready = httpx.get(f"{base}/readyz", timeout=10).status_code == 200
         metrics = httpx.get(f"{base}/metrics", timeout=10).text
     finally:
-        _stop(proc)
+        stop_server(proc)
     s = np.array(samples, dtype=np.float64)
     per_minute = []
     all_rtts = [r for g in goods for r in g.get("rtts", [])]

@@ -16,10 +16,7 @@ from .once import made_once
 @pytest.fixture(scope="session")
 def seeds(tmp_path_factory):
     """The fuzz seeds (a bundle captured from a real face, clips of real photos, ...), made once."""
-    def make(folder):
-        fuzz._seed_bundle(folder), fuzz._seed_videos(folder), fuzz._seed_envmaps(folder)
-
-    return made_once(tmp_path_factory, "fuzz-seeds", make)
+    return made_once(tmp_path_factory, "fuzz-seeds", fuzz.make_seeds)
 
 
 @pytest.mark.parametrize("target", sorted(fuzz.TARGETS))
