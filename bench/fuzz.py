@@ -408,7 +408,7 @@ def _seed_bundle(work: Path) -> bytes:
             capture(src, path, images=True, progress=False)
         else:  # the synthetic studio's
             from relight.pipeline.synth.studio import SynthConfig, synthesize
-            res = synthesize(work / "studio", SynthConfig(width=160, height=90, duration=4.0, seed=3), progress=False)
+            res = synthesize(work / "studio", SynthConfig(width=320, height=180, duration=6.0, seed=3), progress=False)
             capture(res.video, path, progress=False)
     return path.read_bytes()
 
