@@ -100,13 +100,35 @@ def _good_client(url: str, frames: list[bytes], fps: float, t_start: float, unti
     out.update(sent=k, returned=len(rtts), rtts=rtts, errors=errors)
 
 
+def _cut(ws) -> None:
+    """Drop the TCP connection under ``ws``: no close frame, no close handshake awaited."""
+    ws.socket.shutdown(socket.SHUT_RDWR)
+    ws.socket.close()
+
+
+def _abandon(session) -> None:
+    """Run ``session()`` (which ends by cutting its connection); the client library's own close
+    on the dead socket afterwards is not the server's doing and is ignored."""
+    from websockets.exceptions import WebSocketException
+
+    done = []
+    try:
+        session(done)
+    except (OSError, WebSocketException):
+        if not done:
+            raise
+
+
 def _vanish(url: str, frame: bytes) -> None:
     from websockets.sync.client import connect
 
-    ws = connect(url, open_timeout=10)
-    ws.send(frame)
-    ws.socket.shutdown(socket.SHUT_RDWR)  # gone: no close frame, no FIN handshake awaited
-    ws.socket.close()
+    def session(done):
+        with connect(url, open_timeout=10) as ws:
+            ws.send(frame)
+            _cut(ws)
+            done.append(True)
+
+    _abandon(session)
 
 
 def _garbage(url: str) -> int:
@@ -132,20 +154,26 @@ def _garbage(url: str) -> int:
 
 
 def _stalled(url: str, frames: list[bytes], seconds: float) -> None:
+    from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect
 
-    ws = connect(url, open_timeout=10, max_queue=1, max_size=None)  # stops reading once one message waits
-    t_end = time.perf_counter() + seconds
-    k = 0
-    while time.perf_counter() < t_end:
-        try:
-            ws.send(frames[k % len(frames)])
-        except Exception:  # noqa: BLE001 - the server may close a client that never reads
-            break
-        k += 1
-        time.sleep(1 / 30)
-    ws.socket.shutdown(socket.SHUT_RDWR)
-    ws.socket.close()
+    def session(done):
+        with connect(url, open_timeout=10, max_queue=1, max_size=None) as ws:  # stops reading at one message
+            t_end = time.perf_counter() + seconds
+            k = 0
+            while time.perf_counter() < t_end:
+                try:
+                    ws.send(frames[k % len(frames)])
+                except ConnectionClosed:  # the server may close a client that never reads
+                    break
+                k += 1
+                time.sleep(1 / 30)
+            if k < 2:
+                raise RuntimeError(f"the stalled client sent only {k} frame(s)")
+            _cut(ws)
+            done.append(True)
+
+    _abandon(session)
 
 
 def _http(base: str) -> list[int]:
