@@ -14,9 +14,16 @@ from .once import made_once
 
 
 @pytest.fixture(scope="session")
-def seeds(tmp_path_factory):
-    """The fuzz seeds (a bundle captured from a real face, clips of real photos, ...), made once."""
-    return made_once(tmp_path_factory, "fuzz-seeds", fuzz.make_seeds)
+def seeds(tmp_path_factory, request):
+    """The fuzz seeds (a bundle captured from a real face, clips of real photos, ...), made once;
+    without ../shared the bundle is the suite's small synthetic one (already made for others)."""
+    def make(folder):
+        if fuzz.shared_data() is None:
+            small = request.getfixturevalue("small_bundle")
+            (folder / "seed.bundle").write_bytes(small.path.read_bytes())
+        fuzz.make_seeds(folder)
+
+    return made_once(tmp_path_factory, "fuzz-seeds", make)
 
 
 @pytest.mark.parametrize("target", sorted(fuzz.TARGETS))
