@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 #: Inputs per target: CI's bounded pass, the bench's default; ``--examples`` sets any other.
-QUICK_EXAMPLES = 60
+QUICK_EXAMPLES = 40
 DEFAULT_EXAMPLES = 1500
 #: Interesting replacement values (header fields, counts, sizes, numbers in text).
 INTERESTING_INTS = (0, 1, -1, 2, 3, 7, 16, 64, 255, 256, 4096, 65535, 65536, 2 ** 31 - 1, 2 ** 31, 2 ** 32,

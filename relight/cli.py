@@ -476,11 +476,11 @@ def _add_bench(sub) -> None:
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     fz.add_argument("-o", "--out", type=Path, default=Path("out/bench-fuzz"), help="output and seed folder")
     fz.add_argument("--examples", type=int, default=None,
-                    help="inputs per target (default 1500; 60 with --quick)")
+                    help="inputs per target (default 1500; 40 with --quick)")
     fz.add_argument("--target", action="append", default=None, metavar="NAME",
                     help="fuzz only this target (repeatable): bundle, lp, envmap, frame, control, video")
     fz.add_argument("--seed", type=int, default=0, help="random seed (another seed tries other inputs)")
-    fz.add_argument("--quick", action="store_true", help="60 inputs per target (for CI)")
+    fz.add_argument("--quick", action="store_true", help="40 inputs per target (for CI)")
     fz.add_argument("--quiet", action="store_true", help="no progress output")
     fz.set_defaults(func=_run_bench_fuzz)
     cr = bsub.add_parser("crash", help="writers killed with SIGKILL at random moments: no damaged file",
