@@ -66,8 +66,10 @@ def _kill_times(rng, n: int, full: float) -> list[float]:
     return sorted(np.concatenate([early, late]).tolist())
 
 
-def _temps(folder: Path, name: str) -> list[Path]:
-    return [p for p in folder.iterdir() if p.name.startswith(f".{name}.") and ".tmp" in p.name]
+def _temps(target: Path) -> set[Path]:
+    """The temporaries of writers of ``target`` in its folder (``.{stem}.{pid}.{random}.tmp...``;
+    a folder output's ``.{name}.`` ones start the same way)."""
+    return {p for p in target.parent.iterdir() if p.name.startswith(f".{target.stem}.") and ".tmp" in p.name}
 
 
 def _outcome(path: Path, previous: bytes, whole) -> str:
@@ -110,9 +112,9 @@ def _writer(name: str, cmd: list[str], target: Path, whole, kills: int, rng, pro
     killed = left = 0
     for i, at in enumerate(_kill_times(rng, kills, full)):
         previous = target.read_bytes()
-        before = set(_temps(folder, target.stem)) | set(_temps(folder, target.name))
+        before = _temps(target)
         killed += _run_killed(cmd, at)
-        after = set(_temps(folder, target.stem)) | set(_temps(folder, target.name))
+        after = _temps(target)
         left += len(after - before)
         outcome = _outcome(target, previous, whole)
         outcomes[outcome] += 1
@@ -122,9 +124,9 @@ def _writer(name: str, cmd: list[str], target: Path, whole, kills: int, rng, pro
         if outcome in ("absent", "damaged"):
             (folder / f"damaged-{i}{target.suffix}").write_bytes(target.read_bytes() if target.exists() else b"")
             _timed(cmd)  # the next kill needs a previous result
-    stale = len(_temps(folder, target.stem)) + len(_temps(folder, target.name))
+    stale = len(_temps(target))
     _timed(cmd)  # an uninterrupted run: it removes the dead writers' temporaries
-    remaining = len(_temps(folder, target.stem)) + len(_temps(folder, target.name))
+    remaining = len(_temps(target))
     return {"writer": name, "kills": kills, "killed": killed, "run_s": full, **outcomes,
             "damaged_total": outcomes["damaged"] + outcomes["absent"], "temporaries_left": left,
             "stale_before_next_run": stale, "temporaries_after_next_run": remaining}

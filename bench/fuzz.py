@@ -536,6 +536,8 @@ def fuzz_target(name: str, work: Path, examples: int, seed: int = 0, *, raise_cr
         peak = [0]
         rss_high = [resource.getrusage(resource.RUSAGE_SELF).ru_maxrss]
 
+        crash_input = [None]
+
         def one(data: bytes) -> None:
             res.inputs += 1
             tracemalloc.reset_peak()
@@ -545,6 +547,7 @@ def fuzz_target(name: str, work: Path, examples: int, seed: int = 0, *, raise_cr
                 res.accepted += 1
             except Exception as exc:  # noqa: BLE001 - sorting refusals from crashes is the point
                 if not _expected(exc):
+                    crash_input[0] = data  # the last failing input Hypothesis tries is its shrunk one
                     raise
                 res.refused += 1
                 kind = type(exc).__name__
@@ -557,18 +560,9 @@ def fuzz_target(name: str, work: Path, examples: int, seed: int = 0, *, raise_cr
                     (work / f"rss-{name}.bin").write_bytes(data)
                 rss_high[0] = max(rss_high[0], rss)
 
-        crash_input = [None]
-
-        def one_kept(data: bytes) -> None:
-            try:
-                one(data)
-            except Exception:
-                crash_input[0] = data  # the last failing input Hypothesis tried: its shrunk one
-                raise
-
         test = settings(max_examples=examples, deadline=None, database=None, derandomize=False,
                         suppress_health_check=list(HealthCheck), phases=[Phase.generate, Phase.shrink],
-                        print_blob=False, verbosity=Verbosity.quiet)(given(inputs)(one_kept))
+                        print_blob=False, verbosity=Verbosity.quiet)(given(inputs)(one))
         test = hseed(seed)(test)
         warnings.filterwarnings("ignore", category=HypothesisWarning)  # "overly large repr" of file-sized inputs
         started = tracemalloc.is_tracing()

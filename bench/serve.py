@@ -26,36 +26,40 @@ from .machine import cpu_jiffies, rss_mb, steal_share
 from .server import free_port, wait_ready
 
 
-def _client(url: str, frames: list[bytes], fps: float, duration: float, out: dict) -> None:
-    """Send tagged frames at ``fps`` for ``duration`` s; record round trips (ms) and errors."""
+def tagged_client(url: str, frames: list[bytes], fps: float, duration: float, out: dict) -> None:
+    """Send tagged frames at ``fps`` for ``duration`` s. ``out`` gets ``sent``, ``returned``,
+    ``rtts`` ((time received - perf_counter, round trip ms) per returned frame), ``errors`` (the
+    server's error replies) and, when the connection failed or was cut off, ``failure``."""
     from websockets.sync.client import connect
 
     sent: dict[int, float] = {}
-    rtts: list[float] = []
-    errors = 0
+    rtts: list[tuple[float, float]] = []
+    errors: list[str] = []
     stop = threading.Event()
+    k = 0
     try:
         with connect(url, max_size=None, open_timeout=20) as ws:
             def receive():
-                nonlocal errors
                 while not stop.is_set():
                     try:
                         msg = ws.recv(timeout=0.5)
                     except TimeoutError:
                         continue
-                    except Exception:
+                    except Exception as exc:  # noqa: BLE001 - cut off while the client still sends
+                        if not stop.is_set():
+                            out.setdefault("failure", f"receive: {exc!r}")
                         return
                     if isinstance(msg, str):
                         doc = json.loads(msg)
                         if "error" in doc:
-                            errors += 1
-                        elif "tag" in doc and doc["tag"] in sent:
-                            rtts.append((time.perf_counter() - sent[doc["tag"]]) * 1e3)
+                            errors.append(doc["error"])
+                        elif doc.get("tag") in sent:
+                            now = time.perf_counter()
+                            rtts.append((now, (now - sent[doc["tag"]]) * 1e3))
 
             rx = threading.Thread(target=receive, daemon=True)
             rx.start()
             t0 = time.perf_counter()
-            k = 0
             while True:
                 due = t0 + k / fps
                 now = time.perf_counter()
@@ -72,26 +76,31 @@ def _client(url: str, frames: list[bytes], fps: float, duration: float, out: dic
             time.sleep(0.5)
             stop.set()
             rx.join(timeout=5)
-            out.update(sent=k, returned=len(rtts), rtts=rtts, errors=errors)
-    except Exception as exc:  # a client that cannot connect or is cut off counts as an error
-        out.update(sent=0, returned=0, rtts=[], errors=errors + 1, failure=repr(exc))
+    except Exception as exc:  # noqa: BLE001 - a client that cannot connect or is cut off
+        out.setdefault("failure", repr(exc))
+    out.update(sent=k, returned=len(rtts), rtts=rtts, errors=errors)
+
+
+def client_errors(out: dict) -> int:
+    """Errors one :func:`tagged_client` saw: the server's error replies, and a failed connection."""
+    return len(out.get("errors", [])) + ("failure" in out)
 
 
 def _run(url: str, frames, clients: int, fps: float, duration: float) -> dict:
     outs = [{} for _ in range(clients)]
-    threads = [threading.Thread(target=_client, args=(url, frames, fps, duration, o)) for o in outs]
+    threads = [threading.Thread(target=tagged_client, args=(url, frames, fps, duration, o)) for o in outs]
     cpu0 = cpu_jiffies()
     for t in threads:
         t.start()
     for t in threads:
         t.join()
     steal = steal_share(cpu0, cpu_jiffies())
-    rtts = np.concatenate([np.asarray(o.get("rtts", []), dtype=np.float64) for o in outs]) if outs else np.zeros(0)
+    rtts = np.array([ms for o in outs for _, ms in o.get("rtts", [])], dtype=np.float64)
     sent = sum(o.get("sent", 0) for o in outs)
     returned = sum(o.get("returned", 0) for o in outs)
     pct = {f"p{q}": float(np.percentile(rtts, q)) if rtts.size else None for q in (50, 95, 99)}
     return {"clients": clients, "fps": fps, "duration_s": duration, "sent": sent, "returned": returned,
-            "dropped": sent - returned, "errors": sum(o.get("errors", 0) for o in outs),
+            "dropped": sent - returned, "errors": sum(client_errors(o) for o in outs),
             "failures": [o["failure"] for o in outs if "failure" in o], "rtt_ms": pct, "cpu_steal": steal}
 
 
@@ -116,20 +125,22 @@ def start_server(bundle: Path, port: int, clients: int) -> tuple[subprocess.Pope
                              "--max-clients", str(max(clients, 1)), "--focal", "ortho"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     if not wait_ready(f"http://127.0.0.1:{port}", 120, alive=lambda: proc.poll() is None):
-        stop_server(proc)
-        raise RuntimeError(f"relight serve did not become ready: {proc.stderr.read()[-500:]}")
+        raise RuntimeError(f"relight serve did not become ready: {stop_server(proc)[-500:]}")
     return proc, time.perf_counter() - t0
 
 
-def stop_server(proc: subprocess.Popen) -> None:
+def stop_server(proc: subprocess.Popen) -> str:
+    """Stop a :func:`start_server` process; what it wrote to stderr (its pipe closed)."""
     proc.terminate()
     try:
         proc.wait(timeout=20)
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
-    if proc.stderr is not None:
-        proc.stderr.close()
+    if proc.stderr is None:
+        return ""
+    with proc.stderr:
+        return proc.stderr.read()
 
 
 #: The single client's frame size (the issue's live case: a 720p webcam).

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .machine import rss_mb
-from .serve import live_jpegs, start_server, stop_server
+from .serve import client_errors, live_jpegs, start_server, stop_server, tagged_client
 from .server import free_port
 
 #: Good clients, their frame rate, the sampling period of the server's resources (s).
@@ -49,55 +49,6 @@ def _proc_counts(pid: int) -> tuple[int, int]:
         return fds, threads
     except (OSError, StopIteration, ValueError):
         return -1, -1
-
-
-def _good_client(url: str, frames: list[bytes], fps: float, t_start: float, until: float, out: dict) -> None:
-    """Tagged frames at ``fps`` until ``until``; round trips with their time; errors counted."""
-    from websockets.sync.client import connect
-
-    sent: dict[int, float] = {}
-    rtts: list[tuple[float, float]] = []
-    errors: list[str] = []
-    stop = threading.Event()
-    k = 0
-    try:
-        with connect(url, max_size=None, open_timeout=20) as ws:
-            def receive():
-                while not stop.is_set():
-                    try:
-                        msg = ws.recv(timeout=0.5)
-                    except TimeoutError:
-                        continue
-                    except Exception as exc:  # noqa: BLE001 - a good client cut off is an error
-                        if not stop.is_set():
-                            errors.append(f"receive: {exc!r}")
-                        return
-                    if isinstance(msg, str):
-                        doc = json.loads(msg)
-                        if "error" in doc:
-                            errors.append(doc["error"])
-                        elif doc.get("tag") in sent:
-                            now = time.perf_counter()
-                            rtts.append((now - t_start, (now - sent[doc["tag"]]) * 1e3))
-
-            rx = threading.Thread(target=receive, daemon=True)
-            rx.start()
-            t0 = time.perf_counter()
-            while time.perf_counter() < until:
-                due = t0 + k / fps
-                now = time.perf_counter()
-                if due > now:
-                    time.sleep(due - now)
-                sent[k] = time.perf_counter()
-                ws.send(json.dumps({"tag": k}))
-                ws.send(frames[k % len(frames)])
-                k += 1
-            time.sleep(1.5)  # the last replies
-            stop.set()
-            rx.join(timeout=5)
-    except Exception as exc:  # noqa: BLE001 - could not connect, or cut off while sending
-        errors.append(f"send: {exc!r}")
-    out.update(sent=k, returned=len(rtts), rtts=rtts, errors=errors)
 
 
 def _cut(ws) -> None:
@@ -244,7 +195,7 @@ def run(out: Path, *, minutes: float = 10.0, bundle: Path | None = None, progres
         until = t_start + duration
         goods = [{} for _ in range(CLIENTS)]
         bad: dict = {}
-        threads = [threading.Thread(target=_good_client, args=(url, frames, FPS, t_start, until, o)) for o in goods]
+        threads = [threading.Thread(target=tagged_client, args=(url, frames, FPS, duration, o)) for o in goods]
         threads.append(threading.Thread(target=_misbehave, args=(url, base, frames, until, bad)))
         for th in threads:
             th.start()
@@ -265,7 +216,8 @@ def run(out: Path, *, minutes: float = 10.0, bundle: Path | None = None, progres
         stop_server(proc)
     s = np.array(samples, dtype=np.float64)
     per_minute = []
-    all_rtts = [r for g in goods for r in g.get("rtts", [])]
+    all_rtts = [(t - t_start, ms) for g in goods for t, ms in g.get("rtts", [])]
+    error_texts = [e for g in goods for e in g.get("errors", []) + ([g["failure"]] if "failure" in g else [])]
     for m in range(int(np.ceil(duration / 60.0))):
         r = np.array([v for t, v in all_rtts if m * 60 <= t < (m + 1) * 60])
         per_minute.append({"minute": m + 1, "returned": int(r.size),
@@ -273,8 +225,8 @@ def run(out: Path, *, minutes: float = 10.0, bundle: Path | None = None, progres
     doc = {
         "minutes": minutes, "clients": CLIENTS, "fps": FPS, "bundle": str(bundle),
         "good": {"sent": sum(g.get("sent", 0) for g in goods), "returned": sum(g.get("returned", 0) for g in goods),
-                 "errors": sum(len(g.get("errors", [])) for g in goods),
-                 "error_texts": [e for g in goods for e in g.get("errors", [])][:20]},
+                 "errors": sum(client_errors(g) for g in goods),
+                 "error_texts": error_texts[:20]},
         "bad": bad, "per_minute": per_minute, "ready_after": ready,
         "rss_mb": {"first": float(s[0, 1]), "last": float(s[-1, 1]), "max": float(np.nanmax(s[:, 1])),
                    "slope_per_min": _slope(s[:, 0], s[:, 1])},

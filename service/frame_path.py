@@ -449,9 +449,8 @@ class FramePath:
 
     def reset(self) -> None:
         """Forget the track and the filters (a new, unrelated video follows)."""
-        self.tracker.drop()
+        self.tracker.drop(back_off=False)
         self.tracker.prev = None
-        self.tracker.search_wait = self.tracker.search_gap = 0
         self.angle_filter.reset()
         self.gain_filter.reset()
         self.light_estimator.reset()

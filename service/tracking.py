@@ -317,12 +317,16 @@ class FaceTracker:
         self.prev = grey
         return track
 
-    def drop(self) -> None:
-        """Forget the current track, found to be no face (no consistent pose): the next frames
-        acquire the face again, the subspace search backing off as after a search that found none."""
+    def drop(self, *, back_off: bool = True) -> None:
+        """Forget the current track: the next frames acquire the face again. ``back_off``: the
+        track was found to be no face (no consistent pose), so the subspace search backs off as
+        after a search that found none; else (a new, unrelated video) it starts afresh."""
         self.track = None
         self.lit_reference = None
-        self._back_off()
+        if back_off:
+            self._back_off()
+        else:
+            self.search_wait = self.search_gap = 0
 
     def _back_off(self) -> None:
         self.search_gap = min(max(1, 2 * self.search_gap), SEARCH_BACKOFF_MAX)
