@@ -82,9 +82,23 @@ __kernel void box3(__global const float *restrict in, int w, int h, int n_pix, _
  * vectoriser of a work-group's items gives up on such bodies: its SLP pass pairs lines first). */
 #define LANES 16
 typedef float16 vf;
-inline vf vmx(vf a, vf b) { return a > b ? a : b; }
-inline vf vmn(vf a, vf b) { return a < b ? a : b; }
-inline vf vclamp01(vf x) { return vmn(vmx(x, (vf)(0.0f)), (vf)(1.0f)); }
+/* No vf is passed to or returned from a function - helpers are macros or take pointers, and no
+ * library builtin (sqrt, vstore16, ...) is called on one: PoCL 3.0 compiles a kernel for the CPU
+ * LLVM 14 names (AMD's Zen 4 is "znver3", without AVX-512) but links the builtins of the kernel
+ * library its features select (avx512), so a 64-byte vector crossing a call changes the ABI on
+ * the way (clang warns) or fails to compile (LLVM's "Cannot select" in _cl_sqrt(float16)). */
+#define VMX(a, b) ((a) > (b) ? (a) : (b))
+#define VMN(a, b) ((a) < (b) ? (a) : (b))
+#define VCLAMP01(x) VMN(VMX((x), (vf)(0.0f)), (vf)(1.0f))
+/* sqrt lane by lane: __builtin_sqrtf is LLVM's sqrt intrinsic (the instruction, correctly
+ * rounded), where sqrt() would be a library call */
+#define VSQRT(x)                                                                                   \
+    ((vf)(__builtin_sqrtf((x).s0), __builtin_sqrtf((x).s1), __builtin_sqrtf((x).s2),              \
+          __builtin_sqrtf((x).s3), __builtin_sqrtf((x).s4), __builtin_sqrtf((x).s5),              \
+          __builtin_sqrtf((x).s6), __builtin_sqrtf((x).s7), __builtin_sqrtf((x).s8),              \
+          __builtin_sqrtf((x).s9), __builtin_sqrtf((x).sa), __builtin_sqrtf((x).sb),              \
+          __builtin_sqrtf((x).sc), __builtin_sqrtf((x).sd), __builtin_sqrtf((x).se),              \
+          __builtin_sqrtf((x).sf)))
 #define LOADV(ptr) (*(__global const vf *)(ptr))
 
 /* Light-adapted interpolation (paper Eq. 1-3) with vertex weights w (times a use share), as the
@@ -92,27 +106,25 @@ inline vf vclamp01(vf x) { return vmn(vmx(x, (vf)(0.0f)), (vf)(1.0f)); }
  * The included unlit vertices give the indirect light c_ind; the lit ones their light less it,
  * cosine-adapted, and c_ind is added back (no lit vertex: the plain interpolation; all lit: the
  * cosine adaptation alone - special cases of this one form, so no branch). d: n . vertex. */
-inline void adapt_k(vf w0, vf w1, vf w2, vf d0, vf d1, vf d2, vf dps, vf *k0, vf *k1, vf *k2)
+inline void adapt_k(const vf *w, const vf *d, const vf *dps, vf *k)
 {
-    vf inv = 1.0f / vmx(w0 + w1 + w2, (vf)(1e-12f));
-    w0 *= inv;
-    w1 *= inv;
-    w2 *= inv;
+    vf inv = 1.0f / VMX(w[0] + w[1] + w[2], (vf)(1e-12f));
+    vf w0 = w[0] * inv, w1 = w[1] * inv, w2 = w[2] * inv;
 #if ADAPT
     vf zero = (vf)(0.0f), mc = (vf)(MIN_COS);
-    vf l0 = d0 > mc ? w0 : zero, l1 = d1 > mc ? w1 : zero, l2 = d2 > mc ? w2 : zero;
+    vf l0 = d[0] > mc ? w0 : zero, l1 = d[1] > mc ? w1 : zero, l2 = d[2] > mc ? w2 : zero;
     vf i0 = w0 - l0, i1 = w1 - l1, i2 = w2 - l2;
     vf w_lit = l0 + l1 + l2;
-    vf a0 = l0 / vmx(d0, mc), a1 = l1 / vmx(d1, mc), a2 = l2 / vmx(d2, mc);
-    vf scale = dps * w_lit / vmx(w_lit, (vf)(1e-12f));
+    vf a0 = l0 / VMX(d[0], mc), a1 = l1 / VMX(d[1], mc), a2 = l2 / VMX(d[2], mc);
+    vf scale = *dps * w_lit / VMX(w_lit, (vf)(1e-12f));
     vf b = w_lit + 1.0f - scale * (a0 + a1 + a2);
-    *k0 = scale * a0 + b * i0;
-    *k1 = scale * a1 + b * i1;
-    *k2 = scale * a2 + b * i2;
+    k[0] = scale * a0 + b * i0;
+    k[1] = scale * a1 + b * i1;
+    k[2] = scale * a2 + b * i2;
 #else
-    *k0 = w0;
-    *k1 = w1;
-    *k2 = w2;
+    k[0] = w0;
+    k[1] = w1;
+    k[2] = w2;
 #endif
 }
 
@@ -144,49 +156,50 @@ __kernel void build_maps(
     vf nx = LOADV(normal + i), ny = LOADV(normal + n_pix + i), nz = LOADV(normal + 2 * n_pix + i);
     __global const int *ti = tex_int + 8 * a;
     __global const float *tf = tex_f + 20 * a;
-    vf tw0 = (vf)(tf[0]), tw1 = (vf)(tf[1]), tw2 = (vf)(tf[2]);
-    vf d0 = (vf)(1.0f), d1 = (vf)(1.0f), d2 = (vf)(1.0f);
+    vf tw[3] = {(vf)(tf[0]), (vf)(tf[1]), (vf)(tf[2])};
+    vf d[3] = {(vf)(1.0f), (vf)(1.0f), (vf)(1.0f)};
 #if ADAPT
-    d0 = nx * tf[4] + ny * tf[5] + nz * tf[6];
-    d1 = nx * tf[7] + ny * tf[8] + nz * tf[9];
-    d2 = nx * tf[10] + ny * tf[11] + nz * tf[12];
+    d[0] = nx * tf[4] + ny * tf[5] + nz * tf[6];
+    d[1] = nx * tf[7] + ny * tf[8] + nz * tf[9];
+    d[2] = nx * tf[10] + ny * tf[11] + nz * tf[12];
 #endif
     vf nl = nx * tf[13] + ny * tf[14] + nz * tf[15];
-    vf dps = ADAPT ? vmx(nl, zero) : (vf)(1.0f);
-    vf k0, k1, k2;
-    adapt_k(tw0, tw1, tw2, d0, d1, d2, dps, &k0, &k1, &k2);
+    vf dps = ADAPT ? VMX(nl, zero) : (vf)(1.0f);
+    vf k[3];
+    adapt_k(tw, d, &dps, k);
     vf vp = (vf)(1.0f);
 #if USE_VIS
     {
         vf v0 = LOADV(vis + (size_t)ti[4] * n_pix + i), v1 = LOADV(vis + (size_t)ti[5] * n_pix + i);
         vf v2 = LOADV(vis + (size_t)ti[6] * n_pix + i);
         vp = LOADV(vis + (size_t)ti[7] * n_pix + i);
-        vf vmin = vmn(v0, vmn(v1, v2));
-        vf spread = vmx(v0, vmx(v1, v2)) - vmin;
+        vf vmin = VMN(v0, VMN(v1, v2));
+        vf spread = VMX(v0, VMX(v1, v2)) - vmin;
         /* The least visible vertex is shadowed, the most lit, the third by its share; the texel's
            own visibility chooses between the two interpolations (no spread: unchanged). */
-        vf inv = 1.0f / vmx(spread, (vf)(1e-6f));
-        vf s0 = vclamp01((v0 - vmin) * inv), s1 = vclamp01((v1 - vmin) * inv), s2 = vclamp01((v2 - vmin) * inv);
-        vf tl = vclamp01((vp - vmin) * inv);
-        vf c0, c1, c2, e0, e1, e2;
-        adapt_k(tw0 * s0, tw1 * s1, tw2 * s2, d0, d1, d2, dps, &c0, &c1, &c2);
-        adapt_k(tw0 * (1.0f - s0), tw1 * (1.0f - s1), tw2 * (1.0f - s2), d0, d1, d2, dps, &e0, &e1, &e2);
+        vf inv = 1.0f / VMX(spread, (vf)(1e-6f));
+        vf s0 = VCLAMP01((v0 - vmin) * inv), s1 = VCLAMP01((v1 - vmin) * inv), s2 = VCLAMP01((v2 - vmin) * inv);
+        vf tl = VCLAMP01((vp - vmin) * inv);
+        vf wl[3] = {tw[0] * s0, tw[1] * s1, tw[2] * s2};
+        vf ws[3] = {tw[0] * (1.0f - s0), tw[1] * (1.0f - s1), tw[2] * (1.0f - s2)};
+        vf c[3], e[3];
+        adapt_k(wl, d, &dps, c);
+        adapt_k(ws, d, &dps, e);
         vf keep = 1.0f - spread, lit = spread * tl, shade = spread * (1.0f - tl);
-        k0 = keep * k0 + lit * c0 + shade * e0;
-        k1 = keep * k1 + lit * c1 + shade * e1;
-        k2 = keep * k2 + lit * c2 + shade * e2;
+        for (int j = 0; j < 3; ++j)
+            k[j] = keep * k[j] + lit * c[j] + shade * e[j];
     }
 #endif
     vf tr_c = zero, tr_s = zero;
 #if USE_TREND
     {
-        vf nh = vmx(nx * tf[16] + ny * tf[17] + nz * tf[18], zero);
+        vf nh = VMX(nx * tf[16] + ny * tf[17] + nz * tf[18], zero);
         /* nh ** SPEC_EXP by squaring (as ipow), unrolled: SPEC_EXP < 256 */
         vf r = (vf)(1.0f), x = nh;
 #define SQ_STEP(bit) if ((SPEC_EXP >> (bit)) & 1) r *= x; x *= x;
         SQ_STEP(0) SQ_STEP(1) SQ_STEP(2) SQ_STEP(3) SQ_STEP(4) SQ_STEP(5) SQ_STEP(6) SQ_STEP(7)
 #undef SQ_STEP
-        tr_c = vmx(nl, zero) * vp;
+        tr_c = VMX(nl, zero) * vp;
         tr_s = (nl > zero ? r : zero) * vp;
     }
 #endif
@@ -195,24 +208,24 @@ __kernel void build_maps(
     __global float *o = out + (size_t)a * s3 + i;
     for (int c = 0; c < 3; ++c) {
         size_t off = (size_t)c * n_pix;
-        vf res = k0 * LOADV(p0 + off) + k1 * LOADV(p1 + off) + k2 * LOADV(p2 + off);
+        vf res = k[0] * LOADV(p0 + off) + k[1] * LOADV(p1 + off) + k[2] * LOADV(p2 + off);
 #if USE_TREND
         res += LOADV(trend + 3 * n_pix + off + i) * tr_c + LOADV(trend + 6 * n_pix + off + i) * tr_s
                - LOADV(trend + off + i);
 #endif
-        res = vmx(res, zero);
+        res = VMX(res, zero);
 #if USE_SPLINE
         if (ti[3] >= 0) {
-            vf cap = vmx(LOADV(raw + ti[0] * s3 + off + i), vmx(LOADV(raw + ti[1] * s3 + off + i),
+            vf cap = VMX(LOADV(raw + ti[0] * s3 + off + i), VMX(LOADV(raw + ti[1] * s3 + off + i),
                                                                  LOADV(raw + ti[2] * s3 + off + i)));
             vf sv = LOADV(spline + ti[3] * s3 + off + i);
 #if SPLINE_ROOT25
-            sv = vmx(sv, zero);
-            sv = sv * sv * sqrt(sv);
+            sv = VMX(sv, zero);
+            sv = sv * sv * VSQRT(sv);
 #endif
-            vf sp = vmn(sv, cap);
+            vf sp = VMN(sv, cap);
             vf w = LOADV(weight + i);
-            res = vmx(w * res + (1.0f - w) * sp, zero);
+            res = VMX(w * res + (1.0f - w) * sp, zero);
         }
 #endif
         *(__global vf *)(o + off) = res;
@@ -221,7 +234,10 @@ __kernel void build_maps(
 
 /* The maps of a chunk texel-major (A, 3, n_pix) -> pixel-major rows (P, 3, t_pad) from pixel
  * p0 on, 16 texels per work-item (the padding texels past A written as 0), float32 or halves
- * (round to nearest even). Range: (n_valid, t_pad / 16, 3). */
+ * (round to nearest even). Range: (n_valid, t_pad / 16, 3). Stores through unaligned vector
+ * types and the half conversion in integer ops: no library call on a 16-wide vector (above). */
+typedef float16 float16_u __attribute__((aligned(4)));
+typedef ushort16 ushort16_u __attribute__((aligned(2)));
 #define PM_GATHER                                                                               \
     int i = get_global_id(0), b = get_global_id(1) * 16, c = get_global_id(2);                  \
     float v[16];                                                                                \
@@ -235,14 +251,32 @@ __kernel void pixel_major_f32(__global const float *restrict in, int n_active, i
                               __global float *restrict out)
 {
     PM_GATHER
-    vstore16(x, 0, out + o);
+    *(__global float16_u *)(out + o) = x;
 }
+
+/* float -> IEEE half bits, rounded to nearest even as vstore_half_rte: overflow to infinity,
+ * NaN kept (quiet), halves below the normal range made by a float addition that rounds them
+ * (0.5f's exponent puts the half's last subnormal bit at the float's last mantissa bit), the
+ * normal range by rebiasing the exponent and rounding the 13 dropped bits. */
+#define HALF_BITS_RTE(x, out)                                                                   \
+    {                                                                                           \
+        uint16 f_ = as_uint16(x);                                                               \
+        uint16 s_ = f_ & 0x80000000u;                                                           \
+        f_ ^= s_;                                                                               \
+        uint16 inf_ = f_ > 0x7f800000u ? (uint16)(0x7e00u) : (uint16)(0x7c00u);                 \
+        uint16 sub_ = as_uint16(as_float16(f_) + 0.5f) - 0x3f000000u;                           \
+        uint16 nrm_ = (f_ + 0xc8000fffu + ((f_ >> 13) & 1u)) >> 13;                             \
+        uint16 h_ = f_ >= 0x47800000u ? inf_ : (f_ < 0x38800000u ? sub_ : nrm_);                \
+        out = __builtin_convertvector(h_ | (s_ >> 16), ushort16);                               \
+    }
 
 __kernel void pixel_major_f16(__global const float *restrict in, int n_active, int n_pix, int p0, int t_pad,
                               __global half *restrict out)
 {
     PM_GATHER
-    vstore_half16_rte(x, 0, out + o);
+    ushort16 h;
+    HALF_BITS_RTE(x, h)
+    *(__global ushort16_u *)((__global ushort *)out + o) = h;
 }
 
 /* The smoothed visibility (soft_visibility then box3) at a few texels only - the triangulation's
@@ -263,7 +297,7 @@ __kernel void visibility_at(
         if (elev < 4.0f) { /* (uniform over the lanes) elevation >= 4: straight at the camera */
             vf h0 = LOADV(horizon + (size_t)(int)texel_az[4 * t] * n_pix_all + p0 + i);
             vf h1 = LOADV(horizon + (size_t)(int)texel_az[4 * t + 1] * n_pix_all + p0 + i);
-            acc += vclamp01(0.5f + (elev - (h0 + (h1 - h0) * texel_az[4 * t + 2])) * inv_soft);
+            acc += VCLAMP01(0.5f + (elev - (h0 + (h1 - h0) * texel_az[4 * t + 2])) * inv_soft);
         } else {
             acc += 1.0f;
         }

@@ -32,38 +32,29 @@ typedef ushort16 ushort16_u __attribute__((aligned(2)));
    place, then scaled by 2^112 to rebias the exponent. Exact for every normal half; subnormal
    halves would become float subnormals, which cost a ~100-cycle microcode assist per vector:
    the program is built with denormals flushed, so they read as zero (bundles store none, see
-   relight.numerics.HALF_TINY; measured 2.2x faster on real maps than with the assists). */
-inline float16 half_lo(uint16 w)
-{
-    return as_float16(((w & 0x8000u) << 16) | ((w & 0x7fffu) << 13)) * 0x1p112f;
-}
-
-inline float16 half_hi(uint16 w)
-{
-    return as_float16((w & 0x80000000u) | ((w >> 3) & 0x0fffe000u)) * 0x1p112f;
-}
+   relight.numerics.HALF_TINY; measured 2.2x faster on real maps than with the assists).
+   Macros, not functions: a 64-byte vector passed to or returned from a function changes the
+   ABI where PoCL compiles for a CPU name without AVX-512 (see reflectance.cl). */
+#define HALF_LO(w) (as_float16((((w) & 0x8000u) << 16) | (((w) & 0x7fffu) << 13)) * 0x1p112f)
+#define HALF_HI(w) (as_float16(((w) & 0x80000000u) | (((w) >> 3) & 0x0fffe000u)) * 0x1p112f)
 
 /* 16 halves (as ushort) -> float: the half's sign and magnitude bits moved into a float's
-   place and rescaled (see half_lo); the natural pixel order. */
-inline float16 halves16(ushort16 h)
-{
-    uint16 x = __builtin_convertvector(h, uint16);
-    return as_float16(((x & 0x8000u) << 16) | ((x & 0x7fffu) << 13)) * 0x1p112f;
-}
+   place and rescaled (see HALF_LO); the natural pixel order. */
+#define HALVES16(h) HALF_LO(__builtin_convertvector((h), uint16))
 
 /* 32 halves of one direct row from x[0] (fewer at the face's last block: zeros after n). */
 inline void load_row(__global const ushort *x, int n, float16 *lo, float16 *hi)
 {
     if (n == 32) {
-        *lo = halves16(*(__global const ushort16_u *)x);
-        *hi = halves16(*(__global const ushort16_u *)(x + 16));
+        *lo = HALVES16(*(__global const ushort16_u *)x);
+        *hi = HALVES16(*(__global const ushort16_u *)(x + 16));
         return;
     }
     union { ushort16 v[2]; ushort s[32]; } w;
     for (int i = 0; i < 32; ++i)
         w.s[i] = i < n ? x[i] : (ushort)0;
-    *lo = halves16(w.v[0]);
-    *hi = halves16(w.v[1]);
+    *lo = HALVES16(w.v[0]);
+    *hi = HALVES16(w.v[1]);
 }
 
 __kernel void relight_compact(
@@ -95,12 +86,12 @@ __kernel void relight_compact(
         b1 += __builtin_convertvector(x[5], float16) * c.z;
     }
     __global const ushort16 *u = unit8 + (size_t)g * 6;
-    r0 *= halves16(u[0]);
-    r1 *= halves16(u[1]);
-    g0 *= halves16(u[2]);
-    g1 *= halves16(u[3]);
-    b0 *= halves16(u[4]);
-    b1 *= halves16(u[5]);
+    r0 *= HALVES16(u[0]);
+    r1 *= HALVES16(u[1]);
+    g0 *= HALVES16(u[2]);
+    g1 *= HALVES16(u[3]);
+    b0 *= HALVES16(u[4]);
+    b1 *= HALVES16(u[5]);
     if (rank4 > 0) {
         /* byte i: pixel i in the low four bits, pixel i + 16 in the high four (both signed) */
         float16 s0 = 0.0f, s1 = 0.0f, t0 = 0.0f, t1 = 0.0f, v0 = 0.0f, v1 = 0.0f;
@@ -119,12 +110,12 @@ __kernel void relight_compact(
             v1 += __builtin_convertvector(w >> 4, float16) * c.z;
         }
         u = unit4 + (size_t)g * 6;
-        r0 += s0 * halves16(u[0]);
-        r1 += s1 * halves16(u[1]);
-        g0 += t0 * halves16(u[2]);
-        g1 += t1 * halves16(u[3]);
-        b0 += v0 * halves16(u[4]);
-        b1 += v1 * halves16(u[5]);
+        r0 += s0 * HALVES16(u[0]);
+        r1 += s1 * HALVES16(u[1]);
+        g0 += t0 * HALVES16(u[2]);
+        g1 += t1 * HALVES16(u[3]);
+        b0 += v0 * HALVES16(u[4]);
+        b1 += v1 * HALVES16(u[5]);
     }
     int n_here = min(32, plane - p0);
     for (int s = 0; s < n_direct; ++s) {
@@ -151,9 +142,10 @@ __kernel void relight_compact(
     }
 }
 
-inline float hsum16(float16 a)
+/* The sum of 16 lanes (by pointer: see HALF_LO). */
+inline float hsum16(const float16 *a)
 {
-    float8 b = a.lo + a.hi;
+    float8 b = a->lo + a->hi;
     float4 c = b.lo + b.hi;
     return c.x + c.y + c.z + c.w;
 }
@@ -174,25 +166,26 @@ __kernel void relight_exact(
     for (int j = 0; j < n_blocks; ++j) {
         int i = blocks[j];
         uint16 w = mine[i];
-        re += half_lo(w) * lp[2 * i];
-        ro += half_hi(w) * lp[2 * i + 1];
+        re += HALF_LO(w) * lp[2 * i];
+        ro += HALF_HI(w) * lp[2 * i + 1];
         w = mine[nb + i];
-        ge += half_lo(w) * lp[2 * (nb + i)];
-        go += half_hi(w) * lp[2 * (nb + i) + 1];
+        ge += HALF_LO(w) * lp[2 * (nb + i)];
+        go += HALF_HI(w) * lp[2 * (nb + i) + 1];
         w = mine[2 * nb + i];
-        be += half_lo(w) * lp[2 * (2 * nb + i)];
-        bo += half_hi(w) * lp[2 * (2 * nb + i) + 1];
+        be += HALF_LO(w) * lp[2 * (2 * nb + i)];
+        bo += HALF_HI(w) * lp[2 * (2 * nb + i) + 1];
     }
     size_t o = (size_t)frame_index[p] * 3;
-    frame[o] = hsum16(re + ro);
-    frame[o + 1] = hsum16(ge + go);
-    frame[o + 2] = hsum16(be + bo);
+    float16 r = re + ro, gg = ge + go, bb = be + bo;
+    frame[o] = hsum16(&r);
+    frame[o + 1] = hsum16(&gg);
+    frame[o + 2] = hsum16(&bb);
 }
 
 /* The decode alone, for tests: packed pairs -> (low, high) floats. */
 __kernel void decode_half_pairs(__global const uint16 *w, __global float16 *lo, __global float16 *hi)
 {
     int g = get_global_id(0);
-    lo[g] = half_lo(w[g]);
-    hi[g] = half_hi(w[g]);
+    lo[g] = HALF_LO(w[g]);
+    hi[g] = HALF_HI(w[g]);
 }
