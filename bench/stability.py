@@ -81,6 +81,13 @@ BASELINE_MAX_REL = 1e-3
 #: few hundred float16 texels times float32 light (observed ~1e-7).
 RENDER_MAX_REL = 1e-5
 
+#: Bound of a map's largest value over its pixel's brightest sample (``max_gain``): the shading
+#: model beyond the samples is at most albedo + spec, albedo alone at most the brightest sample
+#: over the least cosine a fit uses (``MODEL_MIN_COS``), the lobe's weight at most it over
+#: ``MODEL_LOBE_SEEN``; interpolation and the spline stay within the samples. (Before the lobe
+#: had to be seen, ``unseen_lobe`` reached 8e3 and ``grazing`` 23.)
+MAX_MAP_GAIN = 1.0 / reflectance.MODEL_MIN_COS + 1.0 / reflectance.MODEL_LOBE_SEEN
+
 #: The synthetic head: grid (rows, cols), bump height (pixels), Blinn-Phong lobe, seed.
 HEAD_SHAPE = (13, 16)
 BUMP_HEIGHT = 9.0
@@ -129,11 +136,14 @@ class MapProblem:
 
 @dataclass
 class RenderProblem:
-    """One relight of the variant's bundle: env (H, 2H, 3) float32 radiance, a linear exposure."""
+    """One relight of the variant's bundle: env (H, 2H, 3) float32 radiance, a linear exposure.
+    ``capture``: None (the baseline scene's bundle), or the :class:`MapProblem` whose samples the
+    bundle is captured from (the whole capture: fits, maps, transport, storage)."""
 
     label: str
     env: np.ndarray
     exposure: float = 1.0
+    capture: MapProblem | None = None
 
 
 @dataclass
@@ -287,6 +297,28 @@ def _saturated(head: Head) -> list:
     return [_problem(head, f"{share:.0%} of samples clipped at 1, one pixel always", dirs, normals=n, samples=s)]
 
 
+def _unseen_lobe(head: Head) -> list:
+    """Yale B06 seen as sRGB, in small: pixels whose normal lies 0.6 degrees from the image
+    plane (a cheek's silhouette) see their specular lobe only at ~1e-5 of its peak from the lights
+    that light them, and their samples are noisy (the model's R^2 low: untrusted, so the model
+    alone carries their maps beyond the captured hull). A lobe fitted there weighed 2e5 times the
+    samples, and the capture's transport overflowed float16 (a bundle with NaN)."""
+    rng = np.random.default_rng(11)
+    n = head.normals.copy()
+    edge = rng.random(len(n)) < 0.5
+    a = rng.uniform(0, 2 * np.pi, int(edge.sum()))
+    n[edge] = _unit(np.stack([np.cos(a), np.sin(a), np.full_like(a, 0.01)], axis=1))
+    dirs = _unit(front_dirs(60, seed=6))
+    s = shade(head, dirs, n)
+    noise = np.where(edge[None, :, None], 0.6, 0.05) * rng.standard_normal(s.shape)
+    s = np.clip(s * (1.0 + noise) + 0.003 * rng.random(s.shape), 0.0, None).astype(np.float32)
+    prob = _problem(head, "normals 0.6 deg from the image plane, noisy samples", dirs, normals=n, samples=s)
+    from relight.envmap import load_environment
+
+    return [prob, RenderProblem("its bundle under the studio environment", load_environment("builtin:studio"),
+                                capture=prob)]
+
+
 def _sun_environment(sky: float = 1.0, ratio: float = 1e5, direction=(0.3, 0.4, 0.87)) -> np.ndarray:
     from relight.envmap import load_environment
 
@@ -331,6 +363,8 @@ CASES: dict[str, Case] = {c.name: c for c in [
     Case("degenerate_hull", "all samples on one great circle; only 3 and 4 samples", _degenerate_hull),
     Case("saturated", "most samples clipped at 1.0 (clipped flags to geometry); a fully saturated pixel",
          _saturated),
+    Case("unseen_lobe", "normals 0.6 deg from the image plane (specular lobe unseen), noisy; captured to a bundle",
+         _unseen_lobe),
     Case("sun_1e5", "render: uniform sky + a 1-degree sun 1e5x brighter (exact and compact paths)", _sun),
     Case("exposure_extremes", "samples x1e-6 and x1e6 through the map builders; renders at exposure 2^-20, 2^+20",
          _exposure),
@@ -440,17 +474,18 @@ class BundleCache:
         self.head, self.map_size, self.folder = head, tuple(map_size), Path(folder)
         self.bundles: dict[str, object] = {}
 
-    def get(self, variant: str):
-        if variant not in self.bundles:
-            self.bundles[variant] = self._build(variant)
-        return self.bundles[variant]
+    def get(self, variant: str, problem: MapProblem | None = None):
+        """The variant's bundle of ``problem``'s samples (None: the baseline's)."""
+        key = (variant, None if problem is None else problem.label)
+        if key not in self.bundles:
+            self.bundles[key] = self._build(variant, problem or self.head.baseline(), len(self.bundles))
+        return self.bundles[key]
 
-    def _build(self, variant: str):
+    def _build(self, variant: str, base: MapProblem, number: int):
         from relight.kernels.bundle import load_bundle, write_bundle
         from relight.pipeline.capture import CaptureOptions, Prepared, Progress, finish
 
         head = self.head
-        base = head.baseline()
         k, (h, w) = len(base.dirs), head.mask.shape
         pix = np.flatnonzero(head.mask)
         images = np.zeros((k, h * w, 3), dtype=np.float32)
@@ -462,7 +497,7 @@ class BundleCache:
                         frame_size=(w, h), face_local=None, mask=head.mask.copy(), meta={"kind": "stability"})
         opts = CaptureOptions(**VARIANTS[variant], map_size=self.map_size)
         arrays, meta, _, _ = finish(prep, opts, Progress(False), {})
-        path = self.folder / f"{variant.replace(' ', '_')}.bundle"
+        path = self.folder / f"{variant.replace(' ', '_')}-{number}.bundle"
         write_bundle(path, meta, arrays)
         return load_bundle(path)
 
@@ -495,7 +530,7 @@ def _produce(prob, variant: str, map_size, bundles: BundleCache | None, clock: l
     if isinstance(prob, RenderProblem):
         if bundles is None:
             raise ValueError("render problems need a BundleCache")
-        bundle = bundles.get(variant)  # built once per variant: not timed
+        bundle = bundles.get(variant, prob.capture)  # built once per variant and scene: not timed
         t0 = time.perf_counter()
         try:
             frames, relighter = render_production(prob, bundle)
@@ -524,12 +559,24 @@ def _produce(prob, variant: str, map_size, bundles: BundleCache | None, clock: l
     return {"maps": maps, "float32": wide}, reference
 
 
+def map_gain(maps: np.ndarray, samples: np.ndarray) -> float:
+    """The largest map value over its pixel's brightest sample (pixels with a positive sample):
+    how far the maps go beyond what was measured (extrapolation, adaptation, a fitted lobe)."""
+    top = np.asarray(samples, dtype=np.float64).max(axis=(0, 2))  # (P,)
+    lit = top > 0
+    if not lit.any():
+        return 0.0
+    peak = np.asarray(maps, dtype=np.float64).max(axis=(1, 2))[lit]
+    return float((peak / top[lit]).max())
+
+
 def evaluate(case: str, description: str, problems: list, variant: str, *, map_size=triangulation.DEFAULT_MAP_SIZE,
              bundles: BundleCache | None = None) -> dict:
     """One row: the problems of a case through one variant, production against reference.
 
     Keys: case, description, variant, max_rel_error (float; NaN if nothing could be compared),
-    finite (every production output finite), error (None, or ``"label: Type: message"`` of
+    finite (every production output finite), max_gain (the maps' largest value over their pixel's
+    brightest sample, :func:`map_gain`; NaN for render-only cases), error (None, or ``"label: Type: message"`` of
     every production exception, joined by "; "), ok (every output finite and compared with a
     finite error, and every exception an :class:`InputError`: invalid input refused with a
     message - a handled case), seconds (wall time of the
@@ -538,7 +585,7 @@ def evaluate(case: str, description: str, problems: list, variant: str, *, map_s
     error of each output, warnings the production path raised, any reference failure).
     Nothing is raised: exceptions and warnings are recorded whatever the warning filters are.
     """
-    errs, details, failures = [], [], []
+    errs, details, failures, gains = [], [], [], []
     finite, ok, clock = True, True, [0.0]
     for prob in problems:
         with warnings.catch_warnings(record=True) as caught:
@@ -550,6 +597,8 @@ def evaluate(case: str, description: str, problems: list, variant: str, *, map_s
                 failures.append(f"{prob.label}: {type(exc).__name__}: {exc}")
                 continue
         finite &= all(bool(np.isfinite(o).all()) for o in outputs.values())
+        if isinstance(prob, MapProblem):
+            gains.append(map_gain(outputs["maps"], prob.samples))
         note = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
         note = f" (warned: {'; '.join(note)})" if note else ""
         try:
@@ -569,6 +618,7 @@ def evaluate(case: str, description: str, problems: list, variant: str, *, map_s
     ok = ok and finite and bool(np.isfinite(errs).all())
     return {"case": case, "description": description, "variant": variant, "max_rel_error": max_err,
             "finite": bool(finite), "error": "; ".join(failures) or None, "ok": bool(ok),
+            "max_gain": max(gains) if gains else float("nan"),
             "seconds": round(clock[0], 4), "detail": "; ".join(details + failures)}
 
 
@@ -606,9 +656,9 @@ def run_stability(variants=None, *, map_size=triangulation.DEFAULT_MAP_SIZE, cas
 
 def table(rows: list[dict]) -> str:
     """The rows as a plain-text table (case, variant, max relative error, finite, error)."""
-    head = f"{'case':20s} {'variant':18s} {'max rel err':>11s} {'finite':>6s} {'s':>6s}  error"
+    head = f"{'case':20s} {'variant':18s} {'max rel err':>11s} {'gain':>8s} {'finite':>6s} {'s':>6s}  error"
     lines = [head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r['case']:20s} {r['variant']:18s} {r['max_rel_error']:11.2e} "
+        lines.append(f"{r['case']:20s} {r['variant']:18s} {r['max_rel_error']:11.2e} {r['max_gain']:8.3g} "
                      f"{'yes' if r['finite'] else 'no':>6s} {r['seconds']:6.2f}  {r['error'] or ''}")
     return "\n".join(lines)

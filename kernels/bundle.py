@@ -47,7 +47,9 @@ maps (*)                (P, 3, Tp) float16           reflectance maps, pixel-maj
                                                      the T active texels, zero padded to Tp (multiple of 16)
 maps_rows (*)           (T, 3, P) float16            the maps texel-major
 map_texels              (T,) int32                   map texel (row-major in the lat-long map) of each column
-transport_u             (T, K) float32               compact transport: orthonormal texel basis
+transport_u             (T, K) float32               compact transport: orthogonal texel basis (orthonormal
+                                                     times a power of two that keeps transport_v's peaks
+                                                     in float16's range, transport.V_HALF_PEAK)
 transport_v             (P / 16, 3, K8, 16) int8     maps projected on it: the first K8 (<= 16) ranks in
                                                      8 bits, blocks of 16 pixels (every rank before
                                                      version 4; float16 before version 3)

@@ -95,6 +95,8 @@ def visibility_at_cl(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], 
 #: Pixels per work-item of build_maps (its LANES: one float16 vector) and per work-group.
 LANES = 16
 GROUP_PIXELS = 64
+#: Spline texels per exact-sum block (with PIXEL_CHUNK pixels: 256 x 3 x 8192 x 8 B = 50 MB of float64).
+EXACT_ROWS = 256
 
 
 def _texel_tables(vertices, vertex_texel, texel_vertices, texel_weights, texel_dirs, act,
@@ -141,14 +143,18 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     shading model added back; lobe: ``max(n . h, 0) ** spec_exponent`` where ``n . l > 0``, h the
     half vector of l and the view +Z, as :func:`relight.kernels.interpolation.lobe`), then clipped at 0.
     spline : None, or (raw (K', P, 3) the samples themselves, rows (Q,) indices into the active
-    texels, weights (Q, K') their spline weights, blend (P,)): at those texels each map becomes
-    ``blend x map + (1 - blend) x min(spline, brightest of the triangle's samples)``, clipped at
-    0 (:func:`relight.kernels.reflectance.blend_spline`; spline values from
-    :func:`relight.kernels.spline.spline_values`, by BLAS per chunk).
+    texels, weights (Q, K') their spline weights, blend (P,)[, codes]): at those texels each map
+    becomes ``blend x map + (1 - blend) x min(spline, brightest of the triangle's samples)``,
+    clipped at 0 (:func:`relight.kernels.reflectance.blend_spline`; spline values from
+    :func:`relight.kernels.spline.spline_values`, by BLAS per chunk). ``codes``: None, or the
+    samples' storage codes (codes (K', P, 3) uint8, scale (P, 3)) they were decoded from
+    (:func:`relight.kernels.recipe.decode_samples`): then the spline's sums are made exactly from
+    the codes (:func:`relight.kernels.spline.exact_code_sums`), so a pixel's maps are the same
+    bits whichever pixels it is made with, on any CPU (BLAS's float32 sums round by its blocking).
     """
     import pyopencl as cl
 
-    from .spline import SPLINE_GAMMA, spline_power_sum, spline_root
+    from .spline import SPLINE_GAMMA, exact_code_sums, fixed_point_weights, spline_power_sum, spline_root
 
     rt = get_runtime()
     ctx, queue = rt.context, rt.queue
@@ -187,6 +193,13 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
     b_hz = buf(np.asarray(horizon, np.float32).T if use_vis else np.zeros(1), np.float32)
     n_q = 0 if spline is None else len(spline[1])
     k_raw = 0 if spline is None else int(spline[0].shape[0])
+    codes = spline[4] if spline is not None and len(spline) > 4 else None
+    if codes is not None:
+        if not root25:
+            raise InputError("exact spline sums from codes need SPLINE_GAMMA = SAMPLE_GAMMA = 0.4")
+        w_fixed = fixed_point_weights(spline[2])
+        # the codes' power domain: x ** 0.4 = (q / 255) * scale ** 0.4 (float64: rounded once below)
+        code_unit = np.power(np.asarray(codes[1], np.float64), SPLINE_GAMMA) / 255.0  # (P, 3)
     # the kernel writes the (float32, texel-major, one-chunk) result itself
     direct = texel_major and not half and p <= chunk and p % wg == 0
     host = out.reshape(-1) if direct else aligned_zeros((max(act.size, 1) * 3 * chunk,), np.float32)
@@ -224,7 +237,17 @@ def build_maps_cl(samples: np.ndarray, normals: np.ndarray, *, vertices: np.ndar
             wt[0, :n] = spline[3][ps]
             # The spline in its power domain by BLAS; the kernel clips it and raises it to 2.5
             # (SPLINE_ROOT25), or it is done here for another exponent.
-            spline_power_sum(own[:3 * k_raw].reshape(k_raw, 3 * m), spline[2], out=spl.reshape(n_q, 3 * m))
+            if codes is not None:
+                q = np.zeros((k_raw, 3, m), np.uint8)
+                q[:, :, :n] = np.asarray(codes[0][:, ps]).transpose(0, 2, 1)
+                unit = np.zeros((3, m), np.float64)
+                unit[:, :n] = code_unit[ps].T
+                for q0 in range(0, n_q, EXACT_ROWS):  # bounded float64 scratch
+                    sums = exact_code_sums(q.reshape(k_raw, 3 * m), w_fixed[q0:q0 + EXACT_ROWS])
+                    sums *= unit.reshape(1, 3 * m)
+                    spl.reshape(n_q, 3 * m)[q0:q0 + EXACT_ROWS] = sums
+            else:
+                spline_power_sum(own[:3 * k_raw].reshape(k_raw, 3 * m), spline[2], out=spl.reshape(n_q, 3 * m))
             if not root25:
                 spline_root(spl)
         if use_vis:  # (the padding pixels read the next ones' horizons or are cut off: never used)

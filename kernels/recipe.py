@@ -184,7 +184,8 @@ def recipe_maps(recipe: Recipe, *, backend: str = "opencl", half: bool = True, t
                                recipe.horizon_elevations(),
                                recipe.n_az, sm, np.asarray(recipe.blend, np.float64), recipe.active,
                                trend=recipe.trend, extrapolate=recipe.extrapolate, spline=recipe.spline,
-                               backend=backend, half=half, texel_major=texel_major, progress=progress)
+                               backend=backend, half=half, texel_major=texel_major,
+                               codes=(recipe.codes, recipe.scale), progress=progress)
     return maps
 
 

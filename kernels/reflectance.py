@@ -36,6 +36,12 @@ from .triangulation import Triangulation
 MODEL_MIN_COS = 0.2
 MODEL_MIN_VIS = 0.9
 MODEL_KEEP = 0.01
+#: The specular lobe is fitted only where the samples saw it: some used sample at a tenth of the
+#: lobe's peak (its value 1, at the mirror direction) or more. A lobe seen only below that would
+#: be extrapolated more than tenfold - at a grazing normal its values at the samples are ~1e-5
+#: and its fitted weight ~1e5 times the samples (real faces: Yale B06 seen as sRGB gave maps
+#: 40 000 times the brightest sample beyond the captured hull, and the transport overflowed).
+MODEL_LOBE_SEEN = 0.1
 
 
 #: How much of a pixel's trend the shading model gets: 0 below this coefficient of determination
@@ -87,7 +93,9 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation,
 
     Albedo and spec are fitted by least squares to the samples that light the pixel well (cosine >
     ``MODEL_MIN_COS``, visibility > ``MODEL_MIN_VIS``), per channel, spec >= 0 (a channel whose
-    lobe would come out negative is refitted with albedo alone); 0 where no sample lights the
+    lobe would come out negative is refitted with albedo alone), the lobe only where those samples
+    saw it (``MODEL_LOBE_SEEN``) and its peak stays within what they bound (spec at most the
+    brightest of them / ``MODEL_LOBE_SEEN``; else albedo alone); 0 where no sample lights the
     pixel. The trust ramps from 0 to 1 as the fit's R^2 over those samples goes from
     ``MODEL_R2_NONE`` to ``MODEL_R2_FULL`` (0 with fewer than 4 of them). vertex_vis : (P, >= K)
     visibility at the vertices' texels (:func:`visibility_at` of ``tri.vertex_texel``; ones without
@@ -116,7 +124,10 @@ def shading_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation,
         a2 = (ss[:, None] * cy - cs_[:, None] * sy) / safe
         s2 = (cc[:, None] * sy - cs_[:, None] * cy) / safe
         a1 = cy / np.maximum(cc, EPS_VALUE)[:, None]  # albedo alone
-        two = ok[:, None] & (s2 > 0.0)
+        # the lobe where the samples measured it, its peak bounded by them (see MODEL_LOBE_SEEN)
+        seen = s.max(axis=1, initial=0.0) >= MODEL_LOBE_SEEN
+        y_top = np.where(use.T[..., None], y, 0).max(axis=0, initial=0.0).astype(np.float64)  # (p, 3)
+        two = (ok & seen)[:, None] & (s2 > 0.0) & (s2 * MODEL_LOBE_SEEN <= y_top)
         a = np.where(two, a2, a1)
         sp = np.where(two, s2, 0.0)
         albedo[ps], spec[ps] = a, sp
@@ -260,12 +271,15 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
                   n_az: int, sm: ShadingModel, blend: np.ndarray, active: np.ndarray, *,
                   trend: bool = True, extrapolate: bool = True, paper_adaptation: bool = False,
                   spline: bool = True, backend: str = "opencl", half: bool = False, texel_major: bool = False,
-                  progress=None):
+                  codes: tuple[np.ndarray, np.ndarray] | None = None, progress=None):
     """The maps of :func:`model_maps` from its fits (:func:`fit_model`: the shading model ``sm``,
     the spline ``blend`` (P,), the kept texels ``active`` (T,) bool), for these pixels (any
     subset of the fitted ones, with their fits). Returns (maps, the triangulation whose
     ``active`` texels they hold); maps (P, 3, T_pad), or with ``texel_major`` (T_pad, 3, P)
-    float32 (what the transport's projections read; OpenCL only)."""
+    float32 (what the transport's projections read; OpenCL only). ``codes``: the storage codes
+    (codes (K, P, 3) uint8, scale (P, 3)) the samples were decoded from, when they were
+    (:mod:`relight.kernels.recipe`): the OpenCL spline is then summed exactly from them, and a
+    pixel's maps do not depend on which other pixels are made with it (or on the CPU)."""
     k, p = samples.shape[:2]
     verts = tri.vertices
     b = len(verts) - k
@@ -329,7 +343,7 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     # The OpenCL kernel blends the spline in itself (its values from BLAS, chunk by chunk).
     blend_in = None
     if smooth is not None and backend == "opencl":
-        blend_in = (samples, smooth[0], smooth[1], np.asarray(blend, dtype=np.float32))
+        blend_in = (samples, smooth[0], smooth[1], np.asarray(blend, dtype=np.float32), codes)
     maps = compute_maps(vals, normals, map_tri, horizon=horizon, n_az=n_az, adaptation=paper_adaptation,
                         backend=backend, half=half and not texel_major, trend=(offset, coef, spec),
                         texel_major=texel_major, spline=blend_in, progress=progress)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from relight.errors import InputError, NumericalError
 from relight.numerics import EPS, TINY_SCALE
 
 #: Power applied to the (non-negative, linear) values before interpolating, undone after.
@@ -94,6 +95,51 @@ def spline_power_sum(samples: np.ndarray, weights: np.ndarray, gamma: float = SP
     s = np.clip(np.asarray(samples).astype(dt), 0.0, None)
     np.power(s, dt(gamma), out=s)
     return np.matmul(np.asarray(weights, dtype=dt), s, out=out)
+
+
+#: Columns per BLAS call of :func:`exact_code_sums` (bounds its float64 scratch memory; the
+#: sums are exact, so the blocking cannot change them).
+EXACT_COLUMNS = 4096
+#: Bits of float64's significand (53) less a factor 4 of headroom: every partial sum of
+#: :func:`exact_code_sums` stays below 2 ** EXACT_BITS grid steps.
+EXACT_BITS = 51
+
+
+def fixed_point_weights(weights: np.ndarray, max_code: int = 255) -> np.ndarray:
+    """(Q, K) float64 weights rounded to the finest grid 2^-s on which ``weights @ codes`` for
+    codes in [0, max_code] is exact in float64: every product is a whole number of grid steps
+    and every partial sum, in any order, stays below 2^EXACT_BITS of them. With row sums of
+    |w| ~ 1-10 (a spline's) the grid is ~2^-40: far below float32's resolution of the result."""
+    w = np.asarray(weights, dtype=np.float64)
+    if not np.isfinite(w).all():
+        raise NumericalError("non-finite spline weights; this is a bug, please report it")
+    k = w.shape[-1] if w.ndim == 2 else 0
+    bound = float(max_code) * max(float(np.abs(w).sum(axis=1).max(initial=0.0)), 1.0)
+    bits = EXACT_BITS - int(np.ceil(np.log2(bound + 1.0)))
+    # rounding moves each weight by at most half a step: the rounded sums grow by at most
+    # max_code * K / 2 steps, which the "+ 1" above covers while this holds
+    if max_code * k > 2.0 ** (bits + 1):
+        raise NumericalError(f"spline weights too large for exact sums ({k} samples, |w| sum {bound / max_code:.3g})")
+    return np.ldexp(np.rint(np.ldexp(w, bits)), -bits)
+
+
+def exact_code_sums(codes: np.ndarray, weights: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
+    """(Q, n) ``weights @ codes`` for uint8 codes (K, n) and weights from
+    :func:`fixed_point_weights`, computed by BLAS in float64 where every operation is exact: the
+    sums are the same bits whatever BLAS's blocking, threads, FMA or vector width, and so for
+    any chunk of columns (the capture's streamed maps are exactly the whole's, on any CPU).
+    Into ``out`` ((Q, n), any float dtype: rounded once from the exact sums) when given."""
+    q = np.asarray(codes)
+    if q.dtype != np.uint8:
+        raise InputError(f"codes of dtype {q.dtype}: expected uint8")
+    w = np.asarray(weights, dtype=np.float64)
+    n = q.shape[1]
+    if out is None:
+        out = np.empty((len(w), n), dtype=np.float64)
+    for c0 in range(0, n, EXACT_COLUMNS):
+        c1 = min(c0 + EXACT_COLUMNS, n)
+        out[:, c0:c1] = w @ q[:, c0:c1].astype(np.float64)
+    return out
 
 
 def spline_root(values: np.ndarray, gamma: float = SPLINE_GAMMA) -> np.ndarray:

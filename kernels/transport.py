@@ -26,7 +26,7 @@ import numpy as np
 from relight.colour import luminance
 from relight.directions import equirect_directions, rotation_matrix
 from relight.envmap import environment_to_lights, load_environment, validate_environment
-from relight.errors import InputError
+from relight.errors import InputError, NumericalError
 from relight.numerics import RANK_REL, flush_subnormal_halves, half_ceil, read_halves
 
 #: Lat-long grid (columns, rows) on which environments become lights; their bright texels
@@ -59,6 +59,10 @@ V_LEVELS = 127
 #: all ranks in 8 bits with one step (rank 46: 0.93 % vs 0.96 %), in 33-40 % fewer bytes.
 HEAD_RANKS = 16
 V4_LEVELS = 7
+#: Largest basis-image value kept in float16 on the way to storage (half of float16's 65504,
+#: room for the peak's rounding up): brighter projections are scaled by a power of two, which the
+#: basis u takes back (:func:`_stored_transport`).
+V_HALF_PEAK = 2.0 ** 15
 
 
 @dataclass(frozen=True)
@@ -523,8 +527,18 @@ def _stored_transport(v_all: np.ndarray, u: np.ndarray, k: int, sig2, resid, tot
     p = v_all.shape[0]
     kp = padded_texels(k)
     nb = -(-p // PIXEL_BLOCK)
+    # The projections go through float16 (each pixel's peak is stored as a half): a power of two
+    # taken off them and put on the basis u keeps every peak in range and every product v u
+    # exactly as it was (bright maps project to ~sqrt(T) times their brightest texel).
+    peak = float(np.abs(v_all[:, :, :k]).max(initial=0.0)) if k else 0.0
+    if not np.isfinite(peak):
+        raise NumericalError("non-finite transport projections; this is a bug, please report it")
+    shift = int(np.ceil(np.log2(peak / V_HALF_PEAK))) if peak > V_HALF_PEAK else 0
     v = np.zeros((nb * PIXEL_BLOCK, 3, kp), dtype=np.float16)
-    v[:p, :, :k] = v_all[:, :, :k]
+    v[:p, :, :k] = v_all[:, :, :k] * np.float32(2.0 ** -shift) if shift else v_all[:, :, :k]
+    if shift:
+        u = u * np.float32(2.0 ** shift)
+        coef = coef * 2.0 ** shift  # the validation lights' coefficients on the scaled basis
     flush_subnormal_halves(v)
     v = np.ascontiguousarray(v.reshape(nb, PIXEL_BLOCK, 3, kp).transpose(0, 2, 3, 1))
     q, q_scale, q4, q4_scale = quantise_basis(v, k)

@@ -502,7 +502,8 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
         maps, map_tri = reflectance.maps_from_fit(samples, normals, tri, horizon, HORIZON_DIRS, sm, blend, active,
                                                   trend=trend, extrapolate=opts.extrapolation,
                                                   paper_adaptation=adapt and not trend, spline=opts.spline,
-                                                  backend=opts.backend, half=half, progress=progress)
+                                                  backend=opts.backend, half=half, codes=(codes, code_scale),
+                                                  progress=progress)
         return maps, np.flatnonzero(map_tri.active), scale, samples
     maps = interpolation.compute_maps(samples, normals, tri, horizon=horizon, n_az=HORIZON_DIRS, adaptation=adapt,
                                     backend=opts.backend, half=half, progress=progress)

@@ -402,3 +402,34 @@ def test_an_environment_edited_in_place_is_relit_anew(relighters, small_bundle):
         env = frozen(env)
         assert not env.flags.writeable
         assert np.array_equal(rl.relight(env)[m], second[m]) and np.array_equal(rl.relight(env)[m], second[m])
+
+
+def test_transport_of_maps_past_the_half_range_is_finite_and_scales_exactly():
+    """Bright maps project to ~sqrt(T) times their brightest texel, past float16's 65504 (Yale B06
+    seen as sRGB wrote NaN into its bundle so): the stored basis images take a power of two off
+    and the basis u puts it back - the same transport as of the maps 2^14 times dimmer, scaled."""
+    from relight.kernels import transport
+    from relight.kernels.layout import padded_texels
+
+    rng = np.random.default_rng(5)
+    map_size = (64, 32)
+    texels = np.sort(rng.choice(map_size[0] * map_size[1] // 2, 300, replace=False)).astype(np.int64)
+    p, t = 96, texels.size
+    # smooth maps: a few lobes per pixel, peaks ~1 (so ~6 x 2^14 projected: past the half range)
+    base = rng.uniform(0.2, 1.0, (p, 3, 1)) * np.cos(np.linspace(0, 3, t))[None, None] ** 2
+    maps = np.zeros((p, 3, padded_texels(t)), np.float32)
+    maps[:, :, :t] = base + 0.2 * rng.uniform(0, 1, (p, 3, 1)) * np.sin(np.linspace(0, 7, t))[None, None] ** 2
+    dim = transport.factorize(maps, map_size, texels)
+    bright = transport.factorize(maps * np.float32(2.0 ** 14), map_size, texels)
+    assert np.isfinite(bright.q_scale.astype(np.float32)).all() and np.isfinite(bright.u).all()
+    assert float(np.abs(transport.dequantise_basis(bright.q, bright.q_scale, bright.q4, bright.q4_scale)).max()) \
+        <= transport.V_HALF_PEAK
+    np.testing.assert_array_equal(bright.rank_errors, dim.rank_errors)  # the errors are relative
+    k = len(dim.rank_errors)
+
+    def made(tr):  # the maps as the stored transport makes them (P, 3, T), float64
+        v = np.asarray(tr.basis(), np.float64)  # (nb, 3, Kp, 16) -> (P, 3, k)
+        v = v.transpose(0, 3, 1, 2).reshape(-1, 3, v.shape[2])[:p, :, :k]
+        return np.einsum("pck,tk->pct", v, np.asarray(tr.u, np.float64))
+
+    np.testing.assert_allclose(made(bright), made(dim) * 2.0 ** 14, rtol=HALF_REL, atol=F32_ZERO * 2.0 ** 14)

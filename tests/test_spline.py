@@ -111,3 +111,26 @@ def test_full_maps_blend_in_the_spline_only_where_it_predicts_better():
     err = lambda m: np.abs(m[1, 0, :act.size][inside] - truth).mean()  # noqa: E731
     assert err(with_spline) < SPLINE_GAIN * err(without)
     assert np.isfinite(with_spline).all()
+
+
+def test_exact_code_sums_are_exact_for_any_chunk_of_columns():
+    """The capture's spline sums from the 8-bit codes: the same bits for any chunk of columns
+    (any BLAS blocking, threads or vector width), and the exact sums of the rounded weights -
+    checked against integer arithmetic."""
+    from relight.kernels.spline import exact_code_sums, fixed_point_weights, spline_weights
+
+    rng = np.random.default_rng(2)
+    dirs = rng.normal(size=(180, 3))
+    dirs[:, 2] = np.abs(dirs[:, 2])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    w = spline_weights(dirs, rng.normal(size=(40, 3)))
+    wf = fixed_point_weights(w)
+    assert np.abs(wf - w).max() <= 2.0 ** -30  # far below float32's resolution of the sums
+    codes = rng.integers(0, 256, (180, 999)).astype(np.uint8)
+    whole = exact_code_sums(codes, wf)
+    for cols in (np.arange(3, 999, 7), np.arange(500, 530), np.array([998])):
+        np.testing.assert_array_equal(exact_code_sums(codes[:, cols], wf), whole[:, cols])
+    # the grid of the rounded weights: whole numbers of 2^-s; the products summed as integers
+    s = next(b for b in range(20, 80) if np.all(np.ldexp(wf, b) == np.rint(np.ldexp(wf, b))))
+    ints = np.rint(np.ldexp(wf, s)).astype(np.int64) @ codes.astype(np.int64)
+    np.testing.assert_array_equal(np.ldexp(whole, s), ints.astype(np.float64))

@@ -8,6 +8,7 @@ import pytest
 from relight.bench.stability import (
     BASELINE_MAX_REL,
     CASES,
+    MAX_MAP_GAIN,
     RENDER_MAX_REL,
     VARIANTS,
     MapProblem,
@@ -44,13 +45,14 @@ def test_each_case_through_every_variant_is_finite_and_as_accurate_as_the_baseli
     """Cases of the suite through every variant (a test per case - the bundle cases together -
     so pytest-xdist's workers share the cases out): one row per variant with its keys; every
     output finite and every failure a clear InputError; the error against float64 within the
-    baseline's bound (a render case: the exact path's); the expected refusals recorded."""
+    baseline's bound (a render case: the exact path's); the maps never more than MAX_MAP_GAIN
+    times their pixel's brightest sample; the expected refusals recorded."""
     rows = run_stability(cases=list(cases))
     assert [(r["case"], r["variant"]) for r in rows] == [(c, v) for c in cases for v in VARIANTS]
     for r in rows:
         case = r["case"]
         bound = RENDER_MAX_REL if case in RENDER_CASES else BASELINE_MAX_REL
-        assert {"case", "description", "variant", "max_rel_error", "finite", "error", "seconds"} <= set(r)
+        assert {"case", "description", "variant", "max_rel_error", "finite", "error", "seconds", "max_gain"} <= set(r)
         assert isinstance(r["max_rel_error"], float) and isinstance(r["finite"], bool)
         assert r["error"] is None or isinstance(r["error"], str)
         assert r["seconds"] >= 0 and "\n" not in r["description"]
@@ -59,6 +61,8 @@ def test_each_case_through_every_variant_is_finite_and_as_accurate_as_the_baseli
         if case == "float32_vs_float64":
             assert r["error"] is None, r
         assert r["max_rel_error"] <= bound, r
+        if case not in RENDER_CASES:  # render-only cases have no maps of their own
+            assert r["max_gain"] <= MAX_MAP_GAIN, r
         expected = EXPECTED_ERRORS.get((case, r["variant"]))
         if expected is not None:
             assert expected in r["error"], r
