@@ -107,9 +107,20 @@ def display_orientation(frame) -> tuple[int, bool]:
     FFmpeg's matrix (``AV_FRAME_DATA_DISPLAYMATRIX``, 16.16 fixed point) is a rotation, possibly
     with one column negated (a mirror); its rotation angle is read as ``av_display_rotation_get``
     does, and a mirrored matrix (negative determinant) is a mirror after the rotation that angle
-    implies. Angles that are not a multiple of 90 degrees go to the nearest one."""
+    implies. Angles that are not a multiple of 90 degrees go to the nearest one.
+
+    A frame may carry side data PyAV cannot name - FFmpeg 8 (the PyAV 18 wheels) adds types 28-31
+    (LCEVC, VIEW_ID, 3D_REFERENCE_DISPLAYS: multi-view HEVC as phones' spatial video; EXIF: every
+    PNG OpenImageIO writes) that PyAV's ``Type`` enum lacks, and its side-data container then
+    refuses the whole frame (``ValueError: 31 is not a valid Type``). Then the rotation is read as
+    PyAV reads it for ``frame.rotation`` (FFmpeg's ``av_display_rotation_get`` on the raw side
+    data, no container) and a mirror, which only the matrix itself shows, is not seen."""
     data = None
-    for sd in getattr(frame, "side_data", ()) or ():
+    try:
+        entries = list(getattr(frame, "side_data", ()) or ())
+    except (ValueError, KeyError, TypeError):  # an entry of a type PyAV cannot name
+        return _rotation_only(frame), False
+    for sd in entries:
         if str(getattr(sd, "type", "")).endswith("DISPLAYMATRIX"):
             data = bytes(sd)
             break
@@ -124,6 +135,16 @@ def display_orientation(frame) -> tuple[int, bool]:
     if mirror:
         angle = -angle - 180.0
     return int(np.round(angle / 90.0)) % 4, mirror
+
+
+def _rotation_only(frame) -> int:
+    """Quarter turns counter-clockwise from PyAV's ``frame.rotation`` (degrees; 0 without a
+    display matrix or on a PyAV without it)."""
+    try:
+        angle = float(getattr(frame, "rotation", 0) or 0)
+    except (ValueError, TypeError):
+        return 0
+    return int(np.round(angle / 90.0)) % 4 if np.isfinite(angle) else 0
 
 
 def orient(img: np.ndarray, turns: int, mirror: bool) -> np.ndarray:

@@ -161,3 +161,48 @@ def test_decoded_frames_do_not_outlive_their_use(tmp_path, monkeypatch):
     finally:
         gc.enable()
     assert alive <= 10, f"{alive} decoded frames still alive"
+
+
+def test_frames_with_side_data_pyav_cannot_name_are_read(frame, small_bundle, tmp_path, capsys):
+    """A PNG relight writes (OpenImageIO adds an eXIf chunk: FFmpeg 8's EXIF side data, type 31,
+    which PyAV 18's Type enum lacks, as it lacks multi-view HEVC's 28-30) named as a video: the
+    probe, the readers, capture, filter and live read it - no traceback; capture says it is one
+    frame; a file that is no video at all is refused the same clear way."""
+    import subprocess
+    import sys
+
+    import av
+
+    from relight.imageio import write_image
+
+    png = write_image(tmp_path / "still.png", frame)
+    clip = tmp_path / "still.mp4"
+    clip.write_bytes(png.read_bytes())
+    with av.open(str(clip)) as c:  # the case itself: PyAV refuses to list this frame's side data
+        first = next(c.decode(video=0))
+        with pytest.raises(ValueError, match="not a valid Type"):
+            list(first.side_data)
+    info = probe_video(clip)
+    assert (info.width, info.height) == (frame.shape[1], frame.shape[0])
+    (back,) = list(read_frames(clip))
+    np.testing.assert_array_equal(back, frame)  # PNG: lossless
+    from relight.cli import main
+
+    assert main(["capture", str(clip), "-o", str(tmp_path / "b.bundle"), "--quiet"]) == 2
+    assert "1 frames" in capsys.readouterr().err
+    assert main(["filter", str(clip), str(tmp_path / "out.mp4"), "--bundle", str(small_bundle.path), "--env",
+                 "builtin:window", "--focal", "ortho", "--quiet"]) == 0
+    assert len(list(read_frames(tmp_path / "out.mp4"))) == 1
+    # live in its own process (signals, threads), as a user runs it
+    r = subprocess.run([sys.executable, "-m", "relight", "live", "--bundle", str(small_bundle.path), "--env",
+                        "builtin:window", "--camera", str(clip), "--focal", "ortho", "--duration", "1",
+                        "--record", str(tmp_path / "live.mp4")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert len(list(read_frames(tmp_path / "live.mp4"))) >= 1
+    junk = tmp_path / "junk.mp4"
+    junk.write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    for args in (["capture", str(junk), "-o", str(tmp_path / "j.bundle"), "--quiet"],
+                 ["filter", str(junk), str(tmp_path / "j.mp4"), "--bundle", str(small_bundle.path), "--env",
+                  "builtin:window", "--quiet"]):
+        assert main(args) == 2
+        assert "not a readable video" in capsys.readouterr().err
