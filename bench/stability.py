@@ -323,7 +323,7 @@ def _sun_environment(sky: float = 1.0, ratio: float = 1e5, direction=(0.3, 0.4, 
     from relight.envmap import load_environment
 
     sun = load_environment("builtin:point:{},{},{}".format(*direction))
-    sun *= np.float32(ratio * sky / float(sun.max()))
+    sun = sun * np.float32(ratio * sky / float(sun.max()))
     return load_environment("builtin:uniform", width=sun.shape[1]) * np.float32(sky) + sun
 
 

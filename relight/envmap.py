@@ -192,10 +192,14 @@ def environment_stem(source: str | os.PathLike) -> str:
 
 
 def load_environment(source: str | os.PathLike, *, width: int | None = None) -> np.ndarray:
-    """Load an environment map as linear float32 radiance, (H, W, 3) with W == 2 H.
+    """Load an environment map as linear float32 radiance, (H, W, 3) with W == 2 H, read-only.
 
     source : a path (.exr, .hdr, or an sRGB .png/.jpg) or ``builtin:NAME`` (see
         :func:`builtin_names`). width : resolution of a built-in (default 512); ignored for files.
+
+    The map is returned read-only (:func:`freeze`): a :class:`relight.Relighter` given it again
+    knows it by identity, so a loop relighting it under a new head rotation per call does not
+    hash its 1.5 MB each time. To edit it, take a copy (``env * 2``, ``env.copy()``).
 
     Raises :class:`InputError` for a missing, hostile or corrupt file, a map that is not 2:1,
     non-finite or negative radiance, or an unknown built-in.
@@ -207,12 +211,23 @@ def load_environment(source: str | os.PathLike, *, width: int | None = None) -> 
         if w < 8 or w % 2 or w > MAX_ENV_WIDTH:
             raise InputError(f"built-in width {w}: use an even number between 8 and {MAX_ENV_WIDTH}")
         if name.startswith("point:"):
-            return builtin_point(parse_point(name), w)
+            return freeze(builtin_point(parse_point(name), w))
         if name not in BUILTINS:
             raise InputError(f"unknown built-in environment {name!r}; choose one of: {', '.join(builtin_names())}")
-        return BUILTINS[name](w)
+        return freeze(BUILTINS[name](w))
     env = read_image(s, max_dim=MAX_ENV_WIDTH, max_pixels=MAX_ENV_WIDTH * MAX_ENV_WIDTH // 2)
-    return validate_environment(env, name=s)
+    return freeze(validate_environment(env, name=s))
+
+
+def freeze(env) -> np.ndarray:
+    """A read-only C-contiguous float32 array that owns its data, with ``env``'s values (``env``
+    itself when it already is one; else a copy): what :meth:`relight.Relighter.lights` recognises
+    by identity instead of hashing its contents on every call."""
+    a = np.asarray(env)
+    if not (a.dtype == np.float32 and a.flags.c_contiguous and a.flags.owndata):
+        a = np.array(a, dtype=np.float32, order="C")
+    a.flags.writeable = False
+    return a
 
 
 def validate_environment(env: np.ndarray, *, name: str = "environment") -> np.ndarray:

@@ -391,7 +391,7 @@ def test_an_environment_edited_in_place_is_relit_anew(relighters, small_bundle):
     array in place doubles the relit face (a cache on id() returned the stale light)."""
     m = small_bundle.mask
     for rl in relighters:
-        env = load_environment("builtin:studio")
+        env = load_environment("builtin:studio").copy()  # (load_environment's own is read-only)
         first = rl.relight(env)
         env *= 2.0
         second = rl.relight(env)
@@ -433,3 +433,28 @@ def test_transport_of_maps_past_the_half_range_is_finite_and_scales_exactly():
         return np.einsum("pck,tk->pct", v, np.asarray(tr.u, np.float64))
 
     np.testing.assert_allclose(made(bright), made(dim) * 2.0 ** 14, rtol=HALF_REL, atol=F32_ZERO * 2.0 ** 14)
+
+
+def test_the_plain_call_hashes_a_loaded_environment_once(relighters, small_bundle, monkeypatch):
+    """The README's loop - relight(load_environment(...), rotation=R) with a new R per call -
+    is the hot path but for its new result array: the map load_environment returns is read-only
+    and known by identity after its first call (no hashing per call); the result holds exactly
+    the face, zero elsewhere, and the next call does not change it."""
+    from relight.kernels import relighter as rlm
+
+    compact, _ = relighters
+    env = load_environment("builtin:window")
+    assert not env.flags.writeable and env.flags.owndata
+    with pytest.raises(ValueError, match="read-only"):
+        env *= 2.0
+    hashed = []
+    real = rlm.hashlib.blake2b
+    monkeypatch.setattr(rlm.hashlib, "blake2b", lambda *a, **kw: hashed.append(1) or real(*a, **kw))
+    out = np.zeros_like(compact.frame)
+    got = [compact.relight(env, rotation=rotation_matrix(a, 0, 0)) for a in (3, 4, 5)]
+    assert len(hashed) <= 1
+    m = small_bundle.mask
+    for a, img in zip((3, 4, 5), got, strict=True):
+        want = compact.relight(env, rotation=rotation_matrix(a, 0, 0), out=out)
+        assert np.array_equal(img[m], want[m]) and not img[~m].any()
+    assert len(hashed) <= 1
