@@ -414,8 +414,17 @@ def _dtype_str(a: np.ndarray) -> str:
     return np.dtype(a.dtype).newbyteorder("<").str if a.dtype.byteorder not in ("|",) else a.dtype.str
 
 
-def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray]) -> Path:
-    """Write a bundle atomically. ``arrays`` values are converted to little-endian C order."""
+#: Permission bits of a bundle: owner only. A bundle is a person's face - biometric data; widen
+#: it deliberately (``relight capture --file-mode 0640``).
+BUNDLE_MODE = 0o600
+
+
+def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray], *,
+                 mode: int = BUNDLE_MODE) -> Path:
+    """Write a bundle atomically, with permission bits ``mode`` (default owner-only). ``arrays``
+    values are converted to little-endian C order."""
+    if not (isinstance(mode, int) and 0 <= mode <= 0o777 and mode & 0o600 == 0o600):
+        raise InputError(f"file mode {mode!r}: an octal mode from 600 to 777 that lets the owner read and write")
     missing = [k for k in REQUIRED if k not in arrays]
     if not any(k in arrays for k in BACKGROUND):
         missing.append("background_jpeg")
@@ -448,7 +457,7 @@ def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarr
             break
         header_len = _align(len(header) + 1024)
     path = Path(path)
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+    with atomic_path(path, mode=mode) as tmp, open(tmp, "wb") as f:
         f.write(_PREFIX.pack(MAGIC, VERSION, zlib.crc32(header), len(header)))
         f.write(header)
         for name, a in prepared.items():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shutil
 import threading
+import warnings
 from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib.resources import as_file, files
@@ -111,11 +112,25 @@ def build_program(name: str, options: tuple[str, ...] = ()) -> object:
     with rt.lock:
         prg = rt.programs.get(key)
         if prg is None:
-            with as_file(files("relight.kernels")) as folder:
+            with as_file(files("relight.kernels")) as folder, warnings.catch_warnings():
+                if not compiler_output_wanted():
+                    # PoCL's log on a successful build (on some CPUs a note about the target) is
+                    # noise in a user's terminal: shown with --verbose or PYOPENCL_COMPILER_OUTPUT=1
+                    warnings.simplefilter("ignore", cl.CompilerWarning)
                 src = kernel_source(name)
                 prg = cl.Program(rt.context, src).build(options=[*options, "-I", str(folder)])
             rt.programs[key] = prg
     return prg
+
+
+#: Set to "1" (``relight --verbose``) to see the OpenCL compiler's output and full tracebacks.
+VERBOSE_ENV = "RELIGHT_VERBOSE"
+
+
+def compiler_output_wanted() -> bool:
+    """Whether the OpenCL compiler's messages on successful builds are shown: with
+    ``--verbose`` (:data:`VERBOSE_ENV`) or pyopencl's own ``PYOPENCL_COMPILER_OUTPUT=1``."""
+    return os.environ.get(VERBOSE_ENV) == "1" or os.environ.get("PYOPENCL_COMPILER_OUTPUT") == "1"
 
 
 #: Alignment (bytes) of host arrays handed to the device with USE_HOST_PTR: PoCL on the CPU then

@@ -21,7 +21,7 @@ from relight.colour import encode_srgb8, srgb_to_linear
 from relight.errors import InputError, NumericalError
 from relight.imageio import read_image
 from relight.kernels import interpolation, reflectance, triangulation
-from relight.kernels.bundle import storage_scale, write_bundle
+from relight.kernels.bundle import BUNDLE_MODE, storage_scale, write_bundle
 from relight.kernels.heightfield import HORIZON_DIRS
 from relight.numerics import EPS_VALUE, flush_subnormal_halves
 
@@ -624,21 +624,42 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB on Linux
 
 
+def expected_bundle_bytes(n_samples: int, n_pixels: int, opts: CaptureOptions) -> int:
+    """A generous estimate of the bundle's size before it is made (the free-space check):
+    per face pixel its sample codes (3 K bytes), horizon, fits and compact transport (~400
+    bytes), with --keep-maps the maps twice in float16 (half the map's texels lit), a quarter
+    more for what varies, and 1 MB of header and background."""
+    per_pixel = 3 * n_samples + 400
+    if opts.keep_maps:
+        per_pixel += 2 * 3 * 2 * (opts.map_size[0] * opts.map_size[1] // 2) + 6 * n_samples
+    return int(1.25 * per_pixel * n_pixels) + (1 << 20)
+
+
 def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = False, report_dir=None,
-            progress: bool = True) -> CaptureResult:
-    """Run the whole capture; write the bundle to ``out`` (and a report to ``report_dir``)."""
+            progress: bool = True, file_mode: int = BUNDLE_MODE) -> CaptureResult:
+    """Run the whole capture; write the bundle to ``out`` (and a report to ``report_dir``).
+
+    ``file_mode``: the bundle's permission bits (default owner-only: it holds a face). The
+    output's folder must have room for the bundle: checked once the samples are known, before
+    the long part (maps, transport), and again with the bundle's exact size before writing."""
+    from relight.imageio import check_free_space, check_writable
+
     opts = (opts or CaptureOptions()).validate()
+    check_writable(out)
     timings = StageTimings()
     bar = Progress(progress)
     t_all = time.perf_counter()
     try:
         prep = prepare_images(source, opts, bar, timings) if images else prepare_video(source, opts, bar, timings)
+        n_pix = int(prep.mask.sum()) if prep.mask is not None else int(np.prod(prep.images.shape[1:3]))
+        check_free_space(out, expected_bundle_bytes(prep.images.shape[0], n_pix, opts), "the bundle")
         arrays, meta, geo, tri = finish(prep, opts, bar, timings)
         t0 = time.perf_counter()
-        meta["timings"] = {k: round(v, 3) for k, v in timings.items()}
+        # (run facts - timings, peak memory - go to the report: the same input gives the same bundle)
         meta["rejected"] = prep.report.get("rejected", {})
         meta["stored"] = sorted(arrays)
-        path = write_bundle(out, meta, arrays)
+        check_free_space(out, sum(np.asarray(a).nbytes for a in arrays.values()) + (1 << 20), "the bundle")
+        path = write_bundle(out, meta, arrays, mode=file_mode)
         timings["write"] = time.perf_counter() - t0
     finally:
         bar.close()

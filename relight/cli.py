@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 import time
@@ -193,6 +194,7 @@ def _circle(text: str) -> tuple[float, float, float]:
 
 
 def _add_capture(sub) -> None:
+    from .kernels.bundle import BUNDLE_MODE
     from .kernels.transport import STORE_TOLERANCE
     from .pipeline.capture import TRANSFERS
     from .pipeline.ingest import DEFAULT_FACE_PIXELS
@@ -260,8 +262,21 @@ def _add_capture(sub) -> None:
                         "ranks are stored until their validation error, 8-bit storage included, meets it (finer "
                         "tolerances build the exact maps on load)")
     p.add_argument("--report", type=Path, metavar="DIR", help="write report.json and PNG plots here")
+    p.add_argument("--file-mode", type=_octal_mode, default=f"{BUNDLE_MODE:o}", metavar="OCTAL",
+                   help="the bundle's permission bits, octal: owner-only by default - a bundle is a person's face "
+                        "(biometric data); widen it deliberately, e.g. 640 for a group")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run_capture)
+
+
+def _octal_mode(text: str) -> int:
+    try:
+        mode = int(text, 8)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: an octal mode such as 600 or 640") from None
+    if not (0 <= mode <= 0o777 and mode & 0o600 == 0o600):
+        raise argparse.ArgumentTypeError(f"{text!r}: a mode from 600 to 777 that lets the owner read and write")
+    return mode
 
 
 def _run_capture(args) -> int:
@@ -286,7 +301,7 @@ def _run_capture(args) -> int:
                               focal=args.focal, highlight=args.highlight, register=not args.no_registration,
                               subtract_ambient=not args.no_ambient_subtraction))
     res = capture(args.images or args.video, args.out, opts, images=args.images is not None,
-                  report_dir=args.report, progress=not args.quiet)
+                  report_dir=args.report, progress=not args.quiet, file_mode=args.file_mode)
     rej = ", ".join(f"{k} {v}" for k, v in res.report.get("rejected", {}).items()) or "none"
     print(f"wrote {res.bundle} ({res.arrays['light_dirs'].shape[0]} light samples, "
           f"{res.arrays['pixels'].size} pixels, {res.bundle.stat().st_size / 1e6:.0f} MB)")
@@ -995,12 +1010,9 @@ def serve_main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="relight-serve", description="Serve relighting of video frames over HTTP.",
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     _serve_arguments(p)
+    p.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
     args = parse_args(p, argv)
-    try:
-        return _serve_command(args)
-    except RelightError as exc:
-        print(f"relight-serve: error: {exc}", file=sys.stderr)
-        return 2
+    return run_command("relight-serve", _serve_command, args)
 
 
 def _add_serve(sub) -> None:
@@ -1032,26 +1044,64 @@ def build_parser(command: str | None = "*") -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="relight", description="Real-time relighting of a human face in video, on a CPU.")
     parser.add_argument("--version", action="version", version=f"relight {__version__}")
+    parser.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
     sub = parser.add_subparsers(title="commands", metavar="COMMAND", required=True)
     for name in COMMANDS:
         if command == "*" or name == command:
             _ADDERS[name](sub)
+            # also after the command (relight capture ... --verbose); absent there: the top level's
+            sub.choices[name].add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
+                                           help=VERBOSE_HELP)
         else:
             sub.add_parser(name, help=COMMANDS[name])
     return parser
 
 
+VERBOSE_HELP = "show the OpenCL compiler's messages and, on an error, the traceback"
+
+
+def set_verbose(on: bool) -> None:
+    """``--verbose``: the OpenCL compiler's messages (pyopencl's and PoCL's whole log) and
+    tracebacks on errors; also for the processes a command starts (an environment variable)."""
+    from .kernels.runtime import VERBOSE_ENV
+
+    if on:
+        os.environ[VERBOSE_ENV] = "1"
+        os.environ.setdefault("PYOPENCL_COMPILER_OUTPUT", "1")
+
+
+def run_command(prog: str, func, args) -> int:
+    """``func(args)`` with relight's errors as one line on stderr and exit status 2: ours
+    (:class:`RelightError`, saying what to change) and the system's (an OSError: the file and the
+    reason, e.g. "no space left on device") - a traceback only with --verbose."""
+    import traceback
+
+    from .errors import os_reason
+
+    verbose = bool(getattr(args, "verbose", False))
+    set_verbose(verbose)
+    try:
+        return func(args)
+    except RelightError as exc:
+        if verbose:
+            traceback.print_exc()
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the system's word on a file we read or write
+        if verbose:
+            traceback.print_exc()
+        names = " -> ".join(str(n) for n in (exc.filename, exc.filename2) if n)
+        print(f"{prog}: error: {names + ': ' if names else ''}{os_reason(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser(_command(argv))
     args = parse_args(parser, argv)
-    try:
-        return args.func(args)
-    except RelightError as exc:
-        print(f"relight: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("relight: interrupted", file=sys.stderr)
-        return 130
+    return run_command("relight", args.func, args)
 
 
 if __name__ == "__main__":  # pragma: no cover

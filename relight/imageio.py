@@ -13,6 +13,7 @@ TIFF) are sRGB-encoded and decoded to linear here, unless ``linearize=False``.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import struct
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .colour import linear_to_srgb, srgb_to_linear
-from .errors import InputError
+from .errors import InputError, OutputError, RelightError, os_reason
 from .numerics import FLOAT, require_finite
 
 #: Default limits for images read from users (a 16K x 8K environment map still fits).
@@ -182,8 +183,12 @@ def _fsync_dir(folder: Path) -> None:
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike):
-    """Yield a temporary path beside ``path``; rename it over ``path`` on success.
+def atomic_path(path: str | os.PathLike, *, mode: int | None = None):
+    """Yield a temporary path beside ``path``; rename it over ``path`` on success, with the
+    permission bits ``mode`` (None: :func:`file_mode`'s, as ``open()`` would give).
+
+    An OSError of the writing (no space, a read-only file system, no permission) becomes an
+    :class:`OutputError` naming ``path``.
 
     The temporary name keeps the extension (image writers pick the format from it). On any
     exception the temporary file is removed and ``path`` is left as it was; a writer killed
@@ -191,18 +196,99 @@ def atomic_path(path: str | os.PathLike):
     removes (:func:`clean_stale_temps`). ``path`` is never a partly written file.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    clean_stale_temps(path.parent, path.stem)
-    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path.stem), suffix=f".tmp{path.suffix}", dir=path.parent)
-    os.close(fd)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        clean_stale_temps(path.parent, path.stem)
+        fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path.stem), suffix=f".tmp{path.suffix}", dir=path.parent)
+        os.close(fd)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {os_reason(exc)}") from exc
     try:
         yield Path(tmp)
+        os.chmod(tmp, file_mode() if mode is None else mode)
         os.replace(tmp, path)
         _fsync_dir(path.parent)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, RelightError) and _is_write_error(exc, tmp, path):
+            raise OutputError(f"cannot write {path}: {os_reason(exc)}") from exc
         raise
+
+
+#: errno values that only writing raises (a full disk or quota, a read-only file system, a file
+#: too large for it): whoever raised them, the output could not be written.
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG}
+
+
+def _is_write_error(exc: OSError, tmp, path: Path) -> bool:
+    """Whether an OSError raised while writing ``tmp`` (the temporary of ``path``) is the
+    output's: a write-only errno, or one naming the temporary or the target (an input's error
+    raised inside the same ``with`` keeps its own message)."""
+    named = {str(tmp), str(path)}
+    return exc.errno in _WRITE_ERRNOS or str(exc.filename) in named or str(exc.filename2) in named
+
+
+def file_mode() -> int:
+    """The permission bits of a file relight writes, as ``open()`` would give them: 0666 less
+    the process's umask (0644 under the usual 022), like other tools' outputs. (A temporary
+    file is made 0600, and its mode would survive the rename.) Bundles are owner-only instead:
+    :data:`relight.kernels.bundle.BUNDLE_MODE`."""
+    return 0o666 & ~_umask()
+
+
+def check_free_space(path: str | os.PathLike, need: int, what: str = "it") -> None:
+    """Raise :class:`OutputError` when the folder ``path`` will be written in (its nearest
+    existing parent) has less than ``need`` bytes free: said before a long job, not after it."""
+    import shutil
+
+    folder = _existing_folder(path)
+    check_writable(path)
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return  # (not knowable here: the write itself will say)
+    if free < need:
+        raise OutputError(f"cannot write {path}: no space left on device ({free / 1e6:.1f} MB free in {folder}, "
+                          f"{what} needs about {need / 1e6:.1f} MB); free some space or write elsewhere")
+
+
+def _existing_folder(path) -> Path:
+    folder = Path(path).absolute().parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    return folder
+
+
+def check_writable(path: str | os.PathLike) -> None:
+    """Raise :class:`OutputError` when ``path`` cannot be written: its folder (or the nearest
+    existing parent) is on a read-only file system or not writable by this user."""
+    folder = _existing_folder(path)
+    read_only = False
+    with contextlib.suppress(OSError, AttributeError):
+        read_only = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    if read_only:
+        raise OutputError(f"cannot write {path}: read-only file system; write elsewhere")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError(f"cannot write {path}: permission denied on {folder}; write elsewhere")
+
+
+def dir_mode() -> int:
+    """The permission bits of a folder relight writes (a folder of frames), as ``mkdir`` gives:
+    0777 less the umask (a temporary folder is made 0700)."""
+    return 0o777 & ~_umask()
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it (Linux: /proc/self/status; else set and
+    restored at once)."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_image(path: str | os.PathLike, image: np.ndarray, *, encode_srgb: bool | None = None) -> Path:
@@ -253,7 +339,16 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, encode_srgb: bool
         err = _error_text(out)
         out.close()
         if not ok:
-            raise OSError(f"{path}: write failed ({err})")
+            # OpenImageIO says why in words that name the temporary and no errno: a full disk is
+            # told by the space left
+            import shutil
+
+            free = None
+            with contextlib.suppress(OSError):
+                free = shutil.disk_usage(path.parent).free
+            if free is not None and free < 2 * data.nbytes + (1 << 20):
+                raise OutputError(f"cannot write {path}: no space left on device")
+            raise OutputError(f"cannot write {path}: {err.replace(str(tmp), str(path))}")
     return path
 
 

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.errors import InputError
-from relight.imageio import atomic_path, clean_stale_temps, temp_prefix
+from relight.errors import InputError, OutputError, os_reason
+from relight.imageio import atomic_path, clean_stale_temps, dir_mode, temp_prefix
 from relight.numerics import EPS_NORM
 
 from .composite import DEFAULT_MODE
@@ -284,9 +284,12 @@ def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
     import shutil
     import tempfile
 
-    out.parent.mkdir(parents=True, exist_ok=True)
-    clean_stale_temps(out.parent, out.name)  # a killed run's folder
-    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(out.name), suffix=".tmp", dir=out.parent))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        clean_stale_temps(out.parent, out.name)  # a killed run's folder
+        tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(out.name), suffix=".tmp", dir=out.parent))
+    except OSError as exc:
+        raise OutputError(f"cannot write {out}: {os_reason(exc)}") from exc
     try:
         for i, f in enumerate(tqdm(files, desc="filter", unit="frame", disable=not progress)):
             rgb = first if i == 0 else _read_rgb8(f)
@@ -295,9 +298,12 @@ def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
             if not out.is_dir() or any(out.iterdir()):
                 raise InputError(f"{out}: exists and is not an empty folder; choose another output")
             out.rmdir()
+        os.chmod(tmp, dir_mode())  # (mkdtemp's 0700 would survive the rename)
         os.replace(tmp, out)
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError):  # a frame's OutputError names the temporary folder: name the output
+            raise OutputError(f"cannot write {out}: {os_reason(exc.__cause__ or exc)}") from exc
         raise
 
 

@@ -90,3 +90,128 @@ def test_negative_numbers_are_values_not_flags():
                                             "--rotate=-3,0,0", "--quiet", "x"]
     assert negative_values_joined(["--", "--light", "-1"]) == ["--", "--light", "-1"]  # after --: untouched
     assert negative_values_joined(["-h"]) == ["-h"] and negative_values_joined(["--light", "-x"]) == ["--light", "-x"]
+
+
+def _in_small_mount(folder, cmd, *, size="64k", read_only=False):
+    """Run ``cmd`` with a fresh tmpfs of ``size`` (read-only with ``read_only``) mounted on
+    ``folder``, in a user and mount namespace of its own (no root needed); None when this system
+    does not allow that (then the caller skips)."""
+    import shlex
+    import shutil
+
+    unshare = shutil.which("unshare")
+    if unshare is None:
+        return None
+    opts = f"size={size}" + (",ro" if read_only else "")
+    script = f"mount -t tmpfs -o {opts} tmpfs {shlex.quote(str(folder))} || exit 97; exec {shlex.join(map(str, cmd))}"
+    r = subprocess.run([unshare, "-rm", "sh", "-c", script], capture_output=True, text=True, timeout=180)
+    return None if r.returncode == 97 or "unshare failed" in r.stderr else r
+
+
+def test_an_output_that_cannot_be_written_is_one_clear_line(small_bundle, small_capture, tmp_path, capsys,
+                                                            monkeypatch):
+    """Writes the system refuses (a file size limit: the same path as a full disk) are
+    `relight: error: cannot write PATH: <reason>` and status 2, no traceback, nothing left
+    behind; a capture whose output folder has not the room for the bundle says so before the
+    long part, with the sizes."""
+    render = [sys.executable, "-m", "relight", "render", str(small_bundle.path), "--env", "builtin:window", "-o"]
+    full, ro = tmp_path / "full", tmp_path / "ro"
+    full.mkdir()
+    ro.mkdir()
+    # a file system with 64 kB (the EXR is larger), and a read-only one
+    r = _in_small_mount(full, render + [str(full / "out.exr")])
+    if r is None:
+        pytest.skip("no user/mount namespaces here (unshare -rm) to mount a small file system in")
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.strip() == f"relight: error: cannot write {full / 'out.exr'}: no space left on device", r.stderr
+    r = _in_small_mount(ro, render + [str(ro / "out.png")], read_only=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"relight: error: cannot write {ro / 'out.png'}: read-only file system" in r.stderr, r.stderr
+    capture = [sys.executable, "-m", "relight", "capture", str(small_capture[0].video), "-o", str(full / "b.bundle")]
+    r = _in_small_mount(full, capture)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "cannot write" in r.stderr and "no space left on device" in r.stderr and "MB free" in r.stderr, r.stderr
+    assert not any(full.iterdir()) and not any(ro.iterdir())  # (the mounts are gone; nothing left under them)
+    # a capture is refused before its long part when the folder lacks the room (checked free space)
+    import shutil
+
+    from relight.imageio import check_free_space
+
+    real = shutil.disk_usage
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: real(p)._replace(free=3_000_000))
+    with pytest.raises(OSError, match="no space left on device .*3.0 MB free"):
+        check_free_space(tmp_path / "b.bundle", 23_000_000, "the bundle")
+    assert main(["render", str(small_bundle.path), "--env", "builtin:window", "-o",
+                 str(tmp_path / "x" / "y.png")]) == 0  # (a missing folder is made)
+
+
+def test_files_are_owner_only_for_bundles_and_follow_the_umask_otherwise(small_capture, tmp_path, capsys):
+    """A bundle (a person's face) is 0600 unless widened with --file-mode; images, videos and
+    reports get 0666 less the umask, as other tools' files (0644 under 022, 0640 under 027)."""
+    import os
+    import stat
+
+    from relight.kernels.bundle import write_bundle
+    from relight.imageio import write_image
+
+    res, _ = small_capture
+    old = os.umask(0o027)
+    try:
+        png = write_image(tmp_path / "a.png", np.zeros((4, 4, 3), np.uint8))
+        assert stat.S_IMODE(png.stat().st_mode) == 0o640
+        os.umask(0o022)
+        png = write_image(tmp_path / "a.png", np.zeros((4, 4, 3), np.uint8))
+        assert stat.S_IMODE(png.stat().st_mode) == 0o644
+        bundle = tmp_path / "b.bundle"
+        assert main(["capture", str(res.video), "-o", str(bundle), "--quiet", "--report", str(tmp_path / "rep")]) == 0
+        assert stat.S_IMODE(bundle.stat().st_mode) == 0o600
+        assert stat.S_IMODE((tmp_path / "rep" / "report.json").stat().st_mode) == 0o644
+        from relight import load_bundle
+
+        b = load_bundle(bundle)
+        wide = write_bundle(tmp_path / "c.bundle", b.meta, dict(b.arrays), mode=0o640)
+        assert stat.S_IMODE(wide.stat().st_mode) == 0o640
+        assert "timings" not in b.meta  # run facts are the report's: the same input, the same bundle
+        again = tmp_path / "again.bundle"
+        assert main(["capture", str(res.video), "-o", str(again), "--quiet", "--file-mode", "644"]) == 0
+        assert stat.S_IMODE(again.stat().st_mode) == 0o644
+        assert again.read_bytes() == bundle.read_bytes()
+        with pytest.raises(SystemExit):
+            main(["capture", str(res.video), "-o", str(again), "--file-mode", "400"])
+    finally:
+        os.umask(old)
+
+
+def test_kernels_build_without_compiler_messages_and_verbose_shows_them(tmp_path):
+    """Every OpenCL program builds with no compiler output on this CPU (a fresh PoCL cache; the
+    kernels' own warnings were a PyOpenCL CompilerWarning at every start); --verbose turns
+    pyopencl's compiler output on for whatever PoCL says."""
+    import os
+
+    code = ("import warnings; warnings.simplefilter('error')\n"
+            "from relight.kernels.runtime import build_program\n"
+            "for name, opts in [('composite', ('-cl-denorms-are-zero',)), ('reflectance', ()),\n"
+            "                   ('reflectance', ('-DUSE_SPLINE=1', '-DSPLINE_ROOT25=1')),\n"
+            "                   ('recipe', ('-cl-denorms-are-zero',)), ('horizon', ()), ('synth_shade', ('-DMAX_OUT=8',)),\n"
+            "                   ('relight', ('-cl-denorms-are-zero',)), ('sensor', ())]:\n"
+            "    build_program(name, opts)\n"
+            "print('built')\n")
+    env = dict(os.environ, POCL_CACHE_DIR=str(tmp_path / "pocl"), PYOPENCL_COMPILER_OUTPUT="1")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0 and "built" in r.stdout and "warning" not in r.stderr.lower(), r.stderr[-2000:]
+    from relight.cli import set_verbose
+    from relight.kernels.runtime import VERBOSE_ENV, compiler_output_wanted
+
+    saved = {k: os.environ.get(k) for k in (VERBOSE_ENV, "PYOPENCL_COMPILER_OUTPUT")}
+    try:
+        for k in saved:
+            os.environ.pop(k, None)
+        assert not compiler_output_wanted()
+        set_verbose(True)
+        assert compiler_output_wanted() and os.environ["PYOPENCL_COMPILER_OUTPUT"] == "1"
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
