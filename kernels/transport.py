@@ -168,12 +168,17 @@ def point_light(direction, map_size, texels: np.ndarray) -> np.ndarray:
 
 
 def split_direct(lp: np.ndarray, n: int = DIRECT_TEXELS) -> tuple[np.ndarray, np.ndarray]:
-    """(indices of the n brightest texels of Lp, Lp with them removed)."""
+    """(indices of the n brightest texels of Lp, ascending, Lp with them removed). Ties at the
+    n-th brightest value go to the lower texel index: the choice (and so the result's rounding)
+    is the same on every CPU - NumPy's partition breaks ties by its SIMD sort, which differs
+    between AVX2 and AVX-512 machines (a uniform light is all ties)."""
     if n <= 0 or not lp.size:
         return np.zeros(0, dtype=np.int64), lp
     lum = luminance(lp.astype(np.float32))
     n = min(n, lp.shape[0])
-    top = np.argpartition(lum, -n)[-n:]
+    nth = lum[np.argpartition(lum, -n)[-n]]  # the n-th brightest value: one value, whatever the sort
+    above = np.flatnonzero(lum > nth)
+    top = np.union1d(above, np.flatnonzero(lum == nth)[:n - above.size])
     top = top[lum[top] > 0]
     rest = lp.copy()
     rest[top] = 0.0

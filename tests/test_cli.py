@@ -151,8 +151,8 @@ def test_files_are_owner_only_for_bundles_and_follow_the_umask_otherwise(small_c
     import os
     import stat
 
-    from relight.kernels.bundle import write_bundle
     from relight.imageio import write_image
+    from relight.kernels.bundle import write_bundle
 
     res, _ = small_capture
     old = os.umask(0o027)
@@ -192,7 +192,8 @@ def test_kernels_build_without_compiler_messages_and_verbose_shows_them(tmp_path
             "from relight.kernels.runtime import build_program\n"
             "for name, opts in [('composite', ('-cl-denorms-are-zero',)), ('reflectance', ()),\n"
             "                   ('reflectance', ('-DUSE_SPLINE=1', '-DSPLINE_ROOT25=1')),\n"
-            "                   ('recipe', ('-cl-denorms-are-zero',)), ('horizon', ()), ('synth_shade', ('-DMAX_OUT=8',)),\n"
+            "                   ('recipe', ('-cl-denorms-are-zero',)), ('horizon', ()),\n"
+            "                   ('synth_shade', ('-DMAX_OUT=8',)),\n"
             "                   ('relight', ('-cl-denorms-are-zero',)), ('sensor', ())]:\n"
             "    build_program(name, opts)\n"
             "print('built')\n")

@@ -158,13 +158,14 @@ def test_a_relight_not_waited_for_gives_the_same_frame_after_sync(relighters):
     compact.sync()  # nothing pending: a no-op
 
 
-def test_a_light_relit_without_exact_texels_makes_no_texel_rows(relighters):
+def test_a_light_relit_without_exact_texels_makes_no_texel_rows(relighters, small_bundle):
     """relight_texels(direct=0) (the frame path's live light): the low-rank part alone, no
     recipe row made, within the Relighter's tolerance of the exact path; the row cache holds
     as many rows as its byte budget allows."""
     from relight.kernels.relighter import ROW_SLOTS_RANGE, row_slots
 
-    compact, exact = relighters
+    _, exact = relighters
+    compact = Relighter(small_bundle)  # its own row cache: no row of another test's light in it
     assert compact.row_cache is not None  # a format-4 (recipe) bundle
     lp = np.zeros((compact.texels.size, 3))
     lp[np.argsort(compact.texels)[len(lp) // 3]] = 0.2  # one sharp light
