@@ -37,6 +37,10 @@ from relight.errors import InputError
 from .colour import LUMINANCE, srgb_to_linear
 from .numerics import EPS, FLOAT
 
+#: BT.709's OETF as published (ITU-R BT.709-6 item 1.2: 1.099 L^0.45 - 0.099 above 0.018, 4.5 L
+#: below), as FFmpeg and colour-science have it (BT.2020's 1.0993 / 0.0181 are its 12-bit values).
+BT709_ALPHA = 1.099
+BT709_BETA = 0.018
 #: BT.2408 reference white: HLG signal 0.75; PQ 203 cd/m^2.
 HLG_REFERENCE_SIGNAL = 0.75
 PQ_REFERENCE_NITS = 203.0
@@ -154,9 +158,10 @@ def to_linear(encoded: np.ndarray, transfer: str) -> np.ndarray:
     e = np.clip(np.asarray(encoded, dtype=np.float64), 0.0, 1.0)
     if transfer == "srgb":
         return srgb_to_linear(e).astype(np.float64)
-    if transfer == "bt709":
-        return np.where(e < 4.5 * 0.018053968510807, e / 4.5, ((e + 0.099296826809444) / 1.099296826809444)
-                        ** (1.0 / 0.45))
+    if transfer == "bt709":  # the camera OETF's inverse, with BT.709's published constants
+        a, b = BT709_ALPHA, BT709_BETA
+        knee = a * b ** 0.45 - (a - 1.0)  # the OETF's upper branch at b (0.0812: the rounded constants leave a step)
+        return np.where(e < knee, e / 4.5, ((e + (a - 1.0)) / a) ** (1.0 / 0.45))
     if transfer == "gamma22":
         return e ** 2.2
     if transfer == "gamma28":
@@ -182,7 +187,8 @@ def from_linear(linear: np.ndarray, transfer: str) -> np.ndarray:
         return np.where(x <= 0.0031308, x * 12.92, 1.055 * x ** (1.0 / 2.4) - 0.055)
     if transfer == "bt709":
         x = np.minimum(x, 1.0)
-        return np.where(x < 0.018053968510807, 4.5 * x, 1.099296826809444 * x ** 0.45 - 0.099296826809444)
+        a, b = BT709_ALPHA, BT709_BETA
+        return np.where(x < b, 4.5 * x, a * x ** 0.45 - (a - 1.0))
     if transfer in ("gamma22", "gamma28"):
         return np.minimum(x, 1.0) ** (1.0 / (2.2 if transfer == "gamma22" else 2.8))
     if transfer == "linear":

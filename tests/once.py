@@ -10,6 +10,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 
+#: A folder for the shared test data that outlives one pytest run (else each run makes its own).
+SHARED_ENV = "RELIGHT_TEST_SHARED"
+
+
 def made_once(tmp_path_factory, name: str, make: Callable[[Path], None]) -> Path:
     """A folder ``name`` that ``make(folder)`` fills, made once per test run: under pytest-xdist
     the workers share it (the first one makes it while holding a lock, the others wait and
@@ -17,6 +21,9 @@ def made_once(tmp_path_factory, name: str, make: Callable[[Path], None]) -> Path
     base = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         base = base.parent  # the run's folder, above each worker's own
+    if os.environ.get(SHARED_ENV):  # kept across runs (make test-cpus: made natively, used emulated)
+        base = Path(os.environ[SHARED_ENV])
+        base.mkdir(parents=True, exist_ok=True)
     folder = base / f"shared-{name}"
     with open(base / f"shared-{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)

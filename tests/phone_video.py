@@ -4,6 +4,13 @@
 phone's codec, bit depth, colour tags, display rotation and frame timing, computing the
 Y'CbCr codes itself from linear light (so the file holds exactly what its tags claim).
 :func:`renumbered_truth` gives the matching truth when frames were dropped.
+
+The encoder is the independent reference of relight's decoder (:mod:`relight.video_colour`):
+its curves, primaries and Y'CbCr come from colour-science (BT.2100 HLG and PQ, BT.709,
+IEC 61966-2-1 sRGB, the BT.709/BT.2020/Display P3 colourspaces, ITU-R Y'CbCr weights and
+code ranges), none from relight. The light it encodes is the synthetic camera's linear light,
+scene-referred as BT.2100 has an HLG camera record it (the OETF), reference white (sRGB's 1.0)
+at BT.2408's 75 % HLG signal and at 203 cd/m^2 in PQ.
 """
 
 from __future__ import annotations
@@ -16,33 +23,66 @@ import numpy as np
 
 from relight.colour import decode_srgb8
 from relight.video import read_frames
-from relight.video_colour import MATRICES, VideoColour, code_scale, from_linear, primaries_to_rec709
+from relight.video_colour import VideoColour
 
 #: FFmpeg's enum values for the tags written.
 _MATRIX_TAG = {"bt709": 1, "bt601": 6, "bt2020": 9}
 _PRIMARY_TAG = {"bt709": 1, "bt2020": 9, "p3": 12}
 _TRANSFER_TAG = {"srgb": 13, "bt709": 1, "hlg": 18, "pq": 16}
+#: colour-science's names of the matrices (Kr, Kb weights) and colourspaces (primaries, D65).
+_WEIGHTS = {"bt709": "ITU-R BT.709", "bt601": "ITU-R BT.601", "bt2020": "ITU-R BT.2020"}
+_SPACES = {"bt709": "ITU-R BT.709", "bt2020": "ITU-R BT.2020", "p3": "Display P3"}
+#: BT.2408's reference white: HLG signal 0.75, PQ 203 cd/m^2.
+HLG_REFERENCE_SIGNAL = 0.75
+PQ_REFERENCE_NITS = 203.0
+
+
+def encode_signal(linear: np.ndarray, transfer: str) -> np.ndarray:
+    """Linear light (reference white 1.0) -> the transfer curve's 0-1 signal, by colour-science."""
+    import colour
+
+    x = np.maximum(np.asarray(linear, dtype=np.float64), 0.0)
+    if transfer == "linear":
+        return np.minimum(x, 1.0)
+    if transfer == "srgb":
+        return colour.models.eotf_inverse_sRGB(np.minimum(x, 1.0))
+    if transfer == "bt709":
+        return colour.models.oetf_BT709(np.minimum(x, 1.0))
+    if transfer == "hlg":
+        white = colour.models.oetf_inverse_BT2100_HLG(HLG_REFERENCE_SIGNAL)  # scene light of reference white
+        with np.errstate(invalid="ignore", divide="ignore"):  # (both of its branches are evaluated everywhere)
+            return colour.models.oetf_BT2100_HLG(np.minimum(x * white, 1.0))
+    if transfer == "pq":
+        return colour.models.eotf_inverse_BT2100_PQ(np.minimum(x * PQ_REFERENCE_NITS, 10000.0))
+    raise ValueError(f"no reference encoder for the {transfer!r} curve")
 
 
 def linear_to_codes(linear: np.ndarray, colour: VideoColour, *,
                     subsample: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Linear Rec.709 (h, w, 3) -> Y, Cb, Cr code planes of ``colour`` (4:2:0 chroma as 2x2
     means, or 4:4:4 without ``subsample``)."""
-    rgb = linear.reshape(-1, 3).astype(np.float64) @ np.linalg.inv(primaries_to_rec709(colour.primaries)).T
-    sig = from_linear(np.maximum(rgb, 0.0), colour.transfer).reshape(linear.shape)
-    kr, kb = MATRICES[colour.matrix]
-    yy = kr * sig[..., 0] + (1 - kr - kb) * sig[..., 1] + kb * sig[..., 2]
-    cb = (sig[..., 2] - yy) / (2 * (1 - kb))
-    cr = (sig[..., 0] - yy) / (2 * (1 - kr))
+    import colour as cs
+
+    rgb = cs.RGB_to_RGB(np.asarray(linear, dtype=np.float64), cs.RGB_COLOURSPACES["ITU-R BT.709"],
+                        cs.RGB_COLOURSPACES[_SPACES[colour.primaries]])
+    from colour.models.rgb.ycbcr import ranges_YCbCr
+
+    sig = encode_signal(np.maximum(rgb, 0.0), colour.transfer)
+    legal = not colour.full_range
+    ycc = cs.RGB_to_YCbCr(sig, K=cs.WEIGHTS_YCBCR[_WEIGHTS[colour.matrix]], out_bits=colour.bits, out_legal=legal,
+                          out_int=False)
+    # colour-science's float code values -> its integer code scale (unrounded: 4:2:0 chroma is
+    # averaged first, rounded once)
+    f, i = ranges_YCbCr(colour.bits, legal, False), ranges_YCbCr(colour.bits, legal, True)
+    yy = i[0] + (ycc[..., 0] - f[0]) * (i[1] - i[0]) / (f[1] - f[0])
+    cb, cr = (i[2] + (ycc[..., k] - f[2]) * (i[3] - i[2]) / (f[3] - f[2]) for k in (1, 2))
     h, w = yy.shape
     if subsample:
         cb = cb.reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3))
         cr = cr.reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3))
-    y0, ys, c0, cs = code_scale(colour)
     top = (1 << colour.bits) - 1
     dtype = np.uint8 if colour.bits == 8 else np.uint16
-    return tuple(np.clip(np.round(p), 0, top).astype(dtype)
-                 for p in (y0 + ys * yy, c0 + cs * cb, c0 + cs * cr))
+    return tuple(np.clip(np.round(p), 0, top).astype(dtype) for p in (yy, cb, cr))
 
 
 def encode_like_phone(src, dst, colour: VideoColour, *, codec: str = "libx265", rotation: int = 0,
