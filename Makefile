@@ -62,7 +62,8 @@ test-all: $(STAMP)
 # emulator NumPy keeps to its baseline code (QEMU 7.2 mis-runs its AVX2 sort: a segfault, not a
 # PoCL matter). ~10 min per CPU.
 CPU_MODELS ?= Haswell-v4 Nehalem
-CPU_TESTS := tests/test_kernels.py tests/test_recipe.py tests/test_reflectance.py tests/test_relight.py tests/test_spline.py
+CPU_TESTS := tests/test_kernels.py tests/test_recipe.py tests/test_reflectance.py tests/test_relight.py tests/test_spline.py \
+	tests/test_bundle.py
 CPU_SHARED := build/test-cpus/shared
 test-cpus: $(STAMP)
 	@command -v qemu-x86_64 >/dev/null 2>&1 || { echo "test-cpus: qemu-x86_64 is missing: make install-system (Debian's qemu-user)" >&2; exit 1; }
