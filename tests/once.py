@@ -9,7 +9,6 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-
 #: A folder for the shared test data that outlives one pytest run (else each run makes its own).
 SHARED_ENV = "RELIGHT_TEST_SHARED"
 
