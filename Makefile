@@ -60,21 +60,25 @@ test-all: $(STAMP)
 # Haswell (AVX2 + FMA: PoCL's avx2 library) and Nehalem (SSE4.2, no AVX or FMA: its sse41 library,
 # the oldest NumPy's wheels run on). The shared test data are made natively first; under the
 # emulator NumPy keeps to its baseline code (QEMU 7.2 mis-runs its AVX2 sort: a segfault, not a
-# PoCL matter). ~10 min per CPU.
+# PoCL matter). ~4 min per CPU on 2 cores. Skips, saying so, without qemu-x86_64.
 CPU_MODELS ?= Haswell-v4 Nehalem
 CPU_TESTS := tests/test_kernels.py tests/test_recipe.py tests/test_reflectance.py tests/test_relight.py tests/test_spline.py \
 	tests/test_bundle.py
 CPU_SHARED := build/test-cpus/shared
 test-cpus: $(STAMP)
-	@command -v qemu-x86_64 >/dev/null 2>&1 || { echo "test-cpus: qemu-x86_64 is missing: make install-system (Debian's qemu-user)" >&2; exit 1; }
-	rm -rf build/test-cpus && mkdir -p $(CPU_SHARED)
-	RELIGHT_TEST_SHARED=$(CURDIR)/$(CPU_SHARED) $(PYTEST) -q $(CPU_TESTS)
-	@for cpu in $(CPU_MODELS); do \
+	@if ! command -v qemu-x86_64 >/dev/null 2>&1; then \
+	  echo "test-cpus: SKIPPED - qemu-x86_64 is missing: make install-system (Debian's qemu-user) as root" >&2; \
+	  exit 0; \
+	fi; \
+	set -e; rm -rf build/test-cpus && mkdir -p $(CPU_SHARED); \
+	echo "== the kernels' tests natively (the shared test data made here)"; \
+	RELIGHT_TEST_SHARED=$(CURDIR)/$(CPU_SHARED) $(PYTEST) -q $(CPU_TESTS); \
+	for cpu in $(CPU_MODELS); do \
 	  echo "== the kernels' tests on an emulated $$cpu"; \
 	  RELIGHT_TEST_SHARED=$(CURDIR)/$(CPU_SHARED) POCL_CACHE_DIR=$(CURDIR)/build/test-cpus/pocl-$$cpu \
 	  NPY_DISABLE_CPU_FEATURES="X86_V3 X86_V4 AVX512_ICL AVX512_SPR" \
 	  qemu-x86_64 -cpu $$cpu $(BIN)/python -W ignore::ImportWarning -m pytest -q -p no:cacheprovider -p no:xdist \
-	    $(CPU_TESTS) 2> >(grep -v "^qemu-x86_64: warning: TCG doesn't support" >&2) || exit 1; \
+	    $(CPU_TESTS) 2> >(grep -v "^qemu-x86_64: warning: TCG doesn't support" >&2); \
 	done
 
 # ruff, then the architecture's import contracts ([tool.importlinter] in pyproject.toml). The
