@@ -140,7 +140,15 @@ def check_meta(meta, where: str = "bundle") -> dict:
     scale = meta.get("sample_scale", 1.0)
     if not (isinstance(scale, int | float) and not isinstance(scale, bool) and np.isfinite(scale) and scale > 0):
         raise InputError(f"{where}: meta 'sample_scale' is {scale!r}, not a positive number; capture it again")
+    direct = meta.get("transport_direct", 0)
+    if not (isinstance(direct, int) and not isinstance(direct, bool) and 0 <= direct <= MAX_DIRECT_TEXELS):
+        raise InputError(f"{where}: meta 'transport_direct' is {direct!r}, not a whole number in [0, "
+                         f"{MAX_DIRECT_TEXELS}]; the bundle is corrupt: capture it again")
     return meta
+
+
+#: Most exact texels a bundle may ask the compact path for (its kernel's direct rows; captures use 8).
+MAX_DIRECT_TEXELS = 64
 
 
 #: Bundles store samples and maps as float16 (largest 65504, smallest normal 6.1e-5): samples

@@ -131,8 +131,9 @@ def test_the_meta_schema_is_checked_on_write_and_on_load(tmp_path):
     import zlib
 
     for bad in ({**META, "frame_size": [40]}, {k: v for k, v in META.items() if k != "map_size"},
-                {**META, "crop_origin": [-1, 0]}, {**META, "sample_scale": float("nan")}):
-        with pytest.raises(InputError, match="meta '(frame_size|map_size|crop_origin|sample_scale)'"):
+                {**META, "crop_origin": [-1, 0]}, {**META, "sample_scale": float("nan")},
+                {**META, "transport_direct": "x"}, {**META, "transport_direct": 10 ** 9}):
+        with pytest.raises(InputError, match="meta '(frame_size|map_size|crop_origin|sample_scale|transport_direct)'"):
             write_bundle(tmp_path / "bad.bundle", bad, _arrays())
     assert not (tmp_path / "bad.bundle").exists()
     path = write_bundle(tmp_path / "ok.bundle", META, _arrays())
