@@ -136,14 +136,11 @@ class MapProblem:
 
 @dataclass
 class RenderProblem:
-    """One relight of the variant's bundle: env (H, 2H, 3) float32 radiance, a linear exposure.
-    ``capture``: None (the baseline scene's bundle), or the :class:`MapProblem` whose samples the
-    bundle is captured from (the whole capture: fits, maps, transport, storage)."""
+    """One relight of the variant's bundle: env (H, 2H, 3) float32 radiance, a linear exposure."""
 
     label: str
     env: np.ndarray
     exposure: float = 1.0
-    capture: MapProblem | None = None
 
 
 @dataclass
@@ -312,11 +309,7 @@ def _unseen_lobe(head: Head) -> list:
     s = shade(head, dirs, n)
     noise = np.where(edge[None, :, None], 0.6, 0.05) * rng.standard_normal(s.shape)
     s = np.clip(s * (1.0 + noise) + 0.003 * rng.random(s.shape), 0.0, None).astype(np.float32)
-    prob = _problem(head, "normals 0.6 deg from the image plane, noisy samples", dirs, normals=n, samples=s)
-    from relight.envmap import load_environment
-
-    return [prob, RenderProblem("its bundle under the studio environment", load_environment("builtin:studio"),
-                                capture=prob)]
+    return [_problem(head, "normals 0.6 deg from the image plane, noisy samples", dirs, normals=n, samples=s)]
 
 
 def _sun_environment(sky: float = 1.0, ratio: float = 1e5, direction=(0.3, 0.4, 0.87)) -> np.ndarray:
@@ -363,8 +356,7 @@ CASES: dict[str, Case] = {c.name: c for c in [
     Case("degenerate_hull", "all samples on one great circle; only 3 and 4 samples", _degenerate_hull),
     Case("saturated", "most samples clipped at 1.0 (clipped flags to geometry); a fully saturated pixel",
          _saturated),
-    Case("unseen_lobe", "normals 0.6 deg from the image plane (specular lobe unseen), noisy; captured to a bundle",
-         _unseen_lobe),
+    Case("unseen_lobe", "normals 0.6 deg from the image plane (specular lobe unseen), noisy samples", _unseen_lobe),
     Case("sun_1e5", "render: uniform sky + a 1-degree sun 1e5x brighter (exact and compact paths)", _sun),
     Case("exposure_extremes", "samples x1e-6 and x1e6 through the map builders; renders at exposure 2^-20, 2^+20",
          _exposure),
@@ -474,18 +466,17 @@ class BundleCache:
         self.head, self.map_size, self.folder = head, tuple(map_size), Path(folder)
         self.bundles: dict[str, object] = {}
 
-    def get(self, variant: str, problem: MapProblem | None = None):
-        """The variant's bundle of ``problem``'s samples (None: the baseline's)."""
-        key = (variant, None if problem is None else problem.label)
-        if key not in self.bundles:
-            self.bundles[key] = self._build(variant, problem or self.head.baseline(), len(self.bundles))
-        return self.bundles[key]
+    def get(self, variant: str):
+        if variant not in self.bundles:
+            self.bundles[variant] = self._build(variant)
+        return self.bundles[variant]
 
-    def _build(self, variant: str, base: MapProblem, number: int):
+    def _build(self, variant: str):
         from relight.kernels.bundle import load_bundle, write_bundle
         from relight.pipeline.capture import CaptureOptions, Prepared, Progress, finish
 
         head = self.head
+        base = head.baseline()
         k, (h, w) = len(base.dirs), head.mask.shape
         pix = np.flatnonzero(head.mask)
         images = np.zeros((k, h * w, 3), dtype=np.float32)
@@ -497,7 +488,7 @@ class BundleCache:
                         frame_size=(w, h), face_local=None, mask=head.mask.copy(), meta={"kind": "stability"})
         opts = CaptureOptions(**VARIANTS[variant], map_size=self.map_size)
         arrays, meta, _, _ = finish(prep, opts, Progress(False), {})
-        path = self.folder / f"{variant.replace(' ', '_')}-{number}.bundle"
+        path = self.folder / f"{variant.replace(' ', '_')}.bundle"
         write_bundle(path, meta, arrays)
         return load_bundle(path)
 
@@ -530,7 +521,7 @@ def _produce(prob, variant: str, map_size, bundles: BundleCache | None, clock: l
     if isinstance(prob, RenderProblem):
         if bundles is None:
             raise ValueError("render problems need a BundleCache")
-        bundle = bundles.get(variant, prob.capture)  # built once per variant and scene: not timed
+        bundle = bundles.get(variant)  # built once per variant: not timed
         t0 = time.perf_counter()
         try:
             frames, relighter = render_production(prob, bundle)
