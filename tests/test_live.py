@@ -74,7 +74,7 @@ def test_a_file_as_camera_is_relit_recorded_previewed_switched_and_stopped(small
     assert [s["env"] for s in doc["switches"]] == ["builtin:window"]
     # Frames in at the file's own rate (30 fps), nearly all relit (latest wins: a few may drop).
     rate = probe_video(live_clip).fps
-    assert doc["fps_in"] == pytest.approx(rate, rel=LIVE_RATE_SHARE)
+    assert LIVE_FRAME_SHARE * rate <= doc["fps_in"] <= (1 + LIVE_RATE_SHARE) * rate
     assert doc["frames_relit"] >= LIVE_FRAME_SHARE * doc["frames_in"]
     assert doc["faces"] >= LIVE_FRAME_SHARE * doc["frames_relit"]
     assert doc["frames_relit"] + doc["dropped"] <= doc["frames_in"]

@@ -280,7 +280,9 @@ SPLINE_GAIN = 0.5
 OUTSIDE_FACE_SHARE = 0.03
 
 # relight live (tests/test_live.py)
-#: A file played as the camera arrives at its own rate within this share (startup, scheduling).
+#: A file played as the camera arrives at its own rate: never faster than this share above it
+#: (startup, scheduling), and never below LIVE_FRAME_SHARE of it (a reader the busy cores slow -
+#: in a fresh clone's `make test` the other worker's captures took it to 26.9 of 30 fps).
 LIVE_RATE_SHARE = 0.1
 #: Shares of frames that must come through: relit of those read (latest wins: frames drop when
 #: the cores are busy - in `make test` another worker shares them: 74 % relit was seen), with a
