@@ -122,3 +122,40 @@ def test_sensor_matches_numpy():
     # Saturation: values above full scale clip to 255, below zero to 0.
     assert kern.expose(np.full((90, 160, 3), 5.0, np.float32), np.ones(3), 0.0, 0.0, None).min() == 255
     assert kern.expose(np.full((90, 160, 3), -1.0, np.float32), np.ones(3), 0.0, 0.0, None).max() == 0
+
+
+def test_pixel_major_halves_are_numpys_float16_bit_for_bit():
+    """The maps kernel's own float -> half conversion (integer ops: no library call on a 16-wide
+    vector) rounds as NumPy's float16 (IEEE round to nearest even) for every kind of value:
+    ties, subnormal halves, the overflow edge, infinities and NaN; the padding texels are 0."""
+    import pyopencl as cl
+
+    from relight.kernels.runtime import aligned_zeros, build_program, get_runtime
+
+    rng = np.random.default_rng(4)
+    halves = rng.integers(0, 1 << 16, 4000, dtype=np.uint16).view(np.float16).astype(np.float32)
+    ties = (np.arange(1, 2000, dtype=np.float32) * 2.0 ** -11 + 2.0 ** -12) * rng.choice([1, 64, 2.0 ** -14], 1999)
+    special = np.array([0.0, -0.0, 65504.0, 65519.99, 65520.0, 1e9, -1e9, np.inf, -np.inf, np.nan, 2.0 ** -25,
+                        2.0 ** -24, 3 * 2.0 ** -26, 5.96e-8, 6.1e-5, 1e-40], np.float32)
+    vals = np.concatenate([halves, ties.astype(np.float32), special, rng.normal(0, 3, 3000).astype(np.float32)])
+    n_pix, n_active = 64, 37  # 37 texels: the kernel writes 48 per pixel and channel, the last 11 zero
+    vals = np.resize(vals, (-(-vals.size // (n_active * 3 * n_pix))) * n_active * 3 * n_pix)
+    rt = get_runtime()
+    kernel = cl.Kernel(build_program("reflectance", ()), "pixel_major_f16")
+    mf = cl.mem_flags
+    t_pad = 48
+    for block in vals.reshape(-1, n_active, 3, n_pix):
+        src = np.ascontiguousarray(block)
+        out = aligned_zeros((n_pix, 3, t_pad), np.float16)
+        b_in = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=src)
+        b_out = cl.Buffer(rt.context, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=out)
+        kernel(rt.queue, (n_pix, t_pad // 16, 3), None, b_in, np.int32(n_active), np.int32(n_pix), np.int32(0),
+               np.int32(t_pad), b_out)
+        got, _ = cl.enqueue_map_buffer(rt.queue, b_out, cl.map_flags.READ, 0, out.shape, out.dtype)
+        with np.errstate(over="ignore"):
+            want = src.transpose(2, 1, 0).astype(np.float16)
+        got = np.array(got)
+        nan = np.isnan(want)
+        assert np.array_equal(np.isnan(got[:, :, :n_active]), nan)
+        np.testing.assert_array_equal(got[:, :, :n_active].view(np.uint16)[~nan], want.view(np.uint16)[~nan])
+        assert not got[:, :, n_active:].view(np.uint16).any()
