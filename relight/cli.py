@@ -105,8 +105,20 @@ def _add_synth(sub) -> None:
     p.add_argument("--truth-env", action="append", default=None, metavar="FILE|builtin:NAME",
                    help="environment to render the truth under (repeatable; default: "
                         + ", ".join(DEFAULT_TRUTH_ENVS) + ")")
-    p.add_argument("--head-motion", type=float, default=d.head_motion,
+    p.add_argument("--head-motion", "--head", dest="head_motion", type=float, default=d.head_motion,
                    help="head motion, times the paper's limits (3 px at 540 rows, 0.35 deg); 0 = still")
+    p.add_argument("--head-mesh", metavar="FILE",
+                   help="a textured head mesh (.glb/.gltf/.obj/.ply, +Y up, facing +Z) instead of the procedural "
+                        "head; its face is placed and sized as the procedural face")
+    p.add_argument("--head-texture", metavar="FILE",
+                   help="with --head-mesh: its colour map (used as albedo), when the mesh does not embed one")
+    p.add_argument("--head-normal-map", metavar="FILE",
+                   help="with --head-mesh: a tangent-space normal map (OpenGL convention: green toward +v)")
+    p.add_argument("--head-specular-map", metavar="FILE",
+                   help="with --head-mesh: a grey specular map (white: the oiliest skin)")
+    p.add_argument("--head-texture-flip", action="store_true",
+                   help="with --head-mesh: its images are stored the other way up from its texture coordinates "
+                        "(texture coordinates count v up from the bottom row, as OBJ and trimesh do)")
     p.add_argument("--ambient", type=float, default=d.ambient, help="room light strength, times the default")
     p.add_argument("--noise", type=float, default=d.noise, help="sensor noise, times the default; 0 = none")
     p.add_argument("--camera-drift", action="store_true",
@@ -125,6 +137,12 @@ def _add_synth(sub) -> None:
     p.set_defaults(func=_run_synth)
 
 
+def _head_mesh_args(args) -> dict:
+    """The --head-mesh flags as SynthConfig / LiveConfig fields."""
+    return {"head_mesh": args.head_mesh, "head_texture": args.head_texture, "head_normal_map": args.head_normal_map,
+            "head_specular_map": args.head_specular_map, "head_texture_flip": args.head_texture_flip}
+
+
 def _run_synth(args) -> int:
     from .errors import InputError
 
@@ -140,7 +158,7 @@ def _run_synth(args) -> int:
                       head_motion=args.head_motion, ambient=args.ambient, noise=args.noise,
                       camera_drift=args.camera_drift, sparse_sides=args.sparse_sides,
                       truth_envs=tuple(args.truth_env or DEFAULT_TRUTH_ENVS),
-                      crf=d.crf if args.crf is None else args.crf)
+                      crf=d.crf if args.crf is None else args.crf, **_head_mesh_args(args))
     res = synthesize(args.out, cfg, progress=not args.quiet)
     print(f"wrote {res.video} ({res.frame_count} frames, {res.flash_frames} flash frames) and {res.truth}/")
     print("timings: " + ", ".join(f"{k} {v:.1f}s" for k, v in res.timings.items()))

@@ -87,6 +87,14 @@ class SynthConfig:
     sparse_sides: bool = False
     truth_envs: tuple[str, ...] = DEFAULT_TRUTH_ENVS
     crf: int = 16
+    #: A textured head mesh instead of the procedural head (:mod:`.mesh_head`), its colour map when
+    #: not embedded, optional normal and specular maps, and whether its images are stored the
+    #: other way up from its texture coordinates.
+    head_mesh: str | None = None
+    head_texture: str | None = None
+    head_normal_map: str | None = None
+    head_specular_map: str | None = None
+    head_texture_flip: bool = False
 
     def validate(self) -> SynthConfig:
         """Return self, or raise :class:`InputError` naming the setting to change."""
@@ -109,6 +117,8 @@ class SynthConfig:
             raise InputError("--ambient must be > 0: the no-flash frames need some light to track the head")
         if not self.truth_envs:
             raise InputError("give at least one truth environment")
+        if self.head_mesh is None and any((self.head_texture, self.head_normal_map, self.head_specular_map)):
+            raise InputError("--head-texture, --head-normal-map and --head-specular-map go with --head-mesh FILE")
         stems = [environment_stem(e) for e in self.truth_envs]
         if len(set(stems)) != len(stems):
             raise InputError(f"truth environments must have distinct names, got {stems}")
@@ -144,7 +154,16 @@ class Studio:
         self.n = c.frame_count
         self.exposure_time = 0.9 / c.fps
         t0 = time.perf_counter()
-        self.head: Head = build_head(c.width, c.height, c.seed)
+        self.mesh = self.placement = None
+        if c.head_mesh is not None:
+            from .mesh_head import build_mesh_head, load_head_mesh, place_mesh
+
+            self.mesh = load_head_mesh(c.head_mesh, texture=c.head_texture, normal_map=c.head_normal_map,
+                                       specular_map=c.head_specular_map, flip_textures=c.head_texture_flip)
+            self.placement = place_mesh(self.mesh, c.width, c.height)
+            self.head: Head = build_mesh_head(self.mesh, c.width, c.height, placement=self.placement)
+        else:
+            self.head = build_head(c.width, c.height, c.seed)
         self.timings = {"head": time.perf_counter() - t0}
         self.surface = self.head.surface()
         self.shader = LightShader(self.surface)
@@ -441,7 +460,13 @@ def synthesize(out: str | Path, config: SynthConfig = SynthConfig(), *, progress
     write_image(truth / "depth.exr", np.where(head.mask, head.height, 0.0).astype(FLOAT))
     write_image(truth / "albedo.exr", head.albedo)
     with atomic_path(truth / "head.ply") as tmp:
-        height_field_mesh(head.height, head.mask).export(str(tmp), file_type="ply")
+        if studio.mesh is not None:  # the mesh itself, posed as the reference frame shows it
+            import trimesh
+
+            trimesh.Trimesh(studio.placement.project(studio.mesh.vertices), studio.mesh.faces,
+                            process=False).export(str(tmp), file_type="ply")
+        else:
+            height_field_mesh(head.height, head.mask).export(str(tmp), file_type="ply")
     timings["truth_write"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
