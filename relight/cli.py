@@ -182,7 +182,7 @@ def _run_synth_live(args) -> int:
     cfg = LiveConfig(width=args.size[0], height=args.size[1], fps=args.fps,
                      duration=d.duration if args.duration is None else args.duration, seed=args.seed,
                      ambient=args.ambient, noise=args.noise, crf=d.crf if args.crf is None else args.crf,
-                     audio=args.audio)
+                     audio=args.audio, **_head_mesh_args(args))
     res = synthesize_live(args.out, cfg, progress=not args.quiet)
     audio = "no audio" if cfg.audio == "none" else f"{cfg.audio} audio"
     print(f"wrote {res.video} ({res.frame_count} frames, {cfg.width}x{cfg.height} at {cfg.fps:g} fps, {audio}), "

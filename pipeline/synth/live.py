@@ -64,6 +64,7 @@ from relight.numerics import FLOAT
 from relight.video import AUDIO_RATE, VideoWriter
 
 from .head import Head
+from .mesh_render import MeshLiveHead
 from .motion import AUDIO_KINDS, NOISE_RMS, TONE_HZ, TONE_PEAK, head_pose_track, make_audio
 from .render import LiveHead
 from .studio import MAX_SIZE, MIN_SIZE, Studio, SynthConfig
@@ -103,6 +104,12 @@ class LiveConfig:
     noise: float = 1.0
     crf: int = 18
     audio: str = "tone"
+    #: A textured head mesh instead of the procedural head (as :class:`.studio.SynthConfig`'s).
+    head_mesh: str | None = None
+    head_texture: str | None = None
+    head_normal_map: str | None = None
+    head_specular_map: str | None = None
+    head_texture_flip: bool = False
 
     def validate(self) -> LiveConfig:
         """Return self, or raise :class:`InputError` naming the setting to change."""
@@ -167,6 +174,14 @@ def pivot_point(head: Head) -> np.ndarray:
     return np.array([cx, -cy, z], dtype=np.float64)
 
 
+def mesh_pivot(head: Head, points: np.ndarray) -> np.ndarray:
+    """Camera-space pivot of a head mesh: the head centre, halfway in depth between the face's
+    frontmost point and the mesh's back (a real head's middle, where the neck turns it)."""
+    cx, cy = head.center
+    front = float(head.height[head.mask].max())
+    return np.array([cx, -cy, 0.5 * (front + float(points[:, 2].min()))], dtype=np.float64)
+
+
 class LiveScene:
     """One live video's scene: the studio's head, wall and sensor, the mesh head, the motion."""
 
@@ -175,7 +190,10 @@ class LiveScene:
         t0 = time.perf_counter()
         # The static studio of the same seed and size: same head, same wall, same sensor model.
         self.studio = Studio(SynthConfig(width=c.width, height=c.height, seed=c.seed, ambient=c.ambient,
-                                         noise=c.noise, duration=1.0))
+                                         noise=c.noise, duration=1.0, head_mesh=c.head_mesh,
+                                         head_texture=c.head_texture, head_normal_map=c.head_normal_map,
+                                         head_specular_map=c.head_specular_map,
+                                         head_texture_flip=c.head_texture_flip))
         self.head = self.studio.head
         self.timings = {"head": time.perf_counter() - t0}
         seeds = np.random.SeedSequence([c.seed, 0x11FE]).spawn(3)
@@ -185,9 +203,10 @@ class LiveScene:
         self.rotations, self.translations = head_pose_track(
             np.random.default_rng(rng_motion), self.n, c.fps, (c.yaw, c.pitch, c.roll), c.shift_px)
         self.audio = make_audio(c.audio, int(round(self.n / c.fps * AUDIO_RATE)), np.random.default_rng(rng_audio))
-        self.pivot = pivot_point(self.head)
+        self.pivot = pivot_point(self.head) if self.studio.mesh is None else \
+            mesh_pivot(self.head, self.studio.placement.project(self.studio.mesh.vertices))
         self.sensor = self.studio.sensor
-        self._mesh: LiveHead | None = None
+        self._mesh: LiveHead | MeshLiveHead | None = None
 
     def prepare(self) -> None:
         """Shade the head under the room light at the reference pose and build the mesh (slow part)."""
@@ -203,12 +222,16 @@ class LiveScene:
         drop = self.head.mask.shape[0] - self.head.center[1]
         ang = np.radians(min(c.pitch + c.roll, 90.0))
         reach = drop * (1.0 - np.cos(ang)) + self.head.scale * np.sin(ang) + c.shift_px
-        self._mesh = LiveHead(self.head, radiance, self.studio.room, self.pivot, reach_px=reach)
+        if self.studio.mesh is not None:
+            self._mesh = MeshLiveHead(self.studio.mesh, self.studio.placement, self.head, radiance, self.studio.room,
+                                      self.pivot)
+        else:
+            self._mesh = LiveHead(self.head, radiance, self.studio.room, self.pivot, reach_px=reach)
         self.wall = self.studio._static_layers[0]
         self.timings["mesh"] = time.perf_counter() - t0
 
     @property
-    def mesh(self) -> LiveHead:
+    def mesh(self) -> LiveHead | MeshLiveHead:
         self.prepare()
         return self._mesh
 

@@ -92,6 +92,49 @@ def _read_map(path, what: str, *, colour: bool, flip: bool) -> np.ndarray:
     return img
 
 
+#: Heads shipped with relight: ``builtin:NAME`` for ``--head-mesh`` (the package's
+#: ``pipeline/synth/heads/NAME/head.json``: its files, credit, licence and what was changed).
+BUILTIN_HEADS = ("lee-perry-smith",)
+#: The head the demo shows.
+DEMO_HEAD = "builtin:lee-perry-smith"
+
+
+def builtin_head(name: str) -> dict:
+    """The manifest of a shipped head (``head.json``) with its files as absolute paths."""
+    import json
+    from importlib.resources import files
+
+    if name not in BUILTIN_HEADS:
+        raise InputError(f"unknown built-in head {name!r}; choose one of: "
+                         + ", ".join(f"builtin:{n}" for n in BUILTIN_HEADS))
+    folder = files("relight.pipeline.synth").joinpath("heads", name)
+    info = json.loads(folder.joinpath("head.json").read_text(encoding="utf-8"))
+    for key in ("mesh", "texture", "specular_map", "normal_map", "licence"):
+        if info.get(key):
+            info[key] = str(folder.joinpath(info[key]))
+    return info
+
+
+def resolve_head(mesh: str, *, texture=None, normal_map=None, specular_map=None, flip_textures: bool = False) -> dict:
+    """``load_head_mesh``'s arguments for ``--head-mesh`` (a file, or ``builtin:NAME``: its
+    manifest's files unless given)."""
+    if not str(mesh).startswith("builtin:"):
+        return {"path": mesh, "texture": texture, "normal_map": normal_map, "specular_map": specular_map,
+                "flip_textures": flip_textures}
+    info = builtin_head(str(mesh)[len("builtin:"):])
+    return {"path": info["mesh"], "texture": texture or info.get("texture"),
+            "normal_map": normal_map or info.get("normal_map"),
+            "specular_map": specular_map or info.get("specular_map"),
+            "flip_textures": bool(info.get("flip", False)) if texture is None else flip_textures}
+
+
+def head_credit(mesh: str | None) -> str | None:
+    """The credit line a picture of this head must carry (a shipped head's), else None."""
+    if mesh is None or not str(mesh).startswith("builtin:"):
+        return None
+    return builtin_head(str(mesh)[len("builtin:"):]).get("credit")
+
+
 def load_head_mesh(path, *, texture=None, normal_map=None, specular_map=None,
                    flip_textures: bool = False) -> HeadMesh:
     """Load a head mesh (``.glb``/``.gltf``/``.obj``/``.ply``, through trimesh) with its colour
@@ -149,6 +192,8 @@ def load_head_mesh(path, *, texture=None, normal_map=None, specular_map=None,
         if raw.shape[2] < 3:
             raise InputError(f"{normal_map}: a tangent-space normal map has three channels (x, y, z)")
         nmap = 2.0 * raw[..., :3] - 1.0
+        if flip_textures:  # green pointed toward the image's top row: turned over, it points the other way
+            nmap[..., 1] *= -1.0
         nmap /= np.maximum(np.linalg.norm(nmap, axis=2, keepdims=True), EPS_VALUE)
         nmap = nmap.astype(FLOAT)
     normals, tangents, bitangents = _tangent_frames(v, f, uv)

@@ -156,10 +156,11 @@ class Studio:
         t0 = time.perf_counter()
         self.mesh = self.placement = None
         if c.head_mesh is not None:
-            from .mesh_head import build_mesh_head, load_head_mesh, place_mesh
+            from .mesh_head import build_mesh_head, load_head_mesh, place_mesh, resolve_head
 
-            self.mesh = load_head_mesh(c.head_mesh, texture=c.head_texture, normal_map=c.head_normal_map,
-                                       specular_map=c.head_specular_map, flip_textures=c.head_texture_flip)
+            self.mesh = load_head_mesh(**resolve_head(c.head_mesh, texture=c.head_texture,
+                                                      normal_map=c.head_normal_map, specular_map=c.head_specular_map,
+                                                      flip_textures=c.head_texture_flip))
             self.placement = place_mesh(self.mesh, c.width, c.height)
             self.head: Head = build_mesh_head(self.mesh, c.width, c.height, placement=self.placement)
         else:

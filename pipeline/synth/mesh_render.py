@@ -1,0 +1,148 @@
+"""A textured head mesh turned and moved in a live clip: the mesh itself rasterised with a depth
+buffer at each pose (a turned head hides and shows parts of itself), shaded per sample.
+
+The interface is :class:`.render.LiveHead`'s (``project``, ``render``, ``vertex_values``), so
+:class:`.live.LiveScene` renders either head. The mesh's reference pose is the static studio's
+(:mod:`.mesh_head`'s placement); a pose moves its camera-space points as the live clip's truth
+documents: ``P' = R (P - C) + C + (tx, -ty, 0)``.
+
+Shading, per sample of a 2x2 grid per pixel: the surface point's radiance under the room light
+at the reference pose - the studio's own render (:meth:`.studio.Studio.ambient_head`: cast
+shadows, specular) where the point was visible at the reference pose, else its colour map times
+the room's diffuse irradiance at its normal (a hidden point: the back of an ear, under the jaw)
+- times the ratio of the room's diffuse irradiance at its turned normal to that at its
+reference normal (9-coefficient spherical harmonics, as :class:`.render.LiveHead`). Shadows and
+highlights therefore move with the head; the far side, never seen at the reference pose, is
+lit by the room's diffuse light alone. The whole mesh is rigid (a scan's shoulders turn with
+its head).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from relight.directions import fibonacci_sphere
+from relight.numerics import EPS, FLOAT
+
+from ..raster import rasterise
+from .head import Head
+from .mesh_head import HeadMesh, Placement, sample_map
+from .render import IRRADIANCE_FLOOR, MAX_SHADING_RATIO
+from .sh_light import SPHERE_POINTS, environment_sh9, sh9_irradiance
+
+#: A sample was visible at the reference pose when its depth is within this many pixels of the
+#: reference's depth buffer there (the buffer is sampled bilinearly; steep sides need the slack).
+VISIBLE_DEPTH_PX = 2.0
+
+
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples (N, C) of an image (H, W, C) at pixel coordinates (clamped to the image)."""
+    h, w = img.shape[:2]
+    xc, yc = np.clip(x, 0, w - 1), np.clip(y, 0, h - 1)
+    x0, y0 = np.minimum(xc.astype(np.int64), w - 2), np.minimum(yc.astype(np.int64), h - 2)
+    fx, fy = (xc - x0)[:, None], (yc - y0)[:, None]
+    a = img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx
+    b = img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx
+    return a * (1 - fy) + b * fy
+
+
+class MeshLiveHead:
+    """A head mesh that renders at any pose (see the module docstring).
+
+    mesh, placement : the studio's (:mod:`.mesh_head`). head : the studio's head at the reference
+    pose. radiance : (P, 3) its radiance under the room light at the mask's pixels. room : the
+    room environment (lat-long, linear). pivot : camera-space pivot ``C``.
+    """
+
+    def __init__(self, mesh: HeadMesh, placement: Placement, head: Head, radiance: np.ndarray, room: np.ndarray,
+                 pivot: np.ndarray):
+        h_img, w_img = head.mask.shape
+        self.size = (w_img, h_img)
+        self.mesh = mesh
+        self.pivot = np.asarray(pivot, dtype=np.float64)
+        #: Camera-space points (x, -y, height) of the vertices at the reference pose.
+        self.points = placement.project(mesh.vertices)
+        self._corners = np.ascontiguousarray(mesh.faces.T)
+        rad = np.zeros((h_img, w_img, 3), dtype=np.float64)
+        rad.reshape(-1, 3)[np.flatnonzero(head.mask)] = radiance
+        # The reference image (radiance and a weight: 1 on the mask) and its depth buffer.
+        self._ref = np.concatenate([rad, head.mask[..., None].astype(np.float64)], axis=2)
+        self._ref_depth = np.where(head.mask, head.height, -1e9).astype(np.float64)[..., None]
+        self.sh = environment_sh9(room)
+        e_max = sh9_irradiance(self.sh, fibonacci_sphere(SPHERE_POINTS)).max(axis=0)
+        self._e_floor = IRRADIANCE_FLOOR * np.maximum(e_max, EPS)
+
+    def vertex_values(self, image: np.ndarray) -> np.ndarray:
+        """A reference-pose image (H, W) or (H, W, C) as ``render``'s ``values``: each sample
+        takes the image's value where its surface point was at the reference pose (0 where that
+        point was hidden then)."""
+        img = np.asarray(image, dtype=np.float64)
+        return img[..., None] if img.ndim == 2 else img
+
+    def project(self, rotation: np.ndarray, translation=(0.0, 0.0), points: np.ndarray | None = None) -> np.ndarray:
+        """Camera-space points (N, 3) (default: the mesh vertices) moved by the pose."""
+        r = np.asarray(rotation, dtype=np.float64)
+        q = (self.points if points is None else np.asarray(points, dtype=np.float64)) - self.pivot
+        tx, ty = translation
+        return q @ r.T + self.pivot + np.array([tx, -ty, 0.0])
+
+    def render(self, rotation: np.ndarray, translation=(0.0, 0.0), values: np.ndarray | None = None
+               ) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]:
+        """Rasterise the head at a pose: ``box`` (x0, y0, x1, y1), the premultiplied radiance
+        (or ``values``, a reference image from :meth:`vertex_values`) (y1-y0, x1-x0, C) as the
+        mean over 2x2 samples a pixel, and the coverage (y1-y0, x1-x0)."""
+        rotation = np.asarray(rotation, dtype=np.float64)
+        w_img, h_img = self.size
+        p = self.project(rotation, translation)
+        x_img, y_img = p[:, 0], -p[:, 1]
+        bx0 = int(np.clip(np.floor(x_img.min()) - 1, 0, w_img))
+        bx1 = int(np.clip(np.ceil(x_img.max()) + 2, 0, w_img))
+        by0 = int(np.clip(np.floor(y_img.min()) - 1, 0, h_img))
+        by1 = int(np.clip(np.ceil(y_img.max()) + 2, 0, h_img))
+        box = (bx0, by0, bx1, by1)
+        nch = 3 if values is None else values.shape[2]
+        if bx1 <= bx0 or by1 <= by0:
+            empty = (max(by1 - by0, 0), max(bx1 - bx0, 0))
+            return box, np.zeros((*empty, nch), FLOAT), np.zeros(empty, FLOAT)
+        gw, gh = 2 * (bx1 - bx0), 2 * (by1 - by0)
+        sx, sy = 2.0 * (x_img - bx0) + 0.5, 2.0 * (y_img - by0) + 0.5
+        cells, depth, tri, w0, w1 = rasterise(self._corners, sx, sy, p[:, 2].astype(np.float32), gw, gh)
+        zbuf = np.full(gw * gh, -np.inf, dtype=np.float32)
+        np.maximum.at(zbuf, cells, depth)
+        win = np.flatnonzero(depth >= zbuf[cells])
+        _, first = np.unique(cells[win], return_index=True)  # one fragment a sample
+        win = win[first]
+        cells = cells[win]
+        f = self.mesh.faces[tri[win]]
+        w3 = np.stack([w0[win], w1[win], 1.0 - w0[win] - w1[win]], axis=1).astype(np.float64)
+
+        def blend(attr):
+            return w3[:, 0:1] * attr[f[:, 0]] + w3[:, 1:2] * attr[f[:, 1]] + w3[:, 2:3] * attr[f[:, 2]]
+
+        ref = blend(self.points)  # where each sample's surface point was at the reference pose
+        rx, ry, rz = ref[:, 0], -ref[:, 1], ref[:, 2]
+        seen = (np.abs(_bilinear(self._ref_depth, rx, ry)[:, 0] - rz) < VISIBLE_DEPTH_PX)
+        if values is not None:
+            vals = np.where(seen[:, None], _bilinear(values, rx, ry), 0.0)
+        else:
+            n_ref = blend(self.mesh.normals)
+            n_ref /= np.maximum(np.linalg.norm(n_ref, axis=1, keepdims=True), EPS)
+            e_ref = np.maximum(sh9_irradiance(self.sh, n_ref), self._e_floor)
+            # the reference render where it saw the point (its weight channel normalises the
+            # bilinear blend at the mask's edge), else the colour map under the room's diffuse light
+            ref_img = _bilinear(self._ref, rx, ry)
+            wgt = ref_img[:, 3:4]
+            base = np.where((seen[:, None] & (wgt > 0.5)), ref_img[:, :3] / np.maximum(wgt, EPS),
+                            sample_map(self.mesh.albedo, blend(self.mesh.uv)) * e_ref / np.pi)
+            e_now = np.maximum(sh9_irradiance(self.sh, n_ref @ rotation.T), 0.0)
+            vals = base * np.minimum(e_now / e_ref, MAX_SHADING_RATIO)
+        out = np.empty((gh // 2, gw // 2, nch), dtype=FLOAT)
+        grid = np.zeros(gw * gh, dtype=FLOAT)
+        for ch in range(nch):
+            grid[cells] = vals[:, ch]
+            out[..., ch] = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
+        grid[:] = 0.0
+        grid[cells] = 1.0
+        cov = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
+        return box, out, cov
