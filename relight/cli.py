@@ -728,7 +728,10 @@ def _run_demo(args) -> int:
     def stage(text: str) -> None:
         print(f"[{time.perf_counter() - t0:5.1f} s] {text}", flush=True)
 
-    cfg = SynthConfig(width=480, height=270, duration=12.0, seed=1)
+    from .pipeline.synth.mesh_head import DEMO_HEAD, head_credit
+
+    # The face people see first: the scanned head shipped with relight (credited on every sheet).
+    cfg = SynthConfig(width=480, height=270, duration=12.0, seed=1, head_mesh=DEMO_HEAD)
     res = synthesize(args.out / "capture", cfg, progress=bars)
     stage(f"synthetic capture: {res.video} ({res.frame_count} frames, {res.flash_frames} flash frames); "
           f"truth: {res.truth}/")
@@ -745,7 +748,8 @@ def _run_demo(args) -> int:
     # The product: a live clip of the same head (turning, under the room's light) relit by
     # `relight filter` under each environment.
     live = synthesize_live(args.out / "live", LiveConfig(width=cfg.width, height=cfg.height,
-                                                          duration=DEMO_CLIP_S, seed=cfg.seed, audio="none"),
+                                                          duration=DEMO_CLIP_S, seed=cfg.seed, audio="none",
+                                                          head_mesh=cfg.head_mesh),
                            progress=bars)
     stage(f"live clip: {live.video}")
     fp = None
@@ -760,7 +764,7 @@ def _run_demo(args) -> int:
         r = run_filter(live.video, args.out / f"relit-{name}.mp4", bundle, env, frame_path=fp, progress=bars)
         relit[name] = r.out
         stage(f"relit under {name}: {r.out} ({r.faces} of {r.frames} frames with the face found)")
-    ba = before_after_sheet(live.video, relit, args.out / "before_after.png")
+    ba = before_after_sheet(live.video, relit, args.out / "before_after.png", credit=head_credit(cfg.head_mesh))
     stage(f"before/after contact sheet: {ba}")
     print(f"done in {time.perf_counter() - t0:.1f} s - look at {ba} and {relit[DEMO_ENVS[0]]}")
     serve = "make serve" if args.out == Path("out/demo") else f"relight serve {args.out / 'face.bundle'}"

@@ -43,6 +43,31 @@ def _label(tile: np.ndarray, text: str) -> np.ndarray:
     return tile
 
 
+def _footer(width: int, text: str | None) -> np.ndarray | None:
+    """A strip (rows, width, 3) uint8 with ``text`` wrapped to the width (a credit line), or None."""
+    if not text:
+        return None
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.42
+    lines, line = [], ""
+    for word in text.split():
+        trial = f"{line} {word}".strip()
+        if line and cv2.getTextSize(trial, font, scale, 1)[0][0] > width - 8:
+            lines.append(line)
+            line = word
+        else:
+            line = trial
+    lines.append(line)
+    strip = np.zeros((8 + 16 * len(lines), width, 3), dtype=np.uint8)
+    for k, ln in enumerate(lines):
+        cv2.putText(strip, ln, (4, 17 + 16 * k), font, scale, (220, 220, 220), 1, cv2.LINE_AA)
+    return strip
+
+
+def _with_footer(sheet: np.ndarray, credit: str | None) -> np.ndarray:
+    strip = _footer(sheet.shape[1], credit)
+    return sheet if strip is None else np.concatenate([sheet, strip], axis=0)
+
+
 def _tonemap(linear: np.ndarray, mask: np.ndarray) -> np.ndarray:
     vals = linear[mask].max(axis=1) if mask.any() else linear.reshape(-1, 3).max(axis=1)
     scale = 0.8 / max(float(np.percentile(vals, 98)), EPS_VALUE)
@@ -113,7 +138,7 @@ def contact_sheet(capture: str | Path, out: str | Path, bundle=None) -> Path:
     width = max(len(r_) for r_ in rows)
     blank = np.zeros((TILE[1], TILE[0], 3), dtype=np.uint8)
     sheet = np.concatenate([np.concatenate(r_ + [blank] * (width - len(r_)), axis=1) for r_ in rows], axis=0)
-    return write_image(out, sheet)
+    return write_image(out, _with_footer(sheet, (meta.get("head") or {}).get("credit")))
 
 
 def _directions_plot(meta: dict) -> np.ndarray:
@@ -169,9 +194,10 @@ def _bundle_row(bundle, meta, capture, mask, bb) -> list:
 
 
 def before_after_sheet(before: str | Path, relit: dict[str, str | Path], out: str | Path,
-                       rows: int = 3) -> Path:
+                       rows: int = 3, credit: str | None = None) -> Path:
     """A PNG of ``rows`` moments of a clip: the camera's frame, then the same frame in each relit
-    clip (``relit``: label -> video, e.g. one per environment; same frame count as ``before``)."""
+    clip (``relit``: label -> video, e.g. one per environment; same frame count as ``before``);
+    ``credit``: a line under it (whose head it shows)."""
     clips = {"before": Path(before), **{k: Path(v) for k, v in relit.items()}}
     frames = {k: list(read_frames(v)) for k, v in clips.items()}
     n = min(len(f) for f in frames.values())
@@ -181,5 +207,5 @@ def before_after_sheet(before: str | Path, relit: dict[str, str | Path], out: st
     grid = []
     for i in picks:
         grid.append(np.concatenate([_label(_fit(frames[k][i]), f"{k}  (frame {i})") for k in clips], axis=1))
-    write_image(out, np.concatenate(grid, axis=0))
+    write_image(out, _with_footer(np.concatenate(grid, axis=0), credit))
     return Path(out)

@@ -67,7 +67,7 @@ from .head import Head
 from .mesh_render import MeshLiveHead
 from .motion import AUDIO_KINDS, NOISE_RMS, TONE_HZ, TONE_PEAK, head_pose_track, make_audio
 from .render import LiveHead
-from .studio import MAX_SIZE, MIN_SIZE, Studio, SynthConfig
+from .studio import MAX_SIZE, MIN_SIZE, Studio, SynthConfig, head_info
 
 LIVE_FORMAT_VERSION = 1
 #: Pivot depth behind the face's frontmost point, in head units (``Head.scale`` pixels each).
@@ -282,6 +282,7 @@ class LiveScene:
             "amplitudes": {"yaw": c.yaw, "pitch": c.pitch, "roll": c.roll, "shift_px": c.shift_px},
             "head_center": list(self.head.center),
             "head_scale": self.head.scale,
+            "head": head_info(c.head_mesh),
             "reference_pose": {"head_rotation": [0.0, 0.0, 0.0], "head_translation": [0.0, 0.0]},
             "sensor": {"read_noise": self.sensor.read_noise, "shot_gain": self.sensor.shot_gain,
                        "exposure_gain": 1.0, "white_balance": [1.0, 1.0, 1.0]},

@@ -49,6 +49,10 @@ FACE_BOX_UNITS = 1.425
 FACE_BOX_CENTER = (0.0, -0.07)
 #: Pixels across the face in the front view the placement searches.
 PLACEMENT_FACE_PX = 240
+#: Loop subdivisions of the depth buffer's surface (each: 4x the triangles), unless that passes
+#: MAX_SMOOTH_FACES (a dense scan's facets are already below a pixel).
+SMOOTH_ITERATIONS = 2
+MAX_SMOOTH_FACES = 2_000_000
 #: Skin parameters where the mesh has no map for them (the procedural head's skin).
 SKIN_SPECULAR = 0.35
 SKIN_ROUGHNESS = 0.38
@@ -64,6 +68,9 @@ class HeadMesh:
     vertices : (V, 3) float64 mesh units, +Y up, +Z toward the camera. faces : (T, 3) int64.
     uv : (V, 2) float64 texture coordinates, v up. normals : (V, 3) unit vertex normals.
     tangents, bitangents : (V, 3) unit tangent frame (+u, +v directions on the surface).
+    smooth_vertices, smooth_faces : the surface :data:`SMOOTH_ITERATIONS` Loop subdivisions
+    smoother - the depth buffer's, so shadows follow the surface and not its facets (a low-poly
+    mesh's flat triangles under smooth normals cut a shadow's edge into steps).
     albedo : (h, w, 3) float32 linear colour map. specular : (h, w) float32 0-1 or None.
     normal_map : (h, w, 3) float32 tangent-space normals (-1..1) or None. source : the file.
     """
@@ -78,6 +85,8 @@ class HeadMesh:
     specular: np.ndarray | None
     normal_map: np.ndarray | None
     source: str
+    smooth_vertices: np.ndarray | None = None
+    smooth_faces: np.ndarray | None = None
 
 
 def _read_map(path, what: str, *, colour: bool, flip: bool) -> np.ndarray:
@@ -197,9 +206,12 @@ def load_head_mesh(path, *, texture=None, normal_map=None, specular_map=None,
         nmap /= np.maximum(np.linalg.norm(nmap, axis=2, keepdims=True), EPS_VALUE)
         nmap = nmap.astype(FLOAT)
     normals, tangents, bitangents = _tangent_frames(v, f, uv)
+    sv, sf = v, f
+    if len(f) * 4 ** SMOOTH_ITERATIONS <= MAX_SMOOTH_FACES:
+        sv, sf = trimesh.remesh.subdivide_loop(v, f, iterations=SMOOTH_ITERATIONS)
     return HeadMesh(vertices=v, faces=f, uv=uv, normals=normals, tangents=tangents, bitangents=bitangents,
                     albedo=np.ascontiguousarray(albedo, dtype=FLOAT), specular=spec, normal_map=nmap,
-                    source=str(path))
+                    source=str(path), smooth_vertices=np.asarray(sv, np.float64), smooth_faces=np.asarray(sf, np.int64))
 
 
 def _embedded_texture(mesh):
@@ -357,6 +369,18 @@ def build_mesh_head(mesh: HeadMesh, width: int, height: int, *, rotation=None,
     mask[cells] = True
     depth = np.full(n_pix, NO_SURFACE, dtype=np.float64)
     depth[cells] = _blend(pos[:, 2:3], mesh.faces, tri, w3)[:, 0]
+    if mesh.smooth_vertices is not None and mesh.smooth_faces is not mesh.faces:
+        # the smooth surface's depth where it covers the pixel (it lies within a facet's sag of it)
+        sv = mesh.smooth_vertices if rotation is None else mesh.smooth_vertices @ np.asarray(rotation, np.float64).T
+        scam = place.project(sv)
+        spos = np.stack([scam[:, 0], -scam[:, 1], scam[:, 2]], axis=1)
+        sm = _front_fragments(HeadMesh(vertices=sv, faces=mesh.smooth_faces, uv=None, normals=None, tangents=None,
+                                       bitangents=None, albedo=None, specular=None, normal_map=None,
+                                       source=mesh.source), spos, width, height)
+        if sm is not None:
+            s_cells, s_tri, s_w3 = sm
+            keep = mask[s_cells]
+            depth[s_cells[keep]] = _blend(spos[:, 2:3], mesh.smooth_faces, s_tri[keep], s_w3[keep])[:, 0]
     normals = mesh.normals if rotation is None else mesh.normals @ np.asarray(rotation, np.float64).T
     n = _blend(normals, mesh.faces, tri, w3)
     uvp = _blend(mesh.uv, mesh.faces, tri, w3)

@@ -141,6 +141,16 @@ class SynthResult:
     timings: dict = field(default_factory=dict)
 
 
+def head_info(mesh: str | None) -> dict:
+    """What head a clip shows (its truth's ``head``): procedural, or a mesh with the credit its
+    pictures must carry (a shipped head's; None for a user's mesh)."""
+    if mesh is None:
+        return {"kind": "procedural", "mesh": None, "credit": None}
+    from .mesh_head import head_credit
+
+    return {"kind": "mesh", "mesh": str(mesh), "credit": head_credit(mesh)}
+
+
 class Studio:
     """One synthetic capture: the scene, the rig's schedule, and frame rendering."""
 
@@ -377,6 +387,7 @@ class Studio:
             "sphere": [cx, cy, r],
             "head_center": list(self.head.center),
             "head_scale": self.head.scale,
+            "head": head_info(c.head_mesh),
             "head_motion": [[round(float(x), 6) for x in row] for row in self.motion],
             "reference_frame": self.reference_frame,
             "exposure_gain": [round(float(g), 6) for g in self.gain],
