@@ -51,6 +51,10 @@ SCENES = [
      "head_motion": 2.0},
     {"name": "camera drift", "width": 640, "height": 360, "duration": 20.0, "seed": 23, "camera_drift": True},
     {"name": "12 s (sparse)", "width": 480, "height": 270, "duration": 12.0, "seed": 24},
+    # The scanned head shipped with relight, under the base scene's settings (issue 31: both heads
+    # side by side).
+    {"name": "scan 640x360", "width": 640, "height": 360, "duration": 30.0, "seed": 20,
+     "head_mesh": "builtin:lee-perry-smith"},
 ]
 QUICK_SCENES = [
     {"name": "quick sparse sides", "width": 384, "height": 216, "duration": 8.0, "seed": 26, "sparse_sides": True},

@@ -46,8 +46,19 @@ GROWTH = [
     {"name": "480x270 12 s", "width": 480, "height": 270, "duration": 12.0, "seed": 3},
     {"name": "960x540 12 s", "width": 960, "height": 540, "duration": 12.0, "seed": 3},
 ]
+#: The scanned head shipped with relight beside the procedural one (issue 31), at the two sizes its
+#: goals name.
+SCAN = "builtin:lee-perry-smith"
+SCENARIOS += [
+    {"name": "640x360 24 s scan", "width": 640, "height": 360, "duration": 24.0, "seed": 3, "goal_x": 1.0,
+     "head_mesh": SCAN},
+    {"name": "960x540 60 s scan", "width": 960, "height": 540, "duration": 60.0, "seed": 0, "goal_x": 1.0,
+     "head_mesh": SCAN},
+]
 QUICK = [{"name": "480x270 10 s", "width": 480, "height": 270, "duration": 10.0, "seed": 5}]
 _NOT_CONFIG = ("name", "goal_x", "reencode_mbps")
+#: Truth environments rendered: the relit result is measured under the last two (evaluate_capture).
+TRUTH_ENVS = ("builtin:studio", "builtin:window", "builtin:sunset")
 
 
 def _child(video: str, bundle: str, truth: str) -> None:
@@ -114,7 +125,7 @@ def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool =
             raise InputError(f"--only {' '.join(only)}: no scenario matches; names are "
                              + ", ".join(sc["name"] for sc in (GROWTH if growth else SCENARIOS)))
     for sc in chosen:
-        cfg = SynthConfig(**{k: v for k, v in sc.items() if k not in _NOT_CONFIG}, truth_envs=("builtin:studio",))
+        cfg = SynthConfig(**{k: v for k, v in sc.items() if k not in _NOT_CONFIG}, truth_envs=TRUTH_ENVS)
         cap = cached_synthesis(out, cfg, label=sc["name"], progress=progress)
         key = cap.name.removeprefix("synth-")
         video = cap / "capture.mp4"
@@ -150,29 +161,34 @@ def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool =
 
 
 def table(doc: dict) -> str:
-    head = (f"{'scenario':16s} {'wall s':>7s} {'x real':>6s} {'goal':>5s} {'peak MB':>8s} {'bundle MB':>9s} "
+    head = (f"{'scenario':20s} {'wall s':>7s} {'x real':>6s} {'goal':>5s} {'peak MB':>8s} {'bundle MB':>9s} "
             f"{'face px':>8s} {'flash P/R':>11s} {'reg px':>7s} {'dir mean/p95 deg':>17s} {'normal med':>10s} "
-            f"{'samples':>7s} {'steal':>5s}")
+            f"{'relit W/S dB':>12s} {'samples':>7s} {'steal':>5s}")
     lines = [head, "-" * len(head)]
     for r in doc["scenarios"]:
         m = r["metrics"]
         goal = r["scenario"].get("goal_x")
-        lines.append(f"{r['scenario']['name']:16s} {r['wall_s']:7.1f} {r['realtime_x']:6.2f} "
+        lines.append(f"{r['scenario']['name']:20s} {r['wall_s']:7.1f} {r['realtime_x']:6.2f} "
                      f"{(f'{goal:.0f}x' if goal else '-'):>5s} {r['peak_mb']:8.0f} {r['bundle_mb']:9.1f} "
                      f"{r['pixels']:8d} {m['flash_precision']:5.3f}/{m['flash_recall']:5.3f} "
                      f"{m['registration_rms_px']:7.3f} {m['light_dir_mean_deg']:8.2f}/{m['light_dir_p95_deg']:6.2f} "
-                     f"{m['normal_median_deg']:10.2f} {r['samples']:7d} "
+                     f"{m['normal_median_deg']:10.2f} "
+                     f"{_db(m.get('relit_psnr_window'))}/{_db(m.get('relit_psnr_sunset'))} {r['samples']:7d} "
                      + (f"{100 * r['steal_share']:4.1f}%" if r.get("steal_share") is not None else "    -"))
     stages = [k for k in doc["scenarios"][0]["timings"] if k not in ("total",)]
     lines.append("")
-    lines.append(f"{'stage seconds':16s} " + " ".join(f"{s[:9]:>9s}" for s in stages))
+    lines.append(f"{'stage seconds':20s} " + " ".join(f"{s[:9]:>9s}" for s in stages))
     for r in doc["scenarios"]:
-        lines.append(f"{r['scenario']['name']:16s} " + " ".join(f"{r['timings'].get(s, 0.0):9.2f}" for s in stages))
-    lines.append(f"{'peak MB after':16s} " + " ".join(f"{s[:9]:>9s}" for s in stages))
+        lines.append(f"{r['scenario']['name']:20s} " + " ".join(f"{r['timings'].get(s, 0.0):9.2f}" for s in stages))
+    lines.append(f"{'peak MB after':20s} " + " ".join(f"{s[:9]:>9s}" for s in stages))
     for r in doc["scenarios"]:
         peaks = r.get("peak_rss_mb", {})
-        lines.append(f"{r['scenario']['name']:16s} " + " ".join(f"{peaks.get(s, float('nan')):9.0f}" for s in stages))
+        lines.append(f"{r['scenario']['name']:20s} " + " ".join(f"{peaks.get(s, float('nan')):9.0f}" for s in stages))
     return "\n".join(lines)
+
+
+def _db(v) -> str:
+    return "    -" if v is None else f"{v:5.2f}"
 
 
 def _plot_growth(rows, path):

@@ -28,6 +28,8 @@ import numpy as np
 from .machine import cpu_jiffies, steal_share
 
 STAGES = ("track", "pose", "relight", "light", "warp", "composite", "total")
+#: What the heads side by side report.
+HEAD_KEYS = ("size", "frames", "faces", "first_face_frame", "rotation_error_deg", "flicker_codes")
 
 
 #: The capture the synthetic clips are filtered with: short and sparse, as a user's first try is
@@ -47,37 +49,49 @@ SPEED_KEYS = ("size", "frames", "faces", "face_pixels", "bundle_pixels", "stage_
 POSE_HEADS = (1, 2)
 
 
+#: The scanned head shipped with relight, measured beside the procedural one (issue 31).
+SCAN = "builtin:lee-perry-smith"
+
+
 def synth_bundle(out: Path, size: tuple[int, int], duration: float, progress: bool, flash_hz: float = CAPTURE_HZ,
-            seed: int = 0) -> Path:
-    """A bundle captured from a static studio capture of head ``seed`` at ``size`` (cached)."""
+            seed: int = 0, head_mesh: str | None = None) -> Path:
+    """A bundle captured from a static studio capture of head ``seed`` (or the mesh
+    ``head_mesh``) at ``size`` (cached)."""
     from relight.pipeline.capture import capture
     from relight.pipeline.synth.studio import SynthConfig, synthesize
 
-    tag = f"{size[0]}x{size[1]}-{duration:g}s-{flash_hz:g}hz" + (f"-seed{seed}" if seed else "")
+    tag = f"{size[0]}x{size[1]}-{duration:g}s-{flash_hz:g}hz" + (f"-seed{seed}" if seed else "") + _head_tag(head_mesh)
     cap = out / f"capture-{tag}"
     bundle = out / f"face-{tag}.bundle"
     if not bundle.exists():
         if not (cap / "capture.mp4").exists():
             if progress:
                 print(f"synthesising a {size[0]}x{size[1]} capture ...", flush=True)
-            synthesize(cap, SynthConfig(width=size[0], height=size[1], duration=duration, seed=seed, flash_hz=flash_hz),
-                       progress=progress)
+            synthesize(cap, SynthConfig(width=size[0], height=size[1], duration=duration, seed=seed, flash_hz=flash_hz,
+                                        head_mesh=head_mesh), progress=progress)
         if progress:
             print("capturing it ...", flush=True)
         capture(cap / "capture.mp4", bundle, progress=progress)
     return bundle
 
 
-def synth_live(out: Path, size: tuple[int, int], duration: float, progress: bool, seed: int = 0) -> Path:
+def synth_live(out: Path, size: tuple[int, int], duration: float, progress: bool, seed: int = 0,
+               head_mesh: str | None = None) -> Path:
     from relight.pipeline.synth.live import LiveConfig, synthesize_live
 
-    folder = out / (f"live-{size[0]}x{size[1]}-{duration:g}s" + (f"-seed{seed}" if seed else ""))
+    folder = out / (f"live-{size[0]}x{size[1]}-{duration:g}s" + (f"-seed{seed}" if seed else "") + _head_tag(head_mesh))
     if not (folder / "truth" / "meta.json").exists():
         if progress:
             print(f"synthesising a {size[0]}x{size[1]} live video ...", flush=True)
-        synthesize_live(folder, LiveConfig(width=size[0], height=size[1], duration=duration, seed=seed),
-                        progress=progress)
+        synthesize_live(folder, LiveConfig(width=size[0], height=size[1], duration=duration, seed=seed,
+                                           head_mesh=head_mesh), progress=progress)
     return folder
+
+
+def _head_tag(head_mesh: str | None) -> str:
+    if head_mesh is None:
+        return ""
+    return "-" + "".join(ch if ch.isalnum() else "_" for ch in str(head_mesh).removeprefix("builtin:"))
 
 
 def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
@@ -164,7 +178,9 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
         import cv2
 
         face_px = int((cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE) > 0).sum())
-    return {"frames": len(frames), "faces": len(estimates), "size": meta["size"], "face_pixels": face_px,
+    first = min((int(k) for k in estimates), default=None)
+    return {"frames": len(frames), "faces": len(estimates), "first_face_frame": first, "size": meta["size"],
+            "face_pixels": face_px,
             "bundle_pixels": int(np.asarray(bundle.pixels).size),
             "stage_ms": {k: {"median": float(np.median(v)), "p99": float(np.percentile(v, 99))}
                          for k, v in times.items()},
@@ -283,6 +299,14 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = "built
             r = _per_frame(synth_bundle(out, fsize, CAPTURE_S, progress, seed=seed),
                            synth_live(out, fsize, 10.0, progress, seed=seed), env, mode)
             doc["pose_heads"].append({"seed": seed, **{k: r[k] for k in ("frames", "faces", "rotation_error_deg")}})
+    # The scanned head beside the procedural one: the same capture and clip settings.
+    doc["heads"] = []
+    for name, mesh in (("procedural", None), ("scan", SCAN)):
+        if progress:
+            print(f"the {name} head at {fsize[0]}x{fsize[1]} ...", flush=True)
+        r = _per_frame(synth_bundle(out, fsize, CAPTURE_S, progress, head_mesh=mesh),
+                       synth_live(out, fsize, 4.0 if quick else 10.0, progress, head_mesh=mesh), env, mode)
+        doc["heads"].append({"head": name, **{k: r[k] for k in HEAD_KEYS}})
     if not quick:
         # The per-frame path's growth with the frame: 640x360 (above), 1280x720 and 1920x1080 live
         # clips of the same head relit with a 1280x720 capture's bundle (face pixels capped at the
@@ -350,6 +374,12 @@ def table(doc: dict) -> str:
         lines.append(f"head rotation error at {small['size'][0]}x{small['size'][1]} ({small['faces']}/"
                      f"{small['frames']} frames with a face): median {e['median']:.2f} deg, p95 {e['p95']:.2f} deg; "
                      f"flicker {_fmt(small.get('flicker_codes'))} codes")
+    for h in doc.get("heads", []):
+        e = h["rotation_error_deg"]
+        lines.append(f"{h['head']} head, {h['size'][0]}x{h['size'][1]}: face found from frame "
+                     f"{_fmt(h['first_face_frame'], '{:d}')}, {h['faces']}/{h['frames']} frames with a face; pose "
+                     f"median {_fmt(e['median'])} deg, p95 {_fmt(e['p95'])} deg; "
+                     f"flicker {_fmt(h.get('flicker_codes'))} codes")
     for h in doc.get("pose_heads", [])[1:]:
         e = h["rotation_error_deg"]
         lines.append(f"head rotation error at 640x360, head {h['seed']} ({h['faces']}/{h['frames']} frames with a "
