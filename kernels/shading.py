@@ -73,20 +73,31 @@ def _check(surface: Surface, dirs: np.ndarray, power: np.ndarray) -> tuple[np.nd
     return dirs / norm, power
 
 
+def _view(view) -> np.ndarray:
+    """The unit direction toward the camera (3,) float64: +Z by default (the studio's camera); a
+    head turned by R is shaded in its own frame from ``R.T @ z``."""
+    v = np.asarray(view, dtype=np.float64).reshape(-1)
+    if v.shape != (3,) or not np.isfinite(v).all() or np.linalg.norm(v) < EPS_NORM:
+        raise InputError(f"view must be a finite non-zero 3-vector, got {view!r}")
+    return v / np.linalg.norm(v)
+
+
 # --------------------------------------------------------------------------------------
 # NumPy twin (reference for the tests; same maths as the kernel, float32 where it is)
 # --------------------------------------------------------------------------------------
 
 def skin_brdf_cos_numpy(n: np.ndarray, l: np.ndarray, albedo: np.ndarray, specular: np.ndarray,
-                        roughness: np.ndarray, wrap: np.ndarray) -> np.ndarray:
-    """(P, 3) f * cos for one light ``l`` (3,), per pixel parameters (see :class:`Surface`)."""
+                        roughness: np.ndarray, wrap: np.ndarray, view=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """(P, 3) f * cos for one light ``l`` (3,) seen from the unit direction ``view`` (3,), per
+    pixel parameters (see :class:`Surface`)."""
+    v = np.asarray(view, dtype=np.float64)
     c = n @ l
     diffuse = albedo / np.pi * np.maximum(c[:, None] + wrap, 0.0) / (1.0 + wrap)
-    nv = n[:, 2]
-    hv = l + np.array([0.0, 0.0, 1.0])
+    nv = n @ v
+    hv = l + v
     hv = hv / np.linalg.norm(hv)
     nh = np.maximum(n @ hv, 0.0)
-    vh = max(hv[2], 0.0)
+    vh = max(float(v @ hv), 0.0)
     a = roughness**2
     a2 = a * a
     nxh = np.cross(n, hv)
@@ -103,9 +114,10 @@ def skin_brdf_cos_numpy(n: np.ndarray, l: np.ndarray, albedo: np.ndarray, specul
 
 
 def shade_lights_numpy(surface: Surface, dirs: np.ndarray, power: np.ndarray, *,
-                       march: MarchSettings | None = None, shadows: bool = True) -> np.ndarray:
+                       march: MarchSettings | None = None, shadows: bool = True, view=(0.0, 0.0, 1.0)) -> np.ndarray:
     """NumPy twin of :meth:`LightShader.shade`: (E, P, 3) float32 outputs."""
     march = march or MarchSettings()
+    view = _view(view)
     dirs, power = _check(surface, dirs, power)
     hgt = surface.height.astype(np.float32)
     w = hgt.shape[1]
@@ -124,7 +136,7 @@ def shade_lights_numpy(surface: Surface, dirs: np.ndarray, power: np.ndarray, *,
         if not lit.any():
             continue
         f = skin_brdf_cos_numpy(n[lit], l, surface.albedo[lit], surface.specular[lit],
-                                surface.roughness[lit], surface.wrap[lit])
+                                surface.roughness[lit], surface.wrap[lit], view)
         out[:, lit, :] += f[None, :, :] * pw[:, None, :]
     return out.astype(np.float32)
 
@@ -201,15 +213,19 @@ class LightShader:
                 np.int32(self.th), b["pix"], np.int32(self.n_pix))
 
     def shade(self, dirs: np.ndarray, power: np.ndarray, *, direction_index: np.ndarray | None = None,
-              shadows: bool = True) -> np.ndarray:
+              shadows: bool = True, view=(0.0, 0.0, 1.0)) -> np.ndarray:
         """(E, P, 3) float32 outputs for lights ``dirs`` (L, 3) with ``power`` (L, E, 3) or (L, 3).
 
         direction_index : (L,) int, the :func:`grid_directions` column each light lies along
         (its visibility is then read from the horizon table), or -1 to march the light.
+        view : unit direction toward the camera in the surface's frame (default +Z).
         """
         import pyopencl as cl
+        from pyopencl import cltypes
 
         dirs, power = _check(self.surface, dirs, power)
+        v4 = np.zeros(4, dtype=np.float32)
+        v4[:3] = _view(view)
         n_l, n_e = power.shape[:2]
         if n_l == 0:
             return np.zeros((n_e, self.n_pix, 3), dtype=np.float32)
@@ -235,7 +251,7 @@ class LightShader:
             b["normal"], b["albedo"], b["material"],
             lbuf, np.int32(n_l), ibuf, self._horizons, np.int32(max(self.n_dir, 1)), pbuf, np.int32(n_e),
             np.float32(m.start), np.float32(m.step), np.float32(m.growth), np.float32(m.bias), self.hmax,
-            np.int32(1 if shadows else 0), obuf,
+            np.int32(1 if shadows else 0), cltypes.make_float4(*v4), obuf,
         )
         cl.enqueue_copy(queue, out, obuf)
         return out[..., :3]

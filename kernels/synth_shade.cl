@@ -6,6 +6,9 @@
  * light ray. power[l, e] weights light l into output e, so several environments and
  * one-light images accumulate in one pass (in double precision).
  *
+ * The camera looks along -Z (orthographic), so the view direction is +Z; a head turned by R is
+ * shaded in its own frame with the lights and the view turned back (view = R^T z).
+ *
  * Cast shadows (heightfield.h): lights tagged with a horizon-table column read their
  * visibility from the table (lights on a camera-axis grid share a few image-plane directions),
  * the others march their ray. NumPy twin: relight.kernels.shading.shade_lights_numpy.
@@ -20,18 +23,19 @@
 #endif
 #define SKIN_F0 0.028f
 
-/* Reflected radiance per unit irradiance, already multiplied by the cosine (f * cos). */
-inline float3 skin_brdf_cos(float3 n, float3 l, float4 alb, float4 mat)
+/* Reflected radiance per unit irradiance toward the unit direction v (the camera), already
+   multiplied by the cosine (f * cos). */
+inline float3 skin_brdf_cos(float3 n, float3 l, float3 v, float4 alb, float4 mat)
 {
     float c = dot(n, l);
     float3 wrap = mat.yzw;
     float3 diffuse = alb.xyz * (1.0f / PI_F) * fmax((float3)(c) + wrap, 0.0f) / (1.0f + wrap);
     float spec = 0.0f;
-    float nv = n.z;
+    float nv = dot(n, v);
     if (c > 0.0f && nv > 0.0f && alb.w > 0.0f) {
-        float3 hv = unit3(l + (float3)(0.0f, 0.0f, 1.0f));
+        float3 hv = unit3(l + v);
         float nh = fmax(dot(n, hv), 0.0f);
-        float vh = fmax(hv.z, 0.0f);
+        float vh = fmax(dot(v, hv), 0.0f);
         float a = mat.x * mat.x;
         float a2 = a * a;
         /* 1 + nh^2 (a2 - 1) cancels badly near the peak of a sharp lobe; |n x h|^2 = 1 - nh^2
@@ -59,6 +63,7 @@ __kernel void shade_lights(
     __global const float *horizons, int n_dir,          /* (P, n_dir) slopes from horizon() */
     __global const float4 *power, int n_out,            /* (L, E) radiance x solid angle, rgb */
     float start, float step, float growth, float bias, float hmax, int shadows,
+    float4 view,                                        /* xyz: unit direction toward the camera */
     __global float4 *out)                               /* (E, P) rgb */
 {
     int i = get_global_id(0);
@@ -66,7 +71,7 @@ __kernel void shade_lights(
         return;
     int p = pix[i];
     float x = (float)(p % w), y = (float)(p / w), z = height[p];
-    float3 n = normal[i].xyz;
+    float3 n = normal[i].xyz, v = view.xyz;
     float4 alb = albedo[i], mat = material[i];
     float wrap_max = fmax(mat.y, fmax(mat.z, mat.w));
     double4 acc[MAX_OUT];
@@ -88,7 +93,7 @@ __kernel void shade_lights(
                     continue;
             }
         }
-        float3 f = skin_brdf_cos(n, l, alb, mat);
+        float3 f = skin_brdf_cos(n, l, v, alb, mat);
         double4 fd = convert_double4((float4)(f, 0.0f));
         __global const float4 *pw = power + (size_t)j * n_out;
         for (int e = 0; e < n_out; ++e)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from relight.errors import InputError
 from relight.kernels.sensor import SensorKernel, expose_numpy, frame_key, hash_normal
 from relight.kernels.shading import (
     NO_SURFACE,
@@ -69,6 +70,25 @@ def test_shade_lights_matches_numpy(bumpy):
     # The test field casts real shadows: the shadow test changes many pixels.
     # shadowing changes a visible share (5 %) of pixels by more than rounding (definitional bound, not a tolerance)
     assert (np.abs(no_shadow - out).max(axis=(0, 2)) > 1e-3).mean() > 0.05
+
+
+def test_shade_lights_from_a_turned_view_matches_numpy(bumpy):
+    """A head turned by R is shaded in its own frame from view R^T z: the kernel's view
+    argument against the twin's, and the default view is +Z."""
+    rng = np.random.default_rng(4)
+    dirs = rng.normal(size=(16, 3))
+    power = rng.uniform(0, 3, (16, 2, 3))
+    view = np.array([np.sin(np.radians(35)), -np.sin(np.radians(12)), 0.0])
+    view[2] = np.sqrt(1 - view @ view)
+    shader = LightShader(bumpy)
+    turned = shader.shade(dirs, power, view=view)
+    _compare(turned, shade_lights_numpy(bumpy, dirs, power, view=view))
+    # the view moves the highlights: a visible share of pixels changes by more than rounding
+    front = shader.shade(dirs, power)
+    assert (np.abs(turned - front).max(axis=(0, 2)) > 1e-3).mean() > 0.05
+    np.testing.assert_array_equal(front, shader.shade(dirs, power, view=(0, 0, 2)))
+    with pytest.raises(InputError, match="view"):
+        shader.shade(dirs, power, view=(0, 0, 0))
 
 
 def test_shadows_exist_for_grazing_light(bumpy):
