@@ -90,7 +90,8 @@ def _add_synth(sub) -> None:
                     "relit_<env>.exr per truth environment, olat_<name>.exr one-light images, ambient.exr). "
                     "With --live: OUT/live.mp4 (H.264 + AAC) of the same head (same --seed and --size) turning "
                     "and moving under the room light, and OUT/truth/ (meta.json with the head rotation and "
-                    "translation of every frame, reference.png, mask_reference.png).",
+                    "translation of every frame, reference.png, mask_reference.png; with --truth-env, every frame "
+                    "under each environment, truth/live_<stem>/NNNN.png, and truth/silhouette/NNNN.png).",
         formatter_class=_DefaultsUnlessNone)
     p.add_argument("out", type=Path, help="output folder (created if missing)")
     p.add_argument("--seed", type=int, default=d.seed,
@@ -104,7 +105,9 @@ def _add_synth(sub) -> None:
                    help="frame size in pixels (even numbers)")
     p.add_argument("--truth-env", action="append", default=None, metavar="FILE|builtin:NAME",
                    help="environment to render the truth under (repeatable; default: "
-                        + ", ".join(DEFAULT_TRUTH_ENVS) + ")")
+                        + ", ".join(DEFAULT_TRUTH_ENVS) + "); with --live none by default, and each "
+                        "writes every frame with the person under it (truth/live_<stem>/NNNN.png, 8-bit sRGB) "
+                        "and the person's pixels (truth/silhouette/NNNN.png)")
     p.add_argument("--head-motion", "--head", dest="head_motion", type=float, default=d.head_motion,
                    help="head motion, times the paper's limits (3 px at 540 rows, 0.35 deg); 0 = still")
     p.add_argument("--head-mesh", metavar="FILE",
@@ -166,13 +169,13 @@ def _run_synth(args) -> int:
 
 
 def _run_synth_live(args) -> int:
+    from .envmap import environment_stem
     from .errors import InputError
     from .pipeline.synth.live import LiveConfig, synthesize_live
     from .pipeline.synth.studio import SynthConfig
 
     d, s = LiveConfig(), SynthConfig()
     capture_only = [flag for flag, used in (("--flash-hz", args.flash_hz != s.flash_hz),
-                                            ("--truth-env", bool(args.truth_env)),
                                             ("--head-motion", args.head_motion != s.head_motion),
                                             ("--camera-drift", args.camera_drift),
                                             ("--sparse-sides", args.sparse_sides)) if used]
@@ -182,11 +185,15 @@ def _run_synth_live(args) -> int:
     cfg = LiveConfig(width=args.size[0], height=args.size[1], fps=args.fps,
                      duration=d.duration if args.duration is None else args.duration, seed=args.seed,
                      ambient=args.ambient, noise=args.noise, crf=d.crf if args.crf is None else args.crf,
-                     audio=args.audio, **_head_mesh_args(args))
+                     audio=args.audio, truth_envs=tuple(args.truth_env or ()), **_head_mesh_args(args))
     res = synthesize_live(args.out, cfg, progress=not args.quiet)
     audio = "no audio" if cfg.audio == "none" else f"{cfg.audio} audio"
     print(f"wrote {res.video} ({res.frame_count} frames, {cfg.width}x{cfg.height} at {cfg.fps:g} fps, {audio}), "
           f"{res.meta} (per-frame head rotation and translation), {res.reference} and {res.mask}")
+    if cfg.truth_envs:
+        stems = ", ".join(f"live_{environment_stem(e)}/" for e in cfg.truth_envs)
+        print(f"wrote the live truth: {res.truth}/{{{stems}}} (every frame under each environment) and "
+              f"{res.truth}/silhouette/")
     print("timings: " + ", ".join(f"{k} {v:.1f}s" for k, v in res.timings.items()))
     return 0
 

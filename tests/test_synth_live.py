@@ -47,6 +47,7 @@ from .tolerances import (
     TONE_HZ_ABS,
     TONE_PEAK_MAX,
     TONE_RMS_RANGE,
+    TURNED_LIGHT_RATIO,
 )
 
 SIZE, SEED, SECONDS = (320, 180), 5, 2.0
@@ -276,6 +277,59 @@ def test_turning_toward_the_ceiling_light_and_the_window_brightens(scene):
 
 
 # ---------------------------------------------------------------------- audio and settings
+# ---------------------------------------------------------------------- the live frame's truth
+def test_turned_head_at_the_reference_pose_is_the_static_truth(scene):
+    """The live truth's shading at the reference pose is the static studio's (same lights, same
+    shadows): the room light's radiance equals the head's room-lit radiance the clip starts from."""
+    room = scene.studio.room
+    (turned,) = scene.studio.turned_head_radiance([room], np.eye(3))
+    np.testing.assert_allclose(turned, scene.studio.ambient_head(), rtol=F32_LOOSE, atol=F32_ZERO)
+
+
+def test_a_head_turned_toward_a_light_is_lit_more(scene):
+    """Convention: yaw turns the face toward +X (R z = (sin yaw, 0, cos yaw)); under one light at
+    +X the face turned toward it reflects more and its cast shadows turn with it."""
+    env = load_environment("builtin:point:1,0,0.4")
+    toward, away = (scene.studio.turned_head_radiance([env], rotation_matrix(y, 0, 0))[0].mean()
+                    for y in (25.0, -25.0))
+    assert toward > TURNED_LIGHT_RATIO * away
+    # the same light seen from the turned head's own frame: a pure roll keeps the camera's view
+    roll = rotation_matrix(0, 0, 30)
+    (rolled,) = scene.studio.turned_head_radiance([env], roll)
+    d = roll.T @ (np.array([1.0, 0.0, 0.4]) / np.linalg.norm([1.0, 0.0, 0.4]))
+    (again,) = scene.studio.turned_head_radiance([load_environment(f"builtin:point:{d[0]},{d[1]},{d[2]}")], np.eye(3))
+    assert np.abs(rolled - again).mean() < RADIANCE_MEAN_REL * np.abs(again).mean()
+
+
+def test_live_truth_frames_through_the_command_line(tmp_path):
+    """--live --truth-env writes every frame with the person under each environment (the camera's
+    exposure, no noise) and the person's pixels; the background is the clip's own, untouched."""
+    out, size, fps = tmp_path / "lt", (160, 90), 5
+    assert main(["synth", str(out), "--live", "--size", f"{size[0]}x{size[1]}", "--duration", "1", "--fps",
+                 str(fps), "--seed", str(SEED), "--truth-env", "builtin:sunset", "--truth-env", "builtin:window",
+                 "--quiet"]) == 0
+    meta = json.loads((out / "truth" / "meta.json").read_text())
+    assert meta["files"]["live_truth"] == {"sunset": "truth/live_sunset/%04d.png",
+                                           "window": "truth/live_window/%04d.png"}
+    assert meta["files"]["silhouette"] == "truth/silhouette/%04d.png"
+    assert meta["envs"] == {"sunset": "builtin:sunset", "window": "builtin:window"}
+    sc = LiveScene(LiveConfig(width=size[0], height=size[1], duration=1.0, fps=fps, seed=SEED))
+    changed = []
+    for i in range(fps):
+        sil = cv2.imread(str(out / "truth" / "silhouette" / f"{i:04d}.png"), cv2.IMREAD_UNCHANGED)
+        assert sil.shape == size[::-1] and set(np.unique(sil)) <= {0, 255}
+        _, cov = sc.render(*sc.pose(i))
+        np.testing.assert_array_equal(sil > 0, cov > 0.5)
+        plain = sc.camera_frame(i, noisy=False)
+        outside = cv2.dilate((cov > 0).astype(np.uint8), np.ones((3, 3), np.uint8)) == 0
+        for stem in ("sunset", "window"):
+            img = cv2.imread(str(out / (meta["files"]["live_truth"][stem] % i)))[..., ::-1]
+            assert img.shape == (*size[::-1], 3)
+            np.testing.assert_array_equal(img[outside], plain[outside])
+            changed.append(np.abs(img[sil > 0].astype(int) - plain[sil > 0]).mean())
+    assert min(changed) > FRAME_RENDER_CODES  # the person is relit, every frame
+
+
 def test_noise_audio_and_no_audio(tmp_path):
     rng = np.random.default_rng(0)
     a = make_audio("noise", AUDIO_RATE, rng)
@@ -317,6 +371,9 @@ def test_bad_settings_say_what_to_change(change, word):
 def test_command_line_refuses_capture_flags_with_live(tmp_path, capsys):
     assert main(["synth", str(tmp_path / "o"), "--live", "--flash-hz", "3", "--quiet"]) == 2
     assert "--flash-hz" in capsys.readouterr().err
+    assert main(["synth", str(tmp_path / "o"), "--live", "--truth-env", "builtin:sunset", "--truth-env",
+                 "other/sunset.exr", "--quiet"]) == 2
+    assert "distinct names" in capsys.readouterr().err
     assert main(["synth", str(tmp_path / "o"), "--audio", "noise", "--quiet"]) == 2
     assert "--live" in capsys.readouterr().err
     assert main(["synth", str(tmp_path / "o"), "--live", "--size", "200x101", "--quiet"]) == 2

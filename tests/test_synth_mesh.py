@@ -202,8 +202,16 @@ def test_synth_capture_and_live_clip_of_the_scan(tmp_path):
     assert len(ply.faces) > 10000
     live = tmp_path / "live"
     assert main(["synth", str(live), "--live", "--size", "320x180", "--duration", "1", "--head-mesh",
-                 "builtin:lee-perry-smith", "--quiet"]) == 0
+                 "builtin:lee-perry-smith", "--truth-env", "builtin:sunset", "--quiet"]) == 0
+    import cv2
+
     from relight.video import read_frames
 
     frames = list(read_frames(live / "live.mp4"))
     assert len(frames) == 30 and np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 0.5
+    # the live truth of a mesh head: every frame relit, hidden parts shaded too (no holes)
+    for i in (0, 29):
+        sil = cv2.imread(str(live / "truth" / "silhouette" / f"{i:04d}.png"), cv2.IMREAD_UNCHANGED) > 0
+        lit = cv2.imread(str(live / "truth" / "live_sunset" / f"{i:04d}.png"))[..., ::-1].astype(int)
+        assert sil.mean() > 0.1 and np.abs(lit[sil] - frames[i][sil]).mean() > 5.0
+        assert np.percentile(lit[sil].sum(axis=1), 1) > 30  # no black holes on the person

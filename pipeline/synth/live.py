@@ -58,6 +58,7 @@ import numpy as np
 from tqdm import tqdm
 
 from relight.directions import rotation_matrix
+from relight.envmap import environment_stem, load_environment
 from relight.errors import InputError
 from relight.imageio import atomic_path, write_image
 from relight.numerics import FLOAT
@@ -67,6 +68,7 @@ from .head import Head
 from .mesh_render import MeshLiveHead
 from .motion import AUDIO_KINDS, NOISE_RMS, TONE_HZ, TONE_PEAK, head_pose_track, make_audio
 from .render import LiveHead
+from .sh_light import environment_sh9
 from .studio import MAX_SIZE, MIN_SIZE, Studio, SynthConfig, head_info
 
 LIVE_FORMAT_VERSION = 1
@@ -110,6 +112,9 @@ class LiveConfig:
     head_normal_map: str | None = None
     head_specular_map: str | None = None
     head_texture_flip: bool = False
+    #: Environments to render the person under at every frame's pose (the live frame's truth:
+    #: ``truth/live_<stem>/NNNN.png`` and ``truth/silhouette/NNNN.png``); none by default.
+    truth_envs: tuple[str, ...] = ()
 
     def validate(self) -> LiveConfig:
         """Return self, or raise :class:`InputError` naming the setting to change."""
@@ -140,6 +145,9 @@ class LiveConfig:
             raise InputError(f"--crf {self.crf}: use a whole number from 0 (lossless) to 51")
         if self.audio not in AUDIO_KINDS:
             raise InputError(f"--audio {self.audio!r}: use one of {', '.join(AUDIO_KINDS)}")
+        stems = [environment_stem(e) for e in self.truth_envs]
+        if len(set(stems)) != len(stems):
+            raise InputError(f"--truth-env: environments must have distinct names, got {stems}")
         return self
 
     @property
@@ -246,6 +254,28 @@ class LiveScene:
         coverage[y0:y1, x0:x1] = cov
         return out, coverage
 
+    def render_lit(self, rotation: np.ndarray, translation, envs: list[np.ndarray]
+                   ) -> tuple[list[np.ndarray], np.ndarray]:
+        """The person under each environment (lat-long, linear, camera frame) at a pose: linear
+        frames (H, W, 3) float32 - the head with its full shading there (cast shadows and
+        specular from the studio's shader, the light turned into the head's frame), the
+        background the room-lit wall, untouched - and the head's coverage (H, W)."""
+        radiance = self.studio.turned_head_radiance(envs, rotation)
+        mesh = self.mesh
+        frames, coverage = [], np.zeros(self.wall.shape[:2], dtype=FLOAT)
+        for env, rad in zip(envs, radiance, strict=True):
+            img = self.studio.head_image(rad)
+            if isinstance(mesh, MeshLiveHead):
+                (x0, y0, x1, y1), head, cov = mesh.render(rotation, translation, lit=(img, environment_sh9(env)))
+            else:
+                (x0, y0, x1, y1), head, cov = mesh.render(rotation, translation, mesh.vertex_values(img))
+            out = self.wall.copy()
+            dst = out[y0:y1, x0:x1]
+            dst[:] = head + (1.0 - cov[..., None]) * dst
+            coverage[y0:y1, x0:x1] = cov
+            frames.append(out)
+        return frames, coverage
+
     def pose(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
         """Rotation matrix and translation [tx, ty] of ``frame``, exactly as recorded in the truth."""
         return rotation_matrix(*self.rotations[frame]), self.translations[frame]
@@ -346,9 +376,35 @@ def synthesize_live(out: str | Path, config: LiveConfig = LiveConfig(), *, progr
     meta = scene.meta()
     meta["files"] = {"video": "live.mp4", "reference": "truth/reference.png",
                      "mask_reference": "truth/mask_reference.png"}
+    if c.truth_envs:
+        t0 = time.perf_counter()
+        meta["files"].update(write_live_truth(scene, truth, progress=progress))
+        meta["envs"] = {environment_stem(e): e for e in c.truth_envs}
+        timings["truth_frames"] = time.perf_counter() - t0
     meta_path = truth / "meta.json"
     with atomic_path(meta_path) as tmp:
         tmp.write_text(json.dumps(meta, indent=1))
     timings["total"] = time.perf_counter() - t_all
     return LiveResult(out=out, video=video, truth=truth, meta=meta_path, reference=reference, mask=mask,
                       frame_count=scene.n, timings=timings)
+
+
+def write_live_truth(scene: LiveScene, truth: Path, *, progress: bool = False) -> dict:
+    """Every frame of the clip with the person under each of the scene's truth environments
+    (``truth/live_<stem>/NNNN.png``: 8-bit sRGB, the camera's exposure, no sensor noise, the
+    background untouched) and the person's pixels (``truth/silhouette/NNNN.png``: 0 or 255,
+    coverage over one half). Returns the ``meta["files"]`` entries (printf patterns)."""
+    c = scene.config
+    stems = [environment_stem(e) for e in c.truth_envs]
+    envs = [load_environment(e) for e in c.truth_envs]
+    folders = {stem: truth / f"live_{stem}" for stem in stems}
+    sil = truth / "silhouette"
+    for folder in (*folders.values(), sil):
+        folder.mkdir(parents=True, exist_ok=True)
+    for i in tqdm(range(scene.n), desc="truth frames", unit="frame", disable=not progress, leave=False):
+        frames, coverage = scene.render_lit(*scene.pose(i), envs)
+        for stem, linear in zip(stems, frames, strict=True):
+            write_image(folders[stem] / f"{i:04d}.png", scene.expose(linear, None))
+        write_image(sil / f"{i:04d}.png", ((coverage > 0.5) * 255).astype(np.uint8))
+    return {"live_truth": {stem: f"truth/live_{stem}/%04d.png" for stem in stems},
+            "silhouette": "truth/silhouette/%04d.png"}

@@ -87,11 +87,19 @@ class MeshLiveHead:
         tx, ty = translation
         return q @ r.T + self.pivot + np.array([tx, -ty, 0.0])
 
-    def render(self, rotation: np.ndarray, translation=(0.0, 0.0), values: np.ndarray | None = None
+    def render(self, rotation: np.ndarray, translation=(0.0, 0.0), values: np.ndarray | None = None, *,
+               lit: tuple[np.ndarray, np.ndarray] | None = None
                ) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]:
         """Rasterise the head at a pose: ``box`` (x0, y0, x1, y1), the premultiplied radiance
         (or ``values``, a reference image from :meth:`vertex_values`) (y1-y0, x1-x0, C) as the
-        mean over 2x2 samples a pixel, and the coverage (y1-y0, x1-x0)."""
+        mean over 2x2 samples a pixel, and the coverage (y1-y0, x1-x0).
+
+        lit : ``(radiance, sh)`` - the head's radiance already shaded for this pose ((H, W, 3)
+        at the reference pose's pixels, e.g. under another light with the light turned into the
+        head's frame) and that light's 9 SH coefficients (9, 3): samples seen at the reference
+        pose take the radiance as it is (no ratio), hidden ones their colour map under the
+        light's diffuse irradiance at their turned normal (unshadowed).
+        """
         rotation = np.asarray(rotation, dtype=np.float64)
         w_img, h_img = self.size
         p = self.project(rotation, translation)
@@ -128,15 +136,21 @@ class MeshLiveHead:
         else:
             n_ref = blend(self.mesh.normals)
             n_ref /= np.maximum(np.linalg.norm(n_ref, axis=1, keepdims=True), EPS)
-            e_ref = np.maximum(sh9_irradiance(self.sh, n_ref), self._e_floor)
             # the reference render where it saw the point (its weight channel normalises the
-            # bilinear blend at the mask's edge), else the colour map under the room's diffuse light
-            ref_img = _bilinear(self._ref, rx, ry)
+            # bilinear blend at the mask's edge), else the colour map under the diffuse light
+            if lit is None:
+                ref, sh, n_hidden = self._ref, self.sh, n_ref
+            else:
+                ref = np.concatenate([np.asarray(lit[0], dtype=np.float64), self._ref[..., 3:]], axis=2)
+                sh, n_hidden = np.asarray(lit[1], dtype=np.float64), n_ref @ rotation.T
+            e_hidden = np.maximum(sh9_irradiance(sh, n_hidden), 0.0 if lit is not None else self._e_floor)
+            ref_img = _bilinear(ref, rx, ry)
             wgt = ref_img[:, 3:4]
-            base = np.where((seen[:, None] & (wgt > 0.5)), ref_img[:, :3] / np.maximum(wgt, EPS),
-                            sample_map(self.mesh.albedo, blend(self.mesh.uv)) * e_ref / np.pi)
-            e_now = np.maximum(sh9_irradiance(self.sh, n_ref @ rotation.T), 0.0)
-            vals = base * np.minimum(e_now / e_ref, MAX_SHADING_RATIO)
+            vals = np.where((seen[:, None] & (wgt > 0.5)), ref_img[:, :3] / np.maximum(wgt, EPS),
+                            sample_map(self.mesh.albedo, blend(self.mesh.uv)) * e_hidden / np.pi)
+            if lit is None:  # the room's light at the reference pose, re-shaded for the turn
+                e_now = np.maximum(sh9_irradiance(self.sh, n_ref @ rotation.T), 0.0)
+                vals = vals * np.minimum(e_now / e_hidden, MAX_SHADING_RATIO)
         out = np.empty((gh // 2, gw // 2, nch), dtype=FLOAT)
         grid = np.zeros(gw * gh, dtype=FLOAT)
         for ch in range(nch):

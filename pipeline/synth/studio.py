@@ -28,7 +28,7 @@ from scipy.ndimage import distance_transform_edt
 from tqdm import tqdm
 
 from relight.directions import rotation_matrix
-from relight.envmap import Lights, environment_stem, environment_to_lights, load_environment
+from relight.envmap import Lights, environment_stem, environment_to_lights, load_environment, rotate_environment
 from relight.errors import InputError
 from relight.imageio import atomic_path, write_image
 from relight.kernels.shading import LightShader
@@ -279,6 +279,31 @@ class Studio:
                 acc += self.shader.shade(lights.dirs[sl], lights.power[sl], direction_index=lights.column[sl])[0]
             self._ambient_head = acc.astype(FLOAT)
         return self._ambient_head
+
+    def turned_head_radiance(self, envs: list[np.ndarray], rotation: np.ndarray) -> list[np.ndarray]:
+        """(P, 3) radiance of the head's shaded pixels under each environment (lat-long, linear,
+        camera frame) with the head turned by ``rotation`` (3, 3): the full shading of the
+        truth (cast shadows, specular), computed in the head's own frame - the environments
+        turned into it (what the camera frame sees toward ``d``, the head sees toward
+        ``R^T d``) and the camera seen from ``R^T z``. The head is rigid, so its self-shadowing
+        turns with it; radiance is per reference-pose pixel (move it with the live head's mesh).
+        """
+        r = np.asarray(rotation, dtype=np.float64)
+        if r.shape != (3, 3) or not np.isfinite(r).all():
+            raise InputError("rotation must be a finite 3x3 matrix")
+        if self.shader.n_dir != TRUTH_GRID[0]:
+            self.shader.prepare_horizons(TRUTH_GRID[0])
+        view = r.T @ np.array([0.0, 0.0, 1.0])
+        out: list[np.ndarray] = []
+        for start in range(0, len(envs), OUTPUTS_PER_PASS):
+            group = [self._truth_lights(rotate_environment(env, r.T)) for env in envs[start:start + OUTPUTS_PER_PASS]]
+            dirs, power, column = _union(group)
+            acc = np.zeros((len(group), self.surface.pix.size, 3), dtype=np.float64)
+            for a in range(0, dirs.shape[0], LIGHT_BATCH):
+                sl = slice(a, a + LIGHT_BATCH)
+                acc += self.shader.shade(dirs[sl], power[sl], direction_index=column[sl], view=view)
+            out.extend(require_finite("turned head radiance", img.astype(FLOAT)) for img in acc)
+        return out
 
     def head_image(self, radiance: np.ndarray) -> np.ndarray:
         """(P, 3) radiance at shaded pixels -> (H, W, 3) image, silhouette fringe filled, 0 elsewhere."""
