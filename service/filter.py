@@ -18,6 +18,7 @@ import os
 import queue
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -214,6 +215,8 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
     try:
         if inp.is_dir():
             _filter_sequence(inp, out, handle, fps, crf, res, progress, tqdm)
+        elif is_folder_output(out):
+            _filter_video_frames(inp, out, FramePipeline(fp, record), res, progress, tqdm)
         else:
             _filter_video(inp, out, FramePipeline(fp, record), crf, res, progress, tqdm)
     finally:
@@ -280,10 +283,26 @@ def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
                                      f"{size[0]}x{size[1]}; all images must have one size")
                 wr.write(handle(rgb, i / fps, i))
         return
-    # A folder of PNG frames: written into a temporary folder, renamed when complete.
+    with png_folder(out) as tmp:
+        for i, f in enumerate(tqdm(files, desc="filter", unit="frame", disable=not progress)):
+            rgb = first if i == 0 else _read_rgb8(f)
+            write_image(tmp / f"{i:06d}.png", handle(rgb, i / fps, i))
+
+
+def is_folder_output(out: Path) -> bool:
+    """A folder of PNG frames is written where OUT is a folder or a name without a suffix."""
+    return out.is_dir() or out.suffix == ""
+
+
+@contextmanager
+def png_folder(out: Path):
+    """A folder of PNG frames (``000000.png``, ...): written into a temporary folder beside it,
+    renamed to ``out`` when complete (an existing ``out`` must be an empty folder)."""
     import shutil
     import tempfile
 
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise InputError(f"{out}: exists and is not an empty folder; choose another output")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         clean_stale_temps(out.parent, out.name)  # a killed run's folder
@@ -291,9 +310,7 @@ def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
     except OSError as exc:
         raise OutputError(f"cannot write {out}: {os_reason(exc)}") from exc
     try:
-        for i, f in enumerate(tqdm(files, desc="filter", unit="frame", disable=not progress)):
-            rgb = first if i == 0 else _read_rgb8(f)
-            write_image(tmp / f"{i:06d}.png", handle(rgb, i / fps, i))
+        yield tmp
         if out.exists():
             if not out.is_dir() or any(out.iterdir()):
                 raise InputError(f"{out}: exists and is not an empty folder; choose another output")
@@ -305,6 +322,35 @@ def _filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm):
         if isinstance(exc, OSError):  # a frame's OutputError names the temporary folder: name the output
             raise OutputError(f"cannot write {out}: {os_reason(exc.__cause__ or exc)}") from exc
         raise
+
+
+def _filter_video_frames(inp, out, pipeline, res, progress, tqdm):
+    """A video into a folder of PNG frames (no second encode: what a measurement wants; the
+    audio is left out)."""
+    import av
+
+    from relight.imageio import write_image
+    from relight.video import METADATA_ERRORS, probe_video, read_frames
+
+    info = probe_video(inp)
+    fps = info.fps if info.fps and info.fps > 0 else 30.0
+    with av.open(str(inp), metadata_errors=METADATA_ERRORS) as c:
+        if c.streams.audio:
+            res.audio = "left out (PNG frames)"
+    bar = tqdm(total=info.frame_count or None, desc="filter", unit="frame", disable=not progress)
+    index = 0
+    try:
+        with png_folder(out) as tmp, pipeline:
+            pipeline.done = lambda frame_out, i: write_image(tmp / f"{i:06d}.png", frame_out)
+            for rgb in read_frames(inp):
+                pipeline.put(rgb, index / fps, index, index)
+                index += 1
+                bar.update(1)
+            pipeline.drain()
+            if index == 0:
+                raise InputError(f"{inp}: the video has no frames")
+    finally:
+        bar.close()
 
 
 class FramePipeline:

@@ -318,6 +318,32 @@ def test_filter_reads_image_sequences_and_writes_png_folders(small_bundle, clip,
     assert sorted(p.name for p in out.iterdir()) == [f"{i:06d}.png" for i in range(6)]
 
 
+def test_filter_writes_a_video_as_png_frames_without_a_second_encode(small_bundle, clip, tmp_path):
+    """A video into a folder (no suffix, or an empty folder): its frames as PNGs, each the
+    pipelined path's frame exactly (what the live frame's benchmark measures); the audio is
+    left out and the report says so; a folder with files in it is refused, nothing written."""
+    from relight.service.filter import run_filter
+
+    path, frames = clip
+    env = load_environment("builtin:sunset")
+    out = tmp_path / "frames"
+    res = run_filter(path, out, small_bundle, env, progress=False)
+    assert res.frames == len(frames) and res.audio.startswith("left out")
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [f"{i:06d}.png" for i in range(len(frames))]
+    video = tmp_path / "v.mp4"
+    run_filter(path, video, small_bundle, env, progress=False, crf=0)
+    first = cv2.imread(str(out / names[0]))[..., ::-1]
+    # the PNG frames differ from the lossless video's only by its 4:2:0 YUV round trip
+    assert np.abs(first.astype(int) - next(iter(read_frames(video))).astype(int)).mean() < PIPELINE_VS_SERIAL_CODES
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "keep.txt").write_text("mine")
+    with pytest.raises(InputError, match="not an empty folder"):
+        run_filter(path, full, small_bundle, env, progress=False)
+    assert [p.name for p in full.iterdir()] == ["keep.txt"]
+
+
 def test_filter_bad_input_fails_cleanly_and_leaves_no_output(small_bundle, clip, tmp_path, capsys):
     path, frames = clip
     bundle = str(small_bundle.path)
