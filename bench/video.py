@@ -11,6 +11,11 @@ of the same head (same seed and size). Measured:
 * the whole ``relight filter`` run in a fresh process (start-up, decode, encode included) on a
   10 s 640x360 clip, against the clip's duration.
 
+* the live frame against its truth (:mod:`relight.bench.live_frame`): ``relight filter`` into
+  PNG frames of clips whose every frame is also rendered under the target light - the person's
+  PSNR, the background's change, the seam, flicker - on the procedural and the scanned head and on
+  heads not developed on, with before/after sheets (``live-frame/sheet_*.png``).
+
 Writes ``bench.json``, ``video_pose.png`` (estimated vs true angles over time) and
 ``video_frames.png`` (input / output pairs to look at).
 """
@@ -318,6 +323,11 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = "built
                 print(f"timing the per-frame path at {size[0]}x{size[1]} ...", flush=True)
             r = _per_frame(big_bundle, synth_live(out, size, 10.0, progress), env, mode)
             doc["speed"].append({k: r[k] for k in SPEED_KEYS})
+    # The live frame against its truth (every frame rendered under the target light): the person
+    # relit, the background untouched, no seam - on the heads developed on and unseen ones.
+    from . import live_frame
+
+    doc["live_frame"] = live_frame.run(out / "live-frame", quick=quick, progress=progress, mode=mode)
     if progress:
         print("running relight filter on a 10 s clip ...", flush=True)
     doc["filter"] = _filter_run(f_bundle, f_live, out, env)
@@ -402,6 +412,10 @@ def table(doc: dict) -> str:
                          f"{r['wall_ms_per_frame']:6.1f} "
                          f"{r['cpu_ms_per_frame']:6.1f} {cores:5.2f} {_pct(r.get('cpu_steal')):>5s} {reused:>7s}  "
                          + " ".join(f"{k} {st[k]['median']:.1f}" for k in STAGES if k != "total"))
+    if doc.get("live_frame"):
+        from . import live_frame
+
+        lines.append(live_frame.table(doc["live_frame"]))
     for key in ("filter", "filter_720"):
         f = doc.get(key)
         if f:

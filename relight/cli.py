@@ -457,7 +457,10 @@ def _add_bench(sub) -> None:
                                     "against the truth (at 640x360 also on two other synthetic heads, each with "
                                     "its own capture), the per-frame path's time per stage (decode/encode "
                                     "excluded), flicker, and a whole `relight filter` run in a fresh process "
-                                    "against the clip's duration; and real faces: a clip of each subject's photo "
+                                    "against the clip's duration; the live frame against its truth (the clip "
+                                    "rendered under the target light at every pose: PSNR over the person and the "
+                                    "face, the background's change, the seam, flicker; live-frame/sheet_*.png); "
+                                    "and real faces: a clip of each subject's photo "
                                     "under a side light, moving, relit toward a held-out light in every mode, "
                                     "against the photo under that light. Writes bench.json, video_pose.png and "
                                     "video_frames.png.",
