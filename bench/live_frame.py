@@ -14,7 +14,8 @@ Figures of one clip (one head, one environment), over every frame:
   off the person - beyond :data:`OUTSIDE_PAD_PX` of the silhouette (its anti-aliased edge is the
   person's) - mean and 99.9th percentile over the pixels of every frame, in 8-bit codes (the
   largest of the three channels);
-* ``seam_ratio``: the mean error (``|gain * output - truth|``, codes) in a band
+* ``seam_ratio``: the mean error (``|gain * output - truth|`` on the person, ``|output - truth|``
+  off it; codes) in a band
   :data:`SEAM_BAND_PX` wide on each side of the composite's boundary - where the filter's change
   ends: the output differs from the input by more than :data:`CHANGED_CODES` there, closed and
   filled - against the mean error inside the composite beyond that band;
@@ -201,12 +202,14 @@ def evaluate(bundle: Path, live: Path, env_stem: str, frames_dir: Path, *, bundl
     gain = float((pred * want).sum() / max(float((pred * pred).sum()), 1e-30))
     doc["gain"] = gain
     band_err, inner_err = [], []
-    for inp, out, truth in zip(inputs, outputs, truths, strict=True):
+    for inp, out, truth, sil in zip(inputs, outputs, truths, sils, strict=True):
         region = composite_region(inp, out)
         if region.sum() < 100:
             continue
         band, inner = _band(region, SEAM_BAND_PX)
-        err = np.abs(_codes(gain * decode_srgb8(out)) - truth.astype(np.float64)).mean(axis=2)
+        # the clip's gain on the person; off it the output is compared as it is (it must not move)
+        gained = np.where(sil[..., None], _codes(gain * decode_srgb8(out)), out.astype(np.float64))
+        err = np.abs(gained - truth.astype(np.float64)).mean(axis=2)
         band_err.append(err[band])
         inner_err.append(err[inner])
     if band_err:

@@ -34,6 +34,7 @@ from .tolerances import (
     TRUST_LOW_SHARE,
     WARP_AFFINE_PX,
     WARP_HULL_SHARE,
+    WHOLE_PERSON_SHARE,
 )
 
 
@@ -227,6 +228,32 @@ def test_frames_are_relit_on_the_face_and_untouched_elsewhere(frame_path, small_
             assert changed.sum() > RELIT_SHARE * small_bundle.mask.sum()  # the face took the new light
             assert not (changed & ~head).any()
     assert found >= 28
+
+
+def test_the_whole_person_relit_stays_on_the_person(small_bundle, small_capture, clip):
+    """whole_head=True: the light's change reaches past the face (neck, hair) and stays on the
+    person - the studio's head and neck at the reference pose, grown by the capture's motion -
+    even where the segmentation model sees shoulders on the wall (this clip's cartoon head has
+    none)."""
+    from relight.imageio import read_image
+    from relight.service.frame_path import FramePath
+
+    _, frames = clip
+    res, _ = small_capture
+    person = read_image(res.truth / "mask.png")[..., 0] > 0.5
+    grown = cv2.dilate(person.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+    env = load_environment("builtin:sunset")
+    whole, face_only = FramePath(small_bundle, env, whole_head=True), FramePath(small_bundle, env)
+    more = []
+    for i, f in enumerate(frames[:20]):
+        out, info = whole.process(f, i / 30)
+        ref, _ = face_only.process(f, i / 30)
+        if not info.face:
+            continue
+        changed = np.abs(out.astype(int) - f.astype(int)).sum(axis=2) > 3
+        assert not (changed & ~grown).any()
+        more.append(changed.sum() / max((np.abs(ref.astype(int) - f.astype(int)).sum(axis=2) > 3).sum(), 1))
+    assert len(more) >= 18 and np.median(more) > WHOLE_PERSON_SHARE
 
 
 def test_strength_zero_and_faceless_frames_pass_through(small_bundle, clip):

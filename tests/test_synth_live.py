@@ -17,7 +17,7 @@ from relight.imageio import read_image
 from relight.pipeline.synth.head import height_units, inside
 from relight.pipeline.synth.live import LiveConfig, LiveScene
 from relight.pipeline.synth.motion import head_pose_track, make_audio
-from relight.pipeline.synth.sh_light import environment_sh9, sh9_irradiance
+from relight.spherical_harmonics import environment_sh9, sh9_irradiance
 from relight.video import AUDIO_RATE, VideoWriter, read_frames
 
 from .tolerances import (

@@ -150,6 +150,9 @@ STILL_HEAD_RESIZED_DEG = 4.0
 RELIT_SHARE = 0.3
 #: The two-stage pipeline against the serial path: mean absolute difference (8-bit codes) per frame.
 PIPELINE_VS_SERIAL_CODES = 2.0
+#: The whole person relit against the face alone: pixels changed, at least this many times as many
+#: (the neck and hair of the synthetic head).
+WHOLE_PERSON_SHARE = 1.2
 #: Live trust in the layer: at least this share of the face distrusted (< 0.05) and trusted (> 0.95).
 TRUST_LOW_SHARE = 0.02
 TRUST_HIGH_SHARE = 0.2

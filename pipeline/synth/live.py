@@ -62,13 +62,13 @@ from relight.envmap import environment_stem, load_environment
 from relight.errors import InputError
 from relight.imageio import atomic_path, write_image
 from relight.numerics import FLOAT
+from relight.spherical_harmonics import environment_sh9
 from relight.video import AUDIO_RATE, VideoWriter
 
 from .head import Head
 from .mesh_render import MeshLiveHead
 from .motion import AUDIO_KINDS, NOISE_RMS, TONE_HZ, TONE_PEAK, head_pose_track, make_audio
 from .render import LiveHead
-from .sh_light import environment_sh9
 from .studio import MAX_SIZE, MIN_SIZE, Studio, SynthConfig, head_info
 
 LIVE_FORMAT_VERSION = 1

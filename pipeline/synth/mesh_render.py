@@ -24,12 +24,12 @@ import numpy as np
 
 from relight.directions import fibonacci_sphere
 from relight.numerics import EPS, FLOAT
+from relight.spherical_harmonics import SPHERE_POINTS, environment_sh9, sh9_irradiance
 
 from ..raster import rasterise
 from .head import Head
 from .mesh_head import HeadMesh, Placement, sample_map
 from .render import IRRADIANCE_FLOOR, MAX_SHADING_RATIO
-from .sh_light import SPHERE_POINTS, environment_sh9, sh9_irradiance
 
 #: A sample was visible at the reference pose when its depth is within this many pixels of the
 #: reference's depth buffer there (the buffer is sampled bilinearly; steep sides need the slack).

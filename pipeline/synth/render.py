@@ -10,10 +10,10 @@ from scipy.ndimage import distance_transform_edt
 
 from relight.directions import fibonacci_sphere
 from relight.numerics import EPS, FLOAT
+from relight.spherical_harmonics import MONOMIALS, SPHERE_POINTS, environment_sh9, sh9_irradiance, sh9_irradiance_matrix
 
 from ..raster import rasterise
 from .head import Head, height_units, inside
-from .sh_light import MONOMIALS, SPHERE_POINTS, environment_sh9, sh9_irradiance, sh9_irradiance_matrix
 
 #: Irradiance-ratio guards: the reference irradiance is floored at this share of the brightest
 #: direction's, and the ratio is capped.

@@ -1,6 +1,10 @@
-"""Light of the synthetic live clips as order-2 spherical harmonics (9 coefficients per channel):
-an environment's projection, the irradiance it gives a normal (Ramamoorthi & Hanrahan's
-cosine-lobe convolution), and that irradiance as a quadratic form in the normal."""
+"""Light as order-2 spherical harmonics (9 coefficients per channel): an environment's or a set
+of directional lights' projection, the irradiance it gives a normal (Ramamoorthi & Hanrahan
+2001's cosine-lobe convolution), and that irradiance as a quadratic form in the normal.
+
+Used where only the light's low frequencies matter: the synthetic live clips' turning head, and
+the live frame's shading beyond the bundle's face (hair, ears, neck). Directions are unit
+vectors in whatever frame the caller's light is in; radiance linear RGB."""
 
 from __future__ import annotations
 
@@ -34,6 +38,12 @@ def environment_sh9(env: np.ndarray) -> np.ndarray:
     y = sh9_basis(equirect_directions(w, h))
     weight = equirect_solid_angles(w, h)[:, None, None]
     return np.einsum("hwk,hwc->kc", y * weight, env.astype(np.float64))
+
+
+def lights_sh9(dirs: np.ndarray, power: np.ndarray) -> np.ndarray:
+    """(9, 3) SH coefficients of directional lights: unit ``dirs`` (L, 3) with ``power`` (L, 3)
+    (radiance x solid angle, as :func:`environment_sh9` weighs its texels)."""
+    return sh9_basis(np.asarray(dirs, dtype=np.float64)).T @ np.asarray(power, dtype=np.float64)
 
 
 def sh9_irradiance(coeffs: np.ndarray, normals: np.ndarray) -> np.ndarray:

@@ -1,0 +1,186 @@
+"""The whole person relit: the light's change carried from the bundle's face to the hair, ears,
+neck and shoulders, so no boundary shows and nothing off the person changes.
+
+The bundle knows the face; beyond it the live frame has only the person's matte
+(:mod:`.person`). There the change of light is the ratio of the target's diffuse irradiance to
+the live light's at a proxy normal, in linear light::
+
+    rho(x) = c(x) * (E_target(n(x)) + e) / (E_live(n(x)) + e)
+
+* ``n(x)``: the matte inflated into a round body (:func:`inflate_normals`): a surface of circular
+  cross-section of radius ``R`` rising from the matte's edge - facing sideways at the outline,
+  the camera inside it (a silhouette's own shape: hair, ears and shoulders turn away at their
+  edges, as they do);
+* ``E``: order-2 spherical harmonics irradiance (:mod:`relight.spherical_harmonics`) of the
+  target environment and of the live light the frame path fitted on the face, both in the
+  camera's frame; ``e`` regularises where the live light leaves a part dark;
+* ``c(x)``: the correction that makes the ratio the bundle's own on the face - the face's ratio
+  (composited output over input) divided by the proxy's there, in log, extrapolated over the
+  person by normalised convolution (a Gaussian of the head's size), so the ratio is continuous
+  across the face's feathered edge and its level is the bundle's.
+
+The output is ``out = f + P ((c - f) + (1 - A) (f rho - f))`` (linear): ``c`` the frame with the
+face composited, ``A`` the face's alpha, ``P`` the person's matte, ``f`` the frame - the face's
+composite too is held to the person (a warp that reaches past the cheek leaves the wall alone).
+All maps are computed at the work scale (a few hundred rows: the ratio is smooth) and applied at
+full resolution in the person's box.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from relight.colour import decode_lut8, encode_srgb8
+from relight.spherical_harmonics import sh9_irradiance
+
+#: The inflated body's radius, as a share of the face's size (sqrt of its area): heads,
+#: necks and shoulders are a few face sizes across.
+INFLATE_RADIUS = 0.6
+#: Regulariser of the irradiance ratio, as a share of the live light's median irradiance over
+#: the person.
+RATIO_EPS = 0.05
+#: Bounds of the ratio applied beyond the face.
+RATIO_MAX = 6.0
+#: Face pixels whose alpha is above this, and whose luminance (linear) is above DARK_LUM, give the
+#: correction.
+FACE_CORE = 0.9
+DARK_LUM = 0.01
+#: Spread of the correction's extrapolation, as a share of the face's size.
+SPREAD = 0.5
+#: Matte values below this are off the person (no work).
+MATTE_FLOOR = 0.02
+
+
+def attached_to_face(matte: np.ndarray, face_alpha: np.ndarray) -> np.ndarray:
+    """The matte (h, w) kept only on its parts connected to the face (alpha > 0.5): the person
+    is one body with the face; anything else the segmentation took for a person (another
+    person, a lamp, a shadow on the wall) stays untouched. Soft edges kept (the kept parts are
+    grown by a pixel before the matte is cut)."""
+    solid = (matte > 0.5).astype(np.uint8)
+    n, labels = cv2.connectedComponents(solid, connectivity=8)
+    if n <= 1:
+        return np.zeros_like(matte)
+    hit = np.unique(labels[(face_alpha > 0.5) & (solid > 0)])
+    hit = hit[hit > 0]
+    keep = np.isin(labels, hit).astype(np.uint8)
+    keep = cv2.dilate(keep, np.ones((3, 3), np.uint8))
+    return (matte * keep).astype(np.float32)
+
+
+#: Colour check of the matte: the ring around the person the background is sampled in (a share
+#: of the face's size), and the colour difference (CIE Lab, Delta E) below which a pixel the
+#: model calls the person is the background continuing behind it (a wall's noise and texture
+#: are a few units; skin, hair and clothes against it many).
+BACKGROUND_RING = 0.5
+BACKGROUND_DELTA_E = 8.0
+
+
+def colour_check(rgb: np.ndarray, matte: np.ndarray, face_alpha: np.ndarray, face_px: float) -> np.ndarray:
+    """The matte (h, w) with what looks like the background taken out: a segmentation model
+    trained on selfies sees shoulders where a person usually has them; a pixel it calls the
+    person (off the face) whose colour is within BACKGROUND_DELTA_E of the background there -
+    the colours of a ring just outside the matte spread inward (normalised convolution), so a
+    graded or textured wall is matched where it is - is the wall. ``rgb`` (h, w, 3) uint8 at the
+    matte's scale."""
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+    lab[..., 0] *= 100.0 / 255.0  # OpenCV's 8-bit Lab: L in 0-255, a and b offset by 128
+    grow = max(int(round(BACKGROUND_RING * face_px)), 2)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2)
+    ring = (cv2.dilate((matte > 0.05).astype(np.uint8), disc) > 0) & (matte < 0.05)
+    doubt = (matte > 0.05) & (face_alpha <= 0.5)
+    if ring.sum() < 16 or not doubt.any():
+        return matte
+    local = extrapolate_log(lab, ring.astype(np.float32), float(grow))
+    reach = cv2.GaussianBlur(ring.astype(np.float32), (0, 0), float(grow)) > 1e-3
+    d2 = ((lab - local) ** 2).sum(axis=2)
+    wall = doubt & reach & (d2 < BACKGROUND_DELTA_E ** 2)
+    out = np.where(wall, 0.0, matte).astype(np.float32)
+    # soft again at the cut: a 3x3 mean of the kept matte, never above the model's own value
+    return np.minimum(cv2.blur(out, (3, 3)), matte).astype(np.float32)
+
+
+def inflate_normals(matte: np.ndarray, radius_px: float) -> np.ndarray:
+    """(h, w, 3) float32 unit normals (camera frame: +X right, +Y up, +Z toward the camera) of
+    the matte (h, w) in 0-1 inflated into a body of circular cross-section: height
+    ``sqrt(d (2 R - d))`` at distance ``d`` (px) inside the edge, ``R`` beyond - facing sideways
+    at the outline, the camera inside."""
+    inside = (matte > 0.5).astype(np.uint8)
+    d = cv2.distanceTransform(inside, cv2.DIST_L2, 5).astype(np.float32)
+    r = np.float32(max(radius_px, 1.0))
+    dc = np.minimum(d, r)
+    z = np.sqrt(np.maximum(dc * (2.0 * r - dc), 0.0))
+    sigma = max(0.15 * float(r), 0.8)
+    z = cv2.GaussianBlur(z, (0, 0), sigma)
+    gy, gx = np.gradient(z)
+    n = np.stack([-gx, gy, np.ones_like(z)], axis=-1)  # image rows run down, camera +Y up
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return n.astype(np.float32)
+
+
+def extrapolate_log(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
+    """Normalised convolution: the weighted Gaussian average of ``values`` (h, w, C) with
+    ``weight`` (h, w) >= 0, defined everywhere the Gaussian reaches a weighted pixel (0 beyond)."""
+    w = weight.astype(np.float32)
+    num = cv2.GaussianBlur(values * w[..., None], (0, 0), sigma)
+    den = cv2.GaussianBlur(w, (0, 0), sigma)
+    return np.where(den[..., None] > 1e-6, num / np.maximum(den, 1e-6)[..., None], 0.0).astype(np.float32)
+
+
+def ratio_field(frame_lin: np.ndarray, composite_lin: np.ndarray, face_alpha: np.ndarray, matte: np.ndarray,
+                target_sh: np.ndarray, live_sh: np.ndarray, face_px: float) -> np.ndarray:
+    """(h, w, 3) float32 linear ratio rho over the person at the work scale (module docstring).
+
+    frame_lin, composite_lin : (h, w, 3) the frame and the face-composited frame, linear;
+    face_alpha, matte : (h, w) in 0-1; target_sh, live_sh : (9, 3) camera-frame SH radiance;
+    face_px : the face's size (sqrt of its area) at the work scale."""
+    normals = inflate_normals(matte, INFLATE_RADIUS * face_px)
+    e_t = np.maximum(sh9_irradiance(target_sh, normals), 0.0)
+    e_l = np.maximum(sh9_irradiance(live_sh, normals), 0.0)
+    person = matte > 0.5
+    eps = RATIO_EPS * max(float(np.median(e_l[person].mean(axis=1))) if person.any() else 0.0, 1e-12)
+    proxy = ((e_t + eps) / (e_l + eps)).astype(np.float32)
+    lum_f = frame_lin @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    core = (face_alpha > FACE_CORE) & (lum_f > DARK_LUM)
+    face_ratio = (composite_lin + 1e-4) / (frame_lin + 1e-4)
+    log_c = np.log(np.clip(face_ratio, 1.0 / RATIO_MAX, RATIO_MAX) / np.maximum(proxy, 1e-6))
+    if core.sum() >= 16:
+        corr = extrapolate_log(log_c, core.astype(np.float32), SPREAD * face_px)
+        # where the Gaussian does not reach: the core's median correction
+        far = cv2.GaussianBlur(core.astype(np.float32), (0, 0), SPREAD * face_px) <= 1e-6
+        corr[far] = np.median(log_c[core], axis=0)
+    else:
+        corr = np.zeros_like(proxy)
+    return np.clip(proxy * np.exp(corr), 1.0 / RATIO_MAX, RATIO_MAX).astype(np.float32)
+
+
+def relight_person(frame: np.ndarray, composite: np.ndarray, face_alpha: np.ndarray, matte: np.ndarray,
+                   rho: np.ndarray) -> np.ndarray:
+    """The output frame (H, W, 3) uint8 sRGB: ``f + P ((c - f) + (1 - A) (f rho - f))`` in linear
+    light (``c`` the face-composited frame), with the work-scale maps (face_alpha, matte (h, w);
+    rho (h, w, 3)) brought up to the frame bilinearly: the face's composite and the ratio beyond
+    it both held to the person - off it the frame is the input's, untouched."""
+    h, w = frame.shape[:2]
+    sh, sw = matte.shape
+    ys, xs = np.nonzero(cv2.resize(np.maximum(matte, face_alpha), (w, h), interpolation=cv2.INTER_LINEAR)
+                        > MATTE_FLOOR)
+    out = frame.copy()
+    if ys.size == 0:
+        return out
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    # the work maps resized over the box only (coordinates of the box's pixels in the work grid)
+    gx = ((np.arange(x0, x1) + 0.5) * sw / w - 0.5).astype(np.float32)
+    gy = ((np.arange(y0, y1) + 0.5) * sh / h - 0.5).astype(np.float32)
+    mx, my = np.meshgrid(gx, gy)
+    # the person: the matte, and the face's own interior wherever the matte misses it (a face
+    # half in the dark is still the bundle's face; only its feathered fringe is the matte's)
+    person = np.maximum(matte, np.clip(2.0 * face_alpha - 1.0, 0.0, 1.0))
+    p = cv2.remap(person, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    rest = cv2.remap(1.0 - face_alpha, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    r = cv2.remap(rho, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    lut = decode_lut8()
+    f = lut[frame[y0:y1, x0:x1]]
+    c = lut[composite[y0:y1, x0:x1]]
+    res = f + p[..., None] * ((c - f) + rest[..., None] * (f * r - f))
+    out[y0:y1, x0:x1] = encode_srgb8(np.clip(res, 0.0, 1.0))
+    return out

@@ -1,0 +1,95 @@
+"""The person's pixels in a live frame: a soft matte (0-1) of the head, hair, ears, neck and
+shoulders - what the live frame relights; nothing off it may change.
+
+MediaPipe's selfie segmentation model (landscape: 256x144 input; shipped in
+``models/selfie-segmentation/`` with its Apache 2.0 licence, see NOTICE) runs through OpenCV's
+TFLite importer on the frame scaled to its input (letterboxed: the frame's aspect kept, the
+border replicated). Its 256x144 probability is brought up to the frame edge-aware: a guided
+filter (He et al. 2013; ``cv2.ximgproc``) with the frame's grey as the guide at
+:data:`WORK_ROWS` rows makes the matte's edge follow the frame's own edges (hair against a wall),
+then bilinear to full size.
+
+Arrays: frames (H, W, 3) uint8 sRGB; the matte (H, W) float32 in [0, 1].
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from relight.errors import InputError
+
+MODEL_DIR = Path(__file__).parent / "models" / "selfie-segmentation"
+#: The model's input (width, height).
+MODEL_SIZE = (256, 144)
+#: Rows of the guided filter's work (the matte is refined there, then resized to the frame).
+WORK_ROWS = 270
+#: Guided filter: radius (px at WORK_ROWS) and regulariser (grey 0-1, squared): edges of more
+#: than ~sqrt(eps) contrast pull the matte's edge onto them.
+GUIDE_RADIUS = 4
+GUIDE_EPS = 2e-3
+
+
+def model_info() -> dict:
+    """The shipped model's manifest (model.json)."""
+    return json.loads((MODEL_DIR / "model.json").read_text())
+
+
+def _letterbox(rgb: np.ndarray) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """The frame scaled into the model's input keeping its aspect, the rest the replicated
+    border: (input (144, 256, 3) uint8, the frame's box (x0, y0, w, h) in it)."""
+    mw, mh = MODEL_SIZE
+    h, w = rgb.shape[:2]
+    s = min(mw / w, mh / h)
+    nw, nh = max(1, min(mw, round(w * s))), max(1, min(mh, round(h * s)))
+    small = cv2.resize(rgb, (nw, nh), interpolation=cv2.INTER_AREA)
+    x0, y0 = (mw - nw) // 2, (mh - nh) // 2
+    boxed = cv2.copyMakeBorder(small, y0, mh - nh - y0, x0, mw - nw - x0, cv2.BORDER_REPLICATE)
+    return boxed, (x0, y0, nw, nh)
+
+
+class PersonMatte:
+    """The person's matte in frames (see the module docstring). Not thread-safe: one per thread
+    that uses it (OpenCV's network keeps its buffers)."""
+
+    def __init__(self):
+        info = model_info()
+        path = MODEL_DIR / info["file"]
+        if not path.is_file():
+            raise InputError(f"{path}: the person segmentation model is missing; reinstall relight")
+        self.net = cv2.dnn.readNetFromTFLite(str(path))
+        self.net.setPreferableBackend(cv2.dnn.DNN_BACKEND_OPENCV)
+        self.net.setPreferableTarget(cv2.dnn.DNN_TARGET_CPU)
+
+    def probability(self, rgb: np.ndarray) -> np.ndarray:
+        """The model's person probability over the frame, at the model's scale: (h, w) float32
+        with the frame's aspect (the letterbox removed)."""
+        rgb = np.asarray(rgb)
+        if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+            raise InputError(f"frame of shape {rgb.shape} and type {rgb.dtype}: expected (H, W, 3) uint8 RGB")
+        boxed, (x0, y0, w, h) = _letterbox(rgb)
+        blob = np.ascontiguousarray((boxed.astype(np.float32) * np.float32(1.0 / 255.0)).transpose(2, 0, 1)[None])
+        self.net.setInput(blob)
+        prob = self.net.forward().reshape(MODEL_SIZE[1], MODEL_SIZE[0])
+        prob = np.nan_to_num(prob, nan=0.0, posinf=1.0, neginf=0.0)
+        return np.clip(prob[y0:y0 + h, x0:x0 + w], 0.0, 1.0).astype(np.float32)
+
+    def __call__(self, rgb: np.ndarray, *, work: bool = False) -> np.ndarray:
+        """(H, W) float32 matte in [0, 1] (``work``: at :data:`WORK_ROWS` rows instead)."""
+        prob = self.probability(rgb)
+        h, w = rgb.shape[:2]
+        s = min(1.0, WORK_ROWS / h)
+        ww, wh = max(1, round(w * s)), max(1, round(h * s))
+        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        if s < 1:
+            grey = cv2.resize(grey, (ww, wh), interpolation=cv2.INTER_AREA)
+        coarse = cv2.resize(prob, (ww, wh), interpolation=cv2.INTER_LINEAR)
+        guide = grey.astype(np.float32) * np.float32(1.0 / 255.0)
+        fine = cv2.ximgproc.guidedFilter(guide, coarse, GUIDE_RADIUS, GUIDE_EPS)
+        fine = np.clip(fine, 0.0, 1.0)
+        if work or s == 1:
+            return fine
+        return cv2.resize(fine, (w, h), interpolation=cv2.INTER_LINEAR)
