@@ -19,7 +19,7 @@ Figures of one clip (one head, one environment), over every frame:
   :data:`SEAM_BAND_PX` wide on each side of the composite's boundary - where the filter's change
   ends: the output differs from the input by more than :data:`CHANGED_CODES` there, closed and
   filled - against the mean error inside the composite beyond that band;
-* ``flicker_codes``: :func:`relight.bench.video.flicker_step`'s mean (the output's change on the
+* ``flicker_codes``: :func:`relight.bench.clips.flicker_step`'s mean (the output's change on the
   face minus the input's); ``error_flicker_codes``: the mean change of the error against the
   truth from one frame to the next over the person (what the truth does not do);
 * ``relit_frames``: frames with a face (from the filter's report).
@@ -66,9 +66,9 @@ def synth_truth_clip(out: Path, size: tuple[int, int], envs: tuple[str, ...], *,
     """A live clip with its truth under ``envs`` (cached by its settings)."""
     from relight.pipeline.synth.live import LiveConfig, synthesize_live
 
-    from .video import _head_tag
+    from .clips import head_tag
 
-    tag = f"truth-{size[0]}x{size[1]}-{duration:g}s-seed{seed}{_head_tag(head_mesh)}-" + \
+    tag = f"truth-{size[0]}x{size[1]}-{duration:g}s-seed{seed}{head_tag(head_mesh)}-" + \
         "-".join(e.removeprefix("builtin:") for e in envs)
     folder = out / "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in tag)
     if not (folder / "truth" / "meta.json").exists():
@@ -167,7 +167,7 @@ def evaluate(bundle: Path, live: Path, env_stem: str, frames_dir: Path, *, bundl
     from relight.colour import decode_srgb8
     from relight.video import read_frames
 
-    from .video import flicker_step
+    from .clips import flicker_step
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
     pattern = meta["files"]["live_truth"][env_stem]
@@ -340,7 +340,7 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
     import relight
     from relight.envmap import environment_stem
 
-    from .video import synth_bundle
+    from .clips import synth_bundle
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .clips import CAPTURE_HZ as CLIP_CAPTURE_HZ
+from .clips import flicker_step, synth_bundle, synth_live  # noqa: F401 (used by the other benches)
 from .machine import cpu_jiffies, steal_share
 
 STAGES = ("track", "pose", "relight", "light", "warp", "composite", "total")
@@ -40,7 +42,7 @@ HEAD_KEYS = ("size", "frames", "faces", "first_face_frame", "rotation_error_deg"
 #: The capture the synthetic clips are filtered with: short and sparse, as a user's first try is
 #: (24 s at a 4 Hz flash: the issue's condition for the head-pose goal).
 CAPTURE_S = 24.0
-CAPTURE_HZ = 4.0
+CAPTURE_HZ = CLIP_CAPTURE_HZ
 #: The per-frame path's speed is also measured on live clips of these sizes, with a bundle
 #: captured at SPEED_CAPTURE (its face capped at the capture's default face pixels).
 SPEED_SIZES = ((1280, 720), (1920, 1080))
@@ -56,47 +58,6 @@ POSE_HEADS = (1, 2)
 
 #: The scanned head shipped with relight, measured beside the procedural one (issue 31).
 SCAN = "builtin:lee-perry-smith"
-
-
-def synth_bundle(out: Path, size: tuple[int, int], duration: float, progress: bool, flash_hz: float = CAPTURE_HZ,
-            seed: int = 0, head_mesh: str | None = None) -> Path:
-    """A bundle captured from a static studio capture of head ``seed`` (or the mesh
-    ``head_mesh``) at ``size`` (cached)."""
-    from relight.pipeline.capture import capture
-    from relight.pipeline.synth.studio import SynthConfig, synthesize
-
-    tag = f"{size[0]}x{size[1]}-{duration:g}s-{flash_hz:g}hz" + (f"-seed{seed}" if seed else "") + _head_tag(head_mesh)
-    cap = out / f"capture-{tag}"
-    bundle = out / f"face-{tag}.bundle"
-    if not bundle.exists():
-        if not (cap / "capture.mp4").exists():
-            if progress:
-                print(f"synthesising a {size[0]}x{size[1]} capture ...", flush=True)
-            synthesize(cap, SynthConfig(width=size[0], height=size[1], duration=duration, seed=seed, flash_hz=flash_hz,
-                                        head_mesh=head_mesh), progress=progress)
-        if progress:
-            print("capturing it ...", flush=True)
-        capture(cap / "capture.mp4", bundle, progress=progress)
-    return bundle
-
-
-def synth_live(out: Path, size: tuple[int, int], duration: float, progress: bool, seed: int = 0,
-               head_mesh: str | None = None) -> Path:
-    from relight.pipeline.synth.live import LiveConfig, synthesize_live
-
-    folder = out / (f"live-{size[0]}x{size[1]}-{duration:g}s" + (f"-seed{seed}" if seed else "") + _head_tag(head_mesh))
-    if not (folder / "truth" / "meta.json").exists():
-        if progress:
-            print(f"synthesising a {size[0]}x{size[1]} live video ...", flush=True)
-        synthesize_live(folder, LiveConfig(width=size[0], height=size[1], duration=duration, seed=seed,
-                                           head_mesh=head_mesh), progress=progress)
-    return folder
-
-
-def _head_tag(head_mesh: str | None) -> str:
-    if head_mesh is None:
-        return ""
-    return "-" + "".join(ch if ch.isalnum() else "_" for ch in str(head_mesh).removeprefix("builtin:"))
 
 
 def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
@@ -206,18 +167,6 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
             "flicker_p95_codes": float(np.percentile(flick, 95)) if flick else None,
             "live_light_last": lights.get(str(len(frames) - 1)),
             "estimates": estimates, "raw_estimates": raw, "truth": meta["head_rotation"], "_pairs": pairs}
-
-
-def flicker_step(inp0: np.ndarray, out0: np.ndarray, inp1: np.ndarray, out1: np.ndarray) -> float | None:
-    """Flicker between two frames (8-bit codes): the mean absolute change of the output's face
-    minus the input's own change there (the face: pixels the filter changed by more than one
-    code in the second frame). None without a face."""
-    face = np.abs(out1.astype(np.int16) - inp1.astype(np.int16)).max(axis=2) > 1
-    if face.sum() < 100:
-        return None
-    do = np.abs(out1.astype(np.int16) - out0.astype(np.int16)).mean(axis=2)[face].mean()
-    di = np.abs(inp1.astype(np.int16) - inp0.astype(np.int16)).mean(axis=2)[face].mean()
-    return float(do - di)
 
 
 def _filter_run(bundle_path: Path, live: Path, out: Path, env: str) -> dict:
