@@ -66,6 +66,8 @@ REFIND_MIN_AREA = 0.2
 #: case; 0.07-0.13 % under the built-in environments) - a sixth of the default tolerance. The
 #: map's texels are 5.6 deg wide: the error grows linearly, ~1.7 % per degree at worst.
 REUSE_DEG = 0.1
+#: The warp's rigid grid: one reference point every this share of the landmarks' extent.
+WARP_GRID_SHARE = 1.0 / 16.0
 #: Mode transfer: light fits whose exposure gains (their running median) set the exposure, then
 #: held (FramePath._locked_exposure): half a second of fits at LIGHT_EVERY.
 EXPOSURE_LOCK_FITS = 8
@@ -266,11 +268,17 @@ class FramePath:
     default: measured against the live frame's truth it gains 3.4 dB on the procedural head but
     loses 0.6 dB on the scanned head and 1-2.4 dB on real faces (the segmentation misses the dark
     half of a side-lit face), while the warp of the face itself costs 15-20 dB (issue 32).
+    rigid_warp : the warp's control points are a grid over the face moved rigidly by the head pose
+    (the bundle's depth) plus the tracked landmarks, instead of the landmarks and an affine ring.
+    Off by default: against the live frame's truth it halves the warp's displacement on both
+    synthetic heads (+2-4 dB for the still prediction warped with it, the wall left alone), but on
+    real faces (Yale clips) it loses 12 dB - their pose and depth do not carry a rigid map yet.
     """
 
     def __init__(self, bundle, env: np.ndarray, *, mode: str = composite.DEFAULT_MODE, strength: float = 1.0,
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
-                 tolerance: float = 0.01, relighter=None, reuse_deg: float = REUSE_DEG, whole_head: bool = False):
+                 tolerance: float = 0.01, relighter=None, reuse_deg: float = REUSE_DEG, whole_head: bool = False,
+                 rigid_warp: bool = False):
         from relight.kernels.relighter import Relighter
 
         limit_blas_threads()
@@ -336,6 +344,24 @@ class FramePath:
         self.ring_index = np.arange(len(landmarks), len(pts))
         self.control_ref = pts
         self.model = model
+        # The warp's rigid grid: reference points every WARP_GRID_SHARE of the face's size over the
+        # composited region (grown by a cell), lifted with the bundle's depth - a frame moves them
+        # with its head pose (the landmarks add what the pose does not explain: an expression).
+        step = max(int(round(WARP_GRID_SHARE * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 3)
+        # (the grid reaches past the crop on every side: a mask that fills its crop - a tight
+        # photo - is covered to its edge; depths there are the nearest mask pixel's)
+        # (two cells past the composited region: the inverse map is defined inside the grid's hull
+        # and evaluated on cells of GRID_STEP, so its edge must lie beyond the face's alpha)
+        pad = 3 * step
+        cover = cv2.dilate(np.pad(solid.astype(np.uint8), pad),
+                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * step + 1,) * 2))
+        gy, gx = np.mgrid[-2 * step:h + 2 * step + 1:step, -2 * step:w + 2 * step + 1:step]
+        on = cover[gy + pad, gx + pad] > 0
+        gx, gy = gx[on], gy[on]
+        self.grid_ref = np.stack([gx, gy], axis=1).astype(np.float32) + np.array([x0, y0], np.float32)
+        self.grid_model = lift_landmarks(self.grid_ref, depth_filled[np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)],
+                                         k_ref)
+        self.grid_step = step
         full_mask = np.zeros((ref_h, ref_w), dtype=bool)
         full_mask[y0:y0 + h, x0:x0 + w] = mask_crop
         # Tracking runs on frames scaled to at most TRACK_ROWS rows (LK's cost is its pyramids
@@ -402,6 +428,7 @@ class FramePath:
         self.compositor = Compositor(self.alpha_crop, fill, self.inv_ambient, normal_crop, self.origin,
                                      self.relighter)
         self._normal_crop = np.ascontiguousarray(normal_crop, dtype=np.float32)
+        self.rigid_warp = bool(rigid_warp)
         # The rest of the person (mode transfer): its matte, made on the first frame that needs it.
         self.whole_head = bool(whole_head)
         self.person = None
@@ -543,7 +570,7 @@ class FramePath:
         info.points = int(keep.size)
         tm["pose"] = (time.perf_counter() - t1) * 1e3
         return {"rgb": rgb, "t": t, "t0": t0, "info": info, "track": track, "keep": keep, "ref_idx": ref_idx,
-                "xy": xy, "rotation": rotation, "size": size, "track_gain": track_gain}
+                "xy": xy, "rotation": rotation, "size": size, "track_gain": track_gain, "pose": pose}
 
     def back(self, front: dict, defer_reference: bool = False) -> tuple[np.ndarray, FrameInfo]:
         """The second half of :meth:`process` (relight, warp, live light, composite) for the
@@ -563,8 +590,11 @@ class FramePath:
         info.reused = self.relighter.reused > reused
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()
-        cur = np.concatenate([xy, _affine_ring(self.control_ref[ref_idx], xy, self.control_ref[self.ring_index])])
-        ref = np.concatenate([self.control_ref[ref_idx], self.control_ref[self.ring_index]])
+        if self.rigid_warp:
+            cur, ref = self._rigid_controls(front["pose"], size, ref_idx, xy)
+        else:
+            cur = np.concatenate([xy, _affine_ring(self.control_ref[ref_idx], xy, self.control_ref[self.ring_index])])
+            ref = np.concatenate([self.control_ref[ref_idx], self.control_ref[self.ring_index]])
         box = points_box(cur, size)
         coarse = coarse_map(cur, ref, box) if box is not None else None
         if coarse is None:
@@ -637,6 +667,22 @@ class FramePath:
             tm["person"] = (time.perf_counter() - t6) * 1e3
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info
+
+    def _rigid_controls(self, pose, size, ref_idx: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The warp's control points (frame, reference): the rigid grid moved by the head pose, and
+        the tracked landmarks (the pose's projection plus what it leaves of each beyond the
+        tracking noise) with the grid points within a cell of them left out."""
+        from scipy.spatial import cKDTree
+
+        grid_cur = self._estimator(size).project_points(pose, self.grid_model).astype(np.float32)
+        lm_ref = self.control_ref[ref_idx]
+        if len(lm_ref):
+            near, _ = cKDTree(lm_ref).query(self.grid_ref, k=1)
+            free = near > self.grid_step
+        else:
+            free = np.ones(len(self.grid_ref), dtype=bool)
+        return (np.concatenate([xy, grid_cur[free]]).astype(np.float32),
+                np.concatenate([lm_ref, self.grid_ref[free]]).astype(np.float32))
 
     def _face_alpha_work(self, box, coarse: np.ndarray, rotation: np.ndarray, size, work) -> np.ndarray:
         """The compositor's face alpha (feathered mask x facing x strength) at the work scale."""
