@@ -265,20 +265,22 @@ class FramePath:
     reuse_deg : head turns below which the last relight is reused (:data:`REUSE_DEG`; 0: never).
     whole_head : mode transfer also relights the rest of the person - hair, ears, neck, shoulders -
     from the face's ratio (:mod:`.head_light`, the person's matte from :mod:`.person`). Off by
-    default: measured against the live frame's truth it gains 3.4 dB on the procedural head but
-    loses 0.6 dB on the scanned head and 1-2.4 dB on real faces (the segmentation misses the dark
-    half of a side-lit face), while the warp of the face itself costs 15-20 dB (issue 32).
+    default: with the rigid warp, against the live frame's truth under sunset, it gains 4.4-4.8 dB
+    over the person (procedural head 17.9 -> 22.3 dB, scanned head 17.9 -> 22.3) with the wall
+    untouched, but loses 0.4 and 1.0 dB over the face of two real faces (yaleB04, yaleB07: the
+    segmentation misses the dark half of a side-lit face, the inflated normals there are wrong).
     rigid_warp : the warp's control points are a grid over the face moved rigidly by the head pose
-    (the bundle's depth) plus the tracked landmarks, instead of the landmarks and an affine ring.
-    Off by default: against the live frame's truth it halves the warp's displacement on both
-    synthetic heads (+2-4 dB for the still prediction warped with it, the wall left alone), but on
-    real faces (Yale clips) it loses 12 dB - their pose and depth do not carry a rigid map yet.
+    (the bundle's depth) plus the tracked landmarks (the default), instead of the landmarks and an
+    affine ring around them (False: the path before issue 32). Measured against the live frame's
+    truth: the warp's displacement halved on both synthetic heads (the still prediction warped
+    with it +2-4 dB), the smear the ring's extrapolation left beside the cheek gone, real faces
+    +0.3/+0.5 dB (yaleB04, yaleB07).
     """
 
     def __init__(self, bundle, env: np.ndarray, *, mode: str = composite.DEFAULT_MODE, strength: float = 1.0,
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
                  tolerance: float = 0.01, relighter=None, reuse_deg: float = REUSE_DEG, whole_head: bool = False,
-                 rigid_warp: bool = False):
+                 rigid_warp: bool = True):
         from relight.kernels.relighter import Relighter
 
         limit_blas_threads()
