@@ -346,24 +346,6 @@ class FramePath:
         self.ring_index = np.arange(len(landmarks), len(pts))
         self.control_ref = pts
         self.model = model
-        # The warp's rigid grid: reference points every WARP_GRID_SHARE of the face's size over the
-        # composited region (grown by a cell), lifted with the bundle's depth - a frame moves them
-        # with its head pose (the landmarks add what the pose does not explain: an expression).
-        step = max(int(round(WARP_GRID_SHARE * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 3)
-        # (the grid reaches past the crop on every side: a mask that fills its crop - a tight
-        # photo - is covered to its edge; depths there are the nearest mask pixel's)
-        # (two cells past the composited region: the inverse map is defined inside the grid's hull
-        # and evaluated on cells of GRID_STEP, so its edge must lie beyond the face's alpha)
-        pad = 3 * step
-        cover = cv2.dilate(np.pad(solid.astype(np.uint8), pad),
-                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * step + 1,) * 2))
-        gy, gx = np.mgrid[-2 * step:h + 2 * step + 1:step, -2 * step:w + 2 * step + 1:step]
-        on = cover[gy + pad, gx + pad] > 0
-        gx, gy = gx[on], gy[on]
-        self.grid_ref = np.stack([gx, gy], axis=1).astype(np.float32) + np.array([x0, y0], np.float32)
-        self.grid_model = lift_landmarks(self.grid_ref, depth_filled[np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)],
-                                         k_ref)
-        self.grid_step = step
         full_mask = np.zeros((ref_h, ref_w), dtype=bool)
         full_mask[y0:y0 + h, x0:x0 + w] = mask_crop
         # Tracking runs on frames scaled to at most TRACK_ROWS rows (LK's cost is its pyramids
@@ -391,6 +373,27 @@ class FramePath:
         er = max(int(round(FEATHER_ERODE * size)), 1)
         m = cv2.erode(solid.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * er + 1,) * 2))
         self.alpha_crop = cv2.GaussianBlur(m.astype(np.float32), (0, 0), FEATHER_SIGMA * size)
+        # The warp's rigid grid: reference points every WARP_GRID_SHARE of the face's size, lifted
+        # with the bundle's depth - a frame moves them with its head pose (the landmarks add what
+        # the pose does not explain: an expression). It reaches a GRID_STEP and a cell past the
+        # face's alpha (the inverse map is defined inside the grid's hull and evaluated on cells of
+        # GRID_STEP frame pixels), past the crop too: a mask that fills its crop - a tight photo -
+        # is covered to its edge (depths there are the nearest mask pixel's).
+        step = max(int(round(WARP_GRID_SHARE * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 3)
+        cells = int(np.ceil(GRID_STEP / step)) + 1
+        reach = cells * step
+        pad = reach + step
+        from relight.kernels.compositor import ALPHA_FLOOR
+
+        cover = cv2.dilate(np.pad((self.alpha_crop > ALPHA_FLOOR).astype(np.uint8), pad),
+                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1,) * 2))
+        gy, gx = np.mgrid[-reach:h + reach + 1:step, -reach:w + reach + 1:step]
+        on = cover[gy + pad, gx + pad] > 0
+        gx, gy = gx[on], gy[on]
+        self.grid_ref = np.stack([gx, gy], axis=1).astype(np.float32) + np.array([x0, y0], np.float32)
+        self.grid_model = lift_landmarks(self.grid_ref, depth_filled[np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)],
+                                         k_ref)
+        self.grid_step = step
         room = bundle.room_light
         self.reference_light = "room"
         if room is not None:

@@ -18,6 +18,8 @@ from .tolerances import (
     F32_LOOSE,
     F64_EXACT,
     NCC_SELF_PEAK,
+    OFF_PERSON_CODES,
+    OFF_PERSON_MEAN_CODES,
     ONE_EURO_LAG_DEG,
     ONE_EURO_REST_STD,
     PIPELINE_VS_SERIAL_CODES,
@@ -250,10 +252,34 @@ def test_the_whole_person_relit_stays_on_the_person(small_bundle, small_capture,
         ref, _ = face_only.process(f, i / 30)
         if not info.face:
             continue
-        changed = np.abs(out.astype(int) - f.astype(int)).sum(axis=2) > 3
-        assert not (changed & ~grown).any()
+        diff = np.abs(out.astype(int) - f.astype(int))
+        changed = diff.sum(axis=2) > 3
+        # off the person: issue 32's goals - a stray pixel of the matte at most (mean change and
+        # 99.9th percentile in codes), never a ghost
+        off = diff.max(axis=2)[~grown]
+        assert off.mean() <= OFF_PERSON_MEAN_CODES and np.percentile(off, 99.9) <= OFF_PERSON_CODES
         more.append(changed.sum() / max((np.abs(ref.astype(int) - f.astype(int)).sum(axis=2) > 3).sum(), 1))
     assert len(more) >= 18 and np.median(more) > WHOLE_PERSON_SHARE
+
+
+def test_the_rigid_grid_covers_the_composited_face_with_a_cell_to_spare(small_bundle):
+    """The warp is defined inside the hull of its control points and evaluated on cells of
+    GRID_STEP px: every reference pixel the face's alpha reaches lies a cell inside that hull in
+    every direction (a grid that stopped at the crop's edge left an unrelit band on tight crops)."""
+    from scipy.spatial import Delaunay
+
+    from relight.kernels.compositor import ALPHA_FLOOR
+    from relight.service.frame_path import FramePath
+    from relight.service.warp import GRID_STEP
+
+    env = load_environment("builtin:studio")
+    for fp in (FramePath(small_bundle, env),):
+        ctrl = np.concatenate([fp.control_ref[:fp.n_landmarks], fp.grid_ref])
+        tri = Delaunay(ctrl)
+        ay, ax = np.nonzero(fp.alpha_crop > ALPHA_FLOOR)
+        pts = np.stack([ax, ay], axis=1).astype(np.float64) + np.asarray(fp.origin, np.float64)
+        for dx, dy in ((GRID_STEP, 0), (-GRID_STEP, 0), (0, GRID_STEP), (0, -GRID_STEP)):
+            assert (tri.find_simplex(pts + [dx, dy]) >= 0).all(), (fp.grid_step, dx, dy)
 
 
 def test_strength_zero_and_faceless_frames_pass_through(small_bundle, clip):
