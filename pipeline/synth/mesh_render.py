@@ -19,17 +19,16 @@ its head).
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from relight.directions import fibonacci_sphere
-from relight.numerics import EPS, FLOAT
+from relight.numerics import EPS
 from relight.spherical_harmonics import SPHERE_POINTS, environment_sh9, sh9_irradiance
 
 from ..raster import rasterise
 from .head import Head
 from .mesh_head import HeadMesh, Placement, sample_map
-from .render import IRRADIANCE_FLOOR, MAX_SHADING_RATIO
+from .render import IRRADIANCE_FLOOR, MAX_SHADING_RATIO, box_filter_samples, empty_render, screen_box
 
 #: A sample was visible at the reference pose when its depth is within this many pixels of the
 #: reference's depth buffer there (the buffer is sampled bilinearly; steep sides need the slack).
@@ -101,18 +100,13 @@ class MeshLiveHead:
         light's diffuse irradiance at their turned normal (unshadowed).
         """
         rotation = np.asarray(rotation, dtype=np.float64)
-        w_img, h_img = self.size
         p = self.project(rotation, translation)
         x_img, y_img = p[:, 0], -p[:, 1]
-        bx0 = int(np.clip(np.floor(x_img.min()) - 1, 0, w_img))
-        bx1 = int(np.clip(np.ceil(x_img.max()) + 2, 0, w_img))
-        by0 = int(np.clip(np.floor(y_img.min()) - 1, 0, h_img))
-        by1 = int(np.clip(np.ceil(y_img.max()) + 2, 0, h_img))
-        box = (bx0, by0, bx1, by1)
+        box = screen_box(x_img, y_img, self.size)
+        bx0, by0, bx1, by1 = box
         nch = 3 if values is None else values.shape[2]
         if bx1 <= bx0 or by1 <= by0:
-            empty = (max(by1 - by0, 0), max(bx1 - bx0, 0))
-            return box, np.zeros((*empty, nch), FLOAT), np.zeros(empty, FLOAT)
+            return empty_render(box, nch)
         gw, gh = 2 * (bx1 - bx0), 2 * (by1 - by0)
         sx, sy = 2.0 * (x_img - bx0) + 0.5, 2.0 * (y_img - by0) + 0.5
         cells, depth, tri, w0, w1 = rasterise(self._corners, sx, sy, p[:, 2].astype(np.float32), gw, gh)
@@ -151,12 +145,5 @@ class MeshLiveHead:
             if lit is None:  # the room's light at the reference pose, re-shaded for the turn
                 e_now = np.maximum(sh9_irradiance(self.sh, n_ref @ rotation.T), 0.0)
                 vals = vals * np.minimum(e_now / e_hidden, MAX_SHADING_RATIO)
-        out = np.empty((gh // 2, gw // 2, nch), dtype=FLOAT)
-        grid = np.zeros(gw * gh, dtype=FLOAT)
-        for ch in range(nch):
-            grid[cells] = vals[:, ch]
-            out[..., ch] = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
-        grid[:] = 0.0
-        grid[cells] = 1.0
-        cov = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
+        out, cov = box_filter_samples(cells, [vals[:, ch] for ch in range(nch)], gw, gh)
         return box, out, cov

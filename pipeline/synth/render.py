@@ -138,18 +138,13 @@ class LiveHead:
         """
         rotation = np.asarray(rotation, dtype=np.float64)
         vals = self.colours(rotation) if values is None else np.asarray(values, dtype=FLOAT)
-        w_img, h_img = self.size
         p = self.project(rotation, translation)
         x_img, y_img = p[:, 0], -p[:, 1]
-        bx0 = int(np.clip(np.floor(x_img.min()) - 1, 0, w_img))
-        bx1 = int(np.clip(np.ceil(x_img.max()) + 2, 0, w_img))
-        by0 = int(np.clip(np.floor(y_img.min()) - 1, 0, h_img))
-        by1 = int(np.clip(np.ceil(y_img.max()) + 2, 0, h_img))
-        box = (bx0, by0, bx1, by1)
+        box = screen_box(x_img, y_img, self.size)
+        bx0, by0, bx1, by1 = box
         nch = vals.shape[1]
         if bx1 <= bx0 or by1 <= by0:
-            return box, np.zeros((max(by1 - by0, 0), max(bx1 - bx0, 0), nch), FLOAT), \
-                np.zeros((max(by1 - by0, 0), max(bx1 - bx0, 0)), FLOAT)
+            return empty_render(box, nch)
         gw, gh = 2 * (bx1 - bx0), 2 * (by1 - by0)
         # Sample (I, J) of the 2x grid sits at pixel coordinate box0 + (I - 0.5) / 2.
         sx = 2.0 * (x_img - bx0) + 0.5
@@ -164,18 +159,40 @@ class LiveHead:
         cells, w0, w1 = cells[win], w0[win], w1[win]
         t0, t1, t2 = t[0, win], t[1, win], t[2, win]
         w2 = 1.0 - w0 - w1
-        # Values and coverage on the 2x grid, box-filtered to pixels (INTER_AREA: exact 2x2 means).
         planes = np.ascontiguousarray(vals.T)
-        out = np.empty((gh // 2, gw // 2, nch), dtype=FLOAT)
-        grid = np.zeros(gw * gh, dtype=FLOAT)
-        for ch in range(nch):
-            v = planes[ch]
-            grid[cells] = w0 * v[t0] + w1 * v[t1] + w2 * v[t2]
-            out[..., ch] = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
-        grid[:] = 0.0
-        grid[cells] = 1.0
-        cov = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
+        out, cov = box_filter_samples(cells, [w0 * v[t0] + w1 * v[t1] + w2 * v[t2] for v in planes], gw, gh)
         return box, out, cov
+
+
+def screen_box(x_img: np.ndarray, y_img: np.ndarray, size: tuple[int, int]) -> tuple[int, int, int, int]:
+    """The pixel box (x0, y0, x1, y1) of projected points at image columns ``x_img``, rows
+    ``y_img``: a pixel's margin around them, clipped to the image ``size`` (w, h)."""
+    w_img, h_img = size
+    return (int(np.clip(np.floor(x_img.min()) - 1, 0, w_img)), int(np.clip(np.floor(y_img.min()) - 1, 0, h_img)),
+            int(np.clip(np.ceil(x_img.max()) + 2, 0, w_img)), int(np.clip(np.ceil(y_img.max()) + 2, 0, h_img)))
+
+
+def empty_render(box: tuple[int, int, int, int], nch: int) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]:
+    """A render's result where the head covers no pixel: ``box`` and zero values and coverage."""
+    x0, y0, x1, y1 = box
+    shape = (max(y1 - y0, 0), max(x1 - x0, 0))
+    return box, np.zeros((*shape, nch), FLOAT), np.zeros(shape, FLOAT)
+
+
+def box_filter_samples(cells: np.ndarray, channels, gw: int, gh: int) -> tuple[np.ndarray, np.ndarray]:
+    """Values and coverage of a 2x-per-pixel sample grid (gh, gw) box-filtered to pixels
+    (INTER_AREA: exact 2x2 means): ``cells`` the flat indices of the covered samples, ``channels``
+    one value array per channel over them. Returns ((gh/2, gw/2, C) values, (gh/2, gw/2) coverage),
+    zero where no sample is covered."""
+    out = np.empty((gh // 2, gw // 2, len(channels)), dtype=FLOAT)
+    grid = np.zeros(gw * gh, dtype=FLOAT)
+    for ch, v in enumerate(channels):
+        grid[cells] = v
+        out[..., ch] = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
+    grid[:] = 0.0
+    grid[cells] = 1.0
+    cov = cv2.resize(grid.reshape(gh, gw), (gw // 2, gh // 2), interpolation=cv2.INTER_AREA)
+    return out, cov
 
 
 #: Bisection steps locating the silhouette between a head pixel and a pixel off the head (2^-20 px).
