@@ -4,6 +4,10 @@ static studio capture of a head, a live clip of the same head, and the flicker f
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -63,3 +67,20 @@ def flicker_step(inp0: np.ndarray, out0: np.ndarray, inp1: np.ndarray, out1: np.
     do = np.abs(out1.astype(np.int16) - out0.astype(np.int16)).mean(axis=2)[face].mean()
     di = np.abs(inp1.astype(np.int16) - inp0.astype(np.int16)).mean(axis=2)[face].mean()
     return float(do - di)
+
+
+def run_filter_process(inp: Path, dst: Path, bundle: Path, env: str, report: Path, *extra: str) -> dict:
+    """``relight filter INP DST --bundle BUNDLE --env ENV --focal ortho --quiet --report REPORT`` and
+    ``extra`` flags in a fresh process (the synthetic and the real-face clips are orthographic
+    views): its ``report.json`` with ``wall_s`` added (seconds, start-up included). Raises
+    RuntimeError with the end of its error output when it fails."""
+    cmd = [sys.executable, "-m", "relight", "filter", str(inp), str(dst), "--bundle", str(bundle), "--env", env,
+           *extra, "--focal", "ortho", "--quiet", "--report", str(report)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        what = " ".join(("relight filter", *extra))
+        raise RuntimeError(f"{what} failed: {proc.stderr.strip()[-800:]}")
+    doc = json.loads((Path(report) / "report.json").read_text())
+    doc["wall_s"] = time.perf_counter() - t0
+    return doc

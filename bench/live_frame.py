@@ -32,9 +32,6 @@ sheet with crops at the hairline, the ears, the jaw and the neck.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import cv2
@@ -88,14 +85,9 @@ def filter_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = 
         import shutil
 
         shutil.rmtree(dst)
-    cmd = [sys.executable, "-m", "relight", "filter", str(live / "live.mp4"), str(dst), "--bundle", str(bundle),
-           "--env", env, "--mode", mode, "--focal", "ortho", "--quiet", "--report", str(report)]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise RuntimeError(f"relight filter failed: {proc.stderr.strip()[-800:]}")
-    doc = json.loads((report / "report.json").read_text())
-    doc["wall_s"] = time.perf_counter() - t0
+    from .clips import run_filter_process
+
+    doc = run_filter_process(live / "live.mp4", dst, bundle, env, report, "--mode", mode)
     doc["frames_dir"] = str(dst)
     return doc
 

@@ -21,10 +21,6 @@ faces-yale``: 47-49 photos, each under one known light):
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import cv2
@@ -135,14 +131,9 @@ def _filter(clip: Path, out: Path, bundle: Path, env: str, mode: str) -> dict:
     report = out / f"report_{mode}"
     # The clip is a crop of a long-lens photo moved in the image plane: an orthographic camera
     # (the default focal length is a phone's whole frame, ~60 degrees across).
-    cmd = [sys.executable, "-m", "relight", "filter", str(clip), str(dst), "--bundle", str(bundle), "--env", env,
-           "--fixed-env", "--mode", mode, "--focal", "ortho", "--quiet", "--report", str(report)]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise RuntimeError(f"relight filter --mode {mode} failed: {proc.stderr.strip()[-800:]}")
-    doc = json.loads((report / "report.json").read_text())
-    doc["wall_s"] = time.perf_counter() - t0
+    from .clips import run_filter_process
+
+    doc = run_filter_process(clip, dst, bundle, env, report, "--fixed-env", "--mode", mode)
     doc["output"] = str(dst)
     return doc
 
