@@ -469,13 +469,7 @@ class FramePath:
         self.relighter.lights(env)  # validates and converts once
         self.env = env
         self._exposure_lock, self._exposure_fits = None, []
-        # Its low frequencies for the person beyond the face (head_light): 64x32 texels' power.
-        from relight.directions import equirect_directions, equirect_solid_angles
-
-        small = cv2.resize(np.asarray(env, dtype=np.float32), (64, 32), interpolation=cv2.INTER_AREA)
-        self._env_dirs = equirect_directions(64, 32).reshape(-1, 3).astype(np.float64)
-        omega = np.repeat(equirect_solid_angles(64, 32), 64)[:, None]
-        self._env_power = (small.reshape(-1, 3) * omega).astype(np.float64)
+        self._env_texels = None  # its low frequencies, made when the person beyond the face needs them
 
     def set_mode(self, mode: str) -> None:
         if mode not in composite.MODES:
@@ -733,8 +727,15 @@ class FramePath:
         f_lin = lut[small]
         c_lin = lut[cv2.resize(composite_rgb, work, interpolation=cv2.INTER_AREA)]
         r = np.asarray(rotation, dtype=np.float64)
-        env_dirs = self._env_dirs @ r.T if self.fixed_env else self._env_dirs
-        target_sh = lights_sh9(env_dirs, self._env_power)
+        if self._env_texels is None:  # the environment's 64x32 texels: directions and power
+            from relight.directions import equirect_directions, equirect_solid_angles
+
+            small = cv2.resize(np.asarray(self.env, dtype=np.float32), (64, 32), interpolation=cv2.INTER_AREA)
+            omega = np.repeat(equirect_solid_angles(64, 32), 64)[:, None]
+            self._env_texels = (equirect_directions(64, 32).reshape(-1, 3).astype(np.float64),
+                                (small.reshape(-1, 3) * omega).astype(np.float64))
+        env_dirs, env_power = self._env_texels
+        target_sh = lights_sh9(env_dirs @ r.T if self.fixed_env else env_dirs, env_power)
         live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T,
                              self.light_estimator.texel_light())
         rho = head_light.ratio_field(f_lin, c_lin, alpha, matte, target_sh, live_sh, face_px)
