@@ -255,11 +255,7 @@ class Studio:
                    disable=not self.progress, leave=False)
         results: dict[str, np.ndarray] = {}
         for group, (dirs, power, column) in zip(groups, passes, strict=True):
-            acc = np.zeros((len(group), self.surface.pix.size, 3), dtype=np.float64)
-            for a in range(0, dirs.shape[0], LIGHT_BATCH):
-                sl = slice(a, a + LIGHT_BATCH)
-                acc += self.shader.shade(dirs[sl], power[sl], direction_index=column[sl])
-                bar.update(dirs[sl].shape[0])
+            acc = self._shade_batched(dirs, power, column, bar=bar)
             for (name, _), img in zip(group, acc, strict=True):
                 results[name] = require_finite(f"truth {name}", img.astype(FLOAT))
         bar.close()
@@ -271,14 +267,25 @@ class Studio:
         """(P, 3) head radiance under the room light at the reference pose."""
         if self._ambient_head is None:
             lights = self._truth_lights(self.room)
-            if self.shader.n_dir != TRUTH_GRID[0]:
-                self.shader.prepare_horizons(TRUTH_GRID[0])
-            acc = np.zeros((self.surface.pix.size, 3))
-            for a in range(0, lights.dirs.shape[0], LIGHT_BATCH):
-                sl = slice(a, a + LIGHT_BATCH)
-                acc += self.shader.shade(lights.dirs[sl], lights.power[sl], direction_index=lights.column[sl])[0]
-            self._ambient_head = acc.astype(FLOAT)
+            self._ambient_head = self._shade_batched(lights.dirs, lights.power, lights.column)[0].astype(FLOAT)
         return self._ambient_head
+
+    def _shade_batched(self, dirs: np.ndarray, power: np.ndarray, column: np.ndarray, *, view=(0.0, 0.0, 1.0),
+                       bar=None) -> np.ndarray:
+        """(E, P, 3) float64: the shader's outputs for lights ``dirs`` (L, 3) with ``power`` (L, E, 3)
+        or (L, 3) and horizon ``column`` (L,), summed over batches of LIGHT_BATCH lights (the
+        horizon table at TRUTH_GRID prepared first if it is not). ``bar``: a tqdm bar told of
+        each batch's lights."""
+        if self.shader.n_dir != TRUTH_GRID[0]:
+            self.shader.prepare_horizons(TRUTH_GRID[0])
+        n_out = 1 if np.ndim(power) == 2 else power.shape[1]
+        acc = np.zeros((n_out, self.surface.pix.size, 3), dtype=np.float64)
+        for a in range(0, dirs.shape[0], LIGHT_BATCH):
+            sl = slice(a, a + LIGHT_BATCH)
+            acc += self.shader.shade(dirs[sl], power[sl], direction_index=column[sl], view=view)
+            if bar is not None:
+                bar.update(dirs[sl].shape[0])
+        return acc
 
     def turned_head_radiance(self, envs: list[np.ndarray], rotation: np.ndarray) -> list[np.ndarray]:
         """(P, 3) radiance of the head's shaded pixels under each environment (lat-long, linear,
@@ -291,17 +298,11 @@ class Studio:
         r = np.asarray(rotation, dtype=np.float64)
         if r.shape != (3, 3) or not np.isfinite(r).all():
             raise InputError("rotation must be a finite 3x3 matrix")
-        if self.shader.n_dir != TRUTH_GRID[0]:
-            self.shader.prepare_horizons(TRUTH_GRID[0])
         view = r.T @ np.array([0.0, 0.0, 1.0])
         out: list[np.ndarray] = []
         for start in range(0, len(envs), OUTPUTS_PER_PASS):
             group = [self._truth_lights(rotate_environment(env, r.T)) for env in envs[start:start + OUTPUTS_PER_PASS]]
-            dirs, power, column = _union(group)
-            acc = np.zeros((len(group), self.surface.pix.size, 3), dtype=np.float64)
-            for a in range(0, dirs.shape[0], LIGHT_BATCH):
-                sl = slice(a, a + LIGHT_BATCH)
-                acc += self.shader.shade(dirs[sl], power[sl], direction_index=column[sl], view=view)
+            acc = self._shade_batched(*_union(group), view=view)
             out.extend(require_finite("turned head radiance", img.astype(FLOAT)) for img in acc)
         return out
 
