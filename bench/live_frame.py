@@ -155,7 +155,7 @@ def face_regions(scene, bundle_mask: np.ndarray) -> list[np.ndarray]:
 def evaluate(bundle: Path, live: Path, env_stem: str, frames_dir: Path, *, bundle_mask: np.ndarray | None = None
              ) -> dict:
     """The figures of the module docstring for one filtered clip (``frames_dir``: its PNGs)."""
-    from relight.bench.realface import clip_psnr
+    from relight.bench.realface import clip_psnr, clip_psnr_gain
     from relight.colour import decode_srgb8
     from relight.video import read_frames
 
@@ -170,7 +170,7 @@ def evaluate(bundle: Path, live: Path, env_stem: str, frames_dir: Path, *, bundl
     sils = [cv2.imread(str(live / (meta["files"]["silhouette"] % i)), cv2.IMREAD_GRAYSCALE) > 0 for i in range(n)]
     truth_lin = np.stack([decode_srgb8(t) for t in truths])
     doc: dict = {"frames": n}
-    doc["silhouette_psnr"] = clip_psnr(outputs, truth_lin, sils)
+    doc["silhouette_psnr"], gain = clip_psnr_gain(outputs, truth_lin, sils)
     doc["input_psnr"] = clip_psnr(inputs, truth_lin, sils)
     scene = live_scene(live)
     clean = np.stack([decode_srgb8(scene.camera_frame(i, noisy=False)) for i in range(n)])
@@ -189,9 +189,6 @@ def evaluate(bundle: Path, live: Path, env_stem: str, frames_dir: Path, *, bundl
     doc["outside_mean_codes"] = float(moved_all.mean()) if moved_all.size else 0.0
     doc["outside_p999_codes"] = float(np.percentile(moved_all, 99.9)) if moved_all.size else 0.0
     # the seam: error in a band each side of the composite's boundary against inside it
-    pred = np.concatenate([decode_srgb8(o)[s] for o, s in zip(outputs, sils, strict=True)]).astype(np.float64)
-    want = np.concatenate([t[s] for t, s in zip(truth_lin, sils, strict=True)]).astype(np.float64)
-    gain = float((pred * want).sum() / max(float((pred * pred).sum()), 1e-30))
     doc["gain"] = gain
     band_err, inner_err = [], []
     for inp, out, truth, sil in zip(inputs, outputs, truths, sils, strict=True):

@@ -116,13 +116,18 @@ def make_clip(folder: Path, out: Path, transfer: str) -> dict:
 def clip_psnr(frames_srgb: list[np.ndarray], truth_lin: np.ndarray, masks: np.ndarray) -> float:
     """PSNR (dB, sRGB 0-1) over the face pixels of every frame after one least-squares gain in
     linear light for the whole clip."""
+    return clip_psnr_gain(frames_srgb, truth_lin, masks)[0]
+
+
+def clip_psnr_gain(frames_srgb: list[np.ndarray], truth_lin: np.ndarray, masks: np.ndarray) -> tuple[float, float]:
+    """:func:`clip_psnr` and the clip's least-squares gain (linear light) it was taken after."""
     from relight.colour import decode_srgb8, linear_to_srgb
 
     pred = np.concatenate([decode_srgb8(f)[m] for f, m in zip(frames_srgb, masks, strict=True)]).astype(np.float64)
     want = np.concatenate([t[m] for t, m in zip(truth_lin, masks, strict=True)]).astype(np.float64)
     gain = float((pred * want).sum() / max(float((pred * pred).sum()), 1e-30))
     err = linear_to_srgb(np.clip(gain * pred, 0, 1)) - linear_to_srgb(np.clip(want, 0, 1))
-    return float(10.0 * np.log10(1.0 / max(float((err.astype(np.float64) ** 2).mean()), 1e-30)))
+    return float(10.0 * np.log10(1.0 / max(float((err.astype(np.float64) ** 2).mean()), 1e-30))), gain
 
 
 def _filter(clip: Path, out: Path, bundle: Path, env: str, mode: str) -> dict:
