@@ -91,7 +91,7 @@ def colour_check(rgb: np.ndarray, matte: np.ndarray, face_alpha: np.ndarray, fac
     doubt = (matte > 0.05) & (face_alpha <= 0.5)
     if ring.sum() < 16 or not doubt.any():
         return matte
-    local = extrapolate_log(lab, ring.astype(np.float32), float(grow))
+    local = normalised_convolution(lab, ring.astype(np.float32), float(grow))
     reach = cv2.GaussianBlur(ring.astype(np.float32), (0, 0), float(grow)) > 1e-3
     d2 = ((lab - local) ** 2).sum(axis=2)
     wall = doubt & reach & (d2 < BACKGROUND_DELTA_E ** 2)
@@ -118,7 +118,7 @@ def inflate_normals(matte: np.ndarray, radius_px: float) -> np.ndarray:
     return n.astype(np.float32)
 
 
-def extrapolate_log(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
+def normalised_convolution(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
     """Normalised convolution: the weighted Gaussian average of ``values`` (h, w, C) with
     ``weight`` (h, w) >= 0, defined everywhere the Gaussian reaches a weighted pixel (0 beyond)."""
     w = weight.astype(np.float32)
@@ -145,7 +145,7 @@ def ratio_field(frame_lin: np.ndarray, composite_lin: np.ndarray, face_alpha: np
     face_ratio = (composite_lin + 1e-4) / (frame_lin + 1e-4)
     log_c = np.log(np.clip(face_ratio, 1.0 / RATIO_MAX, RATIO_MAX) / np.maximum(proxy, 1e-6))
     if core.sum() >= 16:
-        corr = extrapolate_log(log_c, core.astype(np.float32), SPREAD * face_px)
+        corr = normalised_convolution(log_c, core.astype(np.float32), SPREAD * face_px)
         # where the Gaussian does not reach: the core's median correction
         far = cv2.GaussianBlur(core.astype(np.float32), (0, 0), SPREAD * face_px) <= 1e-6
         corr[far] = np.median(log_c[core], axis=0)
