@@ -301,8 +301,7 @@ def png_folder(out: Path):
     import shutil
     import tempfile
 
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise InputError(f"{out}: exists and is not an empty folder; choose another output")
+    _refuse_occupied(out)  # before any work
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         clean_stale_temps(out.parent, out.name)  # a killed run's folder
@@ -311,9 +310,8 @@ def png_folder(out: Path):
         raise OutputError(f"cannot write {out}: {os_reason(exc)}") from exc
     try:
         yield tmp
+        _refuse_occupied(out)  # and again: something may have been put there meanwhile
         if out.exists():
-            if not out.is_dir() or any(out.iterdir()):
-                raise InputError(f"{out}: exists and is not an empty folder; choose another output")
             out.rmdir()
         os.chmod(tmp, dir_mode())  # (mkdtemp's 0700 would survive the rename)
         os.replace(tmp, out)
@@ -322,6 +320,11 @@ def png_folder(out: Path):
         if isinstance(exc, OSError):  # a frame's OutputError names the temporary folder: name the output
             raise OutputError(f"cannot write {out}: {os_reason(exc.__cause__ or exc)}") from exc
         raise
+
+
+def _refuse_occupied(out: Path) -> None:
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise InputError(f"{out}: exists and is not an empty folder; choose another output")
 
 
 def _filter_video_frames(inp, out, pipeline, res, progress, tqdm):
