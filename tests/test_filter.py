@@ -215,6 +215,37 @@ def test_piecewise_affine_warp_reproduces_an_affine_map():
     assert np.abs(m[valid] - want[valid]).max() < WARP_AFFINE_PX
 
 
+def test_the_mesh_warp_is_the_piecewise_affine_warp_drawn_with_depth():
+    """The fixed-topology mesh (the rigid warp's) maps a grid as the per-frame triangulation does
+    where both are defined (an affine motion: the same map whatever the triangles); a triangle
+    turned away is left out, and of two overlapping ones the nearer wins."""
+    from relight.service.warp import OUTSIDE, coarse_map, mesh_coarse_map, reference_triangles
+
+    rng = np.random.default_rng(5)
+    ref = rng.uniform(50, 250, size=(60, 2))
+    a = np.array([[1.1, 0.2], [-0.15, 0.9]])
+    cur = ref @ a.T + np.array([30.0, -10.0])
+    box = (0, 0, 320, 260)
+    tri = reference_triangles(ref)
+    got = mesh_coarse_map(cur, ref, tri, box, depth=rng.uniform(1, 2, len(ref)))
+    want = coarse_map(cur, ref, box)
+    both = (got[..., 0] > OUTSIDE / 2) & (want[..., 0] > OUTSIDE / 2)
+    assert np.array_equal(got[..., 0] > OUTSIDE / 2, want[..., 0] > OUTSIDE / 2)
+    assert np.abs(got[both] - want[both]).max() < WARP_AFFINE_PX
+    # two triangles over the same frame region, mapped to different reference places: depth decides
+    quad = np.array([[10, 10], [110, 10], [10, 110]], np.float64)
+    cur2 = np.concatenate([quad, quad])
+    ref2 = np.concatenate([quad, quad + 500.0])
+    tris = np.array([[0, 1, 2], [3, 4, 5]], np.int32)  # turning from +x toward +y, as reference_triangles
+    box2 = (0, 0, 120, 120)
+    for near, shift in ((np.array([1.0, 1, 1, 2, 2, 2]), 0.0), (np.array([2.0, 2, 2, 1, 1, 1]), 500.0)):
+        m = mesh_coarse_map(cur2, ref2, tris, box2, depth=near)
+        inside = m[..., 0] > OUTSIDE / 2
+        assert inside.sum() > 10 and (m[inside][:, 0] >= shift).all() and (m[inside][:, 0] < shift + 120).all()
+    # the same triangle with its corners reversed in this frame (turned away): nothing covered
+    assert mesh_coarse_map(cur2[:3], ref2[:3], np.array([[0, 2, 1]], np.int32), box2) is None
+
+
 def test_frames_are_relit_on_the_face_and_untouched_elsewhere(frame_path, small_bundle, clip):
     _, frames = clip
     frame_path.reset()
