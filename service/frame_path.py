@@ -518,9 +518,11 @@ class FramePath:
             est.last = None
 
     # ------------------------------------------------------------------ per frame
-    def process(self, rgb: np.ndarray, t: float) -> tuple[np.ndarray, FrameInfo]:
+    def process(self, rgb, t: float):
         """The relit frame and what happened (see the module docstring): :meth:`front` then
-        :meth:`back`."""
+        :meth:`back`. ``rgb``: (H, W, 3) uint8 sRGB, or a :class:`relight.video_yuv.YuvFrame` (a
+        decoded frame kept in its planes: only the face's box is converted, and a YuvFrame comes
+        back)."""
         return self.back(self.front(rgb, t))
 
     def front(self, rgb: np.ndarray, t: float) -> dict:
@@ -532,16 +534,25 @@ class FramePath:
         info = FrameInfo()
         tm = info.timings
         t0 = time.perf_counter()
-        rgb = np.asarray(rgb)
-        if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
-            raise InputError(f"frame of shape {rgb.shape} and type {rgb.dtype}: expected (H, W, 3) uint8 RGB")
+        from relight.video_yuv import YuvFrame
+
+        yuv = isinstance(rgb, YuvFrame)
+        if yuv and self.whole_head:  # the person's matte reads the whole frame
+            rgb, yuv = rgb.to_rgb(), False
+        if not yuv:
+            rgb = np.asarray(rgb)
+            if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+                raise InputError(f"frame of shape {rgb.shape} and type {rgb.dtype}: expected (H, W, 3) uint8 RGB")
         h, w = rgb.shape[:2]
         size = (w, h)
         est = self._estimator(size)
-        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         ts = min(1.0, TRACK_ROWS / h)
-        if ts < 1:
-            grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
+        if yuv:
+            grey = rgb.tracking_grey((round(w * ts), round(h * ts)) if ts < 1 else (w, h))
+        else:
+            grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+            if ts < 1:
+                grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
         grey, track_gain = _track_exposure(grey)
         last = est.last
         predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
@@ -615,6 +626,15 @@ class FramePath:
             tm["warp"] = (time.perf_counter() - t3) * 1e3
             tm["total"] = (time.perf_counter() - t0) * 1e3
             return rgb, info
+        # A YuvFrame: its box alone in RGB (offset: the box's corner in the frame).
+        frame = rgb
+        offset = np.zeros(2, np.float32)
+        if not isinstance(rgb, np.ndarray):
+            ebox = rgb.even_box(box)
+            offset = np.array(ebox[:2], np.float32)
+            rgb = rgb.rgb_box(ebox)
+            box = (box[0] - ebox[0], box[1] - ebox[1], box[2] - ebox[0], box[3] - ebox[1])
+            cur = cur - offset
         flat = img.reshape(-1, 3)
         layer_mode = composite.LAYER_MODE[self.mode]
         live_median = 0.0
@@ -661,7 +681,7 @@ class FramePath:
         else:
             # paste: the relit face's median matched to the live face's at the tracked points.
             waited = self._sync_relight(tm)
-            live = decode_srgb8(_sample_rgb(rgb, track.xy[keep])) @ _LUM
+            live = decode_srgb8(_sample_rgb(rgb, track.xy[keep] - offset)) @ _LUM
             ref_px = self.fill_flat[_crop_index(self.control_ref[ref_idx], self.origin, self.mask_crop.shape)]
             relit_l = flat[ref_px[ref_px >= 0]] @ _LUM
             num, den = float(np.median(live)) if live.size else 0.0, float(np.median(relit_l)) if relit_l.size else 0.0
@@ -672,6 +692,8 @@ class FramePath:
         out = self.compositor.run(rgb, box, coarse, GRID_STEP, mode=layer_mode, gain=gain * self.exposure,
                                   strength=self.strength, eps=eps, ratio_max=composite.RATIO_MAX, rotation=rotation,
                                   live_median=live_median, tau=tau)
+        if frame is not rgb:
+            out = frame.with_rgb_box(ebox, rgb, out)
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         if self.whole_head and layer_mode == "live" and self.strength > 0:
             t6 = time.perf_counter()

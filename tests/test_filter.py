@@ -37,6 +37,11 @@ from .tolerances import (
     WARP_AFFINE_PX,
     WARP_HULL_SHARE,
     WHOLE_PERSON_SHARE,
+    YUV_BOX_MAX_CODES,
+    YUV_BOX_MEAN_CODES,
+    YUV_GREY_CODES,
+    YUV_RELIT_MEAN_CODES,
+    YUV_ROUNDTRIP_CODES,
 )
 
 
@@ -244,6 +249,55 @@ def test_the_mesh_warp_is_the_piecewise_affine_warp_drawn_with_depth():
         assert inside.sum() > 10 and (m[inside][:, 0] >= shift).all() and (m[inside][:, 0] < shift + 120).all()
     # the same triangle with its corners reversed in this frame (turned away): nothing covered
     assert mesh_coarse_map(cur2[:3], ref2[:3], np.array([[0, 2, 1]], np.int32), box2) is None
+
+
+def test_a_frame_kept_in_its_planes_is_converted_only_where_it_is_relit(clip, small_bundle):
+    """The Y'CbCr path (relight.video_yuv): the tracker's grey and a box's RGB as the RGB path
+    makes them, a changed box written back only where it changed, and a frame relit through the
+    planes as through RGB - with every pixel off the face bit for bit the decoder's."""
+    import av
+
+    from relight.service.frame_path import FramePath
+    from relight.video import frame_to_rgb
+    from relight.video_yuv import YuvFrame
+
+    path, _ = clip
+    with av.open(str(path)) as c:
+        decoded = [f for _, f in zip(range(12), c.decode(video=0), strict=False)]
+    yf = [YuvFrame.from_av(f) for f in decoded]
+    assert all(y is not None for y in yf)  # our writer's H.264: 8-bit BT.709 limited range
+    rgb = [frame_to_rgb(f) for f in decoded]
+    h, w = rgb[0].shape[:2]
+    grey = cv2.resize(cv2.cvtColor(rgb[0], cv2.COLOR_RGB2GRAY), (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    assert np.abs(yf[0].tracking_grey((w // 2, h // 2)).astype(int) - grey).max() <= YUV_GREY_CODES
+    box = yf[0].even_box((w // 4 + 1, h // 4 + 1, 3 * w // 4 - 1, 3 * h // 4 + 1))
+    assert all(v % 2 == 0 for v in box)
+    part = yf[0].rgb_box(box)
+    d = np.abs(part.astype(int) - rgb[0][box[1]:box[3], box[0]:box[2]])
+    assert d.mean() < YUV_BOX_MEAN_CODES and d.max() <= YUV_BOX_MAX_CODES
+    after = part.copy()
+    after[10:30, 10:30] = (200, 90, 40)
+    out = yf[0].with_rgb_box(box, part, after)
+    touched = np.zeros((h, w), bool)
+    touched[box[1] + 10:box[1] + 30, box[0] + 10:box[0] + 30] = True
+    assert np.array_equal(out.y[~touched], yf[0].y[~touched])
+    assert (out.u != yf[0].u).sum() <= 100 and (out.y != yf[0].y).sum() > 300
+    back = out.rgb_box(box)[14:26, 14:26]  # the chroma filter reaches 2 px in from the patch edge
+    assert np.abs(back.astype(int) - (200, 90, 40)).max() <= YUV_ROUNDTRIP_CODES
+    assert np.array_equal(yf[0].to_av().to_ndarray(format="yuv420p")[:h], yf[0].y)
+    # relit through the planes and through RGB: the same frames; off the face, the decoder's planes
+    fp = FramePath(small_bundle, load_environment("builtin:sunset"))
+    a = [fp.process(f, i / 30) for i, f in enumerate(rgb)]
+    fp.reset()
+    b = [fp.process(f, i / 30) for i, f in enumerate(yf)]
+    assert sum(i.face for _, i in b) == sum(i.face for _, i in a) > 6
+    for (ra, _), (yb, ib), src, yin in zip(a, b, rgb, yf, strict=True):
+        assert isinstance(yb, YuvFrame)
+        if not ib.face:
+            continue
+        changed = (ra != src).any(axis=2) | (yb.y != yin.y)
+        assert np.abs(yb.to_rgb().astype(int) - ra)[changed].mean() < YUV_RELIT_MEAN_CODES
+        assert np.array_equal(yb.y[~changed], yin.y[~changed])
 
 
 def test_frames_are_relit_on_the_face_and_untouched_elsewhere(frame_path, small_bundle, clip):

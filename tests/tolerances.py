@@ -311,3 +311,14 @@ LIVE_LIGHT_SCALE_RTOL = 1e-6
 LIVE_LIGHT_PARTIAL_RTOL = 0.05
 #: ... its direction then within this angle of the unscaled fit's (degrees; exact scaling: 0.1).
 LIVE_LIGHT_PARTIAL_DEG = 2.0
+#: A frame kept in its Y'CbCr planes (relight.video_yuv) against the RGB path: the tracker's grey
+#: (made from scaled planes: rounding and one clip apart, 8-bit codes), a box converted alone
+#: (swscale's filters see the box's edge: the mean over the box, and any pixel), and a changed
+#: pixel's RGB -> Y'CbCr -> RGB round trip (4:2:0 chroma of a flat patch).
+YUV_GREY_CODES = 2
+YUV_BOX_MEAN_CODES = 0.5
+YUV_BOX_MAX_CODES = 8
+YUV_ROUNDTRIP_CODES = 3
+#: The relit frame through the planes against the same frame relit through RGB: mean absolute
+#: difference over the pixels either changed (8-bit codes).
+YUV_RELIT_MEAN_CODES = 1.0

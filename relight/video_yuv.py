@@ -1,0 +1,164 @@
+"""A decoded video frame kept in its Y'CbCr planes, converted only where it is touched.
+
+Converting a whole 1280x720 frame to RGB costs 11.7 ms of CPU here and back to Y'CbCr for the
+encoder 8.7 ms (swscale with :func:`relight.video._sws_flags`, as :func:`relight.video.frame_to_rgb`
+and :func:`relight.video.to_yuv` do) - more than the per-frame path's own work. A relit frame
+changes only the face's box: :class:`YuvFrame` keeps the decoder's planes, gives the tracker a
+small grey image made from them, converts the box to RGB and back, and writes back only the
+pixels the composite changed (luma per pixel, chroma per 2x2 block) - the rest of the frame
+leaves bit for bit as it came.
+
+Which frames: 8-bit 4:2:0 (``yuv420p``), Rec.709 primaries, SDR, no display rotation or mirror,
+and - because the output is tagged so - the BT.709 matrix (or untagged at 720 lines and more,
+which players read as BT.709) in limited range. Anything else takes the RGB path
+(:func:`YuvFrame.from_av` returns None).
+
+Planes: ``y`` (H, W), ``u`` and ``v`` (H/2, W/2) uint8, limited range (16-235 / 16-240). Boxes
+are (x0, y0, x1, y1) pixels, x1/y1 exclusive, aligned to even numbers where the chroma needs it.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+#: BT.709 luma weights (Kr, Kb) and the limited range's scales (8-bit codes).
+_KR, _KB = 0.2126, 0.0722
+_Y_SCALE, _C_SCALE = 255.0 / 219.0, 255.0 / 224.0
+#: OpenCV's RGB -> grey weights (``cv2.COLOR_RGB2GRAY``: BT.601's), which the tracker's
+#: reference grey uses.
+_GREY = (0.299, 0.587, 0.114)
+
+
+def _grey_weights() -> tuple[float, float, float, float]:
+    """(a, b, c, d): cv2's grey of the RGB a limited-range BT.709 pixel decodes to, as
+    a Y + b (Cb - 128) + c (Cr - 128) + d (before clipping) - the conversion is linear."""
+    kg = 1.0 - _KR - _KB
+    # R' = Y' + 2 (1 - Kr) Cr, B' = Y' + 2 (1 - Kb) Cb, G' = Y' - (2 Kb (1 - Kb) Cb + 2 Kr (1 - Kr) Cr) / Kg
+    r_cr, b_cb = 2.0 * (1.0 - _KR), 2.0 * (1.0 - _KB)
+    g_cb, g_cr = -2.0 * _KB * (1.0 - _KB) / kg, -2.0 * _KR * (1.0 - _KR) / kg
+    wr, wg, wb = _GREY
+    a = _Y_SCALE  # wr + wg + wb = 1
+    b = (wg * g_cb + wb * b_cb) * _C_SCALE
+    c = (wr * r_cr + wg * g_cr) * _C_SCALE
+    return a, b, c, -16.0 * _Y_SCALE
+
+
+class YuvFrame:
+    """One 8-bit 4:2:0 frame as decoded (see the module docstring)."""
+
+    def __init__(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, colorspace: int = 1, color_range: int = 1):
+        h, w = y.shape
+        if h % 2 or w % 2 or u.shape != (h // 2, w // 2) or v.shape != u.shape:
+            raise ValueError(f"planes {y.shape}, {u.shape}, {v.shape}: not 4:2:0 of an even-sized frame")
+        self.y, self.u, self.v = y, u, v
+        self.colorspace, self.color_range = int(colorspace), int(color_range)
+
+    # ------------------------------------------------------------------ in and out
+    @classmethod
+    def from_av(cls, frame) -> YuvFrame | None:
+        """The frame's planes (copied), or None when the frame is not one this path keeps."""
+        from .video import display_orientation, video_colour
+
+        if frame.format.name != "yuv420p" or frame.width % 2 or frame.height % 2:
+            return None
+        colour = video_colour(frame)
+        if colour.bits != 8 or colour.primaries != "bt709" or colour.hdr or colour.full_range:
+            return None
+        if colour.matrix != "bt709" or display_orientation(frame) != (0, False):
+            return None
+        h, w = frame.height, frame.width
+
+        def plane(i, ph, pw):
+            p = frame.planes[i]
+            return np.frombuffer(p, np.uint8).reshape(ph, p.line_size)[:, :pw].copy()
+
+        return cls(plane(0, h, w), plane(1, h // 2, w // 2), plane(2, h // 2, w // 2))
+
+    def to_av(self):
+        """An ``av.VideoFrame`` (yuv420p) of these planes, tagged BT.709 limited range."""
+        import av
+
+        frame = av.VideoFrame.from_ndarray(self._i420(self.y, self.u, self.v), format="yuv420p")
+        frame.colorspace, frame.color_range = self.colorspace, self.color_range
+        return frame
+
+    @staticmethod
+    def _i420(y, u, v) -> np.ndarray:
+        """The planes packed as PyAV's yuv420p arrays are: (3H/2, W), the planes one after the other."""
+        h, w = y.shape
+        return np.concatenate([y.ravel(), u.ravel(), v.ravel()]).reshape(h * 3 // 2, w)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """(H, W, 3): the shape of the RGB frame this is."""
+        return (self.y.shape[0], self.y.shape[1], 3)
+
+    def to_rgb(self) -> np.ndarray:
+        """The whole frame as (H, W, 3) uint8 sRGB codes (what :func:`relight.video.frame_to_rgb` gives)."""
+        return self._rgb(self.y, self.u, self.v)
+
+    def _rgb(self, y, u, v) -> np.ndarray:
+        import av
+        from av.video.reformatter import ColorRange, Colorspace
+
+        from .video import _sws_flags
+
+        frame = av.VideoFrame.from_ndarray(self._i420(y, u, v), format="yuv420p")
+        return frame.reformat(format="rgb24", src_colorspace=Colorspace.ITU709, src_color_range=ColorRange.MPEG,
+                              interpolation=_sws_flags()).to_ndarray()
+
+    # ------------------------------------------------------------------ what the frame path touches
+    def tracking_grey(self, size: tuple[int, int]) -> np.ndarray:
+        """(h, w) uint8: ``cv2.COLOR_RGB2GRAY`` of the RGB frame, scaled to ``size`` (w, h) by area
+        - made from the planes scaled first (the conversion is linear; clipping aside, the same)."""
+        w, h = size
+        a, b, c, d = _grey_weights()
+        ys = self.y if (w, h) == (self.y.shape[1], self.y.shape[0]) else \
+            cv2.resize(self.y, (w, h), interpolation=cv2.INTER_AREA)
+        us = cv2.resize(self.u, (w, h), interpolation=cv2.INTER_AREA if w <= self.u.shape[1] else cv2.INTER_LINEAR)
+        vs = cv2.resize(self.v, (w, h), interpolation=cv2.INTER_AREA if w <= self.v.shape[1] else cv2.INTER_LINEAR)
+        g = cv2.addWeighted(ys, a, us, b, d - 128.0 * (b + c), dtype=cv2.CV_32F)
+        g = cv2.scaleAdd(vs.astype(np.float32), c, g)
+        _, g = cv2.threshold(g, 0.0, 0.0, cv2.THRESH_TOZERO)  # below 0 -> 0
+        return cv2.convertScaleAbs(g)  # rounded, saturated at 255
+
+    def even_box(self, box: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
+        """``box`` grown to even edges (whole chroma samples), clipped to the frame."""
+        x0, y0, x1, y1 = box
+        h, w = self.y.shape
+        return (max(x0 - x0 % 2, 0), max(y0 - y0 % 2, 0), min(x1 + x1 % 2, w), min(y1 + y1 % 2, h))
+
+    def rgb_box(self, box: tuple[int, int, int, int]) -> np.ndarray:
+        """(y1 - y0, x1 - x0, 3) uint8 sRGB of an even ``box`` (:meth:`even_box`)."""
+        x0, y0, x1, y1 = box
+        return self._rgb(self.y[y0:y1, x0:x1], self.u[y0 // 2:y1 // 2, x0 // 2:x1 // 2],
+                         self.v[y0 // 2:y1 // 2, x0 // 2:x1 // 2])
+
+    def with_rgb_box(self, box: tuple[int, int, int, int], before: np.ndarray, after: np.ndarray) -> YuvFrame:
+        """A new frame: this one with the RGB of an even ``box`` changed from ``before`` (what
+        :meth:`rgb_box` gave) to ``after`` - converted back (swscale, :func:`relight.video.to_yuv`'s
+        settings) only where a pixel changed (luma) or a 2x2 block holds one (chroma)."""
+        import av
+
+        from .video import _sws_flags
+
+        x0, y0, x1, y1 = box
+        d = cv2.absdiff(np.ascontiguousarray(before), np.ascontiguousarray(after))
+        changed = (d[..., 0] | d[..., 1] | d[..., 2]) != 0  # (numpy's any over an axis of 3: 10x slower)
+        y, u, v = self.y.copy(), self.u.copy(), self.v.copy()
+        if not changed.any():
+            return YuvFrame(y, u, v, self.colorspace, self.color_range)
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(after), format="rgb24")
+        out = frame.reformat(format="yuv420p", dst_colorspace="ITU709", dst_color_range="MPEG",
+                             interpolation=_sws_flags()).to_ndarray()
+        bh, bw = changed.shape
+        flat, n, q = out.reshape(-1), bh * bw, bh * bw // 4
+        ny = flat[:n].reshape(bh, bw)
+        nu, nv = flat[n:n + q].reshape(bh // 2, bw // 2), flat[n + q:].reshape(bh // 2, bw // 2)
+        block = changed[0::2, 0::2] | changed[1::2, 0::2] | changed[0::2, 1::2] | changed[1::2, 1::2]
+        np.copyto(y[y0:y1, x0:x1], ny, where=changed)
+        cy0, cx0 = y0 // 2, x0 // 2
+        np.copyto(u[cy0:cy0 + bh // 2, cx0:cx0 + bw // 2], nu, where=block)
+        np.copyto(v[cy0:cy0 + bh // 2, cx0:cx0 + bw // 2], nv, where=block)
+        return YuvFrame(y, u, v, self.colorspace, self.color_range)
