@@ -22,6 +22,7 @@ from relight.colour import decode_srgb8
 from relight.directions import rotation_matrix
 from relight.errors import InputError
 from relight.numerics import EPS, EPS_VALUE
+from relight.video_yuv import downscale_area
 
 from . import composite
 from .live_light import SAMPLES, LightEstimator, LiveLight
@@ -352,8 +353,7 @@ class FramePath:
         # and windows; a third of a pixel at 1080 rows is still far below the pose's noise).
         self.ref_track_scale = min(1.0, TRACK_ROWS / ref_h)
         rs = self.ref_track_scale
-        small_ref = cv2.resize(self.ref_grey, (round(ref_w * rs), round(ref_h * rs)), interpolation=cv2.INTER_AREA) \
-            if rs < 1 else self.ref_grey
+        small_ref = downscale_area(self.ref_grey, (round(ref_w * rs), round(ref_h * rs))) if rs < 1 else self.ref_grey
         small_mask = cv2.resize(full_mask.astype(np.uint8), small_ref.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
         # The bundle's own face in its illumination subspace finds the face where a generic
         # detector does not (one-sided light, tight crops).
@@ -552,7 +552,7 @@ class FramePath:
         else:
             grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
             if ts < 1:
-                grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
+                grey = downscale_area(grey, (round(w * ts), round(h * ts)))
         grey, track_gain = _track_exposure(grey)
         last = est.last
         predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
@@ -880,7 +880,7 @@ class FramePath:
         (sy0, sy1, sx0, sx1), (ry0, ry1, rx0, rx1) = self._lit_box
         crop = np.ascontiguousarray(lit[ry0:ry1, rx0:rx1], dtype=np.float32) @ _LUM
         if crop.shape != (sy1 - sy0, sx1 - sx0):
-            crop = cv2.resize(crop, (sx1 - sx0, sy1 - sy0), interpolation=cv2.INTER_AREA)
+            crop = downscale_area(crop, (sx1 - sx0, sy1 - sy0))
         ref = self.tracker.reference.copy()
         face = encode_srgb8(np.clip(crop[self.track_face[sy0:sy1, sx0:sx1]], 0.0, 1.0))
         # in the codes the tracker sees (a dark frame's are brightened by the same gain)

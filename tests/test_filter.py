@@ -185,17 +185,19 @@ def test_batched_correlation_matches_opencv_match_template():
 
 @pytest.mark.parametrize("full", [(720, 1280), (540, 960), (360, 640), (1080, 1920), (271, 481)])
 def test_the_lit_reference_box_downscales_to_the_same_pixels(full):
-    """The face box the live-lit tracking reference is remade in: INTER_AREA of the full box equals
-    the same pixels of the whole frame downscaled (the template matching must not shift)."""
+    """The face box the live-lit tracking reference is remade in: the tracker's downscale of the
+    full box equals the same pixels of the whole frame downscaled (the template matching must not
+    shift)."""
     from relight.service.frame_path import _aligned_box
+    from relight.video_yuv import downscale_area
 
     img = np.random.default_rng(0).random(full).astype(np.float32)
-    small = cv2.resize(img, (480, 270), interpolation=cv2.INTER_AREA)
+    small = downscale_area(img, (480, 270))
     mask = np.zeros((270, 480), bool)
     mask[90:181, 170:311] = True
     (a, b, c, d), (e, f, g, h) = _aligned_box(mask, full)
     assert mask[a:b, c:d].sum() == mask.sum()
-    crop = cv2.resize(img[e:f, g:h], (d - c, b - a), interpolation=cv2.INTER_AREA)
+    crop = downscale_area(img[e:f, g:h], (d - c, b - a))
     assert np.abs(crop - small[a:b, c:d]).max() < 1e-6
 
 
