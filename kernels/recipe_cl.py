@@ -83,6 +83,7 @@ class RecipeRows:
         self._carry = rf.carry_weights(recipe.tri.vertices, recipe.n_samples) \
             if len(recipe.tri.vertices) > recipe.n_samples else (None, None)
         self._spline_cache: dict[int, np.ndarray | None] = {}
+        self._kernels: dict = {}  # a kernel object per extra queue (make(queue=...))
 
     def _spline_rows(self, texels: np.ndarray) -> list[np.ndarray | None]:
         """Per texel its (K,) spline weights in the code domain, or None (outside the hull / no spline)."""
@@ -106,15 +107,25 @@ class RecipeRows:
                 self._spline_cache[t] = v
         return [self._spline_cache[int(t)] for t in texels]
 
-    def make(self, texels: np.ndarray, slots: np.ndarray) -> None:
-        """Rows of the map texels ``texels`` (ids in the map, all active) into ``rows[slots]``."""
+    def make(self, texels: np.ndarray, slots: np.ndarray, queue=None) -> None:
+        """Rows of the map texels ``texels`` (ids in the map, all active) into ``rows[slots]``,
+        on the runtime's queue or on ``queue`` (a command queue of its own, for another thread:
+        each queue gets its own kernel object - a kernel's arguments are not shared safely)."""
         texels = np.asarray(texels, dtype=np.int64).ravel()
         slots = np.asarray(slots, dtype=np.int64).ravel()
-        for i in range(0, texels.size, MAX_T):
-            self._launch(texels[i:i + MAX_T], slots[i:i + MAX_T])
-        self.queue.finish()
+        q = self.queue if queue is None else queue
+        kernel = self.kernel
+        if queue is not None:
+            import pyopencl as cl
 
-    def _launch(self, texels: np.ndarray, slots: np.ndarray) -> None:
+            kernel = self._kernels.get(queue)
+            if kernel is None:
+                kernel = self._kernels[queue] = cl.Kernel(self.kernel.program, "texel_rows")
+        for i in range(0, texels.size, MAX_T):
+            self._launch(texels[i:i + MAX_T], slots[i:i + MAX_T], q, kernel)
+        q.finish()
+
+    def _launch(self, texels: np.ndarray, slots: np.ndarray, queue, kernel) -> None:
         import pyopencl as cl
 
         from . import recipe as rcp
@@ -180,7 +191,7 @@ class RecipeRows:
             a = np.ascontiguousarray(a)
             return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
 
-        self.kernel(self.queue, (-(-self.n_pix // GROUP) * GROUP,), (GROUP,), self._codes, np.int32(k),
+        kernel(queue, (-(-self.n_pix // GROUP) * GROUP,), (GROUP,), self._codes, np.int32(k),
                     np.int32(self.n_pix), self._scale, self._decode, self._normal, self._horizon, np.int32(r.n_az),
                     np.int32(self.use_vis), self._elevation,
                     self._albedo, self._spec, self._trust, self._blend, buf(az), np.int32(len(positions)),

@@ -478,6 +478,7 @@ class FramePath:
         env = frozen(env)
         self.relighter.lights(env)  # validates and converts once
         self.env = env
+        self.relighter.prefetch_rows(env)  # the exact texels' rows, ahead of the head's turns
         self._exposure_lock, self._exposure_fits = None, []
         self._env_texels = None  # its low frequencies, made when the person beyond the face needs them
 

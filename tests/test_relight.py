@@ -182,6 +182,30 @@ def test_a_light_relit_without_exact_texels_makes_no_texel_rows(relighters, smal
     assert compact.row_cache.rows.shape[0] == row_slots(compact.n_pix)
 
 
+def test_rows_made_ahead_on_their_own_thread_relight_as_rows_made_when_asked(small_bundle):
+    """prefetch_rows (the frame path's, at set_environment): the rows a turning head's relight of a
+    sunset asks for are made on a thread and a queue of their own; relights that find them made
+    are bit for bit the relights that made them on the spot, and a relight asking for a row the
+    thread is making waits for it."""
+    env = load_environment("builtin:sunset")
+    turns = [rotation_matrix(y, p, 0) for y, p in ((0, 0), (20, 5), (-30, -10), (10, 15))]
+    plain = Relighter(small_bundle)
+    want = [np.array(plain.relight(env, r)) for r in turns]
+    ahead = Relighter(small_bundle)
+    ahead.prefetch_rows(env)
+    first = np.array(ahead.relight(env, turns[0]))  # while the thread runs: waits, or makes, as needed
+    ahead.row_cache._prefetch[0].join()
+    assert ahead.row_cache.prefetched > 0
+    made = ahead.row_cache.made
+    got = [first] + [np.array(ahead.relight(env, r)) for r in turns[1:]]
+    assert ahead.row_cache.made == made  # every row these turns need was made ahead
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(g, w)
+    ahead.prefetch_rows(env)  # again: a running prefetch is stopped and replaced, rows kept
+    ahead.row_cache.stop_prefetch()
+    assert ahead.row_cache._prefetch is None
+
+
 def test_one_light_reads_the_maps_directly(relighters, small_bundle, small_capture):
     compact, exact = relighters
     res, _ = small_capture
