@@ -44,7 +44,7 @@ AUDIO_BIT_RATE = 96_000
 MAX_AUDIO_SAMPLES = 3600 * AUDIO_RATE
 
 
-def _sws_flags():
+def sws_flags():
     from av.video.reformatter import Interpolation as I
 
     # swscale's default RGB <-> YUV paths round down: a measured bias of about -0.75 of an
@@ -59,7 +59,7 @@ def to_yuv(rgb: np.ndarray):
 
     frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")
     return frame.reformat(format="yuv420p", dst_colorspace="ITU709", dst_color_range="MPEG",
-                          interpolation=_sws_flags())
+                          interpolation=sws_flags())
 
 
 def _to_rgb(frame) -> np.ndarray:
@@ -73,7 +73,7 @@ def _to_rgb(frame) -> np.ndarray:
         cs = Colorspace.ITU709 if frame.height >= 720 else Colorspace.ITU601
     rng = frame.color_range if int(frame.color_range) in (1, 2) else ColorRange.MPEG
     return frame.reformat(format="rgb24", src_colorspace=cs, src_color_range=rng,
-                          interpolation=_sws_flags()).to_ndarray()
+                          interpolation=sws_flags()).to_ndarray()
 
 
 #: Decoded bytes after which :func:`release_frames` runs the cycle collector (the dead frames it

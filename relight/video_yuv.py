@@ -1,7 +1,7 @@
 """A decoded video frame kept in its Y'CbCr planes, converted only where it is touched.
 
 Converting a whole 1280x720 frame to RGB costs 11.7 ms of CPU here and back to Y'CbCr for the
-encoder 8.7 ms (swscale with :func:`relight.video._sws_flags`, as :func:`relight.video.frame_to_rgb`
+encoder 8.7 ms (swscale with :func:`relight.video.sws_flags`, as :func:`relight.video.frame_to_rgb`
 and :func:`relight.video.to_yuv` do) - more than the per-frame path's own work. A relit frame
 changes only the face's box: :class:`YuvFrame` keeps the decoder's planes, gives the tracker a
 small grey image made from them, converts the box to RGB and back, and writes back only the
@@ -114,11 +114,11 @@ class YuvFrame:
         import av
         from av.video.reformatter import ColorRange, Colorspace
 
-        from .video import _sws_flags
+        from .video import sws_flags
 
         frame = av.VideoFrame.from_ndarray(self._i420(y, u, v), format="yuv420p")
         return frame.reformat(format="rgb24", src_colorspace=Colorspace.ITU709, src_color_range=ColorRange.MPEG,
-                              interpolation=_sws_flags()).to_ndarray()
+                              interpolation=sws_flags()).to_ndarray()
 
     # ------------------------------------------------------------------ what the frame path touches
     def tracking_grey(self, size: tuple[int, int]) -> np.ndarray:
@@ -156,7 +156,7 @@ class YuvFrame:
         settings) only where a pixel changed (luma) or a 2x2 block holds one (chroma)."""
         import av
 
-        from .video import _sws_flags
+        from .video import sws_flags
 
         x0, y0, x1, y1 = box
         d = cv2.absdiff(np.ascontiguousarray(before), np.ascontiguousarray(after))
@@ -166,7 +166,7 @@ class YuvFrame:
             return YuvFrame(y, u, v, self.colorspace, self.color_range)
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(after), format="rgb24")
         out = frame.reformat(format="yuv420p", dst_colorspace="ITU709", dst_color_range="MPEG",
-                             interpolation=_sws_flags()).to_ndarray()
+                             interpolation=sws_flags()).to_ndarray()
         bh, bw = changed.shape
         flat, n, q = out.reshape(-1), bh * bw, bh * bw // 4
         ny = flat[:n].reshape(bh, bw)

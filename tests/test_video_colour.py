@@ -83,7 +83,7 @@ def test_ten_bit_ycbcr_matches_swscale(matrix, full):
     import av
     from av.video.reformatter import ColorRange, Colorspace
 
-    from relight.video import _sws_flags, crop_frame
+    from relight.video import crop_frame, sws_flags
 
     h, w = 32, 48
     colour = VideoColour(matrix=matrix, primaries="bt709", transfer="linear", full_range=full, bits=10)
@@ -99,7 +99,7 @@ def test_ten_bit_ycbcr_matches_swscale(matrix, full):
     cs = {"bt2020": Colorspace.BT2020, "bt709": Colorspace.ITU709, "bt601": Colorspace.SMPTE170M}[matrix]
     rng = ColorRange.JPEG if full else ColorRange.MPEG
     ref = frame.reformat(format="rgb48le", src_colorspace=cs, src_color_range=rng, dst_color_range=ColorRange.JPEG,
-                         interpolation=_sws_flags()).to_ndarray().astype(np.float64) / 65535.0
+                         interpolation=sws_flags()).to_ndarray().astype(np.float64) / 65535.0
     ours = crop_frame(frame, (0, 0, w, h)).linear()
     got = crop_frame(frame, (0, 0, w, h)).colour
     assert (got.matrix, got.full_range, got.bits, got.transfer) == (matrix, full, 10, "linear")
