@@ -242,7 +242,7 @@ class VideoWriter:
                 continue  # drain after a failure; the caller sees the error
             try:
                 index, rgb = item
-                frame = to_yuv(rgb)
+                frame = to_yuv(rgb) if isinstance(rgb, np.ndarray) else rgb.to_av()
                 frame.pts = index
                 frame.time_base = 1 / self.fps
                 for packet in self._stream.encode(frame):
@@ -281,9 +281,13 @@ class VideoWriter:
         if self._error is not None:
             raise OSError(f"{self.path}: encoding failed ({self._error})") from self._error
 
-    def write(self, rgb: np.ndarray) -> None:
-        """Append one (H, W, 3) uint8 sRGB frame (do not modify the array afterwards)."""
-        if rgb.shape != (self.size[1], self.size[0], 3) or rgb.dtype != np.uint8:
+    def write(self, rgb) -> None:
+        """Append one (H, W, 3) uint8 sRGB frame (do not modify the array afterwards), or a
+        :class:`relight.video_yuv.YuvFrame` of the writer's size (encoded as it is)."""
+        if not isinstance(rgb, np.ndarray) and hasattr(rgb, "to_av"):
+            if rgb.shape != (self.size[1], self.size[0], 3):
+                raise InputError(f"frame must be {self.size[0]}x{self.size[1]}, got {rgb.shape[1]}x{rgb.shape[0]}")
+        elif rgb.shape != (self.size[1], self.size[0], 3) or rgb.dtype != np.uint8:
             raise InputError(f"frame must be ({self.size[1]}, {self.size[0]}, 3) uint8, got {rgb.shape} {rgb.dtype}")
         self._raise_worker_error()
         self._queue.put((self.frames, rgb))

@@ -177,3 +177,8 @@ class YuvFrame:
         np.copyto(u[cy0:cy0 + bh // 2, cx0:cx0 + bw // 2], nu, where=block)
         np.copyto(v[cy0:cy0 + bh // 2, cx0:cx0 + bw // 2], nv, where=block)
         return YuvFrame(y, u, v, self.colorspace, self.color_range)
+
+
+def as_rgb(frame) -> np.ndarray:
+    """(H, W, 3) uint8 sRGB of a frame: an array as it is, a :class:`YuvFrame` converted whole."""
+    return frame.to_rgb() if isinstance(frame, YuvFrame) else frame

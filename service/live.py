@@ -170,10 +170,14 @@ class CameraReader:
         if c is not None:
             c.close()
 
-    def _fit(self, rgb: np.ndarray) -> np.ndarray:
+    def _fit(self, rgb):
         h, w = rgb.shape[:2]
         if h * w > MAX_CAMERA_PIXELS:
             raise InputError(f"camera frames of {w}x{h} are over {MAX_CAMERA_PIXELS} pixels: pass a smaller --size")
+        if not isinstance(rgb, np.ndarray):  # a frame kept in its planes (relight.video_yuv)
+            if not self.size or (w, h) == tuple(self.size):
+                return rgb
+            rgb = rgb.to_rgb()
         if self.size and (w, h) != tuple(self.size):
             import cv2
 
@@ -182,7 +186,8 @@ class CameraReader:
         return np.ascontiguousarray(rgb)
 
     def _frames(self):
-        from relight.video import frame_to_rgb, read_frames
+        from relight.video import frame_to_rgb, read_frames_raw
+        from relight.video_yuv import YuvFrame
 
         if not self.is_file:
             for frame in self.container.decode(video=0):
@@ -190,9 +195,12 @@ class CameraReader:
             return
         while True:
             n = 0
-            for rgb in read_frames(self.spec):
+            # A file's frames kept in their planes where they can be (only the face's box is
+            # converted: relight.video_yuv), else RGB as displayed.
+            for frame in read_frames_raw(self.spec):
                 n += 1
-                yield rgb
+                yuv = YuvFrame.from_av(frame)
+                yield yuv if yuv is not None else frame_to_rgb(frame)
             if not self.loop or n == 0:
                 return
 
@@ -254,7 +262,7 @@ class PreviewServer:
                             preview.closed.wait(0.01)
                             continue
                         last = item
-                        jpeg = preview.encode(item.rgb)
+                        jpeg = preview.encode(item.as_rgb())
                         self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: "
                                          + str(len(jpeg)).encode() + b"\r\n\r\n" + jpeg + b"\r\n")
                 except (BrokenPipeError, ConnectionResetError):
@@ -284,10 +292,19 @@ class PreviewServer:
 # ---------------------------------------------------------------------------------- the loop
 @dataclass
 class RelitFrame:
-    rgb: np.ndarray
+    rgb: object  # (H, W, 3) uint8 sRGB, or a relight.video_yuv.YuvFrame (as_rgb() converts it once)
     t_camera: float  # when the camera frame was read
     t_ready: float  # when its relit frame was ready
     index: int
+    _rgb: np.ndarray | None = None
+
+    def as_rgb(self) -> np.ndarray:
+        """The frame as (H, W, 3) uint8 sRGB (a YuvFrame converted on first use, then kept)."""
+        if self._rgb is None:
+            from relight.video_yuv import as_rgb
+
+            self._rgb = as_rgb(self.rgb)
+        return self._rgb
 
 
 @dataclass
@@ -526,9 +543,10 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                     res.record = str(record)
                 rgb = item.rgb
                 if cam is not None:
-                    cam.send(rgb)
-                if writer is not None:
-                    writer.write(np.ascontiguousarray(rgb[:rgb.shape[0] // 2 * 2, :rgb.shape[1] // 2 * 2]))
+                    cam.send(item.as_rgb())
+                if writer is not None:  # a YuvFrame (even-sized) goes to the encoder as it is
+                    writer.write(np.ascontiguousarray(rgb[:rgb.shape[0] // 2 * 2, :rgb.shape[1] // 2 * 2])
+                                 if isinstance(rgb, np.ndarray) else rgb)
                 stage["out"] += 1
             t_next += period
             wait = t_next - time.perf_counter()
