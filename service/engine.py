@@ -1,6 +1,9 @@
 """The service's state: the loaded bundle and per-frame path (:class:`Engine`, one frame at a
 time under its lock) and the Prometheus metrics. Made in the app's lifespan, kept on ``app.state``
-and handed to the routes by :mod:`relight.service.dependencies`."""
+and handed to the routes by :mod:`relight.service.dependencies`.
+
+The engine's lock is behind its API: its ``async`` methods take it (and run the work off the
+event loop), so no route can forget it; the sessions share the relighter, one frame at a time."""
 
 from __future__ import annotations
 
@@ -66,11 +69,46 @@ class Engine:
         env = self.environment(config.env)
         self.shared = Session(FramePath(self.bundle, env, mode=config.mode, focal=config.focal), env)
         self.path = self.shared.path
-        self.lock = asyncio.Lock()
+        self._lock = asyncio.Lock()
 
-    def session(self) -> Session:
-        """A new client's own per-frame path (~0.5 s for a small bundle: call it off the event loop,
-        under :attr:`lock` - it relights with the shared relighter)."""
+    # ------------------------------------------------------------------ the API (takes the lock)
+    async def new_session(self) -> Session:
+        """A new stream client's own per-frame path (its tracker, filters and live light)."""
+        async with self._lock:
+            return await asyncio.to_thread(self._session)
+
+    async def relight_frame(self, rgb: np.ndarray, *, session: Session | None = None, **settings):
+        """(relit frame, FrameInfo) of one frame through ``session``'s path; without a session, a
+        single request: the shared path starts afresh (a track, filters and a light of its own -
+        one caller's frames are not another's), so every request is relit as a first frame."""
+        async with self._lock:
+            return await asyncio.to_thread(self._relight, rgb, session=session, **settings)
+
+    async def decode_relight_encode(self, data: bytes, ctype: str, max_pixels: int, settings: dict,
+                                    session: Session | None = None):
+        """(encoded relit frame, FrameInfo) of an encoded frame, decoded, relit and encoded in one
+        hop off the event loop (raises ServiceError/RelightError)."""
+        async with self._lock:
+            return await asyncio.to_thread(_decode_relight_encode, self, data, ctype, max_pixels, settings, session)
+
+    async def choose(self, name: str) -> None:
+        """A built-in or loaded environment ``name`` becomes the current one (loaded now)."""
+        async with self._lock:
+            await asyncio.to_thread(self.environment, name)
+            self.env_name = name
+
+    async def upload(self, name: str, env: np.ndarray) -> None:
+        """An uploaded (validated) environment becomes the current one under ``name``."""
+        async with self._lock:
+            self.set_uploaded(name, env)
+
+    async def current_environment(self) -> np.ndarray:
+        """The current environment turned by the current rotation (made off the event loop)."""
+        async with self._lock:
+            return await asyncio.to_thread(self.environment, self.env_name, self.default_rotation)
+
+    # ------------------------------------------------------------------ under the lock
+    def _session(self) -> Session:
         from .frame_path import FramePath
 
         env = self.environment(self.env_name)
@@ -100,11 +138,13 @@ class Engine:
             self._envs[key] = env
         return env
 
-    def relight(self, rgb: np.ndarray, *, env: str | None, rotation, exposure: float | None, strength: float | None,
-                mode: str | None, session: Session | None = None):
-        """The relit frame and its FrameInfo, through ``session``'s path (None: the shared one).
-        Call it under :attr:`lock` (the sessions share the relighter)."""
-        session = session or self.shared
+    def _relight(self, rgb: np.ndarray, *, env: str | None = None, rotation=None, exposure: float | None = None,
+                 strength: float | None = None, mode: str | None = None, session: Session | None = None):
+        """The relit frame and its FrameInfo, through ``session``'s path (None: the shared one,
+        reset first). Under the lock (the sessions share the relighter)."""
+        if session is None:
+            session = self.shared
+            session.path.reset()
         fp = session.path
         if env is None and rotation is None:
             rotation = self.default_rotation
@@ -118,9 +158,8 @@ class Engine:
         return fp.process(rgb, time.perf_counter())
 
 
-def decode_relight_encode(engine: Engine, data: bytes, ctype: str, max_pixels: int, settings: dict,
-                          session: Session | None = None):
-    """(encoded relit frame, FrameInfo) of an encoded frame (raises ServiceError/RelightError)."""
+def _decode_relight_encode(engine: Engine, data: bytes, ctype: str, max_pixels: int, settings: dict,
+                           session: Session | None = None):
     rgb = decode_frame(data, ctype, max_pixels)
-    out, info = engine.relight(rgb, session=session, **settings)
+    out, info = engine._relight(rgb, session=session, **settings)
     return encode_frame(out, ctype), info

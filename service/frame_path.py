@@ -93,6 +93,32 @@ class FrameInfo:
     reused: bool = False  # the last relight served this frame (the head turned < reuse_deg)
 
 
+@dataclass
+class Front:
+    """What :meth:`FramePath.front` found in a frame - all :meth:`FramePath.back` reads of it.
+
+    ``frame``: the frame as given ((H, W, 3) uint8 sRGB or a YuvFrame); ``t``: its time (s);
+    ``t0``: perf_counter at the start of its path; ``info``: the FrameInfo both halves fill.
+    The rest is None when no head pose was found (``back`` then passes the frame through):
+    ``track`` the tracked points, ``keep`` the pose's inliers among them and ``ref_idx`` their
+    landmark indices, ``xy`` ((M, 2) float32) where the warp puts those landmarks, ``pose`` and
+    ``rotation`` (3x3, smoothed) the head's, ``size`` (w, h), ``track_gain`` the tracking copy's
+    brightening gain."""
+
+    frame: object
+    t: float
+    t0: float
+    info: FrameInfo
+    track: object = None
+    keep: np.ndarray | None = None
+    ref_idx: np.ndarray | None = None
+    xy: np.ndarray | None = None
+    pose: object = None
+    rotation: np.ndarray | None = None
+    size: tuple[int, int] = (0, 0)
+    track_gain: float = 1.0
+
+
 def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
     m = cv2.remap(img.astype(np.float32), xy[:, 0:1].astype(np.float32), xy[:, 1:2].astype(np.float32),
                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -526,7 +552,7 @@ class FramePath:
         back)."""
         return self.back(self.front(rgb, t))
 
-    def front(self, rgb: np.ndarray, t: float) -> dict:
+    def front(self, rgb, t: float) -> Front:
         """The first half of :meth:`process` - track and head pose - for a frame: what
         :meth:`back` needs. Touches only the tracker, the pose estimator and the angle filter, so
         a caller may run it for the next frame while :meth:`back` runs for this one (on another
@@ -571,7 +597,7 @@ class FramePath:
             tm["pose"] = (time.perf_counter() - t1) * 1e3
             info.note = "no face found" if track is None else "no consistent head pose"
             tm["total"] = (time.perf_counter() - t0) * 1e3
-            return {"done": (rgb, info)}
+            return Front(rgb, t, t0, info)
         keep = pose.inliers
         ref_idx = track.ref_index[keep]
         # The pose again (Levenberg-Marquardt from the first): one more pass converges further
@@ -590,17 +616,17 @@ class FramePath:
         info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles
         info.points = int(keep.size)
         tm["pose"] = (time.perf_counter() - t1) * 1e3
-        return {"rgb": rgb, "t": t, "t0": t0, "info": info, "track": track, "keep": keep, "ref_idx": ref_idx,
-                "xy": xy, "rotation": rotation, "size": size, "track_gain": track_gain, "pose": pose}
+        return Front(rgb, t, t0, info, track=track, keep=keep, ref_idx=ref_idx, xy=xy, pose=pose, rotation=rotation,
+                     size=size, track_gain=track_gain)
 
-    def back(self, front: dict, defer_reference: bool = False) -> tuple[np.ndarray, FrameInfo]:
+    def back(self, front: Front, defer_reference: bool = False):
         """The second half of :meth:`process` (relight, warp, live light, composite) for the
         result of :meth:`front`."""
-        if "done" in front:
-            return front["done"]
-        rgb, t, t0, info = front["rgb"], front["t"], front["t0"], front["info"]
-        track, keep, ref_idx, xy = front["track"], front["keep"], front["ref_idx"], front["xy"]
-        rotation, size = front["rotation"], front["size"]
+        if front.pose is None:
+            return front.frame, front.info
+        rgb, t, t0, info = front.frame, front.t, front.t0, front.info
+        track, keep, ref_idx, xy = front.track, front.keep, front.ref_idx, front.xy
+        rotation, size = front.rotation, front.size
         tm = info.timings
         t2 = time.perf_counter()
         reused = self.relighter.reused
@@ -612,7 +638,7 @@ class FramePath:
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()
         if self.rigid_warp:
-            cur, depth = self._mesh_positions(front["pose"], size, ref_idx, xy)
+            cur, depth = self._mesh_positions(front.pose, size, ref_idx, xy)
             ref = self.mesh_ref
             box = points_box(cur, size)
             coarse = mesh_coarse_map(cur, ref, self.mesh_triangles, box, depth) if box is not None else None
@@ -658,7 +684,7 @@ class FramePath:
                     # 0.68 % with 8 exact texels) - within the default tolerance and far below the
                     # fit's own residual (8-15 % on the real faces).
                     lit = self.relighter.relight_texels(self.light_estimator.texel_light(), slot="live", direct=0)
-                    self._set_lit_reference(lit, front["track_gain"], defer_reference)
+                    self._set_lit_reference(lit, front.track_gain, defer_reference)
             else:
                 self._since_light += 1
             info.light = self._last_light

@@ -556,13 +556,25 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                 t_next = time.perf_counter()  # behind: no burst to catch up
 
     clock_error: list = []
+    loop_error: list = []
 
     def clock_run():
+        """The output clock's thread owns the sinks it opens: it closes them too (the recording
+        kept when the run ends well, removed when it or the loop failed)."""
         try:
             output_clock()
         except BaseException as exc:
             clock_error.append(exc)
             controls.quit("output error")
+        finally:
+            exc = (clock_error + loop_error + [None])[0]
+            try:
+                if cam is not None:
+                    cam.close()
+            finally:
+                if writer is not None:
+                    writer.__exit__(type(exc) if exc is not None else None, exc,
+                                    exc.__traceback__ if exc is not None else None)
 
     clock = threading.Thread(target=clock_run, name="relight-output", daemon=True)
     try:
@@ -607,20 +619,19 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                     res.cpu_percent = status.show(reader.slot.put_count, stage["relit"],
                                                   reader.slot.dropped, controls)
             pipe.drain()
+    except BaseException as exc:
+        loop_error.append(exc)
+        raise
     finally:
         controls.stop.set()
         restore_signals()
         restore_keys()
         reader.stop()
         if clock.is_alive():
-            clock.join(timeout=5)
+            clock.join()  # it closes the virtual camera and the recording it opened
         status.close()
         if pv is not None:
             pv.close()
-        if cam is not None:
-            cam.close()
-        if writer is not None:
-            writer.__exit__(*sys.exc_info())
     if clock_error:
         raise clock_error[0]
     wall = max(time.perf_counter() - t_start, 1e-6)

@@ -136,8 +136,7 @@ class WebRTCSession:
         engine = self.engine
         rgb = await asyncio.to_thread(frame.to_ndarray, format="rgb24")
         try:
-            async with engine.lock:
-                out, info = await asyncio.to_thread(engine.relight, rgb, session=self.path_session, **self.settings)
+            out, info = await engine.relight_frame(rgb, session=self.path_session, **self.settings)
         except RelightError as exc:
             self.metrics.errors.labels(kind="bad_frame").inc()
             self.send({"error": str(exc), "kind": "bad_frame"})
@@ -193,8 +192,7 @@ class WebRTCSessions:
         pc = aiortc.RTCPeerConnection(aiortc.RTCConfiguration(iceServers=servers))
         session = None
         try:
-            async with engine.lock:  # (made with the shared relighter: one user at a time)
-                path_session = await asyncio.to_thread(engine.session)
+            path_session = await engine.new_session()
             session = WebRTCSession(self, pc, engine, path_session)
             self.sessions[session.id] = session
             self.metrics.webrtc_sessions.inc()

@@ -56,6 +56,22 @@ def test_relight_a_png_and_a_jpeg_frame(server, frame):
     assert "relight_frames_total" in m and "relight_frame_latency_seconds_bucket" in m
 
 
+def test_each_request_is_relit_as_a_first_frame(server, frame):
+    """POST /v1/relight keeps nothing of one caller's frames for the next (a track, filters and
+    a live light of its own each time): the same frame after another caller's moved frame comes
+    back as it did the first time."""
+    def post(img):
+        r = httpx.post(f"{server}/v1/relight?env=sunset", content=_png(img), headers={"content-type": "image/png"},
+                       timeout=30)
+        assert r.status_code == 200 and r.headers["x-relight-face"] == "found"
+        return r.content
+
+    first = post(frame)
+    moved = np.ascontiguousarray(np.roll(frame, (6, -9), axis=(0, 1)))
+    post(moved)  # another caller's frame: its face elsewhere, its own light
+    assert post(frame) == first
+
+
 def test_a_frame_without_a_face_comes_back_unchanged(server, frame):
     blank = np.full_like(frame, 120)
     r = httpx.post(f"{server}/v1/relight", content=_png(blank), headers={"content-type": "image/png"}, timeout=30)

@@ -40,17 +40,14 @@ async def put_environment(request: Request, engine: EngineDep,
     if builtin is not None:
         if builtin not in PRESETS:
             raise ServiceError(422, "bad_query", f"builtin={builtin!r}: use one of {', '.join(PRESETS)}")
-        async with engine.lock:
-            await asyncio.to_thread(engine.environment, f"builtin:{builtin}")
-            engine.env_name = f"builtin:{builtin}"
+        await engine.choose(f"builtin:{builtin}")
     elif body:
         suffix = ENV_TYPES.get(ctype)
         if suffix is None:
             raise ServiceError(415, "content_type", f"content type {ctype or 'none'!r}: send "
                                + ", ".join(ENV_TYPES) + " (an .hdr, .exr or .png lat-long map)")
         env = await asyncio.to_thread(load_uploaded_environment, body, suffix)
-        async with engine.lock:
-            engine.set_uploaded("uploaded" + suffix, env)
+        await engine.upload("uploaded" + suffix, env)
     if rot is not None:
         engine.default_rotation = rot
     if exposure is not None:
@@ -60,6 +57,6 @@ async def put_environment(request: Request, engine: EngineDep,
 @router.get("/v1/environment/preview.png", summary="The current environment, tone-mapped",
          response_class=Response, responses={200: {"content": {"image/png": {}}}})
 async def preview_environment(engine: EngineDep):
-    env = engine.environment(engine.env_name, engine.default_rotation)
+    env = await engine.current_environment()
     return Response(await asyncio.to_thread(preview_png, env, engine.default_exposure), media_type="image/png")
 

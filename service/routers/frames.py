@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import json
 import time
 
@@ -52,12 +51,11 @@ async def _relight(request, engine, metrics, config, ctype, env, rot, exposure, 
     out_type = "image/jpeg" if "image/jpeg" in accept and "image/png" not in accept else \
         "image/png" if "image/png" in accept and "image/jpeg" not in accept else ctype
     t0 = time.perf_counter()
-    async with engine.lock:
-        try:
-            out, info = await asyncio.to_thread(engine.relight, rgb, env=f"builtin:{env}" if env else None,
-                                                rotation=rot, exposure=exposure, strength=strength, mode=mode)
-        except RelightError as exc:
-            raise ServiceError(400, "bad_request", str(exc)) from None
+    try:
+        out, info = await engine.relight_frame(rgb, env=f"builtin:{env}" if env else None, rotation=rot,
+                                               exposure=exposure, strength=strength, mode=mode)
+    except RelightError as exc:
+        raise ServiceError(400, "bad_request", str(exc)) from None
     metrics.latency.observe(time.perf_counter() - t0)
     metrics.frames.inc()
     timing = ", ".join(f"{k};dur={v:.2f}" for k, v in info.timings.items())

@@ -12,7 +12,6 @@ from relight.imageio import image_size
 
 from ..controls import apply_control, new_settings, parse_control
 from ..dependencies import MetricsDep, SettingsDep
-from ..engine import decode_relight_encode
 from ..errors import ServiceError
 
 router = APIRouter()
@@ -38,8 +37,7 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
     state.clients += 1
     metrics.clients.inc()
     try:
-        async with engine.lock:  # (made with the shared relighter: one user at a time)
-            session = await asyncio.to_thread(engine.session)  # this client's own tracker and filters
+        session = await engine.new_session()  # this client's own tracker and filters
     except BaseException:
         state.clients -= 1
         metrics.clients.dec()
@@ -105,11 +103,10 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
                 ctype = "image/png" if data[:4] == b"\x89PNG" else "image/jpeg"
                 if size is None:
                     raise ServiceError(400, "undecodable", "the frame is not a PNG or JPEG image")
-                async with engine.lock:
-                    # Decode, relight and encode in one hop off the event loop (which keeps
-                    # reading the other clients' frames meanwhile).
-                    payload, info = await asyncio.to_thread(decode_relight_encode, engine, data, ctype,
-                                                            config.max_pixels, settings, session)
+                # Decode, relight and encode in one hop off the event loop (which keeps reading
+                # the other clients' frames meanwhile).
+                payload, info = await engine.decode_relight_encode(data, ctype, config.max_pixels, settings,
+                                                                   session)
             except (ServiceError, RelightError) as exc:
                 kind = exc.kind if isinstance(exc, ServiceError) else "bad_request"
                 metrics.errors.labels(kind=kind).inc()
