@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from relight.service.composite import MODES
+from relight.engine.composite import MODES
 
 #: The clip: frames, rate, canvas (rows, columns), motion amplitudes, canvas level (sRGB code).
 CLIP_FRAMES = 50

@@ -71,7 +71,7 @@ def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
 
 def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     import relight
-    from relight.service.frame_path import FramePath
+    from relight.engine.frame_path import FramePath
     from relight.video import read_frames
 
     meta = json.loads((live / "truth" / "meta.json").read_text())

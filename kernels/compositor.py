@@ -8,7 +8,7 @@ mode). Arrays (reference crop of ch x cw pixels whose top-left is reference pixe
 alpha (ch, cw) float32 feathered mask; fill (ch, cw) int32 index into the relit frame's pixels
 (-1 = none); inv_amb (ch, cw, 3) float32 = 1 / (reference ambient + eps); relit, live: the
 Relighter's (H_ref, W_ref, 3) float32 linear frames (the target light; the live light).
-``coarse``: (gh, gw, 2) float32 from :func:`relight.service.warp.coarse_map`. Frames: (H, W, 3)
+``coarse``: (gh, gw, 2) float32 from :func:`relight.engine.warp.coarse_map`. Frames: (H, W, 3)
 uint8 sRGB.
 """
 

@@ -548,7 +548,7 @@ class Relighter:
     def lights(self, env: np.ndarray) -> transport.EnvLights:
         """The environment's lights, cached by the array's contents: an environment edited in
         place is seen as new. A read-only array that owns its data (``env.flags.writeable =
-        False``: :class:`relight.service.frame_path.FramePath` freezes its environment) is
+        False``: :class:`relight.engine.frame_path.FramePath` freezes its environment) is
         recognised again by identity alone; any other array is hashed (BLAKE2b, ~4 ms for a
         512x256 map, a tenth of what making its lights takes)."""
         arr = np.asarray(env)
@@ -607,7 +607,7 @@ class Relighter:
         pass the same frozen array each call. Without ``out`` the result is a new zeroed array
         with the frame's rows that hold the face copied in (:meth:`fresh_copy`; its other pages
         never touched): ~0.2-0.3 ms more than filling ``out`` at 640x360, ~1.2x the hot path in
-        all. With ``out`` nothing is allocated (the hot path, :class:`relight.service.frame_path.
+        all. With ``out`` nothing is allocated (the hot path, :class:`relight.engine.frame_path.
         FramePath`'s).
 
         env : (H, 2H, 3) linear radiance (see :func:`relight.load_environment`). rotation : 3x3
@@ -616,7 +616,7 @@ class Relighter:
         whose rotation is within this angle (degrees) of its rotation, into the same ``out``,
         leaves that result instead of relighting (``reused`` counts them, ``relit`` the
         relights): the error added is about 1.7 % per degree at worst on the bench's scenes (a
-        point light), see :data:`relight.service.frame_path.REUSE_DEG`.
+        point light), see :data:`relight.engine.frame_path.REUSE_DEG`.
         out : the hot path's target, as NumPy's ``out=``: a writeable C-contiguous (H, W, 3)
         float32 array the kernel writes the face pixels into directly (no copy; the pixels
         outside the face are left as they are). Pass the same array every frame; a call that

@@ -418,7 +418,7 @@ def _run_render(args) -> int:
 
 
 def _add_bench(sub) -> None:
-    from .service.composite import DEFAULT_MODE, MODES
+    from .engine.composite import DEFAULT_MODE, MODES
 
     p = sub.add_parser("bench", help=COMMANDS["bench"],
                        description="Benchmarks: speed, memory and accuracy, measured here and printed.")
@@ -723,13 +723,13 @@ DEMO_CLIP_S = 3.0
 
 def _run_demo(args) -> int:
     from . import load_bundle, load_environment
+    from .engine.frame_path import FramePath
     from .pipeline.capture import capture
     from .pipeline.evaluate import evaluate_capture
     from .pipeline.synth.contact_sheet import before_after_sheet, contact_sheet
     from .pipeline.synth.live import LiveConfig, synthesize_live
     from .pipeline.synth.studio import SynthConfig, synthesize
     from .service.filter import run_filter
-    from .service.frame_path import FramePath
 
     t0 = time.perf_counter()
     # Progress bars on a terminal only: a log file gets one line per stage.
@@ -806,7 +806,7 @@ def _focal(text: str):
 
 
 def _add_filter(sub) -> None:
-    from .service.composite import DEFAULT_MODE, MODES
+    from .engine.composite import DEFAULT_MODE, MODES
 
     p = sub.add_parser(
         "filter", help=COMMANDS["filter"],
@@ -876,7 +876,7 @@ def _filter_command(args) -> int:
 
 
 def _add_live(sub) -> None:
-    from .service.composite import DEFAULT_MODE, MODES
+    from .engine.composite import DEFAULT_MODE, MODES
 
     p = sub.add_parser(
         "live", help=COMMANDS["live"],
@@ -981,7 +981,7 @@ def _live_command(args) -> int:
 
 
 def _serve_arguments(p) -> None:
-    from .service.composite import MODES
+    from .engine.composite import MODES
     from .service.settings import ServeConfig  # the defaults: the service's own settings
 
     p.add_argument("bundle", type=Path, help="reflectance bundle to serve (relight capture)")

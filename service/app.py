@@ -14,7 +14,7 @@ processed one at a time: the per-frame path already uses both cores). Endpoints 
   OpenAPI at ``/docs``.
 
 Layout (FastAPI's larger applications): this module only assembles - :func:`create_app` makes
-the app, its lifespan loads the :class:`~relight.service.engine.Engine` onto ``app.state``, and it
+the app, its lifespan loads the :class:`~relight.service.state.Engine` onto ``app.state``, and it
 includes one router per resource (:mod:`relight.service.routers`: health, frames, environment,
 stream); settings come through one dependency (:func:`relight.service.settings.get_settings`),
 frames and bodies through :mod:`relight.service.codec`.
@@ -35,13 +35,13 @@ from pathlib import Path
 from fastapi import FastAPI
 from fastapi.responses import JSONResponse
 
+from ..engine.composite import DEFAULT_MODE
 from .codec import MAX_BODY
-from .composite import DEFAULT_MODE
-from .engine import Engine, Metrics
 from .errors import ServiceError
 from .routers import environment, frames, health, stream, webrtc
 from .security import AccessGuard
 from .settings import ServeConfig
+from .state import Engine, Metrics
 from .webrtc import WebRTCSessions
 
 #: Seconds a 503 (loading, at the client cap) asks the client to wait (Retry-After).

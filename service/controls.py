@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import json
 
+from ..engine.composite import MODES
 from .codec import parse_rotation
-from .composite import MODES
 from .errors import ServiceError
 from .settings import PRESETS
 

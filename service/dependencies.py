@@ -7,9 +7,9 @@ from typing import Annotated
 from fastapi import Depends
 from starlette.requests import HTTPConnection
 
-from .engine import Engine, Metrics
 from .errors import ServiceError
 from .settings import ServeConfig, get_settings
+from .state import Engine, Metrics
 
 
 def get_metrics(conn: HTTPConnection) -> Metrics:

@@ -29,7 +29,7 @@ from relight.errors import InputError, OutputError, os_reason
 from relight.imageio import atomic_path, clean_stale_temps, dir_mode, temp_prefix
 from relight.numerics import EPS_NORM
 
-from .composite import DEFAULT_MODE
+from ..engine.composite import DEFAULT_MODE
 
 #: Image files read as a sequence when IN is a folder.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", ".bmp")
@@ -176,7 +176,7 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
     """Relight the faces of ``inp`` (a video file or a folder of images) into ``out``."""
     from tqdm import tqdm
 
-    from .frame_path import FramePath
+    from ..engine.frame_path import FramePath
 
     t_start = time.perf_counter() if start_time is None else start_time
     inp, out = Path(inp), Path(out)

@@ -38,7 +38,7 @@ import numpy as np
 
 from relight.errors import InputError
 
-from .composite import DEFAULT_MODE, MODES
+from ..engine.composite import DEFAULT_MODE, MODES
 from .virtual_camera import VirtualCamera, check_virtual_camera_backend
 
 #: Strength steps SIGUSR2 cycles through, and a key's strength step.
@@ -480,8 +480,8 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     import relight
     from relight.video import VideoWriter
 
+    from ..engine.frame_path import FramePath
     from .filter import FramePipeline
-    from .frame_path import FramePath
 
     if mode not in MODES:
         raise InputError(f"mode {mode!r}: use one of {', '.join(MODES)}")

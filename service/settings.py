@@ -8,8 +8,8 @@ from pathlib import Path
 
 from starlette.requests import HTTPConnection
 
+from ..engine.composite import DEFAULT_MODE
 from .codec import MAX_BODY, MAX_PIXELS
-from .composite import DEFAULT_MODE
 
 #: The environments a request may name (``builtin:NAME``).
 PRESETS = ("studio", "sunset", "window", "uniform", "room")

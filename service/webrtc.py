@@ -94,7 +94,7 @@ def relit_track(source, session: WebRTCSession):
 
 
 class WebRTCSession:
-    """One peer: its connection, per-frame path (:class:`~relight.service.engine.Session`),
+    """One peer: its connection, per-frame path (:class:`~relight.service.state.Session`),
     settings and counters."""
 
     def __init__(self, manager: WebRTCSessions, pc, engine, path_session):

@@ -11,7 +11,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 #: Top-level folders and the subpackage of `relight` each becomes (pyproject's package-dir).
 PACKAGES = {"relight": "relight", "pipeline": "relight.pipeline", "kernels": "relight.kernels",
-            "service": "relight.service", "bench": "relight.bench"}
+            "engine": "relight.engine", "service": "relight.service", "bench": "relight.bench"}
 #: Private names a module may take from another: the version string only.
 ALLOWED_PRIVATE = {"__version__"}
 

@@ -23,7 +23,7 @@ SEAM_CODES = 30
 
 
 def _face_box(rgb):
-    from relight.service.tracking import detect_face_box
+    from relight.engine.tracking import detect_face_box
 
     box = detect_face_box(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
     assert box is not None, "OpenCV's Haar cascade should find the astronaut's face"
@@ -102,8 +102,8 @@ def _clip(photo, kind):
                                            ("brightness", "paste"), ("leaving", "transfer")])
 def test_astronaut_clips_track_and_composite(astronaut_bundle, kind, mode, tmp_path):
     from relight import load_environment
+    from relight.engine.frame_path import FramePath
     from relight.imageio import write_image
-    from relight.service.frame_path import FramePath
 
     bundle, photo = astronaut_bundle
     fp = FramePath(bundle, load_environment("builtin:window"), mode=mode)

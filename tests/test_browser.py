@@ -76,7 +76,7 @@ def test_bar_codes_survive_the_relight(small_bundle, live_clip, tmp_path):
     """The bar code sits outside the face: a relit frame keeps it (else round trips are not measured)."""
     import relight
     from relight.bench.browser import CODE_BITS, CODE_BLOCK
-    from relight.service.frame_path import FramePath
+    from relight.engine.frame_path import FramePath
     from relight.video import read_frames
 
     frames = list(read_frames(live_clip))[:8]

@@ -148,8 +148,8 @@ def test_downscaled_capture_meets_the_goals_and_relights_full_size_frames(synth_
     found on scaled-down first seconds, the first seconds decoded again instead of held), meets
     the goals against the full-size truth, records its scale, and the per-frame path relights
     the video's full-size frames with it."""
+    from relight.engine.frame_path import FramePath
     from relight.pipeline import ingest as ingest_mod
-    from relight.service.frame_path import FramePath
     from relight.video import read_frames
 
     report_dir = tmp_path / "report"

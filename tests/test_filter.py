@@ -63,13 +63,13 @@ def clip(small_capture, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def frame_path(small_bundle):
-    from relight.service.frame_path import FramePath
+    from relight.engine.frame_path import FramePath
 
     return FramePath(small_bundle, load_environment("builtin:sunset"))
 
 
 def test_one_euro_filter_is_still_at_rest_and_follows_motion():
-    from relight.service.pose import OneEuroFilter
+    from relight.engine.pose import OneEuroFilter
 
     f = OneEuroFilter(min_cutoff=1.0, beta=0.05)
     rng = np.random.default_rng(0)
@@ -87,7 +87,7 @@ def _bump_head(seed: int, n: int):
     """A landmark model on a Gaussian bump 60 px high (640x360 frame, default focal): its pose
     estimator and ``seen(angles) -> (n, 2)``, the landmarks' image positions with the head turned
     by (yaw, pitch, roll) degrees about their centroid."""
-    from relight.service.pose import PoseEstimator, camera_matrix, lift_landmarks
+    from relight.engine.pose import PoseEstimator, camera_matrix, lift_landmarks
 
     rng = np.random.default_rng(seed)
     k_ref = camera_matrix((640, 360))
@@ -133,7 +133,7 @@ def test_pose_is_not_held_back_by_a_lagging_warm_start():
 def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, small_bundle):
     """The reference moved by a known similarity; the pose given to the search is 2 px off: the
     landmarks are found where they are, not where the pose puts them."""
-    from relight.service.frame_path import TRACK_ROWS, _track_exposure
+    from relight.engine.frame_path import TRACK_ROWS, _track_exposure
 
     fp = frame_path
     fp.reset()
@@ -164,7 +164,7 @@ def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, s
 def test_batched_correlation_matches_opencv_match_template():
     """Re-anchoring's all-at-once normalised cross-correlation against cv2.matchTemplate
     (TM_CCOEFF_NORMED) per window, and the parabola peak against its closed form."""
-    from relight.service.frame_path import normalised_correlation, parabola_peaks
+    from relight.engine.frame_path import normalised_correlation, parabola_peaks
 
     rng = np.random.default_rng(3)
     win = rng.integers(0, 256, (40, 21, 21)).astype(np.uint8)
@@ -188,7 +188,7 @@ def test_the_lit_reference_box_downscales_to_the_same_pixels(full):
     """The face box the live-lit tracking reference is remade in: the tracker's downscale of the
     full box equals the same pixels of the whole frame downscaled (the template matching must not
     shift)."""
-    from relight.service.frame_path import _aligned_box
+    from relight.engine.frame_path import _aligned_box
     from relight.video_yuv import downscale_area
 
     img = np.random.default_rng(0).random(full).astype(np.float32)
@@ -202,7 +202,7 @@ def test_the_lit_reference_box_downscales_to_the_same_pixels(full):
 
 
 def test_piecewise_affine_warp_reproduces_an_affine_map():
-    from relight.service.warp import GRID_STEP, OUTSIDE, inverse_map
+    from relight.engine.warp import GRID_STEP, OUTSIDE, inverse_map
 
     rng = np.random.default_rng(2)
     ref = rng.uniform(50, 250, size=(40, 2))
@@ -226,7 +226,7 @@ def test_the_mesh_warp_is_the_piecewise_affine_warp_drawn_with_depth():
     """The fixed-topology mesh (the rigid warp's) maps a grid as the per-frame triangulation does
     where both are defined (an affine motion: the same map whatever the triangles); a triangle
     turned away is left out, and of two overlapping ones the nearer wins."""
-    from relight.service.warp import OUTSIDE, coarse_map, mesh_coarse_map, reference_triangles
+    from relight.engine.warp import OUTSIDE, coarse_map, mesh_coarse_map, reference_triangles
 
     rng = np.random.default_rng(5)
     ref = rng.uniform(50, 250, size=(60, 2))
@@ -259,7 +259,7 @@ def test_a_frame_kept_in_its_planes_is_converted_only_where_it_is_relit(clip, sm
     planes as through RGB - with every pixel off the face bit for bit the decoder's."""
     import av
 
-    from relight.service.frame_path import FramePath
+    from relight.engine.frame_path import FramePath
     from relight.video import frame_to_rgb
     from relight.video_yuv import YuvFrame
 
@@ -324,8 +324,8 @@ def test_the_whole_person_relit_stays_on_the_person(small_bundle, small_capture,
     person - the studio's head and neck at the reference pose, grown by the capture's motion -
     even where the segmentation model sees shoulders on the wall (this clip's cartoon head has
     none)."""
+    from relight.engine.frame_path import FramePath
     from relight.imageio import read_image
-    from relight.service.frame_path import FramePath
 
     _, frames = clip
     res, _ = small_capture
@@ -355,9 +355,9 @@ def test_the_rigid_grid_covers_the_composited_face_with_a_cell_to_spare(small_bu
     every direction (a grid that stopped at the crop's edge left an unrelit band on tight crops)."""
     from scipy.spatial import Delaunay
 
+    from relight.engine.frame_path import FramePath
+    from relight.engine.warp import GRID_STEP
     from relight.kernels.compositor import ALPHA_FLOOR
-    from relight.service.frame_path import FramePath
-    from relight.service.warp import GRID_STEP
 
     env = load_environment("builtin:studio")
     for fp in (FramePath(small_bundle, env),):
@@ -370,7 +370,7 @@ def test_the_rigid_grid_covers_the_composited_face_with_a_cell_to_spare(small_bu
 
 
 def test_strength_zero_and_faceless_frames_pass_through(small_bundle, clip):
-    from relight.service.frame_path import FramePath
+    from relight.engine.frame_path import FramePath
 
     _, frames = clip
     fp = FramePath(small_bundle, load_environment("builtin:studio"), strength=0.0, mode="paste")
@@ -421,8 +421,8 @@ def test_pipelined_filter_is_repeatable_and_close_to_the_serial_path(small_bundl
     """relight filter runs the per-frame path in two stages on two threads (front of frame N+1
     beside back of frame N): two runs give the same frames, and they stay within a few codes of
     the serial FramePath.process (the tracker takes the live-lit reference one frame later)."""
+    from relight.engine.frame_path import FramePath
     from relight.service.filter import run_filter
-    from relight.service.frame_path import FramePath
 
     path, frames = clip
     env = load_environment("builtin:sunset")
@@ -513,8 +513,8 @@ def test_filter_bad_input_fails_cleanly_and_leaves_no_output(small_bundle, clip,
 
 @pytest.mark.parametrize("mode", ["ambient", "paste", "live"])
 def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
+    from relight.engine.warp import GRID_STEP, coarse_map
     from relight.kernels.compositor import build_layer_numpy, warp_composite_numpy
-    from relight.service.warp import GRID_STEP, coarse_map
 
     _, frames = clip
     fp = frame_path
@@ -602,7 +602,7 @@ def test_virtual_camera_without_the_extra_says_how_to_install_it(small_bundle, c
 
 
 def test_frames_of_another_size_than_the_bundle_are_relit(small_bundle, clip):
-    from relight.service.frame_path import FramePath
+    from relight.engine.frame_path import FramePath
 
     _, frames = clip
     fp = FramePath(small_bundle, load_environment("builtin:studio"))

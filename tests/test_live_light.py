@@ -30,7 +30,7 @@ def _angle(a, b) -> float:
 def estimator(small_bundle):
     """A LightEstimator on every 5th face pixel of the small bundle, and the Relighter."""
     import relight
-    from relight.service.live_light import LightEstimator
+    from relight.engine.live_light import LightEstimator
 
     b = small_bundle
     r = relight.Relighter(b, exact=True)
@@ -112,8 +112,8 @@ def test_black_frames_and_few_pixels_keep_the_last_light(estimator):
 def test_frame_path_finds_a_known_light_on_the_studio_truth(small_capture, small_bundle):
     """The synthetic studio's truth rendered under one directional light (not the bundle: the
     renderer that made the capture) as a live frame: the estimate points at that light."""
+    from relight.engine.frame_path import FramePath
     from relight.imageio import read_image
-    from relight.service.frame_path import FramePath
 
     res, _ = small_capture
     meta = json.loads((res.truth / "meta.json").read_text())
@@ -135,8 +135,8 @@ def test_bad_live_frames_give_bounded_output_and_a_status(small_bundle, small_ca
     """Exposure x1/20 and x20, saturated highlights, a half-shadowed face (the studio's truth under
     a light from the side), a grey camera: the output is finite, the face not black, the light's
     status says what happened."""
+    from relight.engine.frame_path import FramePath
     from relight.imageio import read_image
-    from relight.service.frame_path import FramePath
     from relight.video import read_frames
 
     res, _ = small_capture
@@ -187,7 +187,7 @@ def test_the_bundle_finds_its_own_face_lit_from_one_side(small_bundle):
     """The face lit from one side, tightly cropped, shifted, scaled and turned on a plain canvas:
     found by the illumination subspace, placed within a few pixels."""
     import relight
-    from relight.service.acquire import FaceFinder
+    from relight.engine.acquire import FaceFinder
 
     b = small_bundle
     r = relight.Relighter(b)
@@ -216,8 +216,8 @@ def test_a_real_face_lit_from_one_side_is_found_and_relit(shared_data, tmp_path)
     import relight
     from relight.bench import realface
     from relight.bench.accuracy import FACES_TRANSFER, scaled_rti, split_rti
+    from relight.engine.frame_path import FramePath
     from relight.pipeline.capture import CaptureOptions, capture
-    from relight.service.frame_path import FramePath
     from relight.video import read_frames
 
     folder = scaled_rti(shared_data / "faces-yale" / "yaleB02", tmp_path / "set", 2)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from relight.service.live_light import BLACK, CLIP
+from relight.engine.live_light import BLACK, CLIP
 
 from .tolerances import LIVE_LIGHT_PARTIAL_DEG, LIVE_LIGHT_PARTIAL_RTOL, LIVE_LIGHT_SCALE_RTOL
 
@@ -19,7 +19,7 @@ EXPOSURES = (1e-3, 1e-2, 0.1, 0.5, 1.0, 2.0, 10.0, 1e2, 1e3)
 @pytest.fixture(scope="module")
 def path(small_bundle):
     import relight
-    from relight.service.frame_path import FramePath
+    from relight.engine.frame_path import FramePath
 
     return FramePath(small_bundle, relight.load_environment("builtin:sunset"), focal="ortho")
 

@@ -1,6 +1,6 @@
 """The person beyond the face: the shipped segmentation model finds the person the studio
 rendered (against the truth's silhouette), and the light's change carried over the rest of the
-person (relight.service.head_light) keeps the frame where it must and follows the conventions."""
+person (relight.engine.head_light) keeps the frame where it must and follows the conventions."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
+from relight.engine import head_light
+from relight.engine.person import MODEL_DIR, PersonMatte, model_info
 from relight.errors import InputError
-from relight.service import head_light
-from relight.service.person import MODEL_DIR, PersonMatte, model_info
 
 #: The matte against the studio's silhouette (intersection over union), on a clip's frames (measured
 #: 0.946 on the 320x180 cartoon head here, 0.97 at 640x360 and 0.987 on the scanned head).

@@ -9,8 +9,8 @@ from fastapi import APIRouter, Query, Request, Response
 
 from relight.errors import RelightError
 
+from ...engine.composite import MODES
 from ..codec import CONTENT_TYPES, binary_body, decode_frame, encode_frame, parse_rotation, read_body
-from ..composite import MODES
 from ..dependencies import EngineDep, MetricsDep, SettingsDep
 from ..errors import ServiceError
 from ..settings import PRESETS

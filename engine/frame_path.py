@@ -51,7 +51,7 @@ LIGHT_EVERY = 2
 #: cross-correlation a match needs. Measured on three synthetic heads at 640x360 (each its own
 #: 24 s 4 Hz capture; `relight bench video`): head rotation error median 2.02 / 2.48 / 2.07 ->
 #: 1.15 / 1.23 / 1.29 deg, p95 3.95 / 5.97 / 5.49 -> 2.83 / 1.99 / 2.36, with the pose's RANSAC
-#: check (:meth:`relight.service.pose.PoseEstimator.solve`); that check alone: 1.68 / 2.67 / 1.38.
+#: check (:meth:`relight.engine.pose.PoseEstimator.solve`); that check alone: 1.68 / 2.67 / 1.38.
 REFIND_TEMPLATE = 13
 REFIND_RADIUS = 4
 REFIND_MIN_STD = 4.0
@@ -288,7 +288,7 @@ class FramePath:
 
     mode : 'transfer' or 'paste'. strength : 0-1. fixed_env : keep the environment still relative
     to the face (no head-rotation compensation). focal : the frames' focal length in pixels, or "ortho"
-    (None: from the frame size, see :mod:`relight.service.pose`). exposure : stops (EV).
+    (None: from the frame size, see :mod:`relight.engine.pose`). exposure : stops (EV).
     reuse_deg : head turns below which the last relight is reused (:data:`REUSE_DEG`; 0: never).
     whole_head : mode transfer also relights the rest of the person - hair, ears, neck, shoulders -
     from the face's ratio (:mod:`.head_light`, the person's matte from :mod:`.person`). Off by

@@ -55,7 +55,7 @@ class Engine:
     def __init__(self, config: ServeConfig):
         import relight
 
-        from .frame_path import FramePath
+        from ..engine.frame_path import FramePath
 
         self.config = config
         self.bundle = relight.load_bundle(config.bundle)
@@ -109,7 +109,7 @@ class Engine:
 
     # ------------------------------------------------------------------ under the lock
     def _session(self) -> Session:
-        from .frame_path import FramePath
+        from ..engine.frame_path import FramePath
 
         env = self.environment(self.env_name)
         return Session(FramePath(self.bundle, env, mode=self.config.mode, focal=self.config.focal,

@@ -169,7 +169,7 @@ class FaceTracker:
 
     def relit_reference(self, grey: np.ndarray, sim: np.ndarray) -> np.ndarray:
         """The reference with its face relit as ``grey`` shows it where ``sim`` (reference ->
-        frame) puts it (:meth:`relight.service.acquire.FaceFinder.relit`); the plain reference
+        frame) puts it (:meth:`relight.engine.acquire.FaceFinder.relit`); the plain reference
         without a finder or when the fit explains little of the face."""
         if self.finder is None:
             return self.reference
@@ -228,7 +228,7 @@ class FaceTracker:
     def acquire(self, grey: np.ndarray) -> Track | None:
         """Find the face from scratch: Haar box -> similarity guess -> LK from the reference; where
         that finds nothing (a face lit from one side, a tight crop), the bundle's own face in its
-        illumination subspace (:mod:`relight.service.acquire`) -> LK from the reference relit as
+        illumination subspace (:mod:`relight.engine.acquire`) -> LK from the reference relit as
         the frame is lit."""
         box = detect_face_box(grey)
         if box is not None:
@@ -269,7 +269,7 @@ class FaceTracker:
         """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
         current pose puts landmarks (used to re-anchor); without it tracks are only followed.
         ``refind(ref_index, grey) -> Track or None``: the landmarks searched again with templates
-        warped by the current pose (:meth:`relight.service.frame_path.FramePath._refind`); when
+        warped by the current pose (:meth:`relight.engine.frame_path.FramePath._refind`); when
         given, re-anchoring uses it instead of LK from the reference."""
         grey = np.ascontiguousarray(grey)
         track = None
