@@ -283,6 +283,217 @@ def largest_component(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return keep.astype(bool) & mask, filled.astype(bool)
 
 
+@dataclass(frozen=True)
+class FaceRig:
+    """What the per-frame path needs of a bundle, prepared once (:meth:`build`) and never changed:
+    the reference's geometry (crop, masks, feathered alpha), the control points and their 3D
+    model, the warp's grid and mesh, the tracking copies, the reference light and the lighting
+    ratio's arrays, the compositor's fill and normals, and the live light's sample pixels.
+    Coordinates: reference frame pixels (x right, y down) unless a name says crop."""
+
+    ref_size: tuple[int, int]  # the reference frame's (w, h)
+    origin: tuple[int, int]  # the face crop's corner (x0, y0) in the reference
+    focal: object  # the focal length the frames are solved with (px; 'ortho' made a long one; None: per frame)
+    mask_crop: np.ndarray  # (ch, cw) bool: the bundle's face, its largest component
+    ref_grey: np.ndarray  # (H, W) uint8: the reference frame in grey
+    ref_pts: np.ndarray  # (N, 2) float32: the control points in the reference - landmarks, then a ring
+    control_ref: np.ndarray  # the same array (the legacy warp's name)
+    n_landmarks: int  # how many of ref_pts are landmarks
+    ring_index: np.ndarray  # indices of the ring's points in ref_pts
+    model: np.ndarray  # (N, 3) the control points lifted with the bundle's depth (the pose's model)
+    refind_model: np.ndarray  # (3N, 3) model, then each point moved REFIND_STEP px right, then down
+    ref_track_scale: float  # the tracking copy's scale of the reference
+    track_reference: np.ndarray  # the reference grey at the tracking scale
+    track_landmarks: np.ndarray  # (L, 2) the landmarks at the tracking scale
+    track_mask: np.ndarray  # the face mask at the tracking scale
+    track_face: np.ndarray  # the composited face at the tracking scale (the live-lit reference's pixels)
+    lit_box: tuple  # the boxes the live-lit reference is remade in (_aligned_box)
+    solid_full: np.ndarray  # (H, W) bool: the composited face in the reference frame
+    alpha_crop: np.ndarray  # (ch, cw) float32: the feathered face mask
+    grid_ref: np.ndarray  # (G, 2) the warp's rigid grid in the reference
+    grid_model: np.ndarray  # (G, 3) the grid lifted with the bundle's depth
+    grid_step: int  # the grid's spacing (reference px)
+    mesh_ref: np.ndarray  # (M, 2) float32: the warp mesh's corners in the reference (landmarks first)
+    mesh_model: np.ndarray  # (M, 3) the mesh's corners lifted
+    mesh_triangles: np.ndarray  # (T, 3) int32: the mesh, triangulated once
+    reference_light: str  # 'room' (the capture room's light) or 'uniform' (even light): the ambient ratio's
+    ambient_crop: np.ndarray  # (ch, cw, 3) float32 linear: the face under the reference light
+    ratio_eps: np.float32  # the lighting ratio's floor (linear)
+    inv_ambient: np.ndarray  # (ch, cw, 3) float32: 1 / (ambient + eps)
+    fill: np.ndarray  # (ch, cw) int32: crop pixel -> relit frame pixel (the fringe: the nearest face pixel; -1 none)
+    fill_flat: np.ndarray  # fill, flat
+    sample_crop: np.ndarray  # every 7th face pixel of the crop (flat indices)
+    sample_full: np.ndarray  # their relit frame pixels
+    normal_crop: np.ndarray  # (ch, cw, 3) float32: the crop's normals (the nearest face pixel's off the face)
+    live_pixels: np.ndarray  # the bundle pixels the live light is fitted on
+    live_ref: np.ndarray  # (S, 2) float32: their reference positions
+    live_normal: np.ndarray  # (S, 3) their normals
+    live_full: np.ndarray  # (S,) their relit frame pixels
+    live_box: tuple  # (x0, y0, x1, y1) reference box around them
+
+    @classmethod
+    def build(cls, bundle, relighter, focal=None) -> FaceRig:
+        """The rig of ``bundle`` (``relighter``: its Relighter - a bundle without a room-light
+        frame takes its reference light from a uniform relight; ``focal``: px, "ortho" or None)."""
+        from types import SimpleNamespace
+
+        r = SimpleNamespace()
+        ref_w, ref_h = bundle.frame_size
+        r.ref_size = (ref_w, ref_h)
+        r.origin = tuple(int(v) for v in bundle.crop_origin)
+        mask_crop, solid = largest_component(np.asarray(bundle.mask_crop, dtype=bool))
+        r.mask_crop = mask_crop
+        h, w = mask_crop.shape
+        x0, y0 = r.origin
+        # Reference grey (the no-flash reference frame) and the landmarks' 3D model.
+        background = np.asarray(bundle.background)
+        r.ref_grey = cv2.cvtColor(np.ascontiguousarray(background), cv2.COLOR_RGB2GRAY)
+        landmarks = thin_points(np.asarray(bundle.landmarks, dtype=np.float32).reshape(-1, 2), MAX_TRACKED)
+        # The composited region: the head's mask within a margin of the landmarks' hull. Beyond
+        # the tracked points (neck, a turned head's far side) the warp would only extrapolate.
+        hull = cv2.convexHull((landmarks - np.array([x0, y0], np.float32)).astype(np.int32))
+        region = np.zeros((h, w), np.uint8)
+        cv2.fillConvexPoly(region, hull, 1)
+        grow = max(int(round(HULL_MARGIN * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 1)
+        region = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2)) > 0
+        solid = solid & region
+        if solid.sum() < 64:
+            raise InputError("the bundle's landmarks do not cover its face: capture the bundle again")
+        ring = face_ring(solid) + np.array([x0, y0], np.float32)
+        depth = np.asarray(bundle.depth, dtype=np.float32)
+        # Depth off the mask (the ring, landmarks on the edge) from the nearest mask pixel.
+        from scipy.ndimage import distance_transform_edt
+
+        _, (iy, ix) = distance_transform_edt(~mask_crop, return_indices=True)
+        depth_filled = depth[iy, ix]
+        if focal == "ortho":
+            # One long focal length for the reference and every frame (a crop or a resized copy of
+            # an orthographic view must not get a different perspective than the reference).
+            from .pose import ORTHOGRAPHIC_FOCAL
+
+            focal = ORTHOGRAPHIC_FOCAL * max(r.ref_size)
+        k_ref = camera_matrix(r.ref_size, focal)
+        pts = np.concatenate([landmarks, ring])
+        crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
+        model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
+        # Each control point and its neighbours REFIND_STEP px right and down, lifted the same way:
+        # the pose's local affine at a landmark (:meth:`_refind`) by finite differences.
+        r.ref_pts = pts
+        steps = np.concatenate([pts + [REFIND_STEP, 0.0], pts + [0.0, REFIND_STEP]])
+        steps_xy = np.clip(steps - np.array([x0, y0], np.float32), 0, [w - 1, h - 1]).astype(np.float32)
+        r.refind_model = np.concatenate([model, lift_landmarks(steps, _bilinear(depth_filled, steps_xy), k_ref)])
+        r.n_landmarks = len(landmarks)
+        r.ring_index = np.arange(len(landmarks), len(pts))
+        r.control_ref = pts
+        r.model = model
+        full_mask = np.zeros((ref_h, ref_w), dtype=bool)
+        full_mask[y0:y0 + h, x0:x0 + w] = mask_crop
+        # Tracking runs on frames scaled to at most TRACK_ROWS rows (LK's cost is its pyramids
+        # and windows; a third of a pixel at 1080 rows is still far below the pose's noise).
+        r.ref_track_scale = min(1.0, TRACK_ROWS / ref_h)
+        rs = r.ref_track_scale
+        small_ref = downscale_area(r.ref_grey, (round(ref_w * rs), round(ref_h * rs))) if rs < 1 else r.ref_grey
+        small_mask = cv2.resize(full_mask.astype(np.uint8), small_ref.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+        # The bundle's own face in its illumination subspace finds the face where a generic
+        # detector does not (one-sided light, tight crops).
+        solid_full = np.zeros((ref_h, ref_w), dtype=bool)
+        solid_full[y0:y0 + h, x0:x0 + w] = solid
+        r.track_face = cv2.resize(solid_full.astype(np.uint8), small_ref.shape[::-1],
+                                     interpolation=cv2.INTER_NEAREST) > 0
+        r.lit_box = _aligned_box(r.track_face, (ref_h, ref_w))
+        # Feathered face mask (reference crop).
+        size = max(h, w)
+        er = max(int(round(FEATHER_ERODE * size)), 1)
+        m = cv2.erode(solid.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * er + 1,) * 2))
+        r.alpha_crop = cv2.GaussianBlur(m.astype(np.float32), (0, 0), FEATHER_SIGMA * size)
+        # The warp's rigid grid: reference points every WARP_GRID_SHARE of the face's size, lifted
+        # with the bundle's depth - a frame moves them with its head pose (the landmarks add what
+        # the pose does not explain: an expression). It reaches a GRID_STEP and a cell past the
+        # face's alpha (the inverse map is defined inside the grid's hull and evaluated on cells of
+        # GRID_STEP frame pixels), past the crop too: a mask that fills its crop - a tight photo -
+        # is covered to its edge (depths there are the nearest mask pixel's).
+        step = max(int(round(WARP_GRID_SHARE * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 3)
+        cells = int(np.ceil(GRID_STEP / step)) + 1
+        reach = cells * step
+        pad = reach + step
+        from relight.kernels.compositor import ALPHA_FLOOR
+
+        cover = cv2.dilate(np.pad((r.alpha_crop > ALPHA_FLOOR).astype(np.uint8), pad),
+                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1,) * 2))
+        gy, gx = np.mgrid[-reach:h + reach + 1:step, -reach:w + reach + 1:step]
+        on = cover[gy + pad, gx + pad] > 0
+        gx, gy = gx[on], gy[on]
+        r.grid_ref = np.stack([gx, gy], axis=1).astype(np.float32) + np.array([x0, y0], np.float32)
+        r.grid_model = lift_landmarks(r.grid_ref, depth_filled[np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)],
+                                         k_ref)
+        r.grid_step = step
+        # The warp's mesh: every landmark and the grid points farther than a cell from them,
+        # triangulated once in the reference (a frame moves its corners: the tracked landmarks
+        # where they were seen, the rest where the head pose puts them).
+        from scipy.spatial import cKDTree
+
+        near, _ = cKDTree(landmarks).query(r.grid_ref, k=1)
+        free = near > step
+        r.mesh_ref = np.concatenate([landmarks, r.grid_ref[free]]).astype(np.float32)
+        r.mesh_model = np.concatenate([model[:len(landmarks)], r.grid_model[free]])
+        r.mesh_triangles = reference_triangles(r.mesh_ref)
+        room = bundle.room_light
+        r.reference_light = "room"
+        if room is not None:
+            r.ambient_crop = np.asarray(room, dtype=np.float32)
+        else:
+            # An RTI-set bundle (or a capture in a dark room) has no usable room-light reference:
+            # the lighting ratio is taken against the face under even light (a uniform
+            # environment) instead.
+            from relight.envmap import load_environment
+
+            even = relighter.relight(load_environment("builtin:uniform", width=64))
+            r.ambient_crop = np.ascontiguousarray(even[y0:y0 + h, x0:x0 + w])
+            r.reference_light = "uniform"
+        amb_lum = (r.ambient_crop[mask_crop] @ _LUM) if mask_crop.any() else np.zeros(1, np.float32)
+        r.ratio_eps = np.float32(composite.RATIO_EPS * max(float(np.median(amb_lum)), composite.TINY))
+        r.inv_ambient = (1.0 / (r.ambient_crop + r.ratio_eps)).astype(np.float32)
+        # Crop pixel -> relit frame pixel: the face's own, the nearest face pixel in the feathered
+        # fringe (no dark or bright halo from the background the maps never saw), else none.
+        ref_index = ((np.arange(h)[:, None] + y0) * ref_w + (np.arange(w)[None, :] + x0)).astype(np.int64)
+        fill = np.full((h, w), -1, dtype=np.int32)
+        fill[mask_crop] = ref_index[mask_crop]
+        from relight.kernels.compositor import ALPHA_FLOOR
+
+        fringe = (r.alpha_crop > ALPHA_FLOOR) & ~mask_crop
+        fill[fringe] = ref_index[iy[fringe], ix[fringe]]
+        r.fill_flat = fill.ravel()
+        # Every 7th face pixel: enough for the median of the lighting ratio.
+        r.sample_crop = np.flatnonzero(mask_crop.ravel())[::7]
+        r.sample_full = r.fill_flat[r.sample_crop]
+        # Normals of the crop (nearest face pixel's off the face) for fading out turned-away surface.
+        normal_full = np.zeros((ref_h * ref_w, 3), np.float32)
+        normal_full[bundle.frame_index] = np.asarray(bundle.normal, np.float32)
+        nfill = np.where(fill >= 0, fill, ref_index[iy, ix].astype(np.int32))
+        normal_crop = normal_full[nfill.ravel()].reshape(h, w, 3)
+        r.normal_crop = np.ascontiguousarray(normal_crop, dtype=np.float32)
+        # The live light (mode transfer): fitted on face pixels well inside the composited region
+        # that face the camera, at most SAMPLES of them, spread evenly.
+        pix = np.asarray(bundle.pixels, dtype=np.int64)
+        px, py = pix % w, pix // w
+        normals = np.asarray(bundle.normal, dtype=np.float32)
+        good = np.flatnonzero((r.alpha_crop[py, px] > 0.5) & (normals[:, 2] > 0.3))
+        if good.size > SAMPLES:
+            good = good[np.linspace(0, good.size - 1, SAMPLES).round().astype(np.int64)]
+        r.live_ref = np.stack([px[good] + x0, py[good] + y0], axis=1).astype(np.float32)
+        r.live_normal = normals[good]
+        r.live_full = bundle.frame_index[good]
+        r.live_box = (int(r.live_ref[:, 0].min(initial=0)) - 2, int(r.live_ref[:, 1].min(initial=0)) - 2,
+                         int(r.live_ref[:, 0].max(initial=0)) + 3, int(r.live_ref[:, 1].max(initial=0)) + 3)
+
+        r.focal = focal
+        r.track_reference, r.track_landmarks, r.track_mask = small_ref, landmarks * np.float32(rs), small_mask
+        r.solid_full = solid_full
+        r.fill = fill
+        r.live_pixels = good
+        return cls(**{k: getattr(r, k) for k in cls.__dataclass_fields__})
+
+
 class FramePath:
     """Relights faces in frames with one bundle (see the module docstring).
 
@@ -319,174 +530,29 @@ class FramePath:
         self.set_strength(strength)
         self.set_exposure(exposure)
         self.fixed_env = bool(fixed_env)
-        self.focal = focal
         if not (np.isfinite(reuse_deg) and 0 <= reuse_deg <= 5):
             raise InputError(f"reuse_deg {reuse_deg}: use 0 (always relight) to 5 degrees")
         self.reuse_deg = float(reuse_deg)
         self.env = None
         self.set_environment(env)
-        ref_w, ref_h = bundle.frame_size
-        self.ref_size = (ref_w, ref_h)
-        self.origin = tuple(int(v) for v in bundle.crop_origin)
-        mask_crop, solid = largest_component(np.asarray(bundle.mask_crop, dtype=bool))
-        self.mask_crop = mask_crop
-        h, w = mask_crop.shape
-        x0, y0 = self.origin
-        # Reference grey (the no-flash reference frame) and the landmarks' 3D model.
-        background = np.asarray(bundle.background)
-        self.ref_grey = cv2.cvtColor(np.ascontiguousarray(background), cv2.COLOR_RGB2GRAY)
-        landmarks = thin_points(np.asarray(bundle.landmarks, dtype=np.float32).reshape(-1, 2), MAX_TRACKED)
-        # The composited region: the head's mask within a margin of the landmarks' hull. Beyond
-        # the tracked points (neck, a turned head's far side) the warp would only extrapolate.
-        hull = cv2.convexHull((landmarks - np.array([x0, y0], np.float32)).astype(np.int32))
-        region = np.zeros((h, w), np.uint8)
-        cv2.fillConvexPoly(region, hull, 1)
-        grow = max(int(round(HULL_MARGIN * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 1)
-        region = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2)) > 0
-        solid = solid & region
-        if solid.sum() < 64:
-            raise InputError("the bundle's landmarks do not cover its face: capture the bundle again")
-        ring = face_ring(solid) + np.array([x0, y0], np.float32)
-        depth = np.asarray(bundle.depth, dtype=np.float32)
-        # Depth off the mask (the ring, landmarks on the edge) from the nearest mask pixel.
-        from scipy.ndimage import distance_transform_edt
-
-        _, (iy, ix) = distance_transform_edt(~mask_crop, return_indices=True)
-        depth_filled = depth[iy, ix]
-        if focal == "ortho":
-            # One long focal length for the reference and every frame (a crop or a resized copy of
-            # an orthographic view must not get a different perspective than the reference).
-            from .pose import ORTHOGRAPHIC_FOCAL
-
-            self.focal = ORTHOGRAPHIC_FOCAL * max(self.ref_size)
-        k_ref = camera_matrix(self.ref_size, self.focal)
-        pts = np.concatenate([landmarks, ring])
-        crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
-        model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
-        # Each control point and its neighbours REFIND_STEP px right and down, lifted the same way:
-        # the pose's local affine at a landmark (:meth:`_refind`) by finite differences.
-        self._ref_pts = pts
-        steps = np.concatenate([pts + [REFIND_STEP, 0.0], pts + [0.0, REFIND_STEP]])
-        steps_xy = np.clip(steps - np.array([x0, y0], np.float32), 0, [w - 1, h - 1]).astype(np.float32)
-        self._refind_model = np.concatenate([model, lift_landmarks(steps, _bilinear(depth_filled, steps_xy), k_ref)])
-        self.n_landmarks = len(landmarks)
-        self.ring_index = np.arange(len(landmarks), len(pts))
-        self.control_ref = pts
-        self.model = model
-        full_mask = np.zeros((ref_h, ref_w), dtype=bool)
-        full_mask[y0:y0 + h, x0:x0 + w] = mask_crop
-        # Tracking runs on frames scaled to at most TRACK_ROWS rows (LK's cost is its pyramids
-        # and windows; a third of a pixel at 1080 rows is still far below the pose's noise).
-        self.ref_track_scale = min(1.0, TRACK_ROWS / ref_h)
-        rs = self.ref_track_scale
-        small_ref = downscale_area(self.ref_grey, (round(ref_w * rs), round(ref_h * rs))) if rs < 1 else self.ref_grey
-        small_mask = cv2.resize(full_mask.astype(np.uint8), small_ref.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
-        # The bundle's own face in its illumination subspace finds the face where a generic
-        # detector does not (one-sided light, tight crops).
+        self.rig = rig = FaceRig.build(bundle, self.relighter, focal)
+        self.focal = rig.focal
+        room = bundle.room_light
         from .acquire import FaceFinder
 
-        solid_full = np.zeros((ref_h, ref_w), dtype=bool)
-        solid_full[y0:y0 + h, x0:x0 + w] = solid
-        room = bundle.room_light
-        finder = FaceFinder.from_relighter(self.relighter, solid_full, scale=rs,
+        finder = FaceFinder.from_relighter(self.relighter, rig.solid_full, scale=rig.ref_track_scale,
                                            room=bundle.ambient_frame() if room is not None else None)
-        self.tracker = FaceTracker(small_ref, landmarks * np.float32(rs), small_mask, finder=finder)
-        self.track_face = cv2.resize(solid_full.astype(np.uint8), small_ref.shape[::-1],
-                                     interpolation=cv2.INTER_NEAREST) > 0
-        self._lit_box = _aligned_box(self.track_face, (ref_h, ref_w))
-        # Feathered face mask (reference crop).
-        size = max(h, w)
-        er = max(int(round(FEATHER_ERODE * size)), 1)
-        m = cv2.erode(solid.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * er + 1,) * 2))
-        self.alpha_crop = cv2.GaussianBlur(m.astype(np.float32), (0, 0), FEATHER_SIGMA * size)
-        # The warp's rigid grid: reference points every WARP_GRID_SHARE of the face's size, lifted
-        # with the bundle's depth - a frame moves them with its head pose (the landmarks add what
-        # the pose does not explain: an expression). It reaches a GRID_STEP and a cell past the
-        # face's alpha (the inverse map is defined inside the grid's hull and evaluated on cells of
-        # GRID_STEP frame pixels), past the crop too: a mask that fills its crop - a tight photo -
-        # is covered to its edge (depths there are the nearest mask pixel's).
-        step = max(int(round(WARP_GRID_SHARE * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 3)
-        cells = int(np.ceil(GRID_STEP / step)) + 1
-        reach = cells * step
-        pad = reach + step
-        from relight.kernels.compositor import ALPHA_FLOOR
-
-        cover = cv2.dilate(np.pad((self.alpha_crop > ALPHA_FLOOR).astype(np.uint8), pad),
-                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1,) * 2))
-        gy, gx = np.mgrid[-reach:h + reach + 1:step, -reach:w + reach + 1:step]
-        on = cover[gy + pad, gx + pad] > 0
-        gx, gy = gx[on], gy[on]
-        self.grid_ref = np.stack([gx, gy], axis=1).astype(np.float32) + np.array([x0, y0], np.float32)
-        self.grid_model = lift_landmarks(self.grid_ref, depth_filled[np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)],
-                                         k_ref)
-        self.grid_step = step
-        # The warp's mesh: every landmark and the grid points farther than a cell from them,
-        # triangulated once in the reference (a frame moves its corners: the tracked landmarks
-        # where they were seen, the rest where the head pose puts them).
-        from scipy.spatial import cKDTree
-
-        near, _ = cKDTree(landmarks).query(self.grid_ref, k=1)
-        free = near > step
-        self.mesh_ref = np.concatenate([landmarks, self.grid_ref[free]]).astype(np.float32)
-        self.mesh_model = np.concatenate([model[:len(landmarks)], self.grid_model[free]])
-        self.mesh_triangles = reference_triangles(self.mesh_ref)
-        room = bundle.room_light
-        self.reference_light = "room"
-        if room is not None:
-            self.ambient_crop = np.asarray(room, dtype=np.float32)
-        else:
-            # An RTI-set bundle (or a capture in a dark room) has no usable room-light reference:
-            # the lighting ratio is taken against the face under even light (a uniform
-            # environment) instead.
-            from relight.envmap import load_environment
-
-            even = self.relighter.relight(load_environment("builtin:uniform", width=64))
-            self.ambient_crop = np.ascontiguousarray(even[y0:y0 + h, x0:x0 + w])
-            self.reference_light = "uniform"
-        amb_lum = (self.ambient_crop[mask_crop] @ _LUM) if mask_crop.any() else np.zeros(1, np.float32)
-        self.ratio_eps = np.float32(composite.RATIO_EPS * max(float(np.median(amb_lum)), composite.TINY))
-        self.inv_ambient = (1.0 / (self.ambient_crop + self.ratio_eps)).astype(np.float32)
-        # Crop pixel -> relit frame pixel: the face's own, the nearest face pixel in the feathered
-        # fringe (no dark or bright halo from the background the maps never saw), else none.
-        ref_index = ((np.arange(h)[:, None] + y0) * ref_w + (np.arange(w)[None, :] + x0)).astype(np.int64)
-        fill = np.full((h, w), -1, dtype=np.int32)
-        fill[mask_crop] = ref_index[mask_crop]
-        from relight.kernels.compositor import ALPHA_FLOOR
-
-        fringe = (self.alpha_crop > ALPHA_FLOOR) & ~mask_crop
-        fill[fringe] = ref_index[iy[fringe], ix[fringe]]
-        self.fill_flat = fill.ravel()
-        # Every 7th face pixel: enough for the median of the lighting ratio.
-        self.sample_crop = np.flatnonzero(mask_crop.ravel())[::7]
-        self.sample_full = self.fill_flat[self.sample_crop]
+        self.tracker = FaceTracker(rig.track_reference, rig.track_landmarks, rig.track_mask, finder=finder)
         from relight.kernels.compositor import Compositor
 
-        # Normals of the crop (nearest face pixel's off the face) for fading out turned-away surface.
-        normal_full = np.zeros((ref_h * ref_w, 3), np.float32)
-        normal_full[bundle.frame_index] = np.asarray(bundle.normal, np.float32)
-        nfill = np.where(fill >= 0, fill, ref_index[iy, ix].astype(np.int32))
-        normal_crop = normal_full[nfill.ravel()].reshape(h, w, 3)
-        self.compositor = Compositor(self.alpha_crop, fill, self.inv_ambient, normal_crop, self.origin,
+        self.compositor = Compositor(rig.alpha_crop, rig.fill, rig.inv_ambient, rig.normal_crop, rig.origin,
                                      self.relighter)
-        self._normal_crop = np.ascontiguousarray(normal_crop, dtype=np.float32)
         self.rigid_warp = bool(rigid_warp)
         # The rest of the person (mode transfer): its matte, made on the first frame that needs it.
         self.whole_head = bool(whole_head)
         self.person = None
-        # The live light (mode transfer): fitted on face pixels well inside the composited region
-        # that face the camera, at most SAMPLES of them, spread evenly.
-        pix = np.asarray(bundle.pixels, dtype=np.int64)
-        px, py = pix % w, pix // w
-        normals = np.asarray(bundle.normal, dtype=np.float32)
-        good = np.flatnonzero((self.alpha_crop[py, px] > 0.5) & (normals[:, 2] > 0.3))
-        if good.size > SAMPLES:
-            good = good[np.linspace(0, good.size - 1, SAMPLES).round().astype(np.int64)]
-        self.live_ref = np.stack([px[good] + x0, py[good] + y0], axis=1).astype(np.float32)
-        self.live_normal = normals[good]
-        self.live_full = bundle.frame_index[good]
-        self.live_box = (int(self.live_ref[:, 0].min(initial=0)) - 2, int(self.live_ref[:, 1].min(initial=0)) - 2,
-                         int(self.live_ref[:, 0].max(initial=0)) + 3, int(self.live_ref[:, 1].max(initial=0)) + 3)
-        maps = bundle.pixel_maps(good, padded=False).astype(np.float32) * np.float32(self.relighter.sample_scale)
+        maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
+            np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
         self._last_light: LiveLight | None = None
         self._next_reference = None  # a live-lit reference back(defer_reference=True) made
@@ -526,7 +592,7 @@ class FramePath:
     def _estimator(self, size: tuple[int, int]) -> PoseEstimator:
         est = self._estimators.get(size)
         if est is None:
-            est = PoseEstimator(self.model, size, self.focal)
+            est = PoseEstimator(self.rig.model, size, self.focal)
             self._estimators = {size: est}
         return est
 
@@ -639,12 +705,13 @@ class FramePath:
         t3 = time.perf_counter()
         if self.rigid_warp:
             cur, depth = self._mesh_positions(front.pose, size, ref_idx, xy)
-            ref = self.mesh_ref
+            ref = self.rig.mesh_ref
             box = points_box(cur, size)
-            coarse = mesh_coarse_map(cur, ref, self.mesh_triangles, box, depth) if box is not None else None
+            coarse = mesh_coarse_map(cur, ref, self.rig.mesh_triangles, box, depth) if box is not None else None
         else:
-            cur = np.concatenate([xy, _affine_ring(self.control_ref[ref_idx], xy, self.control_ref[self.ring_index])])
-            ref = np.concatenate([self.control_ref[ref_idx], self.control_ref[self.ring_index]])
+            ring = self.rig.control_ref[self.rig.ring_index]
+            cur = np.concatenate([xy, _affine_ring(self.rig.control_ref[ref_idx], xy, ring)])
+            ref = np.concatenate([self.rig.control_ref[ref_idx], ring])
             box = points_box(cur, size)
             coarse = coarse_map(cur, ref, box) if box is not None else None
         if coarse is None:
@@ -666,7 +733,7 @@ class FramePath:
         layer_mode = composite.LAYER_MODE[self.mode]
         live_median = 0.0
         tau = 0.0
-        eps = float(self.ratio_eps)
+        eps = float(self.rig.ratio_eps)
         waited = 0.0
         if self.mode == "transfer":
             # The live light, fitted to this frame's face; the target exposure-matched to it.
@@ -691,8 +758,8 @@ class FramePath:
             waited += self._sync_relight(tm)
             if self.light_estimator.light is not None:
                 est = self.relighter.slot("live")[0].reshape(-1, 3)
-                le = est[self.live_full] @ _LUM
-                lt = flat[self.live_full] @ _LUM
+                le = est[self.rig.live_full] @ _LUM
+                lt = flat[self.rig.live_full] @ _LUM
                 live_median = float(np.median(le)) if le.size else 0.0
                 gain = self._locked_exposure(composite.exposure_match(le, lt))
                 spread = self.light_estimator.spread
@@ -709,7 +776,8 @@ class FramePath:
             # paste: the relit face's median matched to the live face's at the tracked points.
             waited = self._sync_relight(tm)
             live = decode_srgb8(_sample_rgb(rgb, track.xy[keep] - offset)) @ _LUM
-            ref_px = self.fill_flat[_crop_index(self.control_ref[ref_idx], self.origin, self.mask_crop.shape)]
+            rig = self.rig
+            ref_px = rig.fill_flat[_crop_index(rig.control_ref[ref_idx], rig.origin, rig.mask_crop.shape)]
             relit_l = flat[ref_px[ref_px >= 0]] @ _LUM
             num, den = float(np.median(live)) if live.size else 0.0, float(np.median(relit_l)) if relit_l.size else 0.0
             gain = num / den if num > composite.TINY and den > composite.TINY else 1.0
@@ -733,7 +801,7 @@ class FramePath:
         """The warp mesh's corners in this frame ((N, 2) float32) and their distance along the
         view ((N,) camera z): where the head pose puts them, the tracked landmarks ``ref_idx``
         at ``xy`` (the pose's projection plus what it leaves of each beyond the tracking noise)."""
-        model = self.mesh_model
+        model = self.rig.mesh_model
         cur = self._estimator(size).project_points(pose, model).astype(np.float32)
         cur[ref_idx] = xy
         r, _ = cv2.Rodrigues(pose.rvec)
@@ -751,10 +819,10 @@ class FramePath:
         gy = (((np.arange(wh) + 0.5) * h / wh - 0.5) - y0 + 0.5) / GRID_STEP + 0.5
         mx, my = np.meshgrid(gx.astype(np.float32), gy.astype(np.float32))
         pos = cv2.remap(coarse, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e4, -1e4))
-        px = (pos[..., 0] - self.origin[0]).astype(np.float32)
-        py = (pos[..., 1] - self.origin[1]).astype(np.float32)
-        alpha = cv2.remap(self.alpha_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        normal = cv2.remap(self._normal_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+        px = (pos[..., 0] - self.rig.origin[0]).astype(np.float32)
+        py = (pos[..., 1] - self.rig.origin[1]).astype(np.float32)
+        alpha = cv2.remap(self.rig.alpha_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        normal = cv2.remap(self.rig.normal_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=(0, 0, 1))
         nz = normal @ np.asarray(rotation, np.float32)[2]
         lo, hi = FACING
@@ -847,12 +915,12 @@ class FramePath:
         (the landmark is farther) are left out."""
         from .tracking import MIN_POINTS, Track
 
-        rs = self.ref_track_scale
+        rs = self.rig.ref_track_scale
         ref = self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
         idx = np.asarray(idx)
-        n, m_all = len(idx), len(self._ref_pts)
+        n, m_all = len(idx), len(self.rig.ref_pts)
         d = REFIND_STEP
-        P = est.project_points(pose, self._refind_model[np.concatenate([idx, idx + m_all, idx + 2 * m_all])]) * ts
+        P = est.project_points(pose, self.rig.refind_model[np.concatenate([idx, idx + m_all, idx + 2 * m_all])]) * ts
         c, jx, jy = P[:n], (P[n:2 * n] - P[:n]) / (d * rs), (P[2 * n:] - P[:n]) / (d * rs)
         T, R = REFIND_TEMPLATE, REFIND_RADIUS
         h = (T - 1) / 2.0
@@ -873,8 +941,8 @@ class FramePath:
         u = (np.arange(T, dtype=np.float64) - h)[None, None, :]  # template column - h
         v = u.transpose(0, 2, 1)  # template row - h
         # template pixel (row v, column u) of landmark k reads the reference at L_k + inv_k (u, v)
-        lx = (self._ref_pts[idx[sel], 0] * rs)[:, None, None]
-        ly = (self._ref_pts[idx[sel], 1] * rs)[:, None, None]
+        lx = (self.rig.ref_pts[idx[sel], 0] * rs)[:, None, None]
+        ly = (self.rig.ref_pts[idx[sel], 1] * rs)[:, None, None]
         mx, my = lx + i00 * u + i01 * v, ly + i10 * u + i11 * v
         tmpl = cv2.remap(ref, mx.reshape(-1, T).astype(np.float32), my.reshape(-1, T).astype(np.float32),
                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, T, T)
@@ -904,15 +972,15 @@ class FramePath:
         :meth:`commit_reference` instead of handed to the tracker now."""
         from relight.colour import encode_srgb8
 
-        (sy0, sy1, sx0, sx1), (ry0, ry1, rx0, rx1) = self._lit_box
+        (sy0, sy1, sx0, sx1), (ry0, ry1, rx0, rx1) = self.rig.lit_box
         crop = np.ascontiguousarray(lit[ry0:ry1, rx0:rx1], dtype=np.float32) @ _LUM
         if crop.shape != (sy1 - sy0, sx1 - sx0):
             crop = downscale_area(crop, (sx1 - sx0, sy1 - sy0))
         ref = self.tracker.reference.copy()
-        face = encode_srgb8(np.clip(crop[self.track_face[sy0:sy1, sx0:sx1]], 0.0, 1.0))
+        face = encode_srgb8(np.clip(crop[self.rig.track_face[sy0:sy1, sx0:sx1]], 0.0, 1.0))
         # in the codes the tracker sees (a dark frame's are brightened by the same gain)
         region = ref[sy0:sy1, sx0:sx1]
-        region[self.track_face[sy0:sy1, sx0:sx1]] = face if gain == 1.0 else \
+        region[self.rig.track_face[sy0:sy1, sx0:sx1]] = face if gain == 1.0 else \
             cv2.convertScaleAbs(face, alpha=gain).ravel()
         if defer:
             self._next_reference = ref
@@ -928,27 +996,28 @@ class FramePath:
 
     def _ambient_gain(self, flat: np.ndarray) -> float:
         """The gain that brings the median of the ratio to the reference light to 1."""
-        ratio = (flat[self.sample_full] + self.ratio_eps) * self.inv_ambient.reshape(-1, 3)[self.sample_crop]
+        rig = self.rig
+        ratio = (flat[rig.sample_full] + rig.ratio_eps) * rig.inv_ambient.reshape(-1, 3)[rig.sample_crop]
         med = float(np.median(ratio @ _LUM)) if ratio.size else 1.0
         return 1.0 / med if med > composite.TINY else 1.0
 
     def _sample_live(self, rgb: np.ndarray, cur: np.ndarray, ref: np.ndarray, rotation: np.ndarray):
         """The live frame at the light estimator's sample pixels: ((S, 3) float32 linear, (S,) bool
         where the frame shows them - inside it, the warp and facing the camera)."""
-        n = self.live_ref.shape[0]
+        n = self.rig.live_ref.shape[0]
         if self.rigid_warp:  # frame positions of a grid over the reference
-            grid = mesh_coarse_map(ref, cur, self.mesh_triangles, self.live_box)
+            grid = mesh_coarse_map(ref, cur, self.rig.mesh_triangles, self.rig.live_box)
         else:
-            grid = coarse_map(ref, cur, self.live_box)
+            grid = coarse_map(ref, cur, self.rig.live_box)
         if grid is None or n == 0:
             return np.zeros((n, 3), np.float32), np.zeros(n, dtype=bool)
-        x0, y0 = self.live_box[:2]
-        gx = ((self.live_ref[:, 0] - x0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
-        gy = ((self.live_ref[:, 1] - y0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
+        x0, y0 = self.rig.live_box[:2]
+        gx = ((self.rig.live_ref[:, 0] - x0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
+        gy = ((self.rig.live_ref[:, 1] - y0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
         pos = cv2.remap(grid, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e4, -1e4))[0]
         h, w = rgb.shape[:2]
         valid = (pos[:, 0] >= 0) & (pos[:, 1] >= 0) & (pos[:, 0] <= w - 1) & (pos[:, 1] <= h - 1)
-        valid &= self.live_normal @ np.asarray(rotation, np.float32)[2] > 0.3
+        valid &= self.rig.live_normal @ np.asarray(rotation, np.float32)[2] > 0.3
         px = cv2.remap(rgb, pos[:, 0:1].copy(), pos[:, 1:2].copy(), cv2.INTER_LINEAR,
                        borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
         return decode_srgb8(px).reshape(-1, 3), valid

@@ -139,12 +139,12 @@ def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, s
     fp.reset()
     ref = np.ascontiguousarray(np.asarray(small_bundle.background))
     h, w = ref.shape[:2]
-    centre = fp._ref_pts[:fp.n_landmarks].mean(axis=0)
+    centre = fp.rig.ref_pts[:fp.rig.n_landmarks].mean(axis=0)
     sim = cv2.getRotationMatrix2D((float(centre[0]), float(centre[1])), 3.0, 1.0)
     sim[:, 2] += (2.4, -1.3)
     frame = cv2.warpAffine(ref, sim, (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-    idx = np.arange(fp.n_landmarks)
-    truth = fp._ref_pts[idx] @ sim[:, :2].T + sim[:, 2]
+    idx = np.arange(fp.rig.n_landmarks)
+    truth = fp.rig.ref_pts[idx] @ sim[:, :2].T + sim[:, 2]
     est = fp._estimator((w, h))
     est.last = None
     pose = est.solve(idx, truth + np.array([2.0, 0.0]))
@@ -361,12 +361,12 @@ def test_the_rigid_grid_covers_the_composited_face_with_a_cell_to_spare(small_bu
 
     env = load_environment("builtin:studio")
     for fp in (FramePath(small_bundle, env),):
-        ctrl = np.concatenate([fp.control_ref[:fp.n_landmarks], fp.grid_ref])
+        ctrl = np.concatenate([fp.rig.control_ref[:fp.rig.n_landmarks], fp.rig.grid_ref])
         tri = Delaunay(ctrl)
-        ay, ax = np.nonzero(fp.alpha_crop > ALPHA_FLOOR)
-        pts = np.stack([ax, ay], axis=1).astype(np.float64) + np.asarray(fp.origin, np.float64)
+        ay, ax = np.nonzero(fp.rig.alpha_crop > ALPHA_FLOOR)
+        pts = np.stack([ax, ay], axis=1).astype(np.float64) + np.asarray(fp.rig.origin, np.float64)
         for dx, dy in ((GRID_STEP, 0), (-GRID_STEP, 0), (0, GRID_STEP), (0, -GRID_STEP)):
-            assert (tri.find_simplex(pts + [dx, dy]) >= 0).all(), (fp.grid_step, dx, dy)
+            assert (tri.find_simplex(pts + [dx, dy]) >= 0).all(), (fp.rig.grid_step, dx, dy)
 
 
 def test_strength_zero_and_faceless_frames_pass_through(small_bundle, clip):
@@ -521,7 +521,7 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     rgb = frames[5]
     rng = np.random.default_rng(4)
     # Control points: the reference landmarks moved by a small affine map plus noise.
-    ref = fp.control_ref
+    ref = fp.rig.control_ref
     a = np.array([[1.03, 0.04], [-0.03, 0.98]])
     cur = (ref - ref.mean(0)) @ a.T + ref.mean(0) + np.array([4.0, -3.0]) + rng.normal(0, 0.3, ref.shape)
     h, w = rgb.shape[:2]
@@ -531,19 +531,19 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(8, -4, 2))
     # The live slot: the face under a light from the left (some of it dark: the trust ramps act).
     live = np.array(fp.relighter.relight_texels(_texel_point(fp.relighter, [-0.8, 0.2, 0.55]), slot="live"))
-    lum = live.reshape(-1, 3)[fp.live_full] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
-    settings = dict(mode=mode, gain=1.3, strength=0.8, eps=float(fp.ratio_eps), ratio_max=6.0,
+    lum = live.reshape(-1, 3)[fp.rig.live_full] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    settings = dict(mode=mode, gain=1.3, strength=0.8, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
                     live_median=float(np.median(lum)))
     turn = rotation_matrix(25, -10, 5)  # some of the face turned away: it fades out
     got = fp.compositor.run(rgb, box, coarse, GRID_STEP, rotation=turn, **settings)
-    layer = build_layer_numpy(fp.relighter.frame, fp.fill_flat.reshape(fp.alpha_crop.shape), fp.inv_ambient,
-                              fp.alpha_crop, fp.compositor.normal, turn, live=live, **settings)
+    layer = build_layer_numpy(fp.relighter.frame, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape), fp.rig.inv_ambient,
+                              fp.rig.alpha_crop, fp.compositor.normal, turn, live=live, **settings)
     if mode == "live":
-        s = layer[0][..., 3][fp.alpha_crop > 0.5]
+        s = layer[0][..., 3][fp.rig.alpha_crop > 0.5]
         # the live pixel trusted in places, and distrusted in others
         # trust spans both ends (0.05/0.95: 'near 0', 'near 1') (definitional bound, not a tolerance)
         assert (s < 0.05).mean() > TRUST_LOW_SHARE and (s > 0.95).mean() > TRUST_HIGH_SHARE
-    want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.origin, layer, mode=mode)
+    want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.rig.origin, layer, mode=mode)
     diff = np.abs(got.astype(int) - want.astype(int))
     assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
     # differing pixels: a rounding-level share (1 %) (definitional bound, not a tolerance)
