@@ -534,6 +534,7 @@ class FramePath:
             raise InputError(f"reuse_deg {reuse_deg}: use 0 (always relight) to 5 degrees")
         self.reuse_deg = float(reuse_deg)
         self.env = None
+        self._relit_key = None  # (env, exposure, rotation) of the relight in relit_frame
         self.set_environment(env)
         self.rig = rig = FaceRig.build(bundle, self.relighter, focal)
         self.focal = rig.focal
@@ -695,12 +696,21 @@ class FramePath:
         rotation, size = front.rotation, front.size
         tm = info.timings
         t2 = time.perf_counter()
-        reused = self.relighter.reused
-        # Queued, not waited for: the warp and the live light's fit run on the host meanwhile;
-        # synced before the host reads the relit frame (the compositor's kernels queue after it).
-        img = self.relighter.relight(self.env, None if self.fixed_env else rotation, exposure=self.exposure,
-                                     reuse_deg=self.reuse_deg, out=self.relit_frame, wait=False)
-        info.reused = self.relighter.reused > reused
+        # Leave out a relight the head's small turn does not need (REUSE_DEG): this path's own
+        # last relight, kept in its own frame. Else queued, not waited for: the warp and the live
+        # light's fit run on the host meanwhile; synced before the host reads the relit frame (the
+        # compositor's kernels queue after it).
+        from relight.kernels.relighter import rotation_angle_deg
+
+        turn = None if self.fixed_env else rotation
+        last = self._relit_key
+        info.reused = bool(last is not None and last[0] is self.env and last[1] == self.exposure and turn is not None
+                           and last[2] is not None and self.reuse_deg > 0
+                           and rotation_angle_deg(last[2], turn) < self.reuse_deg)
+        if not info.reused:
+            self.relighter.relight(self.env, turn, exposure=self.exposure, out=self.relit_frame, wait=False)
+            self._relit_key = (self.env, self.exposure, turn)
+        img = self.relit_frame
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()
         if self.rigid_warp:
@@ -784,7 +794,9 @@ class FramePath:
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
         tm["warp"] = (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
         t4 = time.perf_counter()
-        out = self.compositor.run(rgb, box, coarse, GRID_STEP, mode=layer_mode, gain=gain * self.exposure,
+        live_buf = self.relighter.slot("live")[1] if layer_mode == "live" else None
+        out = self.compositor.run(rgb, box, coarse, GRID_STEP, relit=self.relighter.buffer(self.relit_frame),
+                                  live=live_buf, mode=layer_mode, gain=gain * self.exposure,
                                   strength=self.strength, eps=eps, ratio_max=composite.RATIO_MAX, rotation=rotation,
                                   live_median=live_median, tau=tau)
         if frame is not rgb:

@@ -215,11 +215,12 @@ class Compositor:
             self._frame_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE, self.frame.nbytes)
         return self._frame_buf
 
-    def run(self, rgb: np.ndarray, box, coarse: np.ndarray, step: int, *, mode: str, gain: float,
+    def run(self, rgb: np.ndarray, box, coarse: np.ndarray, step: int, *, relit, live=None, mode: str, gain: float,
             strength: float, eps: float, ratio_max: float, rotation: np.ndarray | None = None,
             live_median: float = 0.0, tau: float = 0.0) -> np.ndarray:
-        """``rgb`` with the face composited (a new array). mode : one of :data:`LAYER_MODES`
-        (``live`` reads the relighter's "live" slot: the face under the live light)."""
+        """``rgb`` with the face composited (a new array). ``relit``: the OpenCL buffer of the
+        relit reference frame (:meth:`relight.kernels.relighter.Relighter.buffer`); ``live``: the
+        buffer of the face under the live light (mode ``live``); mode : one of :data:`LAYER_MODES`."""
         import pyopencl as cl
 
         q = self.rt.queue
@@ -242,8 +243,10 @@ class Compositor:
         n = self.support.size
         code = LAYER_MODES[mode]
         rz = np.eye(3)[2] if rotation is None else np.asarray(rotation, dtype=np.float64)[2]
-        relit_buf = self.relighter.last_buffer  # the relit face the frame's relight wrote
-        live_buf = self.relighter.slot("live")[1] if mode == "live" else relit_buf
+        if mode == "live" and live is None:
+            raise InputError("mode live composites the face under the live light: pass its buffer as live=")
+        relit_buf = relit
+        live_buf = live if mode == "live" else relit
         self._k_layer(q, (max(-(-n // 64), 1) * 64,), (64,), relit_buf, live_buf, self._fill, self._inv,
                       self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]), np.float32(rz[2]),
                       self._support, np.int32(n), np.int32(code), np.float32(gain), np.float32(strength),

@@ -690,6 +690,11 @@ class Relighter:
                                      hostbuf=out), out)
         return self._bound
 
+    def buffer(self, out: np.ndarray | None = None):
+        """The OpenCL buffer that holds ``out`` (an array :meth:`relight` fills in place), or the
+        Relighter's own frame (None): what kernels queued after a relight read it from."""
+        return self._frame_buf if out is None else self._bind(out)[0]
+
     @property
     def last_buffer(self):
         """The OpenCL buffer the last :meth:`relight` wrote (its ``out``'s, or the Relighter's

@@ -535,7 +535,8 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     settings = dict(mode=mode, gain=1.3, strength=0.8, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
                     live_median=float(np.median(lum)))
     turn = rotation_matrix(25, -10, 5)  # some of the face turned away: it fades out
-    got = fp.compositor.run(rgb, box, coarse, GRID_STEP, rotation=turn, **settings)
+    got = fp.compositor.run(rgb, box, coarse, GRID_STEP, relit=fp.relighter.buffer(), live=fp.relighter.slot("live")[1],
+                            rotation=turn, **settings)
     layer = build_layer_numpy(fp.relighter.frame, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape), fp.rig.inv_ambient,
                               fp.rig.alpha_crop, fp.compositor.normal, turn, live=live, **settings)
     if mode == "live":
