@@ -535,6 +535,7 @@ class FramePath:
         self.reuse_deg = float(reuse_deg)
         self.env = None
         self._relit_key = None  # (env, exposure, rotation) of the relight in relit_frame
+        self._track_gain = 1.0  # the last tracking copy's brightening (_track_exposure)
         self.set_environment(env)
         self.rig = rig = FaceRig.build(bundle, self.relighter, focal)
         self.focal = rig.focal
@@ -648,6 +649,12 @@ class FramePath:
             if ts < 1:
                 grey = downscale_area(grey, (round(w * ts), round(h * ts)))
         grey, track_gain = _track_exposure(grey)
+        if track_gain != self._track_gain and self.tracker.prev is not None:
+            # The tracking copy's brightening changed (a bright hand or a lamp entered the frame,
+            # the camera's exposure stepped): the last frame brought to this one's codes, or LK's
+            # brightness constancy fails for every point at once.
+            self.tracker.prev = cv2.convertScaleAbs(self.tracker.prev, alpha=track_gain / self._track_gain)
+        self._track_gain = track_gain
         last = est.last
         predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
         refind = (lambda idx, g: self._refind(est, last, ts, g, idx)) if last is not None else None

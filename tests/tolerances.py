@@ -322,3 +322,13 @@ YUV_ROUNDTRIP_CODES = 3
 #: The relit frame through the planes against the same frame relit through RGB: mean absolute
 #: difference over the pixels either changed (8-bit codes).
 YUV_RELIT_MEAN_CODES = 1.0
+#: The live frame's edge cases (tests/test_live_edge_cases.py): a pixel counts as changed beyond
+#: this many 8-bit codes; the person may change within this margin of the reference's head mask
+#: (px, 320x180: the live clip turns the head by up to 10 degrees in place, which moves its
+#: outline ~10 px, and the composite's feather reaches ~3 px past it; measured 10.8 px at most on
+#: the clip, 12.5 played six times as fast); the share of frames with the face that must be found.
+EDGE_CHANGED_CODES = 2
+EDGE_HEAD_MARGIN_PX = 15
+EDGE_MIN_FOUND = 0.9
+#: ... and with dark rims over the eyes the reference does not have (glasses): measured 0.87.
+EDGE_MIN_FOUND_OCCLUDED = 0.8

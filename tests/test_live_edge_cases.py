@@ -1,0 +1,168 @@
+"""The live frame's edge cases (issue 32): each through the per-frame path on the small head's
+live clip, each with the same promise - bounded output, a status, and nothing changed off the
+person (every changed pixel within a margin of the head)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from relight import load_environment
+from relight.video import read_frames
+
+from .tolerances import EDGE_CHANGED_CODES, EDGE_HEAD_MARGIN_PX, EDGE_MIN_FOUND, EDGE_MIN_FOUND_OCCLUDED
+
+
+@pytest.fixture(scope="module")
+def path(small_bundle):
+    from relight.engine.frame_path import FramePath
+
+    return FramePath(small_bundle, load_environment("builtin:sunset"))
+
+
+@pytest.fixture(scope="module")
+def frames(live_clip):
+    return list(read_frames(live_clip))
+
+
+@pytest.fixture(scope="module")
+def head(small_bundle):
+    """Where the person may change: the reference's head mask grown by EDGE_HEAD_MARGIN_PX (the
+    live clip turns the same head by up to 10 degrees in place)."""
+    m = np.asarray(small_bundle.mask, np.uint8)
+    k = 2 * EDGE_HEAD_MARGIN_PX + 1
+    return cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) > 0
+
+
+def _run(path, frames, head=None):
+    """(outputs, infos) of a fresh run; every output the input's shape and type, and (``head``)
+    changed only on the head."""
+    path.reset()
+    outs, infos = [], []
+    for i, f in enumerate(frames):
+        out, info = path.process(f, i / 30)
+        assert out.shape == f.shape and out.dtype == np.uint8
+        assert info.face or info.note, "a frame without a face says why"
+        if head is not None:
+            changed = np.abs(out.astype(np.int16) - f.astype(np.int16)).max(axis=2) > EDGE_CHANGED_CODES
+            assert not (changed & ~head).any(), f"frame {i}: {int((changed & ~head).sum())} pixels changed off the head"
+        outs.append(out)
+        infos.append(info)
+    return outs, infos
+
+
+def test_a_person_who_leaves_and_comes_back(path, frames, head):
+    empty = np.full_like(frames[0], 90)  # the room without the person
+    seq = frames[:10] + [empty] * 8 + frames[10:30]
+    outs, infos = _run(path, seq, head)
+    for k in range(10, 18):
+        assert not infos[k].face and np.array_equal(outs[k], empty)
+    back = [i.face for i in infos[18:]]
+    assert back.index(True) <= 2 and np.mean(back) >= EDGE_MIN_FOUND
+
+
+def test_two_faces_in_the_frame_the_bundles_person_is_relit(path, frames):
+    """A second, different person beside the bundle's (scikit-image's astronaut photo): only the
+    bundle's person changes."""
+    skimage_data = pytest.importorskip("skimage.data", reason="scikit-image gives the second face")
+    other = skimage_data.astronaut()[30:250, 130:350]  # her face, 220x220
+    h, w = frames[0].shape[:2]
+    other = cv2.resize(other, (h, h), interpolation=cv2.INTER_AREA)
+    seq = [np.ascontiguousarray(np.concatenate([f, other], axis=1)) for f in frames[:20]]
+    outs, infos = _run(path, seq)
+    assert np.mean([i.face for i in infos]) >= EDGE_MIN_FOUND
+    for out, f in zip(outs, seq, strict=True):
+        assert np.array_equal(out[:, w:], f[:, w:])  # the other person untouched
+
+
+@pytest.mark.parametrize("kind", ["hand", "glasses"])
+def test_a_hand_over_the_face_and_glasses(path, frames, head, kind, small_bundle):
+    lm = np.asarray(small_bundle.landmarks, np.float32).reshape(-1, 2)
+    x0, y0 = lm.min(axis=0)
+    x1, y1 = lm.max(axis=0)
+    cx = (x0 + x1) / 2
+    seq = []
+    for i, f in enumerate(frames[:30]):
+        f = f.copy()
+        if kind == "hand" and 8 <= i < 20:  # a skin-coloured hand over the mouth and chin (brighter than
+            # the face: it used to change the tracking copy's brightening and lose every point at once)
+            cv2.ellipse(f, (int(cx), int(y1)), (int((x1 - x0) * 0.45), int((y1 - y0) * 0.25)), 0, 0, 360,
+                        (205, 150, 120), -1)
+        if kind == "glasses":  # dark rims over the eyes
+            f = _rims(f, small_bundle)[0]
+        seq.append(f)
+    outs, infos = _run(path, seq, head)
+    found = [i.face for i in infos]
+    if kind == "hand":  # found at once and held through the hand
+        assert all(found)
+    else:  # dark rims the reference does not have: found within the search's first back-off steps
+        assert found.index(True) <= 5 and np.mean(found) >= EDGE_MIN_FOUND_OCCLUDED
+
+
+def _rims(frame, small_bundle):
+    """The frame with dark glasses' rims drawn over the eyes, and the rims' pixels."""
+    lm = np.asarray(small_bundle.landmarks, np.float32).reshape(-1, 2)
+    x0, y0 = lm.min(axis=0)
+    x1, y1 = lm.max(axis=0)
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    out = frame.copy()
+    rim = np.zeros(frame.shape[:2], np.uint8)
+    for ex in (cx - (x1 - x0) * 0.22, cx + (x1 - x0) * 0.22):
+        for img, colour in ((out, (20, 20, 25)), (rim, 1)):
+            cv2.ellipse(img, (int(ex), int(cy - (y1 - y0) * 0.12)), (int((x1 - x0) * 0.16), int((y1 - y0) * 0.09)),
+                        0, 0, 360, colour, 2)
+    return out, rim > 0
+
+
+@pytest.mark.xfail(strict=True, reason="mode transfer trusts the bundle's prediction where the live pixel is far "
+                   "darker than the live light predicts (the rule that removes the room's shadows), so glasses' "
+                   "rims vanish from the relit face: a known defect (issue 32)")
+def test_glasses_stay_on_the_relit_face(path, frames, small_bundle):
+    seq, rims = zip(*(_rims(f, small_bundle) for f in frames[:20]), strict=True)
+    outs, infos = _run(path, list(seq))
+    ring = cv2.dilate(rims[0].astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    for out, info, rim in zip(outs, infos, rims, strict=True):
+        if info.face:
+            lum = out.astype(np.float32).mean(axis=2)
+            assert lum[rim].mean() < 0.5 * lum[ring & ~rim].mean()  # the rims stay darker than around them
+
+
+@pytest.mark.parametrize("gain", [0.15, 2.5])
+def test_a_frame_much_darker_or_brighter_than_the_capture(path, frames, head, gain):
+    seq = [np.clip(f.astype(np.float32) * gain, 0, 255).astype(np.uint8) for f in frames[:20]]
+    outs, infos = _run(path, seq, head)
+    assert np.mean([i.face for i in infos]) >= EDGE_MIN_FOUND
+    statuses = {i.light.status for i in infos if i.light is not None}
+    assert statuses and statuses <= {"ok", "dark", "clipped", "few pixels"}
+
+
+def test_a_camera_that_changes_exposure_mid_stream(path, frames, head):
+    seq = [f if i < 15 else (f // 2) for i, f in enumerate(frames[:35])]
+    outs, infos = _run(path, seq, head)
+    assert all(i.face for i in infos[15:])  # the track holds through the step
+
+
+@pytest.mark.parametrize("size", [(1920, 1080), (320, 180)])
+def test_1080p_and_320x180(path, frames, head, size):
+    seq = [cv2.resize(f, size, interpolation=cv2.INTER_LINEAR) if (f.shape[1], f.shape[0]) != size else f
+           for f in frames[:8]]
+    big = cv2.resize(head.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    outs, infos = _run(path, seq, big)
+    assert np.mean([i.face for i in infos]) >= EDGE_MIN_FOUND
+
+
+def test_a_still_head_is_not_relit_again(path, frames, head):
+    seq = [frames[5]] * 16
+    outs, infos = _run(path, seq, head)
+    assert all(i.face for i in infos)
+    # once the pose filter has settled (the first re-anchoring moves the points once), the head
+    # does not turn: the relight is kept, and the output holds still
+    assert all(i.reused for i in infos[8:])
+    assert max(np.abs(a.astype(int) - outs[-1]).max() for a in outs[-4:]) <= 1
+
+
+def test_a_very_fast_turn(path, frames, head):
+    seq = frames[::6] + frames[::-6]  # every 6th frame, there and back: six times the clip's speed
+    outs, infos = _run(path, seq, head)
+    assert np.mean([i.face for i in infos]) >= EDGE_MIN_FOUND
