@@ -45,7 +45,8 @@ def server(small_bundle):
         yield base
 
 
-@pytest.mark.parametrize("transport", ["webrtc", "websocket"])
+# WebRTC's run (~24 s with its set-up) is in `make test-slow` (CI runs both); the websocket's here.
+@pytest.mark.parametrize("transport", [pytest.param("webrtc", marks=pytest.mark.slow), "websocket"])
 def test_browser_page_streams_the_camera_and_shows_relit_frames(chromium, y4m_clip, server, transport, tmp_path):
     shot = tmp_path / "page.png"
     with chromium_page(chromium, y4m_clip) as dev:
