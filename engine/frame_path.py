@@ -1,15 +1,18 @@
-"""The per-frame path shared by ``relight filter`` and the service: track -> pose -> relight ->
-warp -> composite.
+"""The per-frame path shared by ``relight filter``, ``relight live`` and the service: track ->
+pose -> relight -> live light -> warp -> composite.
 
-:class:`FramePath` is the one stateful object: it holds the bundle, the relighting engine, the
-tracker, the pose estimator and its filter, and the environment. ``process(rgb, t)`` takes an
-(H, W, 3) uint8 sRGB frame and its time in seconds and returns the relit frame (uint8 sRGB,
-same size; the input unchanged where no face is found) and a :class:`FrameInfo`.
+One flow: :class:`FaceRig` - everything the path needs of a bundle, prepared once (frozen) -
+then, per frame, :meth:`FramePath.front` (track, head pose: a :class:`Front`) and
+:meth:`FramePath.back` (relight, live light, warp, composite). :class:`FramePath` is the one
+stateful object: the rig, the relighter, the tracker, the pose estimators and filters, the live
+light and the environment. ``process(frame, t)`` takes an (H, W, 3) uint8 sRGB frame - or a
+:class:`relight.video_yuv.YuvFrame`, a decoded frame kept in its planes (only the face's box is
+converted) - and its time in seconds, and returns the relit frame (the same kind, same size; the
+input unchanged where no face is found) and a :class:`FrameInfo`.
 
 Frames of any size work: tracking finds the face wherever it is; the warp maps the bundle's
 reference into the frame. Only the face's box is converted to linear light and back.
 """
-
 from __future__ import annotations
 
 import time
