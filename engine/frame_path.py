@@ -299,10 +299,9 @@ class FaceRig:
     focal: object  # the focal length the frames are solved with (px; 'ortho' made a long one; None: per frame)
     mask_crop: np.ndarray  # (ch, cw) bool: the bundle's face, its largest component
     ref_grey: np.ndarray  # (H, W) uint8: the reference frame in grey
-    ref_pts: np.ndarray  # (N, 2) float32: the control points in the reference - landmarks, then a ring
-    control_ref: np.ndarray  # the same array (the legacy warp's name)
-    n_landmarks: int  # how many of ref_pts are landmarks
-    ring_index: np.ndarray  # indices of the ring's points in ref_pts
+    control_ref: np.ndarray  # (N, 2) float32: the control points in the reference - landmarks, then a ring
+    n_landmarks: int  # how many of control_ref are landmarks
+    ring_index: np.ndarray  # indices of the ring's points in control_ref
     model: np.ndarray  # (N, 3) the control points lifted with the bundle's depth (the pose's model)
     refind_model: np.ndarray  # (3N, 3) model, then each point moved REFIND_STEP px right, then down
     ref_track_scale: float  # the tracking copy's scale of the reference
@@ -381,7 +380,6 @@ class FaceRig:
         model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
         # Each control point and its neighbours REFIND_STEP px right and down, lifted the same way:
         # the pose's local affine at a landmark (:meth:`_refind`) by finite differences.
-        r.ref_pts = pts
         steps = np.concatenate([pts + [REFIND_STEP, 0.0], pts + [0.0, REFIND_STEP]])
         steps_xy = np.clip(steps - np.array([x0, y0], np.float32), 0, [w - 1, h - 1]).astype(np.float32)
         r.refind_model = np.concatenate([model, lift_landmarks(steps, _bilinear(depth_filled, steps_xy), k_ref)])
@@ -940,7 +938,7 @@ class FramePath:
         rs = self.rig.ref_track_scale
         ref = self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
         idx = np.asarray(idx)
-        n, m_all = len(idx), len(self.rig.ref_pts)
+        n, m_all = len(idx), len(self.rig.control_ref)
         d = REFIND_STEP
         P = est.project_points(pose, self.rig.refind_model[np.concatenate([idx, idx + m_all, idx + 2 * m_all])]) * ts
         c, jx, jy = P[:n], (P[n:2 * n] - P[:n]) / (d * rs), (P[2 * n:] - P[:n]) / (d * rs)
@@ -963,8 +961,8 @@ class FramePath:
         u = (np.arange(T, dtype=np.float64) - h)[None, None, :]  # template column - h
         v = u.transpose(0, 2, 1)  # template row - h
         # template pixel (row v, column u) of landmark k reads the reference at L_k + inv_k (u, v)
-        lx = (self.rig.ref_pts[idx[sel], 0] * rs)[:, None, None]
-        ly = (self.rig.ref_pts[idx[sel], 1] * rs)[:, None, None]
+        lx = (self.rig.control_ref[idx[sel], 0] * rs)[:, None, None]
+        ly = (self.rig.control_ref[idx[sel], 1] * rs)[:, None, None]
         mx, my = lx + i00 * u + i01 * v, ly + i10 * u + i11 * v
         tmpl = cv2.remap(ref, mx.reshape(-1, T).astype(np.float32), my.reshape(-1, T).astype(np.float32),
                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, T, T)

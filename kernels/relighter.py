@@ -275,11 +275,11 @@ class RowCache:
         self._flight: dict[int, int] = {}  # texel -> slot of rows the prefetch thread is making
         self._prefetch = None  # (thread, stop event)
 
-    def _free_slots(self, n: int, keep: set) -> list[int]:
-        """``n`` slots to fill, least recently used first, none in ``keep``, in flight, or used by
-        the last two calls; their old texels forgotten. Under the lock."""
+    def _free_slots(self, n: int, keep: set, spare_recent: bool = True) -> list[int]:
+        """``n`` slots to fill, least recently used first, none in ``keep`` or in flight, nor
+        (``spare_recent``) used by the last two calls; their old texels forgotten. Under the lock."""
         busy = keep | set(self._flight.values())
-        recent = self._clock - 1
+        recent = self._clock - 1 if spare_recent else np.iinfo(np.int64).max
         free = [int(s) for s in np.argsort(self._used, kind="stable")
                 if int(s) not in busy and (self._used[s] < recent or self._texel_in[s] < 0)][:n]
         for s in free:
@@ -305,11 +305,7 @@ class RowCache:
                 keep = {self._slot_of[t] for t in wanted if t in self._slot_of}
                 free = self._free_slots(len(missing), keep)
                 if len(free) < len(missing):  # everything recent: take the oldest slots anyway
-                    free = [int(s) for s in np.argsort(self._used, kind="stable")
-                            if int(s) not in keep and int(s) not in self._flight.values()][:len(missing)]
-                    for s in free:
-                        if self._texel_in[s] >= 0:
-                            del self._slot_of[int(self._texel_in[s])]
+                    free += self._free_slots(len(missing) - len(free), keep | set(free), spare_recent=False)
                 tex = np.asarray(self.bundle.map_texels, dtype=np.int64)[np.asarray(missing)]
                 self.maker.make(tex, np.asarray(free))
                 for s, t in zip(free, missing, strict=True):
@@ -319,11 +315,6 @@ class RowCache:
             out = np.array([self._slot_of[t] for t in index.tolist()], dtype=np.int64)
             self._used[out] = self._clock
         return out
-
-    def has(self, index) -> bool:
-        """Whether every texel of ``index`` has its row made."""
-        with self._lock:
-            return all(int(t) in self._slot_of for t in np.asarray(index).ravel().tolist())
 
     def prefetch(self, index, batch: int = 8) -> None:
         """Make the rows of texels ``index`` (most wanted first; or a function giving them, called
@@ -504,8 +495,7 @@ class Relighter:
         self._env_generation = 0  # bumped when the cached lights change
         self._last_key = None  # (environment generation, rotation, exposure) of the last relight
         self._last_rotation = None
-        self._last_frame = None  # the array the last relight filled, and its buffer
-        self._last_buf = self._frame_buf
+        self._last_frame = None  # the array the last relight filled
         self._bound = None  # (buffer, array) of the last caller's out
         self.relit = 0  # relights run by relight() (figures for benchmarks)
         self.reused = 0  # calls of relight() answered by the last result (reuse_deg)
@@ -653,7 +643,7 @@ class Relighter:
         else:
             self._run_compact(lp, buf, frame, wait=wait)
         self._last_key, self._last_rotation = key, r
-        self._last_frame, self._last_buf = frame, buf
+        self._last_frame = frame
         self.relit += 1
         return self._result(out)
 
@@ -694,12 +684,6 @@ class Relighter:
         """The OpenCL buffer that holds ``out`` (an array :meth:`relight` fills in place), or the
         Relighter's own frame (None): what kernels queued after a relight read it from."""
         return self._frame_buf if out is None else self._bind(out)[0]
-
-    @property
-    def last_buffer(self):
-        """The OpenCL buffer the last :meth:`relight` wrote (its ``out``'s, or the Relighter's
-        own frame): what kernels queued after it read the relit face from."""
-        return self._last_buf
 
     def relight_light(self, direction, *, exposure: float = 1.0) -> np.ndarray:
         """The reference frame under one directional light as strong as the capture flash: a new

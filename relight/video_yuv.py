@@ -154,9 +154,7 @@ class YuvFrame:
         """A new frame: this one with the RGB of an even ``box`` changed from ``before`` (what
         :meth:`rgb_box` gave) to ``after`` - converted back (swscale, :func:`relight.video.to_yuv`'s
         settings) only where a pixel changed (luma) or a 2x2 block holds one (chroma)."""
-        import av
-
-        from .video import sws_flags
+        from .video import to_yuv
 
         x0, y0, x1, y1 = box
         d = cv2.absdiff(np.ascontiguousarray(before), np.ascontiguousarray(after))
@@ -164,9 +162,7 @@ class YuvFrame:
         y, u, v = self.y.copy(), self.u.copy(), self.v.copy()
         if not changed.any():
             return YuvFrame(y, u, v, self.colorspace, self.color_range)
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(after), format="rgb24")
-        out = frame.reformat(format="yuv420p", dst_colorspace="ITU709", dst_color_range="MPEG",
-                             interpolation=sws_flags()).to_ndarray()
+        out = to_yuv(after).to_ndarray()
         bh, bw = changed.shape
         flat, n, q = out.reshape(-1), bh * bw, bh * bw // 4
         ny = flat[:n].reshape(bh, bw)

@@ -139,12 +139,12 @@ def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, s
     fp.reset()
     ref = np.ascontiguousarray(np.asarray(small_bundle.background))
     h, w = ref.shape[:2]
-    centre = fp.rig.ref_pts[:fp.rig.n_landmarks].mean(axis=0)
+    centre = fp.rig.control_ref[:fp.rig.n_landmarks].mean(axis=0)
     sim = cv2.getRotationMatrix2D((float(centre[0]), float(centre[1])), 3.0, 1.0)
     sim[:, 2] += (2.4, -1.3)
     frame = cv2.warpAffine(ref, sim, (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
     idx = np.arange(fp.rig.n_landmarks)
-    truth = fp.rig.ref_pts[idx] @ sim[:, :2].T + sim[:, 2]
+    truth = fp.rig.control_ref[idx] @ sim[:, :2].T + sim[:, 2]
     est = fp._estimator((w, h))
     est.last = None
     pose = est.solve(idx, truth + np.array([2.0, 0.0]))
