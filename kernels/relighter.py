@@ -496,6 +496,7 @@ class Relighter:
         self._last_key = None  # (environment generation, rotation, exposure) of the last relight
         self._last_rotation = None
         self._last_frame = None  # the array the last relight filled
+        self._prefetched_generation = -1  # the environment prefetch_rows last made rows for
         self._bound = None  # (buffer, array) of the last caller's out
         self.relit = 0  # relights run by relight() (figures for benchmarks)
         self.reused = 0  # calls of relight() answered by the last result (reuse_deg)
@@ -560,12 +561,17 @@ class Relighter:
         +-``yaw_deg`` and +-``pitch_deg`` - the brightest texels at each turn of a grid
         ``step_deg`` apart, the smaller turns first. A live video's first turns toward a sun
         then find its rows made instead of stopping for them (~30 ms each at 100k pixels, most
-        of it per launch: ahead, eight share one). Nothing for a bundle that stores its maps."""
+        of it per launch: ahead, eight share one). Nothing for a bundle that stores its maps, nor
+        again for the environment last asked for (the service's sessions share one Relighter and
+        each sets the environment it starts with)."""
         if self.row_cache is None or self.exact:
             return
         from relight.directions import rotation_matrix
 
         lights, n = self.lights(env), self.transport.direct
+        if self._prefetched_generation == self._env_generation:
+            return
+        self._prefetched_generation = self._env_generation
         span = lambda lim: np.arange(-lim, lim + step_deg / 2, step_deg)  # noqa: E731
         turns = sorted(((y, p) for y in span(yaw_deg) for p in span(pitch_deg)), key=lambda a: np.hypot(*a))
 

@@ -419,7 +419,7 @@ def _filter_video(inp, out, pipeline, crf, res, progress, tqdm):
     from relight.video_yuv import YuvFrame
 
     # The whole-person path reads the whole frame in RGB anyway.
-    keep_yuv = not getattr(pipeline.fp, "whole_head", False)
+    keep_yuv = not pipeline.fp.whole_head
 
     info = probe_video(inp)
     suffix = out.suffix.lower()

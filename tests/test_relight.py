@@ -201,7 +201,7 @@ def test_rows_made_ahead_on_their_own_thread_relight_as_rows_made_when_asked(sma
     assert ahead.row_cache.made == made  # every row these turns need was made ahead
     for g, w in zip(got, want, strict=True):
         np.testing.assert_array_equal(g, w)
-    ahead.prefetch_rows(env, yaw_deg=10.0, pitch_deg=5.0)  # again: a running prefetch is stopped and replaced
+    ahead.prefetch_rows(env, yaw_deg=10.0, pitch_deg=5.0)  # the same environment again: nothing more to make
     ahead.row_cache.stop_prefetch()
     assert ahead.row_cache._prefetch is None
 
