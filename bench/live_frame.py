@@ -37,6 +37,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from relight.engine.composite import DEFAULT_REGION
+
 #: Clip length (s) and frame rate of the truth clips: the truth costs about a second a frame
 #: at 640x360 (every frame shaded under every truth light, with cast shadows).
 CLIP_S = 4.0
@@ -77,7 +79,8 @@ def synth_truth_clip(out: Path, size: tuple[int, int], envs: tuple[str, ...], *,
     return folder
 
 
-def filter_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = "transfer") -> dict:
+def filter_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = "transfer",
+                  region: str = DEFAULT_REGION) -> dict:
     """``relight filter`` of the clip into PNG frames, in a fresh process: (its report, wall s)."""
     dst = out / "frames"
     report = out / "report"
@@ -87,7 +90,7 @@ def filter_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = 
         shutil.rmtree(dst)
     from .clips import run_filter_process
 
-    doc = run_filter_process(live / "live.mp4", dst, bundle, env, report, "--mode", mode)
+    doc = run_filter_process(live / "live.mp4", dst, bundle, env, report, "--mode", mode, "--region", region)
     doc["frames_dir"] = str(dst)
     return doc
 
@@ -322,7 +325,8 @@ HEADS = (("procedural", 0, None), ("scan", 0, "builtin:lee-perry-smith"),
 ENVS = ("builtin:window", "builtin:sunset")
 
 
-def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "transfer", heads=HEADS,
+def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "transfer",
+        region: str = DEFAULT_REGION, heads=HEADS,
         envs=ENVS, size=(640, 360), capture_s: float = 24.0) -> dict:
     """Every head of ``heads`` under every environment of ``envs``: its capture's bundle, its
     truth clip, the filter into PNG frames, the figures and a sheet. Returns the document."""
@@ -344,18 +348,18 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
         mask = np.asarray(relight.load_bundle(bundle).mask)
         for env in envs:
             stem = environment_stem(env)
-            work = out / "runs" / f"{live.name}-{stem}-{mode}"
+            work = out / "runs" / f"{live.name}-{stem}-{mode}-{region}"
             if progress:
                 print(f"the live frame: {label}, {stem} ...", flush=True)
-            rep = filter_frames(bundle, live, env, work, mode=mode)
+            rep = filter_frames(bundle, live, env, work, mode=mode, region=region)
             fig = evaluate(bundle, live, stem, Path(rep["frames_dir"]), bundle_mask=mask)
             fig.update({"head": label, "seed": seed, "mesh": mesh, "env": stem, "size": list(size),
                         "relit_frames": rep["faces"], "filter_wall_s": rep["wall_s"]})
             fig["sheet"] = str(sheet(live, stem, Path(rep["frames_dir"]), out / f"sheet_{_slug(label)}_{stem}.png",
-                                     f"{label}, {size[0]}x{size[1]}, {stem}, mode {mode}: silhouette "
+                                     f"{label}, {size[0]}x{size[1]}, {stem}, mode {mode}, {region}: silhouette "
                                      f"{fig['silhouette_psnr']:.2f} dB (input {fig['input_psnr']:.2f})").name)
             rows.append(fig)
-    doc = {"mode": mode, "rows": rows, "goals": GOALS}
+    doc = {"mode": mode, "region": region, "rows": rows, "goals": GOALS}
     from relight.imageio import atomic_path
 
     with atomic_path(out / "live_frame.json") as tmp:

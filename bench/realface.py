@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from relight.engine.composite import MODES
+from relight.engine.composite import DEFAULT_REGION, MODES
 
 #: The clip: frames, rate, canvas (rows, columns), motion amplitudes, canvas level (sRGB code).
 CLIP_FRAMES = 50
@@ -130,7 +130,7 @@ def clip_psnr_gain(frames_srgb: list[np.ndarray], truth_lin: np.ndarray, masks: 
     return float(10.0 * np.log10(1.0 / max(float((err.astype(np.float64) ** 2).mean()), 1e-30))), gain
 
 
-def _filter(clip: Path, out: Path, bundle: Path, env: str, mode: str) -> dict:
+def _filter(clip: Path, out: Path, bundle: Path, env: str, mode: str, region: str) -> dict:
     """``relight filter`` in a fresh process: (frames written, its report)."""
     dst = out / f"filtered_{mode}.mp4"
     report = out / f"report_{mode}"
@@ -138,12 +138,13 @@ def _filter(clip: Path, out: Path, bundle: Path, env: str, mode: str) -> dict:
     # (the default focal length is a phone's whole frame, ~60 degrees across).
     from .clips import run_filter_process
 
-    doc = run_filter_process(clip, dst, bundle, env, report, "--fixed-env", "--mode", mode)
+    doc = run_filter_process(clip, dst, bundle, env, report, "--fixed-env", "--mode", mode, "--region", region)
     doc["output"] = str(dst)
     return doc
 
 
-def evaluate_subject(folder: Path, out: Path, *, transfer: str, progress: bool = False) -> dict:
+def evaluate_subject(folder: Path, out: Path, *, transfer: str, progress: bool = False,
+                     region: str = DEFAULT_REGION) -> dict:
     """The real-face video benchmark for one subject (module docstring): PSNR of each mode, the
     unchanged input and the still prediction; frames with a face; the filter's light estimates."""
     import relight
@@ -170,7 +171,7 @@ def evaluate_subject(folder: Path, out: Path, *, transfer: str, progress: bool =
     for mode in MODES:
         if progress:
             print(f"  relight filter --mode {mode} ...", flush=True)
-        rep = _filter(clip, out, bundle, env, mode)
+        rep = _filter(clip, out, bundle, env, mode, region)
         frames = list(read_frames(Path(rep["output"])))
         rows[mode] = {"psnr": clip_psnr(frames, truth, masks), "faces": rep["faces"], "frames": rep["frames"],
                       "light": rep.get("live_light_summary", {})}

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from relight.engine.composite import DEFAULT_REGION
+
 from .clips import CAPTURE_HZ as CLIP_CAPTURE_HZ
 from .clips import flicker_step, synth_bundle, synth_live  # noqa: F401 (used by the other benches)
 from .machine import cpu_jiffies, steal_share
@@ -220,7 +222,7 @@ def _plots(doc: dict, pairs, out: Path) -> None:
 
 
 def run(out: Path, quick: bool = False, progress: bool = True, env: str = "builtin:sunset",
-        mode: str = "transfer", faces: Path | None = None) -> dict:
+        mode: str = "transfer", faces: Path | None = None, region: str = DEFAULT_REGION) -> dict:
     """The whole benchmark: the synthetic clips (pose, speed, flicker), a `relight filter` run,
     and the real faces (``faces``: one RTI set per subject; quick: ``QUICK_FACES``)."""
     from relight.bench.accuracy import FACES_TRANSFER, QUICK_FACES, face_subjects
@@ -235,7 +237,8 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = "built
         print("timing the per-frame path ...", flush=True)
     pf = _per_frame(bundle, live, env, mode)
     pairs = pf.pop("_pairs")
-    doc = {"per_frame": pf, "env": env, "mode": mode, "capture": {"seconds": CAPTURE_S, "flash_hz": CAPTURE_HZ}}
+    doc = {"per_frame": pf, "env": env, "mode": mode, "region": region,
+           "capture": {"seconds": CAPTURE_S, "flash_hz": CAPTURE_HZ}}
     fsize = (480, 270) if quick else (640, 360)
     f_bundle = synth_bundle(out, fsize, CAPTURE_S, progress)
     f_live = synth_live(out, fsize, 4.0 if quick else 10.0, progress)
@@ -276,7 +279,8 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = "built
     # relit, the background untouched, no seam - on the heads developed on and unseen ones.
     from . import live_frame
 
-    doc["live_frame"] = live_frame.run(out / "live-frame", quick=quick, progress=progress, mode=mode)
+    doc["live_frame"] = live_frame.run(out / "live-frame", quick=quick, progress=progress, mode=mode,
+                                       region=region)
     if progress:
         print("running relight filter on a 10 s clip ...", flush=True)
     doc["filter"] = _filter_run(f_bundle, f_live, out, env)
@@ -292,7 +296,7 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = "built
         if progress:
             print(f"real face {subject.name} ...", flush=True)
         doc["faces"].append(evaluate_subject(subject, out / "faces" / subject.name, transfer=FACES_TRANSFER,
-                                             progress=progress))
+                                             progress=progress, region=region))
     doc["faces_skipped"] = None if doc["faces"] else f"no subject folders with dirs.lp at {faces}"
     from relight.imageio import atomic_path
 

@@ -37,6 +37,12 @@ MODES = ("transfer", "ambient", "paste")
 DEFAULT_MODE = "transfer"
 #: The compositing kernel's mode for each (relight.kernels.compositor.LAYER_MODES).
 LAYER_MODE = {"transfer": "live", "ambient": "ambient", "paste": "paste"}
+#: What mode transfer relights: the whole person (the face from the bundle, hair, ears, neck and
+#: shoulders by the face's change of light carried over them: :mod:`.head_light`) or the face alone
+#: (the bundle's face mask; the rest of the frame as it came).
+REGIONS = ("person", "face")
+#: The region every entry point starts with.
+DEFAULT_REGION = "face"
 #: Mode transfer: a live pixel passes its own detail into the output only where it differs from
 #: what the fitted live light predicts by more than this many times the fit's scatter (relative,
 #: soft-thresholded): eyes, mouth, expression pass; the model's error and the camera's noise

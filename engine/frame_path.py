@@ -502,12 +502,9 @@ class FramePath:
     to the face (no head-rotation compensation). focal : the frames' focal length in pixels, or "ortho"
     (None: from the frame size, see :mod:`relight.engine.pose`). exposure : stops (EV).
     reuse_deg : head turns below which the last relight is reused (:data:`REUSE_DEG`; 0: never).
-    whole_head : mode transfer also relights the rest of the person - hair, ears, neck, shoulders -
-    from the face's ratio (:mod:`.head_light`, the person's matte from :mod:`.person`). Off by
-    default: with the rigid warp, against the live frame's truth under sunset, it gains 4.4-4.8 dB
-    over the person (procedural head 17.9 -> 22.3 dB, scanned head 17.9 -> 22.3) with the wall
-    untouched, but loses 0.4 and 1.0 dB over the face of two real faces (yaleB04, yaleB07: the
-    segmentation misses the dark half of a side-lit face, the inflated normals there are wrong).
+    region : 'person' - mode transfer also relights the rest of the person (hair, ears, neck,
+    shoulders) from the face's ratio (:mod:`.head_light`, the person's matte from :mod:`.person`) -
+    or 'face' (the bundle's face alone). Default :data:`relight.engine.composite.DEFAULT_REGION`.
     rigid_warp : the warp's control points are a grid over the face moved rigidly by the head pose
     (the bundle's depth) plus the tracked landmarks (the default), instead of the landmarks and an
     affine ring around them (False: the path before issue 32). Measured against the live frame's
@@ -518,7 +515,8 @@ class FramePath:
 
     def __init__(self, bundle, env: np.ndarray, *, mode: str = composite.DEFAULT_MODE, strength: float = 1.0,
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
-                 tolerance: float = 0.01, relighter=None, reuse_deg: float = REUSE_DEG, whole_head: bool = False,
+                 tolerance: float = 0.01, relighter=None, reuse_deg: float = REUSE_DEG,
+                 region: str = composite.DEFAULT_REGION,
                  rigid_warp: bool = True):
         from relight.kernels.relighter import Relighter
 
@@ -552,7 +550,9 @@ class FramePath:
                                      self.relighter)
         self.rigid_warp = bool(rigid_warp)
         # The rest of the person (mode transfer): its matte, made on the first frame that needs it.
-        self.whole_head = bool(whole_head)
+        if region not in composite.REGIONS:
+            raise InputError(f"region {region!r}: use one of {', '.join(composite.REGIONS)}")
+        self.region = region
         self.person = None
         maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
             np.float32(self.relighter.sample_scale)
@@ -576,6 +576,11 @@ class FramePath:
         self.relighter.prefetch_rows(env)  # the exact texels' rows, ahead of the head's turns
         self._exposure_lock, self._exposure_fits = None, []
         self._env_texels = None  # its low frequencies, made when the person beyond the face needs them
+
+    @property
+    def whole_head(self) -> bool:
+        """Whether the rest of the person is relit with the face (region 'person', mode transfer)."""
+        return self.region == "person" and self.mode == "transfer"
 
     def set_mode(self, mode: str) -> None:
         if mode not in composite.MODES:
@@ -828,8 +833,10 @@ class FramePath:
         depth = model @ r[2] + float(pose.tvec[2, 0])
         return cur, depth
 
-    def _face_alpha_work(self, box, coarse: np.ndarray, rotation: np.ndarray, size, work) -> np.ndarray:
-        """The compositor's face alpha (feathered mask x facing x strength) at the work scale."""
+    def _face_alpha_work(self, box, coarse: np.ndarray, rotation: np.ndarray, size, work):
+        """At the work scale: the compositor's face alpha (feathered mask x facing x strength),
+        (h, w) float32; the bundle's normals turned with the head (camera frame, (h, w, 3)); and
+        where the bundle has them (its mask, bilinear: (h, w) in 0-1)."""
         from relight.kernels.compositor import FACING
 
         w, h = size
@@ -844,10 +851,12 @@ class FramePath:
         alpha = cv2.remap(self.rig.alpha_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         normal = cv2.remap(self.rig.normal_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=(0, 0, 1))
-        nz = normal @ np.asarray(rotation, np.float32)[2]
+        turned = normal @ np.asarray(rotation, np.float32).T
         lo, hi = FACING
-        facing = np.clip((nz - lo) / (hi - lo), 0.0, 1.0)
-        return (alpha * facing * self.strength).astype(np.float32)
+        facing = np.clip((turned[..., 2] - lo) / (hi - lo), 0.0, 1.0)
+        cover = cv2.remap(self.rig.mask_crop.astype(np.float32), px, py, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return (alpha * facing * self.strength).astype(np.float32), turned.astype(np.float32), cover
 
     def _relight_person(self, rgb: np.ndarray, composite_rgb: np.ndarray, box, coarse, rotation) -> np.ndarray:
         """The light's change carried from the composited face over the rest of the person
@@ -863,7 +872,7 @@ class FramePath:
         h, w = rgb.shape[:2]
         sc = min(1.0, WORK_ROWS / h)
         work = (max(1, round(w * sc)), max(1, round(h * sc)))
-        alpha = self._face_alpha_work(box, coarse, rotation, (w, h), work)
+        alpha, face_normals, cover = self._face_alpha_work(box, coarse, rotation, (w, h), work)
         face_px = float(np.sqrt(max(float((alpha > 0.5).sum()), 1.0)))
         small = cv2.resize(rgb, work, interpolation=cv2.INTER_AREA)
         matte = head_light.colour_check(small, self.person(rgb, work=True), alpha, face_px)
@@ -883,7 +892,8 @@ class FramePath:
         target_sh = lights_sh9(env_dirs @ r.T if self.fixed_env else env_dirs, env_power)
         live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T,
                              self.light_estimator.texel_light())
-        rho = head_light.ratio_field(f_lin, c_lin, alpha, matte, target_sh, live_sh, face_px)
+        rho = head_light.ratio_field(f_lin, c_lin, alpha, matte, target_sh, live_sh, face_px,
+                                     face_normals=face_normals, face_cover=cover)
         return head_light.relight_person(rgb, composite_rgb, alpha, matte, rho)
 
     def _locked_exposure(self, gain: float) -> float:

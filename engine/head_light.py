@@ -128,13 +128,20 @@ def normalised_convolution(values: np.ndarray, weight: np.ndarray, sigma: float)
 
 
 def ratio_field(frame_lin: np.ndarray, composite_lin: np.ndarray, face_alpha: np.ndarray, matte: np.ndarray,
-                target_sh: np.ndarray, live_sh: np.ndarray, face_px: float) -> np.ndarray:
+                target_sh: np.ndarray, live_sh: np.ndarray, face_px: float, *,
+                face_normals: np.ndarray | None = None, face_cover: np.ndarray | None = None) -> np.ndarray:
     """(h, w, 3) float32 linear ratio rho over the person at the work scale (module docstring).
 
     frame_lin, composite_lin : (h, w, 3) the frame and the face-composited frame, linear;
     face_alpha, matte : (h, w) in 0-1; target_sh, live_sh : (9, 3) camera-frame SH radiance;
-    face_px : the face's size (sqrt of its area) at the work scale."""
+    face_px : the face's size (sqrt of its area) at the work scale; face_normals (h, w, 3), face_cover
+    (h, w) in 0-1: the bundle's own normals (camera frame) and where it has them - they replace the
+    inflated body's there (the face's geometry is known; a silhouette's inflation only guesses it)."""
     normals = inflate_normals(matte, INFLATE_RADIUS * face_px)
+    if face_normals is not None and face_cover is not None:
+        wb = np.clip(face_cover, 0.0, 1.0)[..., None]
+        normals = wb * face_normals + (1.0 - wb) * normals
+        normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-6)
     e_t = np.maximum(sh9_irradiance(target_sh, normals), 0.0)
     e_l = np.maximum(sh9_irradiance(live_sh, normals), 0.0)
     person = matte > 0.5

@@ -418,7 +418,7 @@ def _run_render(args) -> int:
 
 
 def _add_bench(sub) -> None:
-    from .engine.composite import DEFAULT_MODE, MODES
+    from .engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES, REGIONS
 
     p = sub.add_parser("bench", help=COMMANDS["bench"],
                        description="Benchmarks: speed, memory and accuracy, measured here and printed.")
@@ -469,6 +469,9 @@ def _add_bench(sub) -> None:
     v.add_argument("--env", default="builtin:sunset", metavar="FILE|builtin:NAME", help="environment to relight with")
     v.add_argument("--mode", choices=MODES, default=DEFAULT_MODE,
                    help="compositing mode of the synthetic clips (the real faces run every mode)")
+    v.add_argument("--region", choices=REGIONS, default=DEFAULT_REGION,
+                   help="what mode transfer relights in the live-frame and real-face runs: the whole person or "
+                        "the face alone (relight filter --region)")
     v.add_argument("--faces", type=Path, default=None,
                    help="real faces: a folder with one RTI image set per subject (default: "
                         "../shared/data/faces-yale when present); each becomes a moving clip relit toward a "
@@ -626,7 +629,7 @@ def _run_bench_video(args) -> int:
     if args.faces is not None and not face_subjects(args.faces):
         raise InputError(f"--faces {args.faces}: expected one folder per subject, each with dirs.lp")
     doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet, env=args.env, mode=args.mode,
-                        faces=faces)
+                        faces=faces, region=args.region)
     print(benchmark.table(doc))
     print(f"wrote {args.out / 'bench.json'}, {args.out / 'video_pose.png'}, {args.out / 'video_frames.png'} and a "
           "before/after sheet per real face (faces/*/sheet.png)")
@@ -806,7 +809,7 @@ def _focal(text: str):
 
 
 def _add_filter(sub) -> None:
-    from .engine.composite import DEFAULT_MODE, MODES
+    from .engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES, REGIONS
 
     p = sub.add_parser(
         "filter", help=COMMANDS["filter"],
@@ -826,6 +829,10 @@ def _add_filter(sub) -> None:
                         "the target (eyes, mouth, expression kept where lit; the bundle's prediction where the live "
                         "light left the face dark); ambient: the ratio to the capture room's light (the live "
                         "room's light stays); paste: the relit reference face warped in (the paper)")
+    p.add_argument("--region", choices=REGIONS, default=DEFAULT_REGION,
+                   help="what mode transfer relights: the whole person (the face from the bundle; hair, ears, neck "
+                        "and shoulders by the face's change of light carried over them - nothing off the person "
+                        "changes) or the face alone (the bundle's face mask)")
     p.add_argument("--fixed-env", action="store_true",
                    help="do not turn the environment against the head's rotation (the light follows the face)")
     p.add_argument("--strength", type=_strength, default=1.0, help="blend with the original frame, 0 to 1")
@@ -863,7 +870,8 @@ def _filter_command(args) -> int:
         raise InputError(f"{args.input}: no such file or folder")
     bundle = relight.load_bundle(args.bundle)
     env = relight.load_environment(args.env)
-    res = run_filter(args.input, args.output, bundle, env, mode=args.mode, fixed_env=args.fixed_env,
+    res = run_filter(args.input, args.output, bundle, env, mode=args.mode, region=args.region,
+                     fixed_env=args.fixed_env,
                      strength=args.strength, exposure=args.exposure, focal=args.focal, fps=args.fps, crf=args.crf,
                      report_dir=args.report, virtual_camera=args.virtual_camera, progress=not args.quiet,
                      start_time=t0)
@@ -876,7 +884,7 @@ def _filter_command(args) -> int:
 
 
 def _add_live(sub) -> None:
-    from .engine.composite import DEFAULT_MODE, MODES
+    from .engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES, REGIONS
 
     p = sub.add_parser(
         "live", help=COMMANDS["live"],
@@ -904,6 +912,10 @@ def _add_live(sub) -> None:
     p.add_argument("--mode", choices=MODES, default=DEFAULT_MODE,
                    help="transfer: the live light measured from the face and swapped for the target; ambient: the "
                         "ratio to the capture room's light; paste: the relit reference face (the paper)")
+    p.add_argument("--region", choices=REGIONS, default=DEFAULT_REGION,
+                   help="what mode transfer relights: the whole person (the face from the bundle; hair, ears, neck "
+                        "and shoulders by the face's change of light carried over them - nothing off the person "
+                        "changes) or the face alone (the bundle's face mask)")
     p.add_argument("--strength", type=_strength, default=1.0, help="blend with the camera's frame, 0 to 1")
     p.add_argument("--focal", type=_focal, default=None, metavar="PIXELS|ortho",
                    help="the camera's focal length in pixels, or 'ortho' (default: 0.85 x the frame's larger side)")
@@ -963,7 +975,8 @@ def _live_command(args) -> int:
 
     try:
         res = run_live(bundle, args.env, camera=args.camera, size=args.size, fps=args.fps, duration=args.duration,
-                       mode=args.mode, strength=args.strength, focal=args.focal, virtual_camera=args.virtual_camera,
+                       mode=args.mode, region=args.region, strength=args.strength, focal=args.focal,
+                       virtual_camera=args.virtual_camera,
                        preview=args.preview, preview_port=args.preview_port, record=args.record, crf=args.crf,
                        on_ready=ready)
     except VirtualCameraMissing as exc:
@@ -981,7 +994,7 @@ def _live_command(args) -> int:
 
 
 def _serve_arguments(p) -> None:
-    from .engine.composite import MODES
+    from .engine.composite import MODES, REGIONS
     from .service.settings import ServeConfig  # the defaults: the service's own settings
 
     p.add_argument("bundle", type=Path, help="reflectance bundle to serve (relight capture)")
@@ -998,6 +1011,10 @@ def _serve_arguments(p) -> None:
     p.add_argument("--mode", choices=MODES, default=ServeConfig.mode,
                    help="transfer: the live light measured from the face and swapped for the target; ambient: the "
                         "ratio to the capture room's light; paste: the relit reference face (the paper)")
+    p.add_argument("--region", choices=REGIONS, default=ServeConfig.region,
+                   help="what mode transfer relights: the whole person (the face from the bundle; hair, ears, neck "
+                        "and shoulders by the face's change of light carried over them - nothing off the person "
+                        "changes) or the face alone (the bundle's face mask)")
     p.add_argument("--max-clients", type=int, default=ServeConfig.max_clients, help="most stream clients at once")
     p.add_argument("--focal", type=_focal, default=None, metavar="PIXELS|ortho",
                    help="the frames' focal length in pixels, or 'ortho' (default: 0.85 x the frame's larger side)")
@@ -1032,7 +1049,7 @@ def _serve_command(args) -> int:
     for o in args.allow_origin:
         if o != "*" and not re.match(r"^https?://[^/\s]+$", o):
             raise InputError(f"--allow-origin {o!r}: write an origin as scheme://host[:port], e.g. https://example.org")
-    return serve(args.bundle, env=args.env, host=args.host, port=args.port, mode=args.mode,
+    return serve(args.bundle, env=args.env, host=args.host, port=args.port, mode=args.mode, region=args.region,
                  max_clients=args.max_clients, focal=args.focal, token=token,
                  allowed_origins=tuple(args.allow_origin))
 

@@ -35,7 +35,7 @@ from pathlib import Path
 from fastapi import FastAPI
 from fastapi.responses import JSONResponse
 
-from ..engine.composite import DEFAULT_MODE
+from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION
 from .codec import MAX_BODY
 from .errors import ServiceError
 from .routers import environment, frames, health, stream, webrtc
@@ -92,8 +92,8 @@ def create_app(config: ServeConfig) -> FastAPI:
 
 
 def serve(bundle: Path, *, env: str = "builtin:studio", host: str = "127.0.0.1", port: int = 8000,
-          mode: str = DEFAULT_MODE, max_clients: int = 4, focal=None, token: str | None = None,
-          allowed_origins: tuple[str, ...] = ()) -> int:
+          mode: str = DEFAULT_MODE, region: str = DEFAULT_REGION, max_clients: int = 4, focal=None,
+          token: str | None = None, allowed_origins: tuple[str, ...] = ()) -> int:
     """Serve ``bundle`` with uvicorn until stopped (``relight serve`` / ``relight-serve``; the
     command line checks its arguments first: :mod:`relight.cli`)."""
     import uvicorn
@@ -104,7 +104,7 @@ def serve(bundle: Path, *, env: str = "builtin:studio", host: str = "127.0.0.1",
     query = f"?token={token}" if token else ""
     announce = (f"relight: serving {bundle} - open {url}/{query} (webcam page), {url}/docs (API), "
                 f"{url}/metrics; Ctrl-C stops")
-    app = create_app(ServeConfig(bundle=bundle, env=env, mode=mode, max_clients=max_clients, focal=focal,
+    app = create_app(ServeConfig(bundle=bundle, env=env, mode=mode, region=region, max_clients=max_clients, focal=focal,
                                  announce=announce, host=host, token=token, allowed_origins=tuple(allowed_origins)))
     uvicorn.run(app, host=host, port=port, log_level=os.environ.get("RELIGHT_LOG_LEVEL", "info"),
                 ws_max_size=MAX_BODY + 1024)

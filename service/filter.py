@@ -29,7 +29,7 @@ from relight.errors import InputError, OutputError, os_reason
 from relight.imageio import atomic_path, clean_stale_temps, dir_mode, temp_prefix
 from relight.numerics import EPS_NORM
 
-from ..engine.composite import DEFAULT_MODE
+from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION
 
 #: Image files read as a sequence when IN is a folder.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", ".bmp")
@@ -171,6 +171,7 @@ class _Writer:
 
 def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bool = False, strength: float = 1.0,
                exposure: float = 0.0, focal: float | None = None, fps: float = 30.0, crf: int = 18,
+               region: str = DEFAULT_REGION,
                report_dir=None, virtual_camera: bool = False, progress: bool = True, frame_path=None,
                start_time: float | None = None) -> FilterResult:
     """Relight the faces of ``inp`` (a video file or a folder of images) into ``out``."""
@@ -183,7 +184,7 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
     if inp.resolve() == out.resolve():
         raise InputError(f"{out}: the output would overwrite the input; choose another name")
     fp = frame_path or FramePath(bundle, env, mode=mode, strength=strength, fixed_env=fixed_env, focal=focal,
-                                 exposure=exposure)
+                                 exposure=exposure, region=region)
     res = FilterResult(out=out)
     res.start_s = time.perf_counter() - t_start
     stages: dict[str, list] = {k: [] for k in ("track", "pose", "relight", "light", "warp", "composite", "total")}

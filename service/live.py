@@ -38,7 +38,7 @@ import numpy as np
 
 from relight.errors import InputError
 
-from ..engine.composite import DEFAULT_MODE, MODES
+from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES
 from .virtual_camera import VirtualCamera, check_virtual_camera_backend
 
 #: Strength steps SIGUSR2 cycles through, and a key's strength step.
@@ -470,8 +470,8 @@ def _light_text(light) -> str:
 
 def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[int, int] | None = None,
              fps: float | None = None, duration: float | None = None, mode: str = DEFAULT_MODE,
-             strength: float = 1.0, focal=None, virtual_camera: bool = False, preview: bool = False,
-             preview_port: int = 0, record: str | os.PathLike | None = None, crf: int = 18,
+             region: str = DEFAULT_REGION, strength: float = 1.0, focal=None, virtual_camera: bool = False,
+             preview: bool = False, preview_port: int = 0, record: str | os.PathLike | None = None, crf: int = 18,
              status=None, on_ready=None) -> LiveResult:
     """Relight a live camera (or a looped file) until ``duration`` seconds pass, ``q``, or a stop
     signal. ``bundle``: a loaded :class:`relight.kernels.bundle.Bundle`; ``envs``: environments
@@ -501,7 +501,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     reader = CameraReader(camera, size=size, fps=fps)
     res = LiveResult(camera=reader.name)
     out_fps = float(fps or reader.rate or 30.0)
-    fp = FramePath(bundle, env_array(0), mode=mode, strength=strength, focal=focal)
+    fp = FramePath(bundle, env_array(0), mode=mode, strength=strength, focal=focal, region=region)
     relit_slot = LatestFrame()
     status = status if status is not None else StatusLine()
     restore_keys = _key_reader(controls)

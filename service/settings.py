@@ -8,7 +8,7 @@ from pathlib import Path
 
 from starlette.requests import HTTPConnection
 
-from ..engine.composite import DEFAULT_MODE
+from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION
 from .codec import MAX_BODY, MAX_PIXELS
 
 #: The environments a request may name (``builtin:NAME``).
@@ -22,6 +22,8 @@ class ServeConfig:
     bundle: Path
     env: str = "builtin:studio"
     mode: str = DEFAULT_MODE
+    #: What mode transfer relights: the whole person or the face alone (engine.composite.REGIONS).
+    region: str = DEFAULT_REGION
     max_clients: int = 4
     max_body: int = MAX_BODY
     max_pixels: int = MAX_PIXELS

@@ -67,7 +67,8 @@ class Engine:
         # The environment array the frame path was last given (the engine's cached arrays are
         # never edited in place, so identity says whether it changed; FramePath copies it).
         env = self.environment(config.env)
-        self.shared = Session(FramePath(self.bundle, env, mode=config.mode, focal=config.focal), env)
+        self.shared = Session(FramePath(self.bundle, env, mode=config.mode, focal=config.focal,
+                                                region=config.region), env)
         self.path = self.shared.path
         self._lock = asyncio.Lock()
 
@@ -113,7 +114,7 @@ class Engine:
 
         env = self.environment(self.env_name)
         return Session(FramePath(self.bundle, env, mode=self.config.mode, focal=self.config.focal,
-                                 relighter=self.path.relighter), env)
+                                 region=self.config.region, relighter=self.path.relighter), env)
 
     def set_uploaded(self, name: str, env: np.ndarray) -> None:
         """An uploaded (validated) environment becomes the current one under ``name``."""

@@ -320,7 +320,7 @@ def test_frames_are_relit_on_the_face_and_untouched_elsewhere(frame_path, small_
 
 
 def test_the_whole_person_relit_stays_on_the_person(small_bundle, small_capture, clip):
-    """whole_head=True: the light's change reaches past the face (neck, hair) and stays on the
+    """region="person": the light's change reaches past the face (neck, hair) and stays on the
     person - the studio's head and neck at the reference pose, grown by the capture's motion -
     even where the segmentation model sees shoulders on the wall (this clip's cartoon head has
     none)."""
@@ -332,7 +332,7 @@ def test_the_whole_person_relit_stays_on_the_person(small_bundle, small_capture,
     person = read_image(res.truth / "mask.png")[..., 0] > 0.5
     grown = cv2.dilate(person.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
     env = load_environment("builtin:sunset")
-    whole, face_only = FramePath(small_bundle, env, whole_head=True), FramePath(small_bundle, env)
+    whole, face_only = FramePath(small_bundle, env, region="person"), FramePath(small_bundle, env)
     more = []
     for i, f in enumerate(frames[:20]):
         out, info = whole.process(f, i / 30)
