@@ -41,8 +41,13 @@ LAYER_MODE = {"transfer": "live", "ambient": "ambient", "paste": "paste"}
 #: shoulders by the face's change of light carried over them: :mod:`.head_light`) or the face alone
 #: (the bundle's face mask; the rest of the frame as it came).
 REGIONS = ("person", "face")
-#: The region every entry point starts with.
-DEFAULT_REGION = "face"
+#: The region every entry point starts with: the person - measured against the live frame's truth
+#: under sunset it gains 6.8 / 4.9 dB over the person and 5.7 / 3.9 dB over the face (procedural /
+#: scanned head) with the background untouched, and 0.1-1.3 dB on each of the ten real Yale faces
+#: (the face's turned-away and feathered edge gets the face's change of light instead of the
+#: room's); it costs ~20-35 ms a frame (the segmentation, its colour check and the ratio every
+#: PERSON_EVERY frames, the gain every frame).
+DEFAULT_REGION = "person"
 #: Mode transfer: a live pixel passes its own detail into the output only where it differs from
 #: what the fitted live light predicts by more than this many times the fit's scatter (relative,
 #: soft-thresholded): eyes, mouth, expression pass; the model's error and the camera's noise

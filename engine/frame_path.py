@@ -75,6 +75,9 @@ WARP_GRID_SHARE = 1.0 / 16.0
 #: Mode transfer: light fits whose exposure gains (their running median) set the exposure, then
 #: held (FramePath._locked_exposure): half a second of fits at LIGHT_EVERY.
 EXPOSURE_LOCK_FITS = 8
+#: Region person: the person's matte and the light's ratio over it are made every this many
+#: frames and reused between (the face's own alpha is every frame's).
+PERSON_EVERY = 2
 #: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
 ANGLE_MIN_CUTOFF = 1.5
 ANGLE_BETA = 0.2
@@ -554,6 +557,7 @@ class FramePath:
             raise InputError(f"region {region!r}: use one of {', '.join(composite.REGIONS)}")
         self.region = region
         self.person = None
+        self._person_last, self._person_age = None, 0  # (work size, matte, ratio), frames reused
         maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
             np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
@@ -615,6 +619,7 @@ class FramePath:
         self._since_light = 0
         self._next_reference = None
         self._exposure_lock, self._exposure_fits = None, []
+        self._person_last = None
         for est in self._estimators.values():
             est.last = None
 
@@ -873,28 +878,37 @@ class FramePath:
         sc = min(1.0, WORK_ROWS / h)
         work = (max(1, round(w * sc)), max(1, round(h * sc)))
         alpha, face_normals, cover = self._face_alpha_work(box, coarse, rotation, (w, h), work)
+        # The matte and the ratio (smooth, slow to change) made every PERSON_EVERY frames and
+        # reused between; the face's alpha, which the composite just used, is this frame's.
+        last = self._person_last
+        if last is not None and last[0] == work and self._person_age + 1 < PERSON_EVERY:
+            self._person_age += 1
+            return head_light.relight_person(rgb, composite_rgb, alpha, last[1], last[2],
+                                             apply=self.compositor.apply_gain)
         face_px = float(np.sqrt(max(float((alpha > 0.5).sum()), 1.0)))
-        small = cv2.resize(rgb, work, interpolation=cv2.INTER_AREA)
-        matte = head_light.colour_check(small, self.person(rgb, work=True), alpha, face_px)
+        # One copy of the frame at the work scale serves the matte, its colour check and the ratio.
+        small = downscale_area(rgb, work)
+        matte = head_light.colour_check(small, self.person(small), alpha, face_px)
         matte = head_light.attached_to_face(matte, alpha)
         lut = decode_lut8()
         f_lin = lut[small]
-        c_lin = lut[cv2.resize(composite_rgb, work, interpolation=cv2.INTER_AREA)]
+        c_lin = lut[downscale_area(composite_rgb, work)]
         r = np.asarray(rotation, dtype=np.float64)
         if self._env_texels is None:  # the environment's 64x32 texels: directions and power
             from relight.directions import equirect_directions, equirect_solid_angles
 
-            small = cv2.resize(np.asarray(self.env, dtype=np.float32), (64, 32), interpolation=cv2.INTER_AREA)
+            texels = cv2.resize(np.asarray(self.env, dtype=np.float32), (64, 32), interpolation=cv2.INTER_AREA)
             omega = np.repeat(equirect_solid_angles(64, 32), 64)[:, None]
             self._env_texels = (equirect_directions(64, 32).reshape(-1, 3).astype(np.float64),
-                                (small.reshape(-1, 3) * omega).astype(np.float64))
+                                (texels.reshape(-1, 3) * omega).astype(np.float64))
         env_dirs, env_power = self._env_texels
         target_sh = lights_sh9(env_dirs @ r.T if self.fixed_env else env_dirs, env_power)
         live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T,
                              self.light_estimator.texel_light())
         rho = head_light.ratio_field(f_lin, c_lin, alpha, matte, target_sh, live_sh, face_px,
                                      face_normals=face_normals, face_cover=cover)
-        return head_light.relight_person(rgb, composite_rgb, alpha, matte, rho)
+        self._person_last, self._person_age = (work, matte, rho), 0
+        return head_light.relight_person(rgb, composite_rgb, alpha, matte, rho, apply=self.compositor.apply_gain)
 
     def _locked_exposure(self, gain: float) -> float:
         """Mode transfer's exposure: the target brought to the live face's exposure over the first

@@ -205,3 +205,35 @@ __kernel void warp_composite(
     frame[o + 1] = encode(encode_lut, lut_n, res.y);
     frame[o + 2] = encode(encode_lut, lut_n, res.z);
 }
+
+/* The rest of the person relit (relight.engine.head_light): out = c + f G in linear light over a
+ * box of the frame, with c the face-composited frame (modified in place), f the frame as it came
+ * and G (gh, gw, 3) the light's change at a coarser scale, sampled bilinearly at the pixel's
+ * centre (sx, sy: the gain grid's size over the frame's; edges replicated). */
+__kernel void apply_gain(
+    __global const uchar *frame, __global uchar *comp, int bw, int bh,   /* (bh, bw, 3) boxes */
+    int bx0, int by0, __global const float *gain, int gw, int gh, float sx, float sy,
+    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n)
+{
+    int x = get_global_id(0), y = get_global_id(1);
+    if (x >= bw || y >= bh)
+        return;
+    float gx = ((float)(bx0 + x) + 0.5f) * sx - 0.5f;
+    float gy = ((float)(by0 + y) + 0.5f) * sy - 0.5f;
+    int x0 = ifloor(gx), y0 = ifloor(gy);
+    float ax = gx - (float)x0, ay = gy - (float)y0;
+    int xa = x0 < 0 ? 0 : (x0 > gw - 1 ? gw - 1 : x0), xb = x0 + 1 < 0 ? 0 : (x0 + 1 > gw - 1 ? gw - 1 : x0 + 1);
+    int ya = y0 < 0 ? 0 : (y0 > gh - 1 ? gh - 1 : y0), yb = y0 + 1 < 0 ? 0 : (y0 + 1 > gh - 1 ? gh - 1 : y0 + 1);
+    float3 g00 = vload3(ya * gw + xa, gain), g10 = vload3(ya * gw + xb, gain);
+    float3 g01 = vload3(yb * gw + xa, gain), g11 = vload3(yb * gw + xb, gain);
+    float3 g = (g00 * (1.0f - ax) + g10 * ax) * (1.0f - ay) + (g01 * (1.0f - ax) + g11 * ax) * ay;
+    if (g.x == 0.0f && g.y == 0.0f && g.z == 0.0f)
+        return;
+    size_t o = 3 * ((size_t)y * bw + x);
+    float3 f = (float3)(decode_lut[frame[o]], decode_lut[frame[o + 1]], decode_lut[frame[o + 2]]);
+    float3 c = (float3)(decode_lut[comp[o]], decode_lut[comp[o + 1]], decode_lut[comp[o + 2]]);
+    float3 res = c + f * g;
+    comp[o] = encode(encode_lut, lut_n, res.x);
+    comp[o + 1] = encode(encode_lut, lut_n, res.y);
+    comp[o + 2] = encode(encode_lut, lut_n, res.z);
+}

@@ -159,6 +159,33 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
     return out
 
 
+def apply_gain_numpy(frame: np.ndarray, composite: np.ndarray, box, gain: np.ndarray) -> np.ndarray:
+    """NumPy twin of ``apply_gain``: ``composite`` (a new array) with ``c + f G`` in linear light
+    over ``box`` (x0, y0, x1, y1), ``f`` the frame, ``G`` the (gh, gw, 3) gain sampled bilinearly at
+    each pixel's centre on a grid covering the frame (edges replicated)."""
+    h, w = frame.shape[:2]
+    gh, gw = gain.shape[:2]
+    x0, y0, x1, y1 = box
+    out = np.array(composite)
+    gx = ((np.arange(x0, x1) + 0.5) * np.float32(gw / w) - 0.5).astype(np.float32)
+    gy = ((np.arange(y0, y1) + 0.5) * np.float32(gh / h) - 0.5).astype(np.float32)
+    ix, iy = np.floor(gx).astype(np.int64), np.floor(gy).astype(np.int64)
+    ax, ay = (gx - ix)[None, :, None], (gy - iy)[:, None, None]
+    xa, xb = np.clip(ix, 0, gw - 1), np.clip(ix + 1, 0, gw - 1)
+    ya, yb = np.clip(iy, 0, gh - 1), np.clip(iy + 1, 0, gh - 1)
+    g = ((gain[ya][:, xa] * (1 - ax) + gain[ya][:, xb] * ax) * (1 - ay)
+         + (gain[yb][:, xa] * (1 - ax) + gain[yb][:, xb] * ax) * ay).astype(np.float32)
+    lut8 = decode_lut8().astype(np.float32)
+    f = lut8[frame[y0:y1, x0:x1]]
+    c = lut8[composite[y0:y1, x0:x1]]
+    lut, n = encode_lut()
+    idx = np.clip((c + f * g) * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
+    changed = np.any(g != 0, axis=2)
+    region = out[y0:y1, x0:x1]
+    region[changed] = lut[idx][changed]
+    return out
+
+
 class Compositor:
     """The ``warp_composite`` kernel bound to one reference crop and the Relighter's frame."""
 
@@ -174,6 +201,8 @@ class Compositor:
         # assist); alpha below ALPHA_FLOOR counts as zero.
         prg = build_program("composite", ("-cl-denorms-are-zero",))
         self._kernel = cl.Kernel(prg, "warp_composite")
+        self._k_gain = cl.Kernel(prg, "apply_gain")
+        self._gain_bufs = None  # (capacity bytes, frame box, composite box, gain) buffers of apply_gain
         self._k_layer = cl.Kernel(prg, "build_layer")
         self.alpha = np.ascontiguousarray(alpha, dtype=np.float32)
         self.alpha = np.where(self.alpha >= ALPHA_FLOOR, self.alpha, 0.0).astype(np.float32)
@@ -261,4 +290,41 @@ class Compositor:
             cl.enqueue_copy(q, out[lo:hi], buf, src_offset=lo * row, is_blocking=True)
         else:
             q.finish()
+        return out
+
+    def apply_gain(self, frame: np.ndarray, composite: np.ndarray, box, gain: np.ndarray) -> np.ndarray:
+        """``composite`` (a new array) with ``c + f G`` in linear light over ``box`` (x0, y0, x1, y1):
+        the light's change beyond the face (:func:`apply_gain_numpy`, its twin). ``frame``: the
+        frame as it came and ``composite`` the face-composited one, (H, W, 3) uint8 sRGB; ``gain``
+        (gh, gw, 3) float32 on a grid covering the frame."""
+        import pyopencl as cl
+
+        x0, y0, x1, y1 = (int(v) for v in box)
+        bw, bh = x1 - x0, y1 - y0
+        out = np.array(composite)
+        if bw <= 0 or bh <= 0:
+            return out
+        gain = np.ascontiguousarray(gain, dtype=np.float32)
+        if not np.isfinite(gain).all():
+            raise InputError("apply_gain: the gain map must be finite")
+        q = self.rt.queue
+        f_box = np.ascontiguousarray(frame[y0:y1, x0:x1])
+        c_box = np.ascontiguousarray(composite[y0:y1, x0:x1])
+        need = max(f_box.nbytes, gain.nbytes)
+        if self._gain_bufs is None or self._gain_bufs[0] < need:
+            cap = max(need, 2 * (self._gain_bufs[0] if self._gain_bufs else 0))
+            ctx, mf = self.rt.context, cl.mem_flags
+            self._gain_bufs = (cap, cl.Buffer(ctx, mf.READ_ONLY, cap), cl.Buffer(ctx, mf.READ_WRITE, cap),
+                               cl.Buffer(ctx, mf.READ_ONLY, cap))
+        _, fb, cb, gb = self._gain_bufs
+        cl.enqueue_copy(q, fb, f_box, is_blocking=False)
+        cl.enqueue_copy(q, cb, c_box, is_blocking=False)
+        cl.enqueue_copy(q, gb, gain, is_blocking=False)
+        h, w = frame.shape[:2]
+        gh, gw = gain.shape[:2]
+        self._k_gain(q, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), fb, cb, np.int32(bw), np.int32(bh),
+                     np.int32(x0), np.int32(y0), gb, np.int32(gw), np.int32(gh), np.float32(gw / w),
+                     np.float32(gh / h), self._dec, self._enc, np.int32(self.lut_n))
+        cl.enqueue_copy(q, c_box, cb, is_blocking=True)
+        out[y0:y1, x0:x1] = c_box
         return out

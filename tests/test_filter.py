@@ -29,6 +29,7 @@ from .tolerances import (
     REFIND_MEDIAN_PX,
     REFIND_START_PX,
     RELIT_SHARE,
+    SMOOTH_BLUR_SHARE,
     STILL_HEAD_DEG,
     STILL_HEAD_RESIZED_DEG,
     TIMESTAMP_S,
@@ -332,7 +333,7 @@ def test_the_whole_person_relit_stays_on_the_person(small_bundle, small_capture,
     person = read_image(res.truth / "mask.png")[..., 0] > 0.5
     grown = cv2.dilate(person.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
     env = load_environment("builtin:sunset")
-    whole, face_only = FramePath(small_bundle, env, region="person"), FramePath(small_bundle, env)
+    whole, face_only = FramePath(small_bundle, env, region="person"), FramePath(small_bundle, env, region="face")
     more = []
     for i, f in enumerate(frames[:20]):
         out, info = whole.process(f, i / 30)
@@ -549,6 +550,76 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
     # differing pixels: a rounding-level share (1 %) (definitional bound, not a tolerance)
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
+
+
+def test_apply_gain_kernel_matches_its_numpy_twin(frame_path):
+    """The person's gain (``c + f G`` over a box, G bilinear from a coarser grid, edges
+    replicated) on the device and in NumPy: the same bytes but for rounding; unchanged where G is
+    zero and outside the box."""
+    from relight.kernels.compositor import apply_gain_numpy
+
+    rng = np.random.default_rng(7)
+    frame = rng.integers(0, 256, (90, 160, 3), dtype=np.uint8)
+    comp = frame.copy()
+    comp[30:60, 50:100] = rng.integers(0, 256, (30, 50, 3), dtype=np.uint8)  # "the face"
+    gain = ((rng.random((27, 48, 3)) - 0.5) * 3).astype(np.float32)
+    gain[:, :10] = 0.0  # no change on the left
+    box = (3, 5, 150, 88)
+    got = frame_path.compositor.apply_gain(frame, comp, box, gain)
+    want = apply_gain_numpy(frame, comp, box, gain)
+    diff = np.abs(got.astype(int) - want.astype(int))
+    assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
+    assert (got[:5] == comp[:5]).all() and (got[:, 150:] == comp[:, 150:]).all()
+    assert (got[:, 3:25] == comp[:, 3:25]).all()  # G zero there and a grid pixel beyond (bilinear reach)
+    # it did something, and the right thing at one pixel: c + f G in linear light
+    from relight.colour import decode_srgb8, encode_srgb8
+
+    assert (np.abs(got.astype(int) - comp.astype(int)).sum(axis=2) > 3).mean() > 0.5
+    gain[10:20, 35:45] = (0.5, -0.3, 1.0)  # a constant patch: its inner pixels take it exactly
+    got = frame_path.compositor.apply_gain(frame, comp, box, gain)
+    y, x = 51, 135  # grid (15.1, 40.0)
+    want_px = encode_srgb8(np.clip(decode_srgb8(comp[y, x]) + decode_srgb8(frame[y, x]) * gain[15, 40], 0, 1))
+    assert np.abs(got[y, x].astype(int) - want_px.astype(int)).max() <= COMPOSITE_TWIN_CODES
+
+
+def test_the_person_region_leaves_the_face_composite_as_it_is():
+    """Region person adds the ratio only beyond the face's alpha: where the face is composited in
+    full (alpha 1) the output is the compositor's, even where the segmentation misses the face (a
+    side-lit face's dark half) - scaling the composite by the matte there lost 0.3-1.5 dB on every
+    real face."""
+    from relight.engine.head_light import relight_person
+
+    rng = np.random.default_rng(3)
+    frame = rng.integers(20, 200, (60, 80, 3), dtype=np.uint8)
+    comp = frame.copy()
+    comp[10:50, 20:60] = np.clip(frame[10:50, 20:60].astype(int) + 40, 0, 255).astype(np.uint8)
+    alpha = np.zeros((60, 80), np.float32)
+    alpha[10:50, 20:60] = 1.0
+    matte = np.zeros((60, 80), np.float32)
+    matte[:, 20:] = 1.0
+    matte[10:50, 20:40] = 0.0  # the model missed the face's left half
+    rho = np.full((60, 80, 3), 1.5, np.float32)
+    out = relight_person(frame, comp, alpha, matte, rho)
+    assert (out[10:50, 20:60] == comp[10:50, 20:60]).all()
+    assert (out[:, :18] == frame[:, :18]).all()  # off the person: untouched
+    assert (out[55:, 30:].astype(int) > frame[55:, 30:].astype(int)).all()  # the person beyond: brighter
+
+
+def test_gaussian_smooth_follows_a_direct_gaussian():
+    """The wide blurs of the person's maps, taken on halved grids: within a few percent of the
+    peak of a direct Gaussian blur, and the same shape as the input."""
+    from relight.engine.head_light import gaussian_smooth
+
+    img = np.zeros((270, 480), np.float32)
+    img[100:180, 200:260] = 1.0
+    img[20:40, 30:400] = 0.5
+    for sigma in (2.0, 8.0, 20.0, 54.0):
+        want = cv2.GaussianBlur(img, (0, 0), sigma)
+        got = gaussian_smooth(img, sigma)
+        assert got.shape == img.shape
+        assert np.abs(got - want).max() <= SMOOTH_BLUR_SHARE * want.max()
+    three = np.dstack([img, 2 * img, 3 * img])
+    assert gaussian_smooth(three, 20.0).shape == three.shape
 
 
 def _texel_point(relighter, direction):
