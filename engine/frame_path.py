@@ -558,6 +558,7 @@ class FramePath:
         self.region = region
         self.person = None
         self._person_last, self._person_age = None, 0  # (work size, matte, ratio), frames reused
+        self._person_still = False
         maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
             np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
@@ -822,6 +823,7 @@ class FramePath:
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         if self.whole_head and layer_mode == "live" and self.strength > 0:
             t6 = time.perf_counter()
+            self._person_still = info.reused  # a still head: the person's maps kept too
             out = self._relight_person(rgb, out, box, coarse, rotation)
             tm["person"] = (time.perf_counter() - t6) * 1e3
         tm["total"] = (time.perf_counter() - t0) * 1e3
@@ -881,7 +883,8 @@ class FramePath:
         # The matte and the ratio (smooth, slow to change) made every PERSON_EVERY frames and
         # reused between; the face's alpha, which the composite just used, is this frame's.
         last = self._person_last
-        if last is not None and last[0] == work and self._person_age + 1 < PERSON_EVERY:
+        still = self._relit_key is not None and self._person_still  # the head has not turned since
+        if last is not None and last[0] == work and (still or self._person_age + 1 < PERSON_EVERY):
             self._person_age += 1
             return head_light.relight_person(rgb, composite_rgb, alpha, last[1], last[2],
                                              apply=self.compositor.apply_gain)

@@ -8,6 +8,7 @@ samples. Every stage is timed; what was dropped and why is counted.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -649,6 +650,12 @@ def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = F
     timings = StageTimings()
     bar = Progress(progress)
     t_all = time.perf_counter()
+    # BLAS with as many threads as the machine has, whatever the process set before (a frame
+    # path limits it to one): its sums' order follows the thread count, and the same input must
+    # give the same bundle bytes.
+    from threadpoolctl import threadpool_limits
+
+    blas = threadpool_limits(limits=os.cpu_count() or 1, user_api="blas")
     try:
         prep = prepare_images(source, opts, bar, timings) if images else prepare_video(source, opts, bar, timings)
         n_pix = int(prep.mask.sum()) if prep.mask is not None else int(np.prod(prep.images.shape[1:3]))
@@ -663,6 +670,7 @@ def capture(source, out, opts: CaptureOptions | None = None, *, images: bool = F
         timings["write"] = time.perf_counter() - t0
     finally:
         bar.close()
+        blas.restore_original_limits()
     timings["total"] = time.perf_counter() - t_all
     report = {k: v for k, v in prep.report.items()}
     report["timings"] = {k: round(v, 3) for k, v in timings.items()}

@@ -106,7 +106,9 @@ def test_astronaut_clips_track_and_composite(astronaut_bundle, kind, mode, tmp_p
     from relight.imageio import write_image
 
     bundle, photo = astronaut_bundle
-    fp = FramePath(bundle, load_environment("builtin:window"), mode=mode)
+    # region face: this checks where the face's composite lands (the person's hair and shoulders
+    # would change too in region person)
+    fp = FramePath(bundle, load_environment("builtin:window"), mode=mode, region="face")
     face = cv2.dilate(np.asarray(bundle.mask, np.uint8), np.ones((31, 31), np.uint8))
     found = 0
     sheet = []

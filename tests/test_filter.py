@@ -66,7 +66,8 @@ def clip(small_capture, tmp_path_factory):
 def frame_path(small_bundle):
     from relight.engine.frame_path import FramePath
 
-    return FramePath(small_bundle, load_environment("builtin:sunset"))
+    # the face's composite (the tests of the whole person make their own paths)
+    return FramePath(small_bundle, load_environment("builtin:sunset"), region="face")
 
 
 def test_one_euro_filter_is_still_at_rest_and_follows_motion():
@@ -289,7 +290,8 @@ def test_a_frame_kept_in_its_planes_is_converted_only_where_it_is_relit(clip, sm
     assert np.abs(back.astype(int) - (200, 90, 40)).max() <= YUV_ROUNDTRIP_CODES
     assert np.array_equal(yf[0].to_av().to_ndarray(format="yuv420p")[:h], yf[0].y)
     # relit through the planes and through RGB: the same frames; off the face, the decoder's planes
-    fp = FramePath(small_bundle, load_environment("builtin:sunset"))
+    # (region face: the person's matte reads the whole frame, which is then converted)
+    fp = FramePath(small_bundle, load_environment("builtin:sunset"), region="face")
     a = [fp.process(f, i / 30) for i, f in enumerate(rgb)]
     fp.reset()
     b = [fp.process(f, i / 30) for i, f in enumerate(yf)]

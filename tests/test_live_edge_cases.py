@@ -11,7 +11,15 @@ import pytest
 from relight import load_environment
 from relight.video import read_frames
 
-from .tolerances import EDGE_CHANGED_CODES, EDGE_HEAD_MARGIN_PX, EDGE_MIN_FOUND, EDGE_MIN_FOUND_OCCLUDED
+from .tolerances import (
+    EDGE_CHANGED_CODES,
+    EDGE_HEAD_MARGIN_PX,
+    EDGE_MIN_FOUND,
+    EDGE_MIN_FOUND_OCCLUDED,
+    EDGE_STILL_CODES,
+    OFF_PERSON_CODES,
+    OFF_PERSON_MEAN_CODES,
+)
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +53,11 @@ def _run(path, frames, head=None):
         assert out.shape == f.shape and out.dtype == np.uint8
         assert info.face or info.note, "a frame without a face says why"
         if head is not None:
-            changed = np.abs(out.astype(np.int16) - f.astype(np.int16)).max(axis=2) > EDGE_CHANGED_CODES
-            assert not (changed & ~head).any(), f"frame {i}: {int((changed & ~head).sum())} pixels changed off the head"
+            # off the person: issue 32's goals - a stray pixel of the person's matte at most (the
+            # mean change and its 99.9th percentile, 8-bit codes), never a smear
+            off = np.abs(out.astype(np.int16) - f.astype(np.int16)).max(axis=2)[~head]
+            assert off.mean() <= OFF_PERSON_MEAN_CODES and np.percentile(off, 99.9) <= OFF_PERSON_CODES, \
+                f"frame {i}: {int((off > EDGE_CHANGED_CODES).sum())} pixels changed off the head"
         outs.append(out)
         infos.append(info)
     return outs, infos
@@ -83,16 +94,18 @@ def test_a_hand_over_the_face_and_glasses(path, frames, head, kind, small_bundle
     x1, y1 = lm.max(axis=0)
     cx = (x0 + x1) / 2
     seq = []
+    hand = np.zeros(frames[0].shape[:2], np.uint8)
+    cv2.ellipse(hand, (int(cx), int(y1)), (int((x1 - x0) * 0.45), int((y1 - y0) * 0.25)), 0, 0, 360, 1, -1)
     for i, f in enumerate(frames[:30]):
         f = f.copy()
         if kind == "hand" and 8 <= i < 20:  # a skin-coloured hand over the mouth and chin (brighter than
             # the face: it used to change the tracking copy's brightening and lose every point at once)
-            cv2.ellipse(f, (int(cx), int(y1)), (int((x1 - x0) * 0.45), int((y1 - y0) * 0.25)), 0, 0, 360,
-                        (205, 150, 120), -1)
+            f[hand > 0] = (205, 150, 120)
         if kind == "glasses":  # dark rims over the eyes
             f = _rims(f, small_bundle)[0]
         seq.append(f)
-    outs, infos = _run(path, seq, head)
+    # the hand is the person's too: it may take the new light (region person)
+    outs, infos = _run(path, seq, head | (cv2.dilate(hand, np.ones((5, 5), np.uint8)) > 0) if kind == "hand" else head)
     found = [i.face for i in infos]
     if kind == "hand":  # found at once and held through the hand
         assert all(found)
@@ -159,7 +172,7 @@ def test_a_still_head_is_not_relit_again(path, frames, head):
     # once the pose filter has settled (the first re-anchoring moves the points once), the head
     # does not turn: the relight is kept, and the output holds still
     assert all(i.reused for i in infos[8:])
-    assert max(np.abs(a.astype(int) - outs[-1]).max() for a in outs[-4:]) <= 1
+    assert max(np.abs(a.astype(int) - outs[-1]).max() for a in outs[-4:]) <= EDGE_STILL_CODES
 
 
 def test_a_very_fast_turn(path, frames, head):

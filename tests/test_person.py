@@ -79,6 +79,8 @@ def test_inflated_normals_face_the_camera_inside_and_turn_out_at_the_outline():
 
 
 def test_no_change_of_light_changes_nothing_and_nothing_off_the_person_changes():
+    from relight.colour import decode_lut8, encode_srgb8
+
     rng = np.random.default_rng(0)
     h, w = 90, 160
     frame = rng.integers(20, 230, (h, w, 3)).astype(np.uint8)
@@ -89,7 +91,7 @@ def test_no_change_of_light_changes_nothing_and_nothing_off_the_person_changes()
     sh = np.zeros((9, 3))
     sh[0] = 1.0
     sh[2] = 0.8  # a light from the front
-    lin = head_light.decode_lut8()[frame]
+    lin = decode_lut8()[frame]
     rho = head_light.ratio_field(lin, lin, alpha, matte, sh, sh, 25.0)
     assert np.allclose(rho, 1.0, atol=1e-4)
     out = head_light.relight_person(frame, frame, alpha, matte, rho)
@@ -97,7 +99,7 @@ def test_no_change_of_light_changes_nothing_and_nothing_off_the_person_changes()
     # a target twice as bright: the person brightens, the wall does not move
     brighter = head_light.ratio_field(lin, np.clip(lin * 2, 0, 1), alpha, matte, 2 * sh, sh, 25.0)
     comp = frame.copy()
-    comp[35:60, 65:95] = head_light.encode_srgb8(np.clip(lin[35:60, 65:95] * 2, 0, 1))
+    comp[35:60, 65:95] = encode_srgb8(np.clip(lin[35:60, 65:95] * 2, 0, 1))
     out = head_light.relight_person(frame, comp, alpha, matte, brighter)
     off = np.ones((h, w), bool)
     off[18:82, 48:112] = False

@@ -333,6 +333,10 @@ YUV_RELIT_MEAN_CODES = 1.0
 #: the clip, 12.5 played six times as fast); the share of frames with the face that must be found.
 EDGE_CHANGED_CODES = 2
 EDGE_HEAD_MARGIN_PX = 15
+#: A still head's output over its last frames: the largest change (8-bit codes). The live light's
+#: fit still moves the face's composite by a code; where the person's gain darkens the face's
+#: feathered edge, the sRGB curve is steeper and that code becomes two.
+EDGE_STILL_CODES = 2
 EDGE_MIN_FOUND = 0.9
 #: ... and with dark rims over the eyes the reference does not have (glasses): measured 0.87.
 EDGE_MIN_FOUND_OCCLUDED = 0.8
