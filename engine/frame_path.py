@@ -558,7 +558,6 @@ class FramePath:
         self.region = region
         self.person = None
         self._person_last, self._person_age = None, 0  # (work size, matte, ratio), frames reused
-        self._person_still = False
         maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
             np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
@@ -823,8 +822,7 @@ class FramePath:
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         if self.whole_head and layer_mode == "live" and self.strength > 0:
             t6 = time.perf_counter()
-            self._person_still = info.reused  # a still head: the person's maps kept too
-            out = self._relight_person(rgb, out, box, coarse, rotation)
+            out = self._relight_person(rgb, out, box, coarse, rotation, still=info.reused)
             tm["person"] = (time.perf_counter() - t6) * 1e3
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info
@@ -840,10 +838,11 @@ class FramePath:
         depth = model @ r[2] + float(pose.tvec[2, 0])
         return cur, depth
 
-    def _face_alpha_work(self, box, coarse: np.ndarray, rotation: np.ndarray, size, work):
+    def _face_alpha_work(self, box, coarse: np.ndarray, rotation: np.ndarray, size, work, geometry: bool):
         """At the work scale: the compositor's face alpha (feathered mask x facing x strength),
-        (h, w) float32; the bundle's normals turned with the head (camera frame, (h, w, 3)); and
-        where the bundle has them (its mask, bilinear: (h, w) in 0-1)."""
+        (h, w) float32; and with ``geometry`` (else None, None) the bundle's normals turned with the
+        head (camera frame, (h, w, 3)) and where the bundle has them (its mask, bilinear: (h, w) in
+        0-1)."""
         from relight.kernels.compositor import FACING
 
         w, h = size
@@ -858,16 +857,22 @@ class FramePath:
         alpha = cv2.remap(self.rig.alpha_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         normal = cv2.remap(self.rig.normal_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=(0, 0, 1))
-        turned = normal @ np.asarray(rotation, np.float32).T
+        rot = np.asarray(rotation, np.float32)
+        turned = cover = None
+        if geometry:
+            turned = normal @ rot.T
+            cover = cv2.remap(self.rig.mask_crop.astype(np.float32), px, py, cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        nz = turned[..., 2] if geometry else normal @ rot[2]
         lo, hi = FACING
-        facing = np.clip((turned[..., 2] - lo) / (hi - lo), 0.0, 1.0)
-        cover = cv2.remap(self.rig.mask_crop.astype(np.float32), px, py, cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        return (alpha * facing * self.strength).astype(np.float32), turned.astype(np.float32), cover
+        facing = np.clip((nz - lo) / (hi - lo), 0.0, 1.0)
+        return (alpha * facing * self.strength).astype(np.float32), turned, cover
 
-    def _relight_person(self, rgb: np.ndarray, composite_rgb: np.ndarray, box, coarse, rotation) -> np.ndarray:
+    def _relight_person(self, rgb: np.ndarray, composite_rgb: np.ndarray, box, coarse, rotation,
+                        still: bool) -> np.ndarray:
         """The light's change carried from the composited face over the rest of the person
-        (:mod:`.head_light`): hair, ears, neck, shoulders; nothing off the person changes."""
+        (:mod:`.head_light`): hair, ears, neck, shoulders; nothing off the person changes.
+        ``still``: the head has not turned since the last relight (its maps are kept)."""
         from relight.colour import decode_lut8
         from relight.spherical_harmonics import lights_sh9
 
@@ -879,12 +884,12 @@ class FramePath:
         h, w = rgb.shape[:2]
         sc = min(1.0, WORK_ROWS / h)
         work = (max(1, round(w * sc)), max(1, round(h * sc)))
-        alpha, face_normals, cover = self._face_alpha_work(box, coarse, rotation, (w, h), work)
         # The matte and the ratio (smooth, slow to change) made every PERSON_EVERY frames and
         # reused between; the face's alpha, which the composite just used, is this frame's.
         last = self._person_last
-        still = self._relit_key is not None and self._person_still  # the head has not turned since
-        if last is not None and last[0] == work and (still or self._person_age + 1 < PERSON_EVERY):
+        reuse = last is not None and last[0] == work and (still or self._person_age + 1 < PERSON_EVERY)
+        alpha, face_normals, cover = self._face_alpha_work(box, coarse, rotation, (w, h), work, not reuse)
+        if reuse:
             self._person_age += 1
             return head_light.relight_person(rgb, composite_rgb, alpha, last[1], last[2],
                                              apply=self.compositor.apply_gain)

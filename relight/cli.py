@@ -786,6 +786,12 @@ def _run_demo(args) -> int:
     return 0
 
 
+#: --region's help (relight filter, relight live, relight-serve).
+_REGION_HELP = ("what mode transfer relights: the whole person (the face from the bundle; hair, ears, neck and "
+                "shoulders by the face's change of light carried over them - nothing off the person changes) or "
+                "the face alone (the bundle's face mask)")
+
+
 def _strength(text: str) -> float:
     try:
         v = float(text)
@@ -830,9 +836,7 @@ def _add_filter(sub) -> None:
                         "light left the face dark); ambient: the ratio to the capture room's light (the live "
                         "room's light stays); paste: the relit reference face warped in (the paper)")
     p.add_argument("--region", choices=REGIONS, default=DEFAULT_REGION,
-                   help="what mode transfer relights: the whole person (the face from the bundle; hair, ears, neck "
-                        "and shoulders by the face's change of light carried over them - nothing off the person "
-                        "changes) or the face alone (the bundle's face mask)")
+                   help=_REGION_HELP)
     p.add_argument("--fixed-env", action="store_true",
                    help="do not turn the environment against the head's rotation (the light follows the face)")
     p.add_argument("--strength", type=_strength, default=1.0, help="blend with the original frame, 0 to 1")
@@ -913,9 +917,7 @@ def _add_live(sub) -> None:
                    help="transfer: the live light measured from the face and swapped for the target; ambient: the "
                         "ratio to the capture room's light; paste: the relit reference face (the paper)")
     p.add_argument("--region", choices=REGIONS, default=DEFAULT_REGION,
-                   help="what mode transfer relights: the whole person (the face from the bundle; hair, ears, neck "
-                        "and shoulders by the face's change of light carried over them - nothing off the person "
-                        "changes) or the face alone (the bundle's face mask)")
+                   help=_REGION_HELP)
     p.add_argument("--strength", type=_strength, default=1.0, help="blend with the camera's frame, 0 to 1")
     p.add_argument("--focal", type=_focal, default=None, metavar="PIXELS|ortho",
                    help="the camera's focal length in pixels, or 'ortho' (default: 0.85 x the frame's larger side)")
@@ -1012,9 +1014,7 @@ def _serve_arguments(p) -> None:
                    help="transfer: the live light measured from the face and swapped for the target; ambient: the "
                         "ratio to the capture room's light; paste: the relit reference face (the paper)")
     p.add_argument("--region", choices=REGIONS, default=ServeConfig.region,
-                   help="what mode transfer relights: the whole person (the face from the bundle; hair, ears, neck "
-                        "and shoulders by the face's change of light carried over them - nothing off the person "
-                        "changes) or the face alone (the bundle's face mask)")
+                   help=_REGION_HELP)
     p.add_argument("--max-clients", type=int, default=ServeConfig.max_clients, help="most stream clients at once")
     p.add_argument("--focal", type=_focal, default=None, metavar="PIXELS|ortho",
                    help="the frames' focal length in pixels, or 'ortho' (default: 0.85 x the frame's larger side)")
