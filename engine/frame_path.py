@@ -580,6 +580,7 @@ class FramePath:
         self.relighter.prefetch_rows(env)  # the exact texels' rows, ahead of the head's turns
         self._exposure_lock, self._exposure_fits = None, []
         self._env_texels = None  # its low frequencies, made when the person beyond the face needs them
+        self._person_last = None  # the person's ratio was the last environment's
 
     @property
     def whole_head(self) -> bool:

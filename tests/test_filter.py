@@ -554,6 +554,31 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
 
 
+def test_a_new_environment_remakes_the_persons_ratio(small_bundle, clip, monkeypatch):
+    """The person's maps are reused between frames (PERSON_EVERY), but never across a change of
+    environment: the frame after the switch is what a path remaking them every frame gives (the
+    old ratio left the person under the last environment's change of light for a frame)."""
+    from relight.engine import frame_path as fpm
+
+    _, frames = clip
+    env, new = load_environment("builtin:sunset"), load_environment("builtin:window")
+    outs = []
+    for every in (fpm.PERSON_EVERY, 1):
+        monkeypatch.setattr(fpm, "PERSON_EVERY", every)
+        fp = fpm.FramePath(small_bundle, env, region="person")
+        run = [fp.process(f, i / 30) for i, f in enumerate(frames[:7])]
+        assert all(info.face for _, info in run)
+        for k in (7, 8):  # the switch after a frame that made the maps, and after one that reused them
+            fp.set_environment(new)
+            run.append(fp.process(frames[k], k / 30))
+            fp.set_environment(env)
+        outs.append([o for o, _ in run])
+    reused, remade = outs
+    assert any(not np.array_equal(a, b) for a, b in zip(reused[:7], remade[:7], strict=True))  # it does reuse
+    for k in (7, 8):
+        assert np.array_equal(reused[k], remade[k])
+
+
 def test_apply_gain_kernel_matches_its_numpy_twin(frame_path):
     """The person's gain (``c + f G`` over a box, G bilinear from a coarser grid, edges
     replicated) on the device and in NumPy: the same bytes but for rounding; unchanged where G is
