@@ -557,7 +557,9 @@ class FramePath:
             raise InputError(f"region {region!r}: use one of {', '.join(composite.REGIONS)}")
         self.region = region
         self.person = None
-        self._person_last, self._person_age = None, 0  # (work size, matte, ratio), frames reused
+        # (work size, matte, ratio, the back() call that last used them), frames reused since made
+        self._person_last, self._person_age = None, 0
+        self._backs = 0  # back() calls: the person's maps serve only the call right after their last use
         maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
             np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
@@ -708,6 +710,7 @@ class FramePath:
     def back(self, front: Front, defer_reference: bool = False):
         """The second half of :meth:`process` (relight, warp, live light, composite) for the
         result of :meth:`front`."""
+        self._backs += 1
         if front.pose is None:
             return front.frame, front.info
         rgb, t, t0, info = front.frame, front.t, front.t0, front.info
@@ -888,10 +891,13 @@ class FramePath:
         # The matte and the ratio (smooth, slow to change) made every PERSON_EVERY frames and
         # reused between; the face's alpha, which the composite just used, is this frame's.
         last = self._person_last
-        reuse = last is not None and last[0] == work and (still or self._person_age + 1 < PERSON_EVERY)
+        # (not across a frame the person was left out of: no face, another mode, strength 0)
+        reuse = (last is not None and last[0] == work and last[3] == self._backs - 1
+                 and (still or self._person_age + 1 < PERSON_EVERY))
         alpha, face_normals, cover = self._face_alpha_work(box, coarse, rotation, (w, h), work, not reuse)
         if reuse:
             self._person_age += 1
+            self._person_last = (*last[:3], self._backs)
             return head_light.relight_person(rgb, composite_rgb, alpha, last[1], last[2],
                                              apply=self.compositor.apply_gain)
         face_px = float(np.sqrt(max(float((alpha > 0.5).sum()), 1.0)))
@@ -916,7 +922,7 @@ class FramePath:
                              self.light_estimator.texel_light())
         rho = head_light.ratio_field(f_lin, c_lin, alpha, matte, target_sh, live_sh, face_px,
                                      face_normals=face_normals, face_cover=cover)
-        self._person_last, self._person_age = (work, matte, rho), 0
+        self._person_last, self._person_age = (work, matte, rho, self._backs), 0
         return head_light.relight_person(rgb, composite_rgb, alpha, matte, rho, apply=self.compositor.apply_gain)
 
     def _locked_exposure(self, gain: float) -> float:

@@ -554,10 +554,11 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
 
 
-def test_a_new_environment_remakes_the_persons_ratio(small_bundle, clip, monkeypatch):
+def test_the_persons_maps_are_not_reused_across_a_new_environment_or_a_gap(small_bundle, clip, monkeypatch):
     """The person's maps are reused between frames (PERSON_EVERY), but never across a change of
-    environment: the frame after the switch is what a path remaking them every frame gives (the
-    old ratio left the person under the last environment's change of light for a frame)."""
+    environment or a frame without the face: the frame after either is what a path remaking them
+    every frame gives (the old ratio left the person under the last environment's change of light
+    for a frame; a matte from before the gap would sit where the person was)."""
     from relight.engine import frame_path as fpm
 
     _, frames = clip
@@ -572,10 +573,13 @@ def test_a_new_environment_remakes_the_persons_ratio(small_bundle, clip, monkeyp
             fp.set_environment(new)
             run.append(fp.process(frames[k], k / 30))
             fp.set_environment(env)
+        run.append(fp.process(frames[9], 9 / 30))  # made the maps
+        gap, _ = fp.process(np.full_like(frames[0], 90), 10 / 30)  # the room without the person
+        run.append(fp.process(frames[11], 11 / 30))  # would have reused them
         outs.append([o for o, _ in run])
     reused, remade = outs
     assert any(not np.array_equal(a, b) for a, b in zip(reused[:7], remade[:7], strict=True))  # it does reuse
-    for k in (7, 8):
+    for k in (7, 8, 10):
         assert np.array_equal(reused[k], remade[k])
 
 
