@@ -208,19 +208,24 @@ def _track_exposure(grey: np.ndarray) -> tuple[np.ndarray, float]:
     return cv2.convertScaleAbs(grey, alpha=gain), gain
 
 
-def limit_blas_threads() -> None:
-    """One thread for NumPy's BLAS in this process (the per-frame path's matrix products are
-    tiny): OpenBLAS's idle threads spin after each call and took the cores from the tracker and
-    the OpenCL kernels - measured at 640x360, 31 -> 12-15 ms of CPU per frame, 16 -> 9-13 ms
-    per frame. Called by :class:`FramePath`; set ``RELIGHT_BLAS_THREADS`` to keep more."""
+def limit_threads() -> None:
+    """One thread for NumPy's BLAS and for OpenCV in this process: the per-frame path's matrix
+    products and image operations are small, and the pools' idle threads spin after each call,
+    taking the cores from the tracker, the OpenCL kernels and the codec's threads. Measured:
+    BLAS at 640x360, 31 -> 12-15 ms of CPU per frame; OpenCV on the 720p clip (region person),
+    78.6 -> 61.6 ms of CPU per frame at the same wall time (52 -> 49 ms). Called by
+    :class:`FramePath`; set ``RELIGHT_BLAS_THREADS`` / ``RELIGHT_CV_THREADS`` to keep more (a
+    capture in the same process sets its own: :func:`relight.pipeline.capture.capture`)."""
     import os
 
-    n = int(os.environ.get("RELIGHT_BLAS_THREADS", "1") or 1)
+    blas = int(os.environ.get("RELIGHT_BLAS_THREADS", "1") or 1)
+    cv = int(os.environ.get("RELIGHT_CV_THREADS", "1") or 1)
+    cv2.setNumThreads(max(cv, 1))
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # pragma: no cover - a dependency; without it the path is only slower
         return
-    threadpool_limits(limits=max(n, 1), user_api="blas")
+    threadpool_limits(limits=max(blas, 1), user_api="blas")
 
 
 def _aligned_box(small_mask: np.ndarray, full_shape: tuple[int, int]):
@@ -523,7 +528,7 @@ class FramePath:
                  rigid_warp: bool = True):
         from relight.kernels.relighter import Relighter
 
-        limit_blas_threads()
+        limit_threads()
         self.bundle = bundle
         self.relighter = relighter if relighter is not None else Relighter(bundle, tolerance=tolerance)
         # The relit reference frame, filled in place by the relight of each frame (its out=).
@@ -817,17 +822,16 @@ class FramePath:
         tm["warp"] = (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
         t4 = time.perf_counter()
         live_buf = self.relighter.slot("live")[1] if layer_mode == "live" else None
-        out = self.compositor.run(rgb, box, coarse, GRID_STEP, relit=self.relighter.buffer(self.relit_frame),
-                                  live=live_buf, mode=layer_mode, gain=gain * self.exposure,
-                                  strength=self.strength, eps=eps, ratio_max=composite.RATIO_MAX, rotation=rotation,
-                                  live_median=live_median, tau=tau)
+        self.compositor.layer(relit=self.relighter.buffer(self.relit_frame), live=live_buf, mode=layer_mode,
+                              gain=gain * self.exposure, strength=self.strength, eps=eps,
+                              ratio_max=composite.RATIO_MAX, rotation=rotation, live_median=live_median)
+        if self.whole_head and layer_mode == "live" and self.strength > 0:
+            out = self._relight_person(rgb, box, coarse, rotation, tau, still=info.reused, tm=tm)
+        else:
+            out = self.compositor.composite(rgb, box, coarse, GRID_STEP, mode=layer_mode, tau=tau)
         if frame is not rgb:
             out = frame.with_rgb_box(ebox, rgb, out)
-        tm["composite"] = (time.perf_counter() - t4) * 1e3
-        if self.whole_head and layer_mode == "live" and self.strength > 0:
-            t6 = time.perf_counter()
-            out = self._relight_person(rgb, out, box, coarse, rotation, still=info.reused)
-            tm["person"] = (time.perf_counter() - t6) * 1e3
+        tm["composite"] = (time.perf_counter() - t4) * 1e3 - tm.get("person", 0.0)
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info
 
@@ -842,11 +846,10 @@ class FramePath:
         depth = model @ r[2] + float(pose.tvec[2, 0])
         return cur, depth
 
-    def _face_alpha_work(self, box, coarse: np.ndarray, rotation: np.ndarray, size, work, geometry: bool):
+    def _face_alpha_work(self, box, coarse: np.ndarray, rotation: np.ndarray, size, work):
         """At the work scale: the compositor's face alpha (feathered mask x facing x strength),
-        (h, w) float32; and with ``geometry`` (else None, None) the bundle's normals turned with the
-        head (camera frame, (h, w, 3)) and where the bundle has them (its mask, bilinear: (h, w) in
-        0-1)."""
+        (h, w) float32; the bundle's normals turned with the head (camera frame, (h, w, 3)); and
+        where the bundle has them (its mask, bilinear: (h, w) in 0-1)."""
         from relight.kernels.compositor import FACING
 
         w, h = size
@@ -861,53 +864,75 @@ class FramePath:
         alpha = cv2.remap(self.rig.alpha_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         normal = cv2.remap(self.rig.normal_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=(0, 0, 1))
-        rot = np.asarray(rotation, np.float32)
-        turned = cover = None
-        if geometry:
-            turned = normal @ rot.T
-            cover = cv2.remap(self.rig.mask_crop.astype(np.float32), px, py, cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        nz = turned[..., 2] if geometry else normal @ rot[2]
+        turned = normal @ np.asarray(rotation, np.float32).T
+        cover = cv2.remap(self.rig.mask_crop.astype(np.float32), px, py, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         lo, hi = FACING
-        facing = np.clip((nz - lo) / (hi - lo), 0.0, 1.0)
+        facing = np.clip((turned[..., 2] - lo) / (hi - lo), 0.0, 1.0)
         return (alpha * facing * self.strength).astype(np.float32), turned, cover
 
-    def _relight_person(self, rgb: np.ndarray, composite_rgb: np.ndarray, box, coarse, rotation,
-                        still: bool) -> np.ndarray:
-        """The light's change carried from the composited face over the rest of the person
-        (:mod:`.head_light`): hair, ears, neck, shoulders; nothing off the person changes.
-        ``still``: the head has not turned since the last relight (its maps are kept)."""
+    def _relight_person(self, rgb: np.ndarray, box, coarse, rotation, tau: float, still: bool,
+                        tm: dict) -> np.ndarray:
+        """The frame with the face composited (the compositor's last layer) and the light's change
+        carried from it over the rest of the person (:mod:`.head_light`): hair, ears, neck,
+        shoulders; nothing off the person changes. One kernel pass at full resolution
+        (``composite_person``) over the face's box and the person's. The person's maps (its matte,
+        the ratio) are made at the work scale from a copy of the frame whose face is composited
+        by the same kernel there. ``still``: the head has not turned since the last relight (the
+        maps are kept)."""
+        from . import head_light
+        from .person import WORK_ROWS
+
+        t0 = time.perf_counter()
+        h, w = rgb.shape[:2]
+        sc = min(1.0, WORK_ROWS / h)
+        work = (max(1, round(w * sc)), max(1, round(h * sc)))
+        # The maps (smooth, slow to change) made every PERSON_EVERY frames and reused between
+        # (not across a frame the person was left out of: no face, another mode, strength 0); the
+        # face's own alpha in the kernel is this frame's.
+        last = self._person_last
+        reuse = (last is not None and last[0] == work and last[3] == self._backs - 1
+                 and (still or self._person_age + 1 < PERSON_EVERY))
+        if reuse:
+            self._person_age += 1
+            grid, person_box = last[1], last[2]
+        else:
+            grid, person_box = self._person_maps(rgb, box, coarse, rotation, tau, work)
+            self._person_age = 0
+        self._person_last = (work, grid, person_box, self._backs)
+        union = box if person_box is None else (min(box[0], person_box[0]), min(box[1], person_box[1]),
+                                                max(box[2], person_box[2]), max(box[3], person_box[3]))
+        out = self.compositor.composite_person(rgb, union, box, coarse, GRID_STEP, mode="live", tau=tau,
+                                               person=grid, frame_size=(w, h), floor=head_light.MATTE_FLOOR)
+        tm["person"] = (time.perf_counter() - t0) * 1e3
+        return out
+
+    def _person_maps(self, rgb: np.ndarray, box, coarse, rotation, tau: float, work):
+        """(the person grid (h, w, 4) float32 at the work scale: rho - 1 and the matte; the frame's
+        box it reaches (x0, y0, x1, y1), None when nowhere) - see :meth:`_relight_person`."""
         from relight.colour import decode_lut8
         from relight.spherical_harmonics import lights_sh9
 
         from . import head_light
-        from .person import WORK_ROWS, PersonMatte
+        from .person import PersonMatte
 
         if self.person is None:
             self.person = PersonMatte()
         h, w = rgb.shape[:2]
-        sc = min(1.0, WORK_ROWS / h)
-        work = (max(1, round(w * sc)), max(1, round(h * sc)))
-        # The matte and the ratio (smooth, slow to change) made every PERSON_EVERY frames and
-        # reused between; the face's alpha, which the composite just used, is this frame's.
-        last = self._person_last
-        # (not across a frame the person was left out of: no face, another mode, strength 0)
-        reuse = (last is not None and last[0] == work and last[3] == self._backs - 1
-                 and (still or self._person_age + 1 < PERSON_EVERY))
-        alpha, face_normals, cover = self._face_alpha_work(box, coarse, rotation, (w, h), work, not reuse)
-        if reuse:
-            self._person_age += 1
-            self._person_last = (*last[:3], self._backs)
-            return head_light.relight_person(rgb, composite_rgb, alpha, last[1], last[2],
-                                             apply=self.compositor.apply_gain)
+        ww, wh = work
+        alpha, face_normals, cover = self._face_alpha_work(box, coarse, rotation, (w, h), work)
         face_px = float(np.sqrt(max(float((alpha > 0.5).sum()), 1.0)))
-        # One copy of the frame at the work scale serves the matte, its colour check and the ratio.
+        # One copy of the frame at the work scale serves the matte, its colour check and the ratio;
+        # its face composited by the same kernel as the frame's (the face's ratio, at that scale).
         small = downscale_area(rgb, work)
+        sx, sy = w / ww, h / wh
+        face_small = (max(int(box[0] / sx) - 1, 0), max(int(box[1] / sy) - 1, 0),
+                      min(int(np.ceil(box[2] / sx)) + 1, ww), min(int(np.ceil(box[3] / sy)) + 1, wh))
+        c_small = self.compositor.composite_person(small, face_small, box, coarse, GRID_STEP, mode="live", tau=tau,
+                                                   scale=(sx, sy))
         matte = head_light.colour_check(small, self.person(small), alpha, face_px)
         matte = head_light.attached_to_face(matte, alpha)
         lut = decode_lut8()
-        f_lin = lut[small]
-        c_lin = lut[downscale_area(composite_rgb, work)]
         r = np.asarray(rotation, dtype=np.float64)
         if self._env_texels is None:  # the environment's 64x32 texels: directions and power
             from relight.directions import equirect_directions, equirect_solid_angles
@@ -920,10 +945,13 @@ class FramePath:
         target_sh = lights_sh9(env_dirs @ r.T if self.fixed_env else env_dirs, env_power)
         live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T,
                              self.light_estimator.texel_light())
-        rho = head_light.ratio_field(f_lin, c_lin, alpha, matte, target_sh, live_sh, face_px,
+        rho = head_light.ratio_field(lut[small], lut[c_small], alpha, matte, target_sh, live_sh, face_px,
                                      face_normals=face_normals, face_cover=cover)
-        self._person_last, self._person_age = (work, matte, rho, self._backs), 0
-        return head_light.relight_person(rgb, composite_rgb, alpha, matte, rho, apply=self.compositor.apply_gain)
+        grid = np.empty((wh, ww, 4), np.float32)
+        grid[..., :3] = rho - np.float32(1.0)
+        grid[..., 3] = matte
+        grid.flags.writeable = False  # reused as it is (the compositor keeps its device copy)
+        return grid, head_light.person_box(np.maximum(matte, alpha), (w, h))
 
     def _locked_exposure(self, gain: float) -> float:
         """Mode transfer's exposure: the target brought to the live face's exposure over the first

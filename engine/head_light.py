@@ -215,41 +215,15 @@ def _ratio_field(frame_lin, composite_lin, face_alpha, matte, target_sh, live_sh
     return np.clip(proxy * np.exp(corr), 1.0 / RATIO_MAX, RATIO_MAX).astype(np.float32)
 
 
-def person_gain(face_alpha: np.ndarray, matte: np.ndarray, rho: np.ndarray, frame_size: tuple[int, int]):
-    """The light's change beyond the face at the work scale and the frame's box it reaches:
-    ``(G, (x0, y0, x1, y1))`` with ``G = P (1 - A) (rho - 1)`` (h, w, 3) float32, or ``(G, None)``
-    when it is zero everywhere. ``frame_size``: (W, H) of the frame the box is in.
-
-    ``P`` is where the ratio goes: the matte, and the face wherever the matte misses it (a face
-    half in the dark is still the bundle's face: its turned-away and feathered parts, where the
-    compositor keeps part of the frame, take the ratio too). The face's composite itself is never
-    scaled by the matte: it is already held to the face (scaling it by max(matte, A) lost 0.3-1.5
-    dB on every real face, most where the segmentation misses a face's dark half)."""
+def person_box(share: np.ndarray, frame_size: tuple[int, int]):
+    """The frame's box (x0, y0, x1, y1) where the person's ``share`` (h, w) at the work scale is
+    above :data:`MATTE_FLOOR` - a work pixel of margin: the bilinear sample's reach - or None when
+    nowhere. ``frame_size``: (W, H) of the frame."""
     w, h = frame_size
-    sh, sw = matte.shape
-    weight = np.maximum(matte, face_alpha) * (1.0 - face_alpha)
-    weight = np.where(weight > MATTE_FLOOR, weight, 0.0).astype(np.float32)
-    gain = (weight[..., None] * (rho - 1.0)).astype(np.float32)
-    ys, xs = np.nonzero(weight)
+    sh, sw = share.shape
+    ys, xs = np.nonzero(share > MATTE_FLOOR)
     if ys.size == 0:
-        return gain, None
-    # the box in frame pixels (a work pixel of margin: the bilinear sample's reach)
+        return None
     x0, x1 = max(0, int((xs.min() - 1) * w / sw)), min(w, int(np.ceil((xs.max() + 2) * w / sw)))
     y0, y1 = max(0, int((ys.min() - 1) * h / sh)), min(h, int(np.ceil((ys.max() + 2) * h / sh)))
-    return gain, (x0, y0, x1, y1)
-
-
-def relight_person(frame: np.ndarray, composite: np.ndarray, face_alpha: np.ndarray, matte: np.ndarray,
-                   rho: np.ndarray, apply=None) -> np.ndarray:
-    """The output frame (H, W, 3) uint8 sRGB: ``c + P (1 - A) (f rho - f)`` in linear light (``c``
-    the face-composited frame, ``f`` the frame, :func:`person_gain`), the work-scale gain brought
-    up to the frame bilinearly: the face's composite as the compositor made it, the ratio beyond
-    it held to the person - off it the frame is the composite's, which is the input's there.
-    ``apply``: ``(frame, composite, box, gain) -> out`` - the compositor's ``apply_gain`` kernel
-    (default: its NumPy twin)."""
-    from relight.kernels.compositor import apply_gain_numpy
-
-    gain, box = person_gain(face_alpha, matte, rho, (frame.shape[1], frame.shape[0]))
-    if box is None:
-        return composite.copy()
-    return (apply or apply_gain_numpy)(frame, composite, box, gain)
+    return x0, y0, x1, y1

@@ -163,6 +163,54 @@ __attribute__((always_inline)) inline float bilerp1(__global const float *img, i
     return acc;
 }
 
+/* The face composited at position (x, y) relative to the face's box (frame px, x, y >= 0) on
+   the frame's pixel f (linear): 1 and *res = f + a (face - f) where the face reaches (a > 0),
+   else 0 (the pixel keeps its bytes). Steps 1-3 of the file comment. */
+__attribute__((always_inline)) inline int face_at(
+    float x, float y, float3 f, __global const float2 *coarse, int gw, int step, float ox, float oy,
+    __global const float8 *layer, int cw, int ch, __global const float *expect, int mode, float tau,
+    float3 *res, float *a_out)
+{
+    float cx = (x + (float)step + 0.5f) / (float)step - 0.5f;
+    float cy = (y + (float)step + 0.5f) / (float)step - 0.5f;
+    int i0 = (int)cx, j0 = (int)cy;     /* cx, cy > 0 */
+    float ax = cx - (float)i0, ay = cy - (float)j0;
+    float2 c00 = coarse[j0 * gw + i0], c10 = coarse[j0 * gw + i0 + 1];
+    float2 c01 = coarse[(j0 + 1) * gw + i0], c11 = coarse[(j0 + 1) * gw + i0 + 1];
+    if (c00.x < OUTSIDE_HALF || c10.x < OUTSIDE_HALF || c01.x < OUTSIDE_HALF || c11.x < OUTSIDE_HALF)
+        return 0;
+    float2 m = (c00 * (1.0f - ax) + c10 * ax) * (1.0f - ay) + (c01 * (1.0f - ax) + c11 * ax) * ay;
+    float8 l = bilerp8(layer, cw, ch, m.x - ox, m.y - oy);
+    float a = l.s7;
+    if (!(a > 0.0f))
+        return 0;
+    float s = l.s3;
+    if (mode == MODE_LIVE && s > 0.0f) {
+        s *= 1.0f - fclamp((fmx(f.x, fmx(f.y, f.z)) - CLIP_LO) / (CLIP_HI - CLIP_LO), 0.0f, 1.0f);
+        float e = bilerp1(expect, cw, ch, m.x - ox, m.y - oy);
+        float agree = lum3(f) / fmx(e, 1e-12f);
+        s *= fclamp((agree - AGREE_LO) / (AGREE_HI - AGREE_LO), 0.0f, 1.0f);
+        float dev = fabs(agree - 1.0f);
+        s *= dev > tau ? (dev - tau) / dev : 0.0f;
+    }
+    float3 face = s * f * l.s012 + (1.0f - s) * l.s456;
+    *res = f + a * (face - f);
+    *a_out = a;
+    return 1;
+}
+
+__attribute__((always_inline)) inline float3 decode3(__constant float *lut, __global const uchar *px)
+{
+    return (float3)(lut[px[0]], lut[px[1]], lut[px[2]]);
+}
+
+__attribute__((always_inline)) inline void encode3(__global const uchar *lut, int n, __global uchar *px, float3 v)
+{
+    px[0] = encode(lut, n, v.x);
+    px[1] = encode(lut, n, v.y);
+    px[2] = encode(lut, n, v.z);
+}
+
 __kernel void warp_composite(
     __global uchar *frame, int frame_w,                 /* (H, W, 3) sRGB, modified in place */
     int bx0, int by0, int bw, int bh,                   /* the box */
@@ -175,65 +223,57 @@ __kernel void warp_composite(
     int x = get_global_id(0), y = get_global_id(1);
     if (x >= bw || y >= bh)
         return;
-    float cx = ((float)x + (float)step + 0.5f) / (float)step - 0.5f;
-    float cy = ((float)y + (float)step + 0.5f) / (float)step - 0.5f;
-    int i0 = (int)cx, j0 = (int)cy;     /* cx, cy > 0 */
-    float ax = cx - (float)i0, ay = cy - (float)j0;
-    float2 c00 = coarse[j0 * gw + i0], c10 = coarse[j0 * gw + i0 + 1];
-    float2 c01 = coarse[(j0 + 1) * gw + i0], c11 = coarse[(j0 + 1) * gw + i0 + 1];
-    if (c00.x < OUTSIDE_HALF || c10.x < OUTSIDE_HALF || c01.x < OUTSIDE_HALF || c11.x < OUTSIDE_HALF)
-        return;
-    float2 m = (c00 * (1.0f - ax) + c10 * ax) * (1.0f - ay) + (c01 * (1.0f - ax) + c11 * ax) * ay;
-    float8 l = bilerp8(layer, cw, ch, m.x - ox, m.y - oy);
-    float a = l.s7;
-    if (!(a > 0.0f))
-        return;
     size_t o = 3 * ((size_t)(by0 + y) * frame_w + (bx0 + x));
-    float3 f = (float3)(decode_lut[frame[o]], decode_lut[frame[o + 1]], decode_lut[frame[o + 2]]);
-    float s = l.s3;
-    if (mode == MODE_LIVE && s > 0.0f) {
-        s *= 1.0f - fclamp((fmx(f.x, fmx(f.y, f.z)) - CLIP_LO) / (CLIP_HI - CLIP_LO), 0.0f, 1.0f);
-        float e = bilerp1(expect, cw, ch, m.x - ox, m.y - oy);
-        float agree = lum3(f) / fmx(e, 1e-12f);
-        s *= fclamp((agree - AGREE_LO) / (AGREE_HI - AGREE_LO), 0.0f, 1.0f);
-        float dev = fabs(agree - 1.0f);
-        s *= dev > tau ? (dev - tau) / dev : 0.0f;
-    }
-    float3 face = s * f * l.s012 + (1.0f - s) * l.s456;
-    float3 res = f + a * (face - f);
-    frame[o] = encode(encode_lut, lut_n, res.x);
-    frame[o + 1] = encode(encode_lut, lut_n, res.y);
-    frame[o + 2] = encode(encode_lut, lut_n, res.z);
+    float3 f = decode3(decode_lut, frame + o), res;
+    float a;
+    if (face_at((float)x, (float)y, f, coarse, gw, step, ox, oy, layer, cw, ch, expect, mode, tau, &res, &a))
+        encode3(encode_lut, lut_n, frame + o, res);
 }
 
-/* The rest of the person relit (relight.engine.head_light): out = c + f G in linear light over a
- * box of the frame, with c the face-composited frame (modified in place), f the frame as it came
- * and G (gh, gw, 3) the light's change at a coarser scale, sampled bilinearly at the pixel's
- * centre (sx, sy: the gain grid's size over the frame's; edges replicated). */
-__kernel void apply_gain(
-    __global const uchar *frame, __global uchar *comp, int bw, int bh,   /* (bh, bw, 3) boxes */
-    int bx0, int by0, __global const float *gain, int gw, int gh, float sx, float sy,
-    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n)
+/* The whole person in one pass (region person, relight.engine.head_light): over a box of an image
+ * whose pixel (i, j) sits at frame position (X, Y) = ((i + 0.5) scx - 0.5, (j + 0.5) scy - 0.5)
+ * - the frame itself (scales 1) or a smaller copy of it (scales > 1) -
+ *     out = f + a (face - f) + f w G,    w = max(m, a) (1 - a), counted where w > floor,
+ * the face's composite as warp_composite makes it inside the face's box (fx0, fy0, fw, fh: frame
+ * px; a = 0 outside it), G = rho - 1 the light's change over the person and m its matte: the
+ * float4 (G, m) of a grid (gh, gw) over the frame, bilinear at the pixel's centre (sx, sy: the
+ * grid's size over the frame's; edges replicated; gw = 0: none, the face alone). The face's
+ * composite is never scaled by the matte: the compositor holds it to the face. */
+__kernel void composite_person(
+    __global uchar *img, int img_w, int bx0, int by0, int bw, int bh, float scx, float scy,
+    int fx0, int fy0, int fw, int fh,
+    __global const float2 *coarse, int cgw, int step, float ox, float oy,
+    __global const float8 *layer, int cw, int ch, __global const float *expect,
+    __global const float4 *person, int gw, int gh, float sx, float sy, float floor_w,
+    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau)
 {
     int x = get_global_id(0), y = get_global_id(1);
     if (x >= bw || y >= bh)
         return;
-    float gx = ((float)(bx0 + x) + 0.5f) * sx - 0.5f;
-    float gy = ((float)(by0 + y) + 0.5f) * sy - 0.5f;
-    int x0 = ifloor(gx), y0 = ifloor(gy);
-    float ax = gx - (float)x0, ay = gy - (float)y0;
-    int xa = x0 < 0 ? 0 : (x0 > gw - 1 ? gw - 1 : x0), xb = x0 + 1 < 0 ? 0 : (x0 + 1 > gw - 1 ? gw - 1 : x0 + 1);
-    int ya = y0 < 0 ? 0 : (y0 > gh - 1 ? gh - 1 : y0), yb = y0 + 1 < 0 ? 0 : (y0 + 1 > gh - 1 ? gh - 1 : y0 + 1);
-    float3 g00 = vload3(ya * gw + xa, gain), g10 = vload3(ya * gw + xb, gain);
-    float3 g01 = vload3(yb * gw + xa, gain), g11 = vload3(yb * gw + xb, gain);
-    float3 g = (g00 * (1.0f - ax) + g10 * ax) * (1.0f - ay) + (g01 * (1.0f - ax) + g11 * ax) * ay;
-    if (g.x == 0.0f && g.y == 0.0f && g.z == 0.0f)
-        return;
-    size_t o = 3 * ((size_t)y * bw + x);
-    float3 f = (float3)(decode_lut[frame[o]], decode_lut[frame[o + 1]], decode_lut[frame[o + 2]]);
-    float3 c = (float3)(decode_lut[comp[o]], decode_lut[comp[o + 1]], decode_lut[comp[o + 2]]);
-    float3 res = c + f * g;
-    comp[o] = encode(encode_lut, lut_n, res.x);
-    comp[o + 1] = encode(encode_lut, lut_n, res.y);
-    comp[o + 2] = encode(encode_lut, lut_n, res.z);
+    int i = bx0 + x, j = by0 + y;
+    float X = ((float)i + 0.5f) * scx - 0.5f, Y = ((float)j + 0.5f) * scy - 0.5f;
+    size_t o = 3 * ((size_t)j * img_w + i);
+    float3 f = decode3(decode_lut, img + o), res = f;
+    float a = 0.0f;
+    int changed = 0;
+    float fx = X - (float)fx0, fy = Y - (float)fy0;
+    if (fx >= 0.0f && fy >= 0.0f && fx <= (float)(fw - 1) && fy <= (float)(fh - 1))
+        changed = face_at(fx, fy, f, coarse, cgw, step, ox, oy, layer, cw, ch, expect, mode, tau, &res, &a);
+    if (gw > 0) {
+        float gx = (X + 0.5f) * sx - 0.5f, gy = (Y + 0.5f) * sy - 0.5f;
+        int x0 = ifloor(gx), y0 = ifloor(gy);
+        float ax = gx - (float)x0, ay = gy - (float)y0;
+        int xa = x0 < 0 ? 0 : (x0 > gw - 1 ? gw - 1 : x0), xb = x0 + 1 < 0 ? 0 : (x0 + 1 > gw - 1 ? gw - 1 : x0 + 1);
+        int ya = y0 < 0 ? 0 : (y0 > gh - 1 ? gh - 1 : y0), yb = y0 + 1 < 0 ? 0 : (y0 + 1 > gh - 1 ? gh - 1 : y0 + 1);
+        float4 g = (person[ya * gw + xa] * (1.0f - ax) + person[ya * gw + xb] * ax) * (1.0f - ay)
+                 + (person[yb * gw + xa] * (1.0f - ax) + person[yb * gw + xb] * ax) * ay;
+        float w = fmx(g.w, a) * (1.0f - a);
+        if (w > floor_w) {
+            res += f * w * g.xyz;
+            changed = 1;
+        }
+    }
+    if (changed)
+        encode3(encode_lut, lut_n, img + o, res);
 }
+

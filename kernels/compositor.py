@@ -120,70 +120,90 @@ def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, 
 def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, layer, *,
                          mode: str, tau: float = 0.0) -> np.ndarray:
     """NumPy twin of ``warp_composite``: a new frame (layer: the pair from :func:`build_layer_numpy`)."""
+    return composite_person_numpy(frame, box, box, coarse, step, origin, layer, mode=mode, tau=tau)
+
+
+def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, origin, layer, *,
+                           mode: str, tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
+                           frame_size=None, floor: float = 0.0) -> np.ndarray:
+    """NumPy twin of ``composite_person``: a new image. ``img`` (h, w, 3) uint8 sRGB whose pixel
+    (i, j) sits at frame position ((i + 0.5) sx - 0.5, (j + 0.5) sy - 0.5), ``scale`` = sx or
+    (sx, sy); ``box`` (x0, y0,
+    x1, y1) the image's pixels worked on; ``face_box`` the face's box in the frame (the one
+    ``coarse`` covers); ``person`` (gh, gw, 4) float32 (rho - 1, matte) on a grid over the frame
+    (None: the face alone) of ``frame_size`` (W, H); ``floor``: the person's share below which
+    nothing is added."""
     from relight.colour import LUMINANCE
 
     layer, expect = layer
-    out = np.array(frame)
+    out = np.array(img)
     bx0, by0, bx1, by1 = box
     bw, bh = bx1 - bx0, by1 - by0
-    ys, xs = np.mgrid[0:bh, 0:bw]
-    cx = ((xs + step + 0.5) / step - 0.5).ravel()
-    cy = ((ys + step + 0.5) / step - 0.5).ravel()
-    i0, j0 = np.floor(cx).astype(np.int64), np.floor(cy).astype(np.int64)
-    ax, ay = (cx - i0).astype(np.float32), (cy - j0).astype(np.float32)
-    c = [coarse[j0 + dj, i0 + di] for dj, di in ((0, 0), (0, 1), (1, 0), (1, 1))]
-    inside = np.all([ci[:, 0] >= OUTSIDE_HALF for ci in c], axis=0)
-    m = ((c[0] * (1 - ax)[:, None] + c[1] * ax[:, None]) * (1 - ay)[:, None]
-         + (c[2] * (1 - ax)[:, None] + c[3] * ax[:, None]) * ay[:, None])
-    lay = _bilinear(layer, m[:, 0] - np.float32(origin[0]), m[:, 1] - np.float32(origin[1]))
-    sel = inside & (lay[:, 7] > 0)
-    lay = lay[sel]
-    mx, my = m[sel, 0] - np.float32(origin[0]), m[sel, 1] - np.float32(origin[1])
-    a = lay[:, 7:8]
+    fx0, fy0, fx1, fy1 = face_box
+    scx, scy = (np.float32(v) for v in np.broadcast_to(np.asarray(scale, np.float64), (2,)))
+    ys, xs = np.mgrid[by0:by1, bx0:bx1]
+    fx = ((xs.astype(np.float32) + np.float32(0.5)) * scx - np.float32(0.5)).ravel()
+    fy = ((ys.astype(np.float32) + np.float32(0.5)) * scy - np.float32(0.5)).ravel()
     region = out[by0:by1, bx0:bx1].reshape(-1, 3)
-    f = decode_lut8()[region[sel]]
-    s = lay[:, 3:4]
-    if mode == "live":
-        e = _bilinear(expect[..., None], mx, my)
-        agree = (f @ LUMINANCE)[:, None] / np.maximum(e, np.float32(EPS))
-        dev = np.abs(agree - 1.0)
-        shrink = np.where(dev > tau, (dev - np.float32(tau)) / np.maximum(dev, np.float32(EPS)), 0.0)
-        s = np.where(s > 0, s * (1.0 - _ramp(f.max(axis=1, keepdims=True), CLIP_RAMP)) * _ramp(agree, AGREE_RAMP)
-                     * shrink, s)
-    face = s * f * lay[:, 0:3] + (1.0 - s) * lay[:, 4:7]
-    res = f + a * (face - f)
+    f_all = decode_lut8()[region]
+    res_all = f_all.copy()
+    a_all = np.zeros(region.shape[0], np.float32)
+    rx, ry = fx - np.float32(fx0), fy - np.float32(fy0)
+    in_box = (rx >= 0) & (ry >= 0) & (rx <= np.float32(fx1 - fx0 - 1)) & (ry <= np.float32(fy1 - fy0 - 1))
+    changed = np.zeros(region.shape[0], bool)
+    k = np.flatnonzero(in_box)
+    if k.size:
+        cx = (rx[k] + np.float32(step) + np.float32(0.5)) / np.float32(step) - np.float32(0.5)
+        cy = (ry[k] + np.float32(step) + np.float32(0.5)) / np.float32(step) - np.float32(0.5)
+        i0, j0 = cx.astype(np.int64), cy.astype(np.int64)  # cx, cy > 0: truncation is the floor
+        ax, ay = (cx - i0).astype(np.float32), (cy - j0).astype(np.float32)
+        c = [coarse[j0 + dj, i0 + di] for dj, di in ((0, 0), (0, 1), (1, 0), (1, 1))]
+        inside = np.all([ci[:, 0] >= OUTSIDE_HALF for ci in c], axis=0)
+        m = ((c[0] * (1 - ax)[:, None] + c[1] * ax[:, None]) * (1 - ay)[:, None]
+             + (c[2] * (1 - ax)[:, None] + c[3] * ax[:, None]) * ay[:, None])
+        lay = _bilinear(layer, m[:, 0] - np.float32(origin[0]), m[:, 1] - np.float32(origin[1]))
+        sel = inside & (lay[:, 7] > 0)
+        k, lay = k[sel], lay[sel]
+        mx, my = m[sel, 0] - np.float32(origin[0]), m[sel, 1] - np.float32(origin[1])
+        a = lay[:, 7:8]
+        f = f_all[k]
+        s = lay[:, 3:4]
+        if mode == "live":
+            e = _bilinear(expect[..., None], mx, my)
+            agree = (f @ LUMINANCE)[:, None] / np.maximum(e, np.float32(EPS))
+            dev = np.abs(agree - 1.0)
+            shrink = np.where(dev > tau, (dev - np.float32(tau)) / np.maximum(dev, np.float32(EPS)), 0.0)
+            s = np.where(s > 0, s * (1.0 - _ramp(f.max(axis=1, keepdims=True), CLIP_RAMP))
+                         * _ramp(agree, AGREE_RAMP) * shrink, s)
+        face = s * f * lay[:, 0:3] + (1.0 - s) * lay[:, 4:7]
+        res_all[k] = f + a * (face - f)
+        a_all[k] = a[:, 0]
+        changed[k] = True
+    if person is not None:
+        gh, gw = person.shape[:2]
+        w, h = (np.float32(v) for v in frame_size)
+        g = _bilinear_replicate(person, (fx + np.float32(0.5)) * np.float32(gw / w) - np.float32(0.5),
+                                (fy + np.float32(0.5)) * np.float32(gh / h) - np.float32(0.5))
+        wgt = np.maximum(g[:, 3], a_all) * (1.0 - a_all)
+        on = wgt > np.float32(floor)
+        res_all[on] += f_all[on] * wgt[on, None] * g[on, :3]
+        changed |= on
     lut, n = encode_lut()
-    idx = np.clip(res * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
-    region[sel] = lut[idx]
+    idx = np.clip(res_all[changed] * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
+    region[changed] = lut[idx]
     out[by0:by1, bx0:bx1] = region.reshape(bh, bw, 3)
     return out
 
 
-def apply_gain_numpy(frame: np.ndarray, composite: np.ndarray, box, gain: np.ndarray) -> np.ndarray:
-    """NumPy twin of ``apply_gain``: ``composite`` (a new array) with ``c + f G`` in linear light
-    over ``box`` (x0, y0, x1, y1), ``f`` the frame, ``G`` the (gh, gw, 3) gain sampled bilinearly at
-    each pixel's centre on a grid covering the frame (edges replicated)."""
-    h, w = frame.shape[:2]
-    gh, gw = gain.shape[:2]
-    x0, y0, x1, y1 = box
-    out = np.array(composite)
-    gx = ((np.arange(x0, x1) + 0.5) * np.float32(gw / w) - 0.5).astype(np.float32)
-    gy = ((np.arange(y0, y1) + 0.5) * np.float32(gh / h) - 0.5).astype(np.float32)
+def _bilinear_replicate(grid: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """(N, C) bilinear samples of ``grid`` (gh, gw, C) at grid positions gx, gy, edges replicated."""
+    gh, gw = grid.shape[:2]
     ix, iy = np.floor(gx).astype(np.int64), np.floor(gy).astype(np.int64)
-    ax, ay = (gx - ix)[None, :, None], (gy - iy)[:, None, None]
+    ax, ay = (gx - ix).astype(np.float32)[:, None], (gy - iy).astype(np.float32)[:, None]
     xa, xb = np.clip(ix, 0, gw - 1), np.clip(ix + 1, 0, gw - 1)
     ya, yb = np.clip(iy, 0, gh - 1), np.clip(iy + 1, 0, gh - 1)
-    g = ((gain[ya][:, xa] * (1 - ax) + gain[ya][:, xb] * ax) * (1 - ay)
-         + (gain[yb][:, xa] * (1 - ax) + gain[yb][:, xb] * ax) * ay).astype(np.float32)
-    lut8 = decode_lut8().astype(np.float32)
-    f = lut8[frame[y0:y1, x0:x1]]
-    c = lut8[composite[y0:y1, x0:x1]]
-    lut, n = encode_lut()
-    idx = np.clip((c + f * g) * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
-    changed = np.any(g != 0, axis=2)
-    region = out[y0:y1, x0:x1]
-    region[changed] = lut[idx][changed]
-    return out
+    return ((grid[ya, xa] * (1 - ax) + grid[ya, xb] * ax) * (1 - ay)
+            + (grid[yb, xa] * (1 - ax) + grid[yb, xb] * ax) * ay).astype(np.float32)
 
 
 class Compositor:
@@ -201,8 +221,8 @@ class Compositor:
         # assist); alpha below ALPHA_FLOOR counts as zero.
         prg = build_program("composite", ("-cl-denorms-are-zero",))
         self._kernel = cl.Kernel(prg, "warp_composite")
-        self._k_gain = cl.Kernel(prg, "apply_gain")
-        self._gain_bufs = None  # (capacity bytes, frame box, composite box, gain) buffers of apply_gain
+        self._k_person = cl.Kernel(prg, "composite_person")
+        self._person = None  # (the person grid last sent, its buffer)
         self._k_layer = cl.Kernel(prg, "build_layer")
         self.alpha = np.ascontiguousarray(alpha, dtype=np.float32)
         self.alpha = np.where(self.alpha >= ALPHA_FLOOR, self.alpha, 0.0).astype(np.float32)
@@ -231,18 +251,68 @@ class Compositor:
                                 hostbuf=np.zeros((self.alpha.size, 8), dtype=np.float32))
         self._expect = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
                                  hostbuf=np.zeros(self.alpha.size, dtype=np.float32))
-        self.frame: np.ndarray | None = None
-        self._frame_buf = None
+        self._bufs: dict = {}  # image shape -> device buffer
         self._coarse_buf = None
         self._coarse_cap = 0
 
-    def _frame_for(self, shape):
+    def _image_buf(self, shape):
+        """The device buffer of images of ``shape`` (the frame's and its work-scale copy's, kept)."""
         import pyopencl as cl
 
-        if self.frame is None or self.frame.shape != shape:
-            self.frame = np.zeros(shape, dtype=np.uint8)
-            self._frame_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE, self.frame.nbytes)
-        return self._frame_buf
+        buf = self._bufs.get(shape)
+        if buf is None:
+            if len(self._bufs) >= 4:  # frames of another size now: the old buffers go
+                self._bufs.clear()
+            buf = self._bufs[shape] = cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE,
+                                                int(np.prod(shape)))
+        return buf
+
+    def layer(self, *, relit, live=None, mode: str, gain: float, strength: float, eps: float, ratio_max: float,
+              rotation: np.ndarray | None = None, live_median: float = 0.0) -> None:
+        """Queue ``build_layer``: the face's layer for :meth:`composite` and :meth:`composite_person`
+        (arguments as :meth:`run`'s)."""
+        if mode not in LAYER_MODES:
+            raise InputError(f"layer mode {mode!r}: use one of {', '.join(LAYER_MODES)}")
+        if mode == "live" and live is None:
+            raise InputError("mode live composites the face under the live light: pass its buffer as live=")
+        n = self.support.size
+        rz = np.eye(3)[2] if rotation is None else np.asarray(rotation, dtype=np.float64)[2]
+        self._k_layer(self.rt.queue, (max(-(-n // 64), 1) * 64,), (64,), relit, live if mode == "live" else relit,
+                      self._fill, self._inv, self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]),
+                      np.float32(rz[2]), self._support, np.int32(n), np.int32(LAYER_MODES[mode]), np.float32(gain),
+                      np.float32(strength), np.float32(eps), np.float32(ratio_max), np.float32(live_median),
+                      self._layer, self._expect)
+
+    def _coarse(self, coarse: np.ndarray):
+        import pyopencl as cl
+
+        coarse = np.ascontiguousarray(coarse, dtype=np.float32)
+        if coarse.nbytes > self._coarse_cap:
+            self._coarse_cap = max(coarse.nbytes, 2 * self._coarse_cap)
+            self._coarse_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY, self._coarse_cap)
+        cl.enqueue_copy(self.rt.queue, self._coarse_buf, coarse, is_blocking=False)
+        return coarse
+
+    def _rows_through(self, img: np.ndarray, box, launch) -> np.ndarray:
+        """``img`` (a new array) after ``launch(buf)`` ran on the device copy of its rows of ``box``:
+        only those rows go in and come out, through explicit copies (a host-pointer buffer written
+        by the host between kernels is not guaranteed to be seen by the device); the kernels change
+        nothing outside the box."""
+        import pyopencl as cl
+
+        q = self.rt.queue
+        buf = self._image_buf(img.shape)
+        row = img.shape[1] * img.shape[2]
+        lo, hi = min(max(int(box[1]), 0), img.shape[0]), min(max(int(box[3]), 0), img.shape[0])
+        if hi > lo:
+            cl.enqueue_copy(q, buf, img[lo:hi], dst_offset=lo * row, is_blocking=False)
+        launch(buf)
+        out = img.copy()
+        if hi > lo:
+            cl.enqueue_copy(q, out[lo:hi], buf, src_offset=lo * row, is_blocking=True)
+        else:
+            q.finish()
+        return out
 
     def run(self, rgb: np.ndarray, box, coarse: np.ndarray, step: int, *, relit, live=None, mode: str, gain: float,
             strength: float, eps: float, ratio_max: float, rotation: np.ndarray | None = None,
@@ -250,81 +320,66 @@ class Compositor:
         """``rgb`` with the face composited (a new array). ``relit``: the OpenCL buffer of the
         relit reference frame (:meth:`relight.kernels.relighter.Relighter.buffer`); ``live``: the
         buffer of the face under the live light (mode ``live``); mode : one of :data:`LAYER_MODES`."""
-        import pyopencl as cl
+        self.layer(relit=relit, live=live, mode=mode, gain=gain, strength=strength, eps=eps, ratio_max=ratio_max,
+                   rotation=rotation, live_median=live_median)
+        return self.composite(rgb, box, coarse, step, mode=mode, tau=tau)
 
-        q = self.rt.queue
+    def composite(self, rgb: np.ndarray, box, coarse: np.ndarray, step: int, *, mode: str,
+                  tau: float = 0.0) -> np.ndarray:
+        """``rgb`` with the face of the last :meth:`layer` composited over ``box`` (a new array)."""
         rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
-        buf = self._frame_for(rgb.shape)
+        coarse = self._coarse(coarse)
         bx0, by0, bx1, by1 = box
-        # Only the box's rows go in and come out, through explicit copies (a host-pointer buffer
-        # written by the host between kernels is not guaranteed to be seen by the device): the
-        # kernel changes nothing outside the box, and the rest of the frame is the input's.
-        row = rgb.shape[1] * rgb.shape[2]
-        lo, hi = min(max(int(by0), 0), rgb.shape[0]), min(max(int(by1), 0), rgb.shape[0])
-        if hi > lo:
-            cl.enqueue_copy(q, buf, rgb[lo:hi], dst_offset=lo * row, is_blocking=False)
-        coarse = np.ascontiguousarray(coarse, dtype=np.float32)
-        if coarse.nbytes > self._coarse_cap:
-            self._coarse_cap = max(coarse.nbytes, 2 * self._coarse_cap)
-            self._coarse_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY, self._coarse_cap)
-        cl.enqueue_copy(q, self._coarse_buf, coarse, is_blocking=False)
         bw, bh = bx1 - bx0, by1 - by0
-        n = self.support.size
-        code = LAYER_MODES[mode]
-        rz = np.eye(3)[2] if rotation is None else np.asarray(rotation, dtype=np.float64)[2]
-        if mode == "live" and live is None:
-            raise InputError("mode live composites the face under the live light: pass its buffer as live=")
-        relit_buf = relit
-        live_buf = live if mode == "live" else relit
-        self._k_layer(q, (max(-(-n // 64), 1) * 64,), (64,), relit_buf, live_buf, self._fill, self._inv,
-                      self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]), np.float32(rz[2]),
-                      self._support, np.int32(n), np.int32(code), np.float32(gain), np.float32(strength),
-                      np.float32(eps), np.float32(ratio_max), np.float32(live_median), self._layer, self._expect)
-        self._kernel(q, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(rgb.shape[1]), np.int32(bx0),
-                     np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf, np.int32(coarse.shape[1]),
-                     np.int32(step), np.float32(self.origin[0]), np.float32(self.origin[1]), self._layer,
-                     np.int32(self.cw), np.int32(self.ch), self._expect, self._dec, self._enc, np.int32(self.lut_n),
-                     np.int32(code), np.float32(tau))
-        out = rgb.copy()
-        if hi > lo:
-            cl.enqueue_copy(q, out[lo:hi], buf, src_offset=lo * row, is_blocking=True)
-        else:
-            q.finish()
-        return out
 
-    def apply_gain(self, frame: np.ndarray, composite: np.ndarray, box, gain: np.ndarray) -> np.ndarray:
-        """``composite`` (a new array) with ``c + f G`` in linear light over ``box`` (x0, y0, x1, y1):
-        the light's change beyond the face (:func:`apply_gain_numpy`, its twin). ``frame``: the
-        frame as it came and ``composite`` the face-composited one, (H, W, 3) uint8 sRGB; ``gain``
-        (gh, gw, 3) float32 on a grid covering the frame."""
+        def launch(buf):
+            self._kernel(self.rt.queue, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(rgb.shape[1]),
+                         np.int32(bx0), np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf,
+                         np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
+                         np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch), self._expect,
+                         self._dec, self._enc, np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau))
+
+        return self._rows_through(rgb, box, launch)
+
+    def composite_person(self, img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, *, mode: str,
+                         tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
+                         frame_size=None, floor: float = 0.0) -> np.ndarray:
+        """``img`` with the face of the last :meth:`layer` and the person's change of light
+        composited over ``box`` (a new array): the ``composite_person`` kernel (its twin and the
+        arguments: :func:`composite_person_numpy`). A read-only ``person`` grid handed again (the
+        same array) is not sent to the device again."""
         import pyopencl as cl
 
-        x0, y0, x1, y1 = (int(v) for v in box)
-        bw, bh = x1 - x0, y1 - y0
-        out = np.array(composite)
+        img = np.ascontiguousarray(img, dtype=np.uint8)
+        coarse = self._coarse(coarse)
+        bx0, by0, bx1, by1 = (int(v) for v in box)
+        bw, bh = bx1 - bx0, by1 - by0
         if bw <= 0 or bh <= 0:
-            return out
-        gain = np.ascontiguousarray(gain, dtype=np.float32)
-        if not np.isfinite(gain).all():
-            raise InputError("apply_gain: the gain map must be finite")
-        q = self.rt.queue
-        f_box = np.ascontiguousarray(frame[y0:y1, x0:x1])
-        c_box = np.ascontiguousarray(composite[y0:y1, x0:x1])
-        need = max(f_box.nbytes, gain.nbytes)
-        if self._gain_bufs is None or self._gain_bufs[0] < need:
-            cap = max(need, 2 * (self._gain_bufs[0] if self._gain_bufs else 0))
-            ctx, mf = self.rt.context, cl.mem_flags
-            self._gain_bufs = (cap, cl.Buffer(ctx, mf.READ_ONLY, cap), cl.Buffer(ctx, mf.READ_WRITE, cap),
-                               cl.Buffer(ctx, mf.READ_ONLY, cap))
-        _, fb, cb, gb = self._gain_bufs
-        cl.enqueue_copy(q, fb, f_box, is_blocking=False)
-        cl.enqueue_copy(q, cb, c_box, is_blocking=False)
-        cl.enqueue_copy(q, gb, gain, is_blocking=False)
-        h, w = frame.shape[:2]
-        gh, gw = gain.shape[:2]
-        self._k_gain(q, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), fb, cb, np.int32(bw), np.int32(bh),
-                     np.int32(x0), np.int32(y0), gb, np.int32(gw), np.int32(gh), np.float32(gw / w),
-                     np.float32(gh / h), self._dec, self._enc, np.int32(self.lut_n))
-        cl.enqueue_copy(q, c_box, cb, is_blocking=True)
-        out[y0:y1, x0:x1] = c_box
-        return out
+            return img.copy()
+        fx0, fy0, fx1, fy1 = (int(v) for v in face_box)
+        scx, scy = (float(v) for v in np.broadcast_to(np.asarray(scale, np.float64), (2,)))
+        gw = gh = 0
+        grid_buf = self._layer  # any buffer: gw = 0 never reads it
+        sx = sy = 0.0
+        if person is not None:
+            if self._person is None or self._person[0] is not person or person.flags.writeable:
+                grid = np.ascontiguousarray(person, dtype=np.float32)
+                if grid.ndim != 3 or grid.shape[2] != 4 or not np.isfinite(grid).all():
+                    raise InputError("composite_person: the person grid must be (gh, gw, 4) finite float32")
+                buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=grid)
+                self._person = (person, buf)
+            gh, gw = person.shape[:2]
+            grid_buf = self._person[1]
+            sx, sy = gw / float(frame_size[0]), gh / float(frame_size[1])
+
+        def launch(buf):
+            self._k_person(self.rt.queue, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(img.shape[1]),
+                           np.int32(bx0), np.int32(by0), np.int32(bw), np.int32(bh), np.float32(scx), np.float32(scy),
+                           np.int32(fx0), np.int32(fy0), np.int32(fx1 - fx0), np.int32(fy1 - fy0), self._coarse_buf,
+                           np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
+                           np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch),
+                           self._expect, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx), np.float32(sy),
+                           np.float32(floor), self._dec, self._enc, np.int32(self.lut_n),
+                           np.int32(LAYER_MODES[mode]), np.float32(tau))
+
+        return self._rows_through(img, (bx0, by0, bx1, by1), launch)

@@ -583,57 +583,132 @@ def test_the_persons_maps_are_not_reused_across_a_new_environment_or_a_gap(small
         assert np.array_equal(reused[k], remade[k])
 
 
-def test_apply_gain_kernel_matches_its_numpy_twin(frame_path):
-    """The person's gain (``c + f G`` over a box, G bilinear from a coarser grid, edges
-    replicated) on the device and in NumPy: the same bytes but for rounding; unchanged where G is
-    zero and outside the box."""
-    from relight.kernels.compositor import apply_gain_numpy
+def _person_grid(rng, shape):
+    """A person grid (rho - 1, matte) with a matte edge and a place where nothing changes."""
+    grid = np.zeros((*shape, 4), np.float32)
+    grid[..., :3] = (rng.random((*shape, 3)) - 0.5) * 2.0
+    grid[:, shape[1] // 4:, 3] = 1.0  # the person: all but the left quarter
+    grid[: shape[0] // 3, shape[1] // 2:, 3] = 0.4  # a soft part
+    return grid
 
-    rng = np.random.default_rng(7)
-    frame = rng.integers(0, 256, (90, 160, 3), dtype=np.uint8)
-    comp = frame.copy()
-    comp[30:60, 50:100] = rng.integers(0, 256, (30, 50, 3), dtype=np.uint8)  # "the face"
-    gain = ((rng.random((27, 48, 3)) - 0.5) * 3).astype(np.float32)
-    gain[:, :10] = 0.0  # no change on the left
-    box = (3, 5, 150, 88)
-    got = frame_path.compositor.apply_gain(frame, comp, box, gain)
-    want = apply_gain_numpy(frame, comp, box, gain)
-    diff = np.abs(got.astype(int) - want.astype(int))
-    assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
-    assert (got[:5] == comp[:5]).all() and (got[:, 150:] == comp[:, 150:]).all()
-    assert (got[:, 3:25] == comp[:, 3:25]).all()  # G zero there and a grid pixel beyond (bilinear reach)
-    # it did something, and the right thing at one pixel: c + f G in linear light
+
+@pytest.mark.parametrize("scale", [1.0, (2.5, 2.4)])
+def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale):
+    """The whole person in one pass (the face's composite inside its box, the light's change
+    over the person's matte beyond): the kernel and its NumPy twin give the same bytes but for
+    rounding - on the frame (scale 1) and on a smaller copy of it (the work scale's pass); with
+    no person grid, the face's composite alone, as warp_composite makes it."""
+    from relight.engine.warp import GRID_STEP, coarse_map
+    from relight.kernels.compositor import build_layer_numpy, composite_person_numpy
+
+    _, frames = clip
+    fp = frame_path
+    rgb = frames[5]
+    rng = np.random.default_rng(11)
+    ref = fp.rig.control_ref
+    cur = ref + np.array([3.0, -2.0]) + rng.normal(0, 0.3, ref.shape)
+    h, w = rgb.shape[:2]
+    face_box = (max(int(cur[:, 0].min()), 0), max(int(cur[:, 1].min()), 0), min(int(cur[:, 0].max()) + 1, w),
+                min(int(cur[:, 1].max()) + 1, h))
+    coarse = coarse_map(cur, ref, face_box)
+    fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(5, -3, 1))
+    live = np.array(fp.relighter.relight_texels(_texel_point(fp.relighter, [-0.7, 0.2, 0.6]), slot="live"))
+    lum = live.reshape(-1, 3)[fp.rig.live_full] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    settings = dict(mode="live", gain=1.2, strength=1.0, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
+                    live_median=float(np.median(lum)))
+    turn = rotation_matrix(10, -5, 2)
+    fp.compositor.layer(relit=fp.relighter.buffer(), live=fp.relighter.slot("live")[1], rotation=turn, **settings)
+    layer = build_layer_numpy(fp.relighter.frame, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape), fp.rig.inv_ambient,
+                              fp.rig.alpha_crop, fp.compositor.normal, turn, live=live, **settings)
+    sx, sy = np.broadcast_to(np.asarray(scale, float), (2,))
+    img = rgb if sx == 1.0 else cv2.resize(rgb, (round(w / sx), round(h / sy)), interpolation=cv2.INTER_AREA)
+    grid = _person_grid(rng, (h // 8, w // 8))
+    box = (2, 1, img.shape[1] - 1, img.shape[0] - 2)
+    args = (img, box, face_box, coarse, GRID_STEP)
+    for person in (grid, None):
+        got = fp.compositor.composite_person(*args, mode="live", scale=scale, person=person, frame_size=(w, h),
+                                             floor=0.02)
+        want = composite_person_numpy(*args[:4], GRID_STEP, fp.rig.origin, layer, mode="live", scale=scale,
+                                      person=person, frame_size=(w, h), floor=0.02)
+        diff = np.abs(got.astype(int) - want.astype(int))
+        changed = np.abs(want.astype(int) - img.astype(int)).sum(axis=2) > 3
+        assert changed.sum() > 300  # it did something
+        assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
+        assert (got[:box[1]] == img[:box[1]]).all() and (got[:, box[2]:] == img[:, box[2]:]).all()
+    if sx == 1.0:  # no person: the face's composite, as warp_composite makes it
+        np.testing.assert_array_equal(got, fp.compositor.composite(img, face_box, coarse, GRID_STEP, mode="live"))
+
+
+def _no_face(compositor, frame, grid, box=None):
+    """composite_person with the person grid alone (a face box of no size)."""
+    from relight.engine.warp import GRID_STEP
+
+    h, w = frame.shape[:2]
+    return compositor.composite_person(frame, box or (0, 0, w, h), (0, 0, 0, 0), np.zeros((3, 3, 2), np.float32),
+                                       GRID_STEP, mode="live", person=grid, frame_size=(w, h), floor=0.02)
+
+
+def test_the_person_pass_changes_nothing_without_a_change_of_light_nor_anything_off_the_person(frame_path):
+    """rho = 1 changes no byte; a brighter target brightens the person and leaves every pixel off
+    the matte as it was (its bilinear reach aside); each pixel is f (1 + m (rho - 1)) in linear light."""
     from relight.colour import decode_srgb8, encode_srgb8
 
-    assert (np.abs(got.astype(int) - comp.astype(int)).sum(axis=2) > 3).mean() > 0.5
-    gain[10:20, 35:45] = (0.5, -0.3, 1.0)  # a constant patch: its inner pixels take it exactly
-    got = frame_path.compositor.apply_gain(frame, comp, box, gain)
-    y, x = 51, 135  # grid (15.1, 40.0)
-    want_px = encode_srgb8(np.clip(decode_srgb8(comp[y, x]) + decode_srgb8(frame[y, x]) * gain[15, 40], 0, 1))
-    assert np.abs(got[y, x].astype(int) - want_px.astype(int)).max() <= COMPOSITE_TWIN_CODES
+    rng = np.random.default_rng(0)
+    h, w = 90, 160
+    frame = rng.integers(20, 230, (h, w, 3)).astype(np.uint8)
+    grid = np.zeros((45, 80, 4), np.float32)
+    grid[10:40, 25:55, 3] = 1.0
+    np.testing.assert_array_equal(_no_face(frame_path.compositor, frame, grid), frame)
+    grid[..., :3] = 1.0  # twice as bright
+    out = _no_face(frame_path.compositor, frame, grid)
+    off = np.ones((h, w), bool)
+    off[18:82, 48:112] = False
+    np.testing.assert_array_equal(out[off], frame[off])
+    y, x = 50, 80
+    want = encode_srgb8(np.clip(decode_srgb8(frame[y, x]) * 2.0, 0, 1))
+    assert np.abs(out[y, x].astype(int) - want.astype(int)).max() <= COMPOSITE_TWIN_CODES
+    assert (out[25:70, 55:105].astype(int) >= frame[25:70, 55:105].astype(int)).all()
 
 
-def test_the_person_region_leaves_the_face_composite_as_it_is():
+def test_the_person_region_leaves_the_face_composite_as_it_is(frame_path, clip):
     """Region person adds the ratio only beyond the face's alpha: where the face is composited in
-    full (alpha 1) the output is the compositor's, even where the segmentation misses the face (a
-    side-lit face's dark half) - scaling the composite by the matte there lost 0.3-1.5 dB on every
-    real face."""
-    from relight.engine.head_light import relight_person
+    full (alpha 1) the output is the face's composite, even where the person's matte misses the
+    face (a side-lit face's dark half) - scaling the composite by the matte there lost 0.3-1.5 dB
+    on every real face."""
+    from relight.engine.warp import GRID_STEP, coarse_map
 
-    rng = np.random.default_rng(3)
-    frame = rng.integers(20, 200, (60, 80, 3), dtype=np.uint8)
-    comp = frame.copy()
-    comp[10:50, 20:60] = np.clip(frame[10:50, 20:60].astype(int) + 40, 0, 255).astype(np.uint8)
-    alpha = np.zeros((60, 80), np.float32)
-    alpha[10:50, 20:60] = 1.0
-    matte = np.zeros((60, 80), np.float32)
-    matte[:, 20:] = 1.0
-    matte[10:50, 20:40] = 0.0  # the model missed the face's left half
-    rho = np.full((60, 80, 3), 1.5, np.float32)
-    out = relight_person(frame, comp, alpha, matte, rho)
-    assert (out[10:50, 20:60] == comp[10:50, 20:60]).all()
-    assert (out[:, :18] == frame[:, :18]).all()  # off the person: untouched
-    assert (out[55:, 30:].astype(int) > frame[55:, 30:].astype(int)).all()  # the person beyond: brighter
+    _, frames = clip
+    fp = frame_path
+    rgb = frames[5]
+    h, w = rgb.shape[:2]
+    ref = fp.rig.control_ref
+    face_box = (int(ref[:, 0].min()), int(ref[:, 1].min()), int(ref[:, 0].max()) + 1, int(ref[:, 1].max()) + 1)
+    coarse = coarse_map(ref, ref, face_box)
+    fp.relighter.relight(load_environment("builtin:sunset"))
+    fp.compositor.layer(relit=fp.relighter.buffer(), mode="paste", gain=1.0, strength=1.0,
+                        eps=float(fp.rig.ratio_eps), ratio_max=6.0)
+    face = fp.compositor.composite(rgb, face_box, coarse, GRID_STEP, mode="paste")
+    grid = np.zeros((h // 4, w // 4, 4), np.float32)
+    grid[..., :3] = 0.5
+    grid[:, : w // 8, 3] = 1.0  # the matte: the left half of the frame only (misses the face's right)
+    out = fp.compositor.composite_person(rgb, (0, 0, w, h), face_box, coarse, GRID_STEP, mode="paste", person=grid,
+                                         frame_size=(w, h), floor=0.02)
+    from relight.kernels.compositor import build_layer_numpy
+
+    layer, _ = build_layer_numpy(fp.relighter.frame, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape),
+                                 fp.rig.inv_ambient, fp.rig.alpha_crop, fp.compositor.normal, np.eye(3), mode="paste",
+                                 gain=1.0, strength=1.0, eps=float(fp.rig.ratio_eps), ratio_max=6.0)
+    shift = np.float32([[1, 0, fp.rig.origin[0]], [0, 1, fp.rig.origin[1]]])
+    alpha = cv2.warpAffine(np.ascontiguousarray(layer[..., 7]), shift, (w, h))  # the composited share
+    full = alpha > 0.999
+    assert full.sum() > 500
+    np.testing.assert_array_equal(out[full], face[full])
+    right = np.zeros((h, w), bool)
+    right[:, w // 2 + 4:] = True
+    np.testing.assert_array_equal(out[right & (alpha == 0)], rgb[right & (alpha == 0)])  # off the person
+    left = np.zeros((h, w), bool)
+    left[:, : w // 2 - 4] = True
+    assert (out[left & (alpha == 0)].astype(int) >= rgb[left & (alpha == 0)].astype(int)).all()
 
 
 def test_gaussian_smooth_follows_a_direct_gaussian():

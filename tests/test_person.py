@@ -78,8 +78,10 @@ def test_inflated_normals_face_the_camera_inside_and_turn_out_at_the_outline():
     assert n[60, 128, 0] > EDGE_OUTWARD and n[12, 80, 1] > EDGE_OUTWARD and n[108, 80, 1] < -EDGE_OUTWARD
 
 
-def test_no_change_of_light_changes_nothing_and_nothing_off_the_person_changes():
-    from relight.colour import decode_lut8, encode_srgb8
+def test_no_change_of_light_gives_a_ratio_of_one():
+    """The ratio over the person is 1 where the target is the live light and the face's composite
+    is its input (the person pass then changes no byte: tests/test_filter.py)."""
+    from relight.colour import decode_lut8
 
     rng = np.random.default_rng(0)
     h, w = 90, 160
@@ -94,14 +96,6 @@ def test_no_change_of_light_changes_nothing_and_nothing_off_the_person_changes()
     lin = decode_lut8()[frame]
     rho = head_light.ratio_field(lin, lin, alpha, matte, sh, sh, 25.0)
     assert np.allclose(rho, 1.0, atol=1e-4)
-    out = head_light.relight_person(frame, frame, alpha, matte, rho)
-    np.testing.assert_array_equal(out, frame)
-    # a target twice as bright: the person brightens, the wall does not move
     brighter = head_light.ratio_field(lin, np.clip(lin * 2, 0, 1), alpha, matte, 2 * sh, sh, 25.0)
-    comp = frame.copy()
-    comp[35:60, 65:95] = encode_srgb8(np.clip(lin[35:60, 65:95] * 2, 0, 1))
-    out = head_light.relight_person(frame, comp, alpha, matte, brighter)
-    off = np.ones((h, w), bool)
-    off[18:82, 48:112] = False
-    np.testing.assert_array_equal(out[off], frame[off])
-    assert out[25:30, 55:60].astype(int).mean() > frame[25:30, 55:60].astype(int).mean() + 10
+    assert (brighter[matte > 0.5] > 1.3).all()
+
