@@ -78,6 +78,10 @@ EXPOSURE_LOCK_FITS = 8
 #: Region person: the person's matte and the light's ratio over it are made every this many
 #: frames and reused between (the face's own alpha is every frame's).
 PERSON_EVERY = 2
+#: A YuvFrame relit with the person: its box converted to RGB is the face's and the last person's
+#: grown by this share of the frame's larger side (the person moves between the maps; beyond the
+#: box, the whole frame is converted).
+YUV_PERSON_MARGIN = 0.04
 #: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
 ANGLE_MIN_CUTOFF = 1.5
 ANGLE_BETA = 0.2
@@ -651,8 +655,6 @@ class FramePath:
         from relight.video_yuv import YuvFrame
 
         yuv = isinstance(rgb, YuvFrame)
-        if yuv and self.whole_head:  # the person's matte reads the whole frame
-            rgb, yuv = rgb.to_rgb(), False
         if not yuv:
             rgb = np.asarray(rgb)
             if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
@@ -757,11 +759,25 @@ class FramePath:
             tm["warp"] = (time.perf_counter() - t3) * 1e3
             tm["total"] = (time.perf_counter() - t0) * 1e3
             return rgb, info
-        # A YuvFrame: its box alone in RGB (offset: the box's corner in the frame).
+        # A YuvFrame: its box alone in RGB (offset: the box's corner in the frame) - with the
+        # person's box (the last one, grown) when the person is relit too.
         frame = rgb
         offset = np.zeros(2, np.float32)
+        frame_box = box
         if not isinstance(rgb, np.ndarray):
-            ebox = rgb.even_box(box)
+            want = box
+            if self.whole_head and self.strength > 0:
+                last = self._person_last
+                fh, fw = rgb.shape[:2]
+                if last is not None and last[2] is not None and last[3] == self._backs - 1:
+                    g = int(np.ceil(YUV_PERSON_MARGIN * max(fw, fh)))
+                    pb = last[2]
+                    want = (min(box[0], pb[0] - g), min(box[1], pb[1] - g), max(box[2], pb[2] + g),
+                            max(box[3], pb[3] + g))
+                else:  # no person's box yet: the whole frame
+                    want = (0, 0, fw, fh)
+                want = (max(want[0], 0), max(want[1], 0), min(want[2], fw), min(want[3], fh))
+            ebox = rgb.even_box(want)
             offset = np.array(ebox[:2], np.float32)
             rgb = rgb.rgb_box(ebox)
             box = (box[0] - ebox[0], box[1] - ebox[1], box[2] - ebox[0], box[3] - ebox[1])
@@ -826,7 +842,12 @@ class FramePath:
                               gain=gain * self.exposure, strength=self.strength, eps=eps,
                               ratio_max=composite.RATIO_MAX, rotation=rotation, live_median=live_median)
         if self.whole_head and layer_mode == "live" and self.strength > 0:
-            out = self._relight_person(rgb, box, coarse, rotation, tau, still=info.reused, tm=tm)
+            out = self._relight_person(frame, rgb, offset, box, coarse, rotation, tau, still=info.reused, tm=tm)
+            if out is None:  # the person reached beyond the frame's converted box: all of it in RGB
+                rgb, offset = frame.to_rgb(), np.zeros(2, np.float32)
+                box = frame_box
+                ebox = (0, 0, rgb.shape[1], rgb.shape[0])
+                out = self._relight_person(frame, rgb, offset, box, coarse, rotation, tau, still=True, tm=tm)
         else:
             out = self.compositor.composite(rgb, box, coarse, GRID_STEP, mode=layer_mode, tau=tau)
         if frame is not rgb:
@@ -871,22 +892,26 @@ class FramePath:
         facing = np.clip((turned[..., 2] - lo) / (hi - lo), 0.0, 1.0)
         return (alpha * facing * self.strength).astype(np.float32), turned, cover
 
-    def _relight_person(self, rgb: np.ndarray, box, coarse, rotation, tau: float, still: bool,
-                        tm: dict) -> np.ndarray:
+    def _relight_person(self, frame, rgb: np.ndarray, offset, box, coarse, rotation, tau: float, still: bool,
+                        tm: dict) -> np.ndarray | None:
         """The frame with the face composited (the compositor's last layer) and the light's change
         carried from it over the rest of the person (:mod:`.head_light`): hair, ears, neck,
         shoulders; nothing off the person changes. One kernel pass at full resolution
         (``composite_person``) over the face's box and the person's. The person's maps (its matte,
         the ratio) are made at the work scale from a copy of the frame whose face is composited
-        by the same kernel there. ``still``: the head has not turned since the last relight (the
-        maps are kept)."""
+        by the same kernel there. ``frame``: the frame as given (an array or a YuvFrame); ``rgb``
+        the part of it converted to RGB, whose corner is ``offset`` in the frame (``box``: the
+        face's box in ``rgb``). ``still``: the head has not turned since the last relight (the maps
+        are kept). None when the person reaches beyond ``rgb`` (a YuvFrame's box: convert more)."""
         from . import head_light
         from .person import WORK_ROWS
 
         t0 = time.perf_counter()
-        h, w = rgb.shape[:2]
+        h, w = frame.shape[:2]
         sc = min(1.0, WORK_ROWS / h)
         work = (max(1, round(w * sc)), max(1, round(h * sc)))
+        ox, oy = int(offset[0]), int(offset[1])
+        face_box = (box[0] + ox, box[1] + oy, box[2] + ox, box[3] + oy)  # in the frame
         # The maps (smooth, slow to change) made every PERSON_EVERY frames and reused between
         # (not across a frame the person was left out of: no face, another mode, strength 0); the
         # face's own alpha in the kernel is this frame's.
@@ -897,19 +922,25 @@ class FramePath:
             self._person_age += 1
             grid, person_box = last[1], last[2]
         else:
-            grid, person_box = self._person_maps(rgb, box, coarse, rotation, tau, work)
+            grid, person_box = self._person_maps(frame, face_box, coarse, rotation, tau, work)
             self._person_age = 0
         self._person_last = (work, grid, person_box, self._backs)
-        union = box if person_box is None else (min(box[0], person_box[0]), min(box[1], person_box[1]),
-                                                max(box[2], person_box[2]), max(box[3], person_box[3]))
+        union = face_box if person_box is None else (
+            min(face_box[0], person_box[0]), min(face_box[1], person_box[1]),
+            max(face_box[2], person_box[2]), max(face_box[3], person_box[3]))
+        union = (union[0] - ox, union[1] - oy, union[2] - ox, union[3] - oy)  # in rgb
+        if union[0] < 0 or union[1] < 0 or union[2] > rgb.shape[1] or union[3] > rgb.shape[0]:
+            return None
         out = self.compositor.composite_person(rgb, union, box, coarse, GRID_STEP, mode="live", tau=tau,
-                                               person=grid, frame_size=(w, h), floor=head_light.MATTE_FLOOR)
+                                               person=grid, frame_size=(w, h), floor=head_light.MATTE_FLOOR,
+                                               offset=(ox, oy))
         tm["person"] = (time.perf_counter() - t0) * 1e3
         return out
 
-    def _person_maps(self, rgb: np.ndarray, box, coarse, rotation, tau: float, work):
+    def _person_maps(self, frame, box, coarse, rotation, tau: float, work):
         """(the person grid (h, w, 4) float32 at the work scale: rho - 1 and the matte; the frame's
-        box it reaches (x0, y0, x1, y1), None when nowhere) - see :meth:`_relight_person`."""
+        box it reaches (x0, y0, x1, y1), None when nowhere) - see :meth:`_relight_person`
+        (``box``: the face's, in the frame)."""
         from relight.colour import decode_lut8
         from relight.spherical_harmonics import lights_sh9
 
@@ -918,13 +949,13 @@ class FramePath:
 
         if self.person is None:
             self.person = PersonMatte()
-        h, w = rgb.shape[:2]
+        h, w = frame.shape[:2]
         ww, wh = work
         alpha, face_normals, cover = self._face_alpha_work(box, coarse, rotation, (w, h), work)
         face_px = float(np.sqrt(max(float((alpha > 0.5).sum()), 1.0)))
         # One copy of the frame at the work scale serves the matte, its colour check and the ratio;
         # its face composited by the same kernel as the frame's (the face's ratio, at that scale).
-        small = downscale_area(rgb, work)
+        small = downscale_area(frame, work) if isinstance(frame, np.ndarray) else frame.small_rgb(work)
         sx, sy = w / ww, h / wh
         face_small = (max(int(box[0] / sx) - 1, 0), max(int(box[1] / sy) - 1, 0),
                       min(int(np.ceil(box[2] / sx)) + 1, ww), min(int(np.ceil(box[3] / sy)) + 1, wh))

@@ -237,14 +237,15 @@ __kernel void warp_composite(
  * the face's composite as warp_composite makes it inside the face's box (fx0, fy0, fw, fh: frame
  * px; a = 0 outside it), G = rho - 1 the light's change over the person and m its matte: the
  * float4 (G, m) of a grid (gh, gw) over the frame, bilinear at the pixel's centre (sx, sy: the
- * grid's size over the frame's; edges replicated; gw = 0: none, the face alone). The face's
+ * grid's size over the frame's; edges replicated; gw = 0: none, the face alone) - the image's
+ * positions moved by (gox, goy) there (an image of a box of the frame: the box's corner). The face's
  * composite is never scaled by the matte: the compositor holds it to the face. */
 __kernel void composite_person(
     __global uchar *img, int img_w, int bx0, int by0, int bw, int bh, float scx, float scy,
     int fx0, int fy0, int fw, int fh,
     __global const float2 *coarse, int cgw, int step, float ox, float oy,
     __global const float8 *layer, int cw, int ch, __global const float *expect,
-    __global const float4 *person, int gw, int gh, float sx, float sy, float floor_w,
+    __global const float4 *person, int gw, int gh, float sx, float sy, float gox, float goy, float floor_w,
     __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau)
 {
     int x = get_global_id(0), y = get_global_id(1);
@@ -260,7 +261,7 @@ __kernel void composite_person(
     if (fx >= 0.0f && fy >= 0.0f && fx <= (float)(fw - 1) && fy <= (float)(fh - 1))
         changed = face_at(fx, fy, f, coarse, cgw, step, ox, oy, layer, cw, ch, expect, mode, tau, &res, &a);
     if (gw > 0) {
-        float gx = (X + 0.5f) * sx - 0.5f, gy = (Y + 0.5f) * sy - 0.5f;
+        float gx = (X + gox + 0.5f) * sx - 0.5f, gy = (Y + goy + 0.5f) * sy - 0.5f;
         int x0 = ifloor(gx), y0 = ifloor(gy);
         float ax = gx - (float)x0, ay = gy - (float)y0;
         int xa = x0 < 0 ? 0 : (x0 > gw - 1 ? gw - 1 : x0), xb = x0 + 1 < 0 ? 0 : (x0 + 1 > gw - 1 ? gw - 1 : x0 + 1);

@@ -125,13 +125,14 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
 
 def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, origin, layer, *,
                            mode: str, tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
-                           frame_size=None, floor: float = 0.0) -> np.ndarray:
+                           frame_size=None, floor: float = 0.0, offset=(0.0, 0.0)) -> np.ndarray:
     """NumPy twin of ``composite_person``: a new image. ``img`` (h, w, 3) uint8 sRGB whose pixel
     (i, j) sits at frame position ((i + 0.5) sx - 0.5, (j + 0.5) sy - 0.5), ``scale`` = sx or
     (sx, sy); ``box`` (x0, y0,
     x1, y1) the image's pixels worked on; ``face_box`` the face's box in the frame (the one
     ``coarse`` covers); ``person`` (gh, gw, 4) float32 (rho - 1, matte) on a grid over the frame
-    (None: the face alone) of ``frame_size`` (W, H); ``floor``: the person's share below which
+    (None: the face alone) of ``frame_size`` (W, H), read at the image's positions plus ``offset``
+    (an image of a box of the frame: the box's corner); ``floor``: the person's share below which
     nothing is added."""
     from relight.colour import LUMINANCE
 
@@ -182,8 +183,9 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
     if person is not None:
         gh, gw = person.shape[:2]
         w, h = (np.float32(v) for v in frame_size)
-        g = _bilinear_replicate(person, (fx + np.float32(0.5)) * np.float32(gw / w) - np.float32(0.5),
-                                (fy + np.float32(0.5)) * np.float32(gh / h) - np.float32(0.5))
+        ox, oy = (np.float32(v) for v in offset)
+        g = _bilinear_replicate(person, (fx + ox + np.float32(0.5)) * np.float32(gw / w) - np.float32(0.5),
+                                (fy + oy + np.float32(0.5)) * np.float32(gh / h) - np.float32(0.5))
         wgt = np.maximum(g[:, 3], a_all) * (1.0 - a_all)
         on = wgt > np.float32(floor)
         res_all[on] += f_all[on] * wgt[on, None] * g[on, :3]
@@ -343,7 +345,7 @@ class Compositor:
 
     def composite_person(self, img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, *, mode: str,
                          tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
-                         frame_size=None, floor: float = 0.0) -> np.ndarray:
+                         frame_size=None, floor: float = 0.0, offset=(0.0, 0.0)) -> np.ndarray:
         """``img`` with the face of the last :meth:`layer` and the person's change of light
         composited over ``box`` (a new array): the ``composite_person`` kernel (its twin and the
         arguments: :func:`composite_person_numpy`). A read-only ``person`` grid handed again (the
@@ -379,7 +381,7 @@ class Compositor:
                            np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
                            np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch),
                            self._expect, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx), np.float32(sy),
-                           np.float32(floor), self._dec, self._enc, np.int32(self.lut_n),
-                           np.int32(LAYER_MODES[mode]), np.float32(tau))
+                           np.float32(offset[0]), np.float32(offset[1]), np.float32(floor), self._dec, self._enc,
+                           np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau))
 
         return self._rows_through(img, (bx0, by0, bx1, by1), launch)

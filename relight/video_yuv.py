@@ -138,6 +138,16 @@ class YuvFrame:
         _, g = cv2.threshold(g, 0.0, 0.0, cv2.THRESH_TOZERO)  # below 0 -> 0
         return cv2.convertScaleAbs(g)  # rounded, saturated at 255
 
+    def small_rgb(self, size: tuple[int, int]) -> np.ndarray:
+        """(h, w, 3) uint8 sRGB of the frame scaled down to ``size`` (w, h) by
+        :func:`downscale_area`: the planes scaled first, then converted (the conversion is linear:
+        clipping aside, the same). An odd size, or one not smaller than the frame, from the RGB."""
+        w, h = size
+        if w % 2 or h % 2 or w >= self.y.shape[1] or h >= self.y.shape[0]:
+            return downscale_area(self.to_rgb(), (w, h))
+        return self._rgb(downscale_area(self.y, (w, h)), downscale_area(self.u, (w // 2, h // 2)),
+                         downscale_area(self.v, (w // 2, h // 2)))
+
     def even_box(self, box: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
         """``box`` grown to even edges (whole chroma samples), clipped to the frame."""
         x0, y0, x1, y1 = box

@@ -419,8 +419,6 @@ def _filter_video(inp, out, pipeline, crf, res, progress, tqdm):
     from relight.video import MAX_VIDEO_FRAMES, METADATA_ERRORS, frame_to_rgb, probe_video, release_frames, to_yuv
     from relight.video_yuv import YuvFrame
 
-    # The whole-person path reads the whole frame in RGB anyway.
-    keep_yuv = not pipeline.fp.whole_head
 
     info = probe_video(inp)
     suffix = out.suffix.lower()
@@ -477,7 +475,7 @@ def _filter_video(inp, out, pipeline, crf, res, progress, tqdm):
                             raise InputError(f"{inp}: more than {MAX_VIDEO_FRAMES} frames; trim the video")
                         # Kept in its planes where it can be (only the face's box is converted: a
                         # third of the frame's CPU at 720p), else RGB as displayed (upright).
-                        rgb = YuvFrame.from_av(frame) if keep_yuv else None
+                        rgb = YuvFrame.from_av(frame)
                         if rgb is None:
                             rgb = frame_to_rgb(frame)
                         if rgb.shape[:2] != (info.height, info.width):

@@ -43,6 +43,7 @@ from .tolerances import (
     YUV_GREY_CODES,
     YUV_RELIT_MEAN_CODES,
     YUV_ROUNDTRIP_CODES,
+    YUV_SMALL_MEAN_CODES,
 )
 
 
@@ -255,7 +256,7 @@ def test_the_mesh_warp_is_the_piecewise_affine_warp_drawn_with_depth():
     assert mesh_coarse_map(cur2[:3], ref2[:3], np.array([[0, 2, 1]], np.int32), box2) is None
 
 
-def test_a_frame_kept_in_its_planes_is_converted_only_where_it_is_relit(clip, small_bundle):
+def test_a_frame_kept_in_its_planes_is_converted_only_where_it_is_relit(clip, small_bundle, monkeypatch):
     """The Y'CbCr path (relight.video_yuv): the tracker's grey and a box's RGB as the RGB path
     makes them, a changed box written back only where it changed, and a frame relit through the
     planes as through RGB - with every pixel off the face bit for bit the decoder's."""
@@ -289,20 +290,29 @@ def test_a_frame_kept_in_its_planes_is_converted_only_where_it_is_relit(clip, sm
     back = out.rgb_box(box)[14:26, 14:26]  # the chroma filter reaches 2 px in from the patch edge
     assert np.abs(back.astype(int) - (200, 90, 40)).max() <= YUV_ROUNDTRIP_CODES
     assert np.array_equal(yf[0].to_av().to_ndarray(format="yuv420p")[:h], yf[0].y)
-    # relit through the planes and through RGB: the same frames; off the face, the decoder's planes
-    # (region face: the person's matte reads the whole frame, which is then converted)
-    fp = FramePath(small_bundle, load_environment("builtin:sunset"), region="face")
-    a = [fp.process(f, i / 30) for i, f in enumerate(rgb)]
-    fp.reset()
-    b = [fp.process(f, i / 30) for i, f in enumerate(yf)]
-    assert sum(i.face for _, i in b) == sum(i.face for _, i in a) > 6
-    for (ra, _), (yb, ib), src, yin in zip(a, b, rgb, yf, strict=True):
-        assert isinstance(yb, YuvFrame)
-        if not ib.face:
-            continue
-        changed = (ra != src).any(axis=2) | (yb.y != yin.y)
-        assert np.abs(yb.to_rgb().astype(int) - ra)[changed].mean() < YUV_RELIT_MEAN_CODES
-        assert np.array_equal(yb.y[~changed], yin.y[~changed])
+    # relit through the planes and through RGB: the same frames; off what was relit, the decoder's
+    # planes - the face alone, and the whole person (its maps from the planes scaled down, the
+    # frame converted in the face's and the person's box)
+    small = yf[0].small_rgb((w // 2, h // 2))
+    d = np.abs(small.astype(int) - cv2.resize(rgb[0], (w // 2, h // 2), interpolation=cv2.INTER_AREA))
+    assert d.mean() < YUV_SMALL_MEAN_CODES
+    from relight.engine import frame_path as fpm
+
+    for region, margin in (("face", fpm.YUV_PERSON_MARGIN), ("person", fpm.YUV_PERSON_MARGIN), ("person", -0.3)):
+        # (a margin below 0: the person always beyond the converted box - the whole frame's fallback)
+        monkeypatch.setattr(fpm, "YUV_PERSON_MARGIN", margin)
+        fp = FramePath(small_bundle, load_environment("builtin:sunset"), region=region)
+        a = [fp.process(f, i / 30) for i, f in enumerate(rgb)]
+        fp.reset()
+        b = [fp.process(f, i / 30) for i, f in enumerate(yf)]
+        assert sum(i.face for _, i in b) == sum(i.face for _, i in a) > 6
+        for (ra, _), (yb, ib), src, yin in zip(a, b, rgb, yf, strict=True):
+            assert isinstance(yb, YuvFrame)
+            if not ib.face:
+                continue
+            changed = (ra != src).any(axis=2) | (yb.y != yin.y)
+            assert np.abs(yb.to_rgb().astype(int) - ra)[changed].mean() < YUV_RELIT_MEAN_CODES
+            assert np.array_equal(yb.y[~changed], yin.y[~changed])
 
 
 def test_frames_are_relit_on_the_face_and_untouched_elsewhere(frame_path, small_bundle, clip):

@@ -323,6 +323,10 @@ YUV_GREY_CODES = 2
 YUV_BOX_MEAN_CODES = 0.5
 YUV_BOX_MAX_CODES = 8
 YUV_ROUNDTRIP_CODES = 3
+#: A work-scale copy made from the planes scaled first (the person's maps) against the RGB frame
+#: scaled: the mean absolute difference (8-bit codes; chroma filtered at a coarser grid, then
+#: converted).
+YUV_SMALL_MEAN_CODES = 1.0
 #: The relit frame through the planes against the same frame relit through RGB: mean absolute
 #: difference over the pixels either changed (8-bit codes).
 YUV_RELIT_MEAN_CODES = 1.0
