@@ -6,9 +6,10 @@ then, per frame, :meth:`FramePath.front` (track, head pose: a :class:`Front`) an
 :meth:`FramePath.back` (relight, live light, warp, composite). :class:`FramePath` is the one
 stateful object: the rig, the relighter, the tracker, the pose estimators and filters, the live
 light and the environment. ``process(frame, t)`` takes an (H, W, 3) uint8 sRGB frame - or a
-:class:`relight.video_yuv.YuvFrame`, a decoded frame kept in its planes (only the face's box is
-converted) - and its time in seconds, and returns the relit frame (the same kind, same size; the
-input unchanged where no face is found) and a :class:`FrameInfo`.
+:class:`relight.video_yuv.YuvFrame`, a decoded frame kept in its planes (only the face's box -
+and the person's, region person - is converted) - and its time in seconds, and returns the relit
+frame (the same kind, same size; the input unchanged where no face is found) and a
+:class:`FrameInfo`.
 
 Frames of any size work: tracking finds the face wherever it is; the warp maps the bundle's
 reference into the frame. Only the face's box is converted to linear light and back.
@@ -848,6 +849,7 @@ class FramePath:
                 box = frame_box
                 ebox = (0, 0, rgb.shape[1], rgb.shape[0])
                 out = self._relight_person(frame, rgb, offset, box, coarse, rotation, tau, still=True, tm=tm)
+                self._person_age -= 1  # (the maps just made: not a frame older)
         else:
             out = self.compositor.composite(rgb, box, coarse, GRID_STEP, mode=layer_mode, tau=tau)
         if frame is not rgb:
@@ -916,8 +918,8 @@ class FramePath:
         # (not across a frame the person was left out of: no face, another mode, strength 0); the
         # face's own alpha in the kernel is this frame's.
         last = self._person_last
-        reuse = (last is not None and last[0] == work and last[3] == self._backs - 1
-                 and (still or self._person_age + 1 < PERSON_EVERY))
+        reuse = (last is not None and last[0] == work and last[3] >= self._backs - 1
+                 and (still or self._person_age + 1 < PERSON_EVERY))  # (this call's own: the fallback)
         if reuse:
             self._person_age += 1
             grid, person_box = last[1], last[2]

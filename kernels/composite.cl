@@ -33,6 +33,8 @@
  *      face = T (1 + s soft(lum f / lum E - 1, tau)) in luminance; the rule above;
  *   4. sRGB encode through the 16k-entry table (as relight.colour.encode_srgb8).
  * Pixels outside the warp keep their bytes.
+ * composite_person (region person): warp_composite's face plus the light's change over the rest
+ * of the person, in one pass over the face's box and the person's (see the kernel).
  */
 
 #define OUTSIDE_HALF (-5.0e3f)
