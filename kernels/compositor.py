@@ -6,7 +6,8 @@ the bundle's prediction T, alpha), ``warp_composite`` samples it once per frame 
 composites ``face = s f r + (1 - s) T``, ``out = f + a (face - f)`` (see the .cl file for each
 mode); ``composite_person`` does the same and adds the light's change over the rest of the
 person, ``f max(m, a) (1 - a) (rho - 1)``, over the face's box and the person's - on the frame
-or on a smaller copy of it (region person: :mod:`relight.engine.head_light`). Arrays (reference crop of ch x cw pixels whose top-left is reference pixel ``origin``):
+or on a smaller copy of it (region person: :mod:`relight.engine.head_light`).
+Arrays (reference crop of ch x cw pixels whose top-left is reference pixel ``origin``):
 alpha (ch, cw) float32 feathered mask; fill (ch, cw) int32 index into the relit frame's pixels
 (-1 = none); inv_amb (ch, cw, 3) float32 = 1 / (reference ambient + eps); relit, live: the
 Relighter's (H_ref, W_ref, 3) float32 linear frames (the target light; the live light).
