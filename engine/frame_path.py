@@ -262,6 +262,11 @@ def _aligned_box(small_mask: np.ndarray, full_shape: tuple[int, int]):
     return (out_s[0], out_s[1], out_s[2], out_s[3]), (out_f[0], out_f[1], out_f[2], out_f[3])
 
 
+def _union_box(a, b) -> tuple[int, int, int, int]:
+    """The smallest box (x0, y0, x1, y1) holding boxes ``a`` and ``b``."""
+    return min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])
+
+
 def _sample_rgb(rgb: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """(N, 3) uint8 pixels of ``rgb`` nearest to points ``xy`` (clipped to the frame)."""
     h, w = rgb.shape[:2]
@@ -768,17 +773,15 @@ class FramePath:
         if not isinstance(rgb, np.ndarray):
             want = box
             if self.whole_head and self.strength > 0:
-                last = self._person_last
+                last = self._last_person()
                 fh, fw = rgb.shape[:2]
-                if last is not None and last[2] is not None and last[3] == self._backs - 1:
+                if last is not None and last[2] is not None:
                     g = int(np.ceil(YUV_PERSON_MARGIN * max(fw, fh)))
                     pb = last[2]
-                    want = (min(box[0], pb[0] - g), min(box[1], pb[1] - g), max(box[2], pb[2] + g),
-                            max(box[3], pb[3] + g))
+                    want = _union_box(box, (pb[0] - g, pb[1] - g, pb[2] + g, pb[3] + g))
                 else:  # no person's box yet: the whole frame
                     want = (0, 0, fw, fh)
-                want = (max(want[0], 0), max(want[1], 0), min(want[2], fw), min(want[3], fh))
-            ebox = rgb.even_box(want)
+            ebox = rgb.even_box(want)  # (clipped to the frame)
             offset = np.array(ebox[:2], np.float32)
             rgb = rgb.rgb_box(ebox)
             box = (box[0] - ebox[0], box[1] - ebox[1], box[2] - ebox[0], box[3] - ebox[1])
@@ -843,13 +846,24 @@ class FramePath:
                               gain=gain * self.exposure, strength=self.strength, eps=eps,
                               ratio_max=composite.RATIO_MAX, rotation=rotation, live_median=live_median)
         if self.whole_head and layer_mode == "live" and self.strength > 0:
-            out = self._relight_person(frame, rgb, offset, box, coarse, rotation, tau, still=info.reused, tm=tm)
-            if out is None:  # the person reached beyond the frame's converted box: all of it in RGB
-                rgb, offset = frame.to_rgb(), np.zeros(2, np.float32)
-                box = frame_box
+            # The light's change carried from the face over the rest of the person (.head_light):
+            # hair, ears, neck, shoulders; nothing off the person changes - the face's composite
+            # and the person's in one kernel pass over the face's box and the person's.
+            t6 = time.perf_counter()
+            from .head_light import MATTE_FLOOR
+
+            grid, union = self._person(frame, frame_box, coarse, rotation, tau, still=info.reused)
+            ox, oy = int(offset[0]), int(offset[1])
+            if frame is not rgb and not (union[0] >= ox and union[1] >= oy and union[2] <= ox + rgb.shape[1]
+                                         and union[3] <= oy + rgb.shape[0]):
+                # the person reached beyond the frame's converted box: all of it in RGB
+                rgb, ox, oy, box = frame.to_rgb(), 0, 0, frame_box
                 ebox = (0, 0, rgb.shape[1], rgb.shape[0])
-                out = self._relight_person(frame, rgb, offset, box, coarse, rotation, tau, still=True, tm=tm)
-                self._person_age -= 1  # (the maps just made: not a frame older)
+            h, w = frame.shape[:2]
+            out = self.compositor.composite_person(rgb, (union[0] - ox, union[1] - oy, union[2] - ox, union[3] - oy),
+                                                   box, coarse, GRID_STEP, mode="live", tau=tau, person=grid,
+                                                   frame_size=(w, h), floor=MATTE_FLOOR, offset=(ox, oy))
+            tm["person"] = (time.perf_counter() - t6) * 1e3
         else:
             out = self.compositor.composite(rgb, box, coarse, GRID_STEP, mode=layer_mode, tau=tau)
         if frame is not rgb:
@@ -894,55 +908,39 @@ class FramePath:
         facing = np.clip((turned[..., 2] - lo) / (hi - lo), 0.0, 1.0)
         return (alpha * facing * self.strength).astype(np.float32), turned, cover
 
-    def _relight_person(self, frame, rgb: np.ndarray, offset, box, coarse, rotation, tau: float, still: bool,
-                        tm: dict) -> np.ndarray | None:
-        """The frame with the face composited (the compositor's last layer) and the light's change
-        carried from it over the rest of the person (:mod:`.head_light`): hair, ears, neck,
-        shoulders; nothing off the person changes. One kernel pass at full resolution
-        (``composite_person``) over the face's box and the person's. The person's maps (its matte,
-        the ratio) are made at the work scale from a copy of the frame whose face is composited
-        by the same kernel there. ``frame``: the frame as given (an array or a YuvFrame); ``rgb``
-        the part of it converted to RGB, whose corner is ``offset`` in the frame (``box``: the
-        face's box in ``rgb``). ``still``: the head has not turned since the last relight (the maps
-        are kept). None when the person reaches beyond ``rgb`` (a YuvFrame's box: convert more)."""
-        from . import head_light
+    def _last_person(self):
+        """The person's maps (work size, grid, the frame's box, the back() call that used them) if
+        the last back() call used them - they serve only the call right after (not across a frame
+        the person was left out of: no face, another mode, strength 0) - else None."""
+        last = self._person_last
+        return last if last is not None and last[3] == self._backs - 1 else None
+
+    def _person(self, frame, face_box, coarse, rotation, tau: float, still: bool):
+        """(the person grid (h, w, 4) at the work scale: rho - 1 and the matte; the frame's box the
+        face and the person reach) for this frame: the maps (smooth, slow to change) made every
+        PERSON_EVERY frames and reused between, kept while the head is ``still`` (the face's own
+        alpha in the kernel is this frame's). ``frame``: as given (an array or a YuvFrame);
+        ``face_box``: the face's box in it."""
         from .person import WORK_ROWS
 
-        t0 = time.perf_counter()
         h, w = frame.shape[:2]
         sc = min(1.0, WORK_ROWS / h)
         work = (max(1, round(w * sc)), max(1, round(h * sc)))
-        ox, oy = int(offset[0]), int(offset[1])
-        face_box = (box[0] + ox, box[1] + oy, box[2] + ox, box[3] + oy)  # in the frame
-        # The maps (smooth, slow to change) made every PERSON_EVERY frames and reused between
-        # (not across a frame the person was left out of: no face, another mode, strength 0); the
-        # face's own alpha in the kernel is this frame's.
-        last = self._person_last
-        reuse = (last is not None and last[0] == work and last[3] >= self._backs - 1
-                 and (still or self._person_age + 1 < PERSON_EVERY))  # (this call's own: the fallback)
-        if reuse:
+        last = self._last_person()
+        if last is not None and last[0] == work and (still or self._person_age + 1 < PERSON_EVERY):
             self._person_age += 1
             grid, person_box = last[1], last[2]
         else:
             grid, person_box = self._person_maps(frame, face_box, coarse, rotation, tau, work)
             self._person_age = 0
         self._person_last = (work, grid, person_box, self._backs)
-        union = face_box if person_box is None else (
-            min(face_box[0], person_box[0]), min(face_box[1], person_box[1]),
-            max(face_box[2], person_box[2]), max(face_box[3], person_box[3]))
-        union = (union[0] - ox, union[1] - oy, union[2] - ox, union[3] - oy)  # in rgb
-        if union[0] < 0 or union[1] < 0 or union[2] > rgb.shape[1] or union[3] > rgb.shape[0]:
-            return None
-        out = self.compositor.composite_person(rgb, union, box, coarse, GRID_STEP, mode="live", tau=tau,
-                                               person=grid, frame_size=(w, h), floor=head_light.MATTE_FLOOR,
-                                               offset=(ox, oy))
-        tm["person"] = (time.perf_counter() - t0) * 1e3
-        return out
+        return grid, face_box if person_box is None else _union_box(face_box, person_box)
 
     def _person_maps(self, frame, box, coarse, rotation, tau: float, work):
         """(the person grid (h, w, 4) float32 at the work scale: rho - 1 and the matte; the frame's
-        box it reaches (x0, y0, x1, y1), None when nowhere) - see :meth:`_relight_person`
-        (``box``: the face's, in the frame)."""
+        box it reaches (x0, y0, x1, y1), None when nowhere) - see :meth:`_person` (``box``: the
+        face's, in the frame). The maps are made at the work scale from one copy of the frame
+        whose face is composited by the same kernel as the frame's."""
         from relight.colour import decode_lut8
         from relight.spherical_harmonics import lights_sh9
 

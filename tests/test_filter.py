@@ -527,7 +527,7 @@ def test_filter_bad_input_fails_cleanly_and_leaves_no_output(small_bundle, clip,
 @pytest.mark.parametrize("mode", ["ambient", "paste", "live"])
 def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     from relight.engine.warp import GRID_STEP, coarse_map
-    from relight.kernels.compositor import build_layer_numpy, warp_composite_numpy
+    from relight.kernels.compositor import warp_composite_numpy
 
     _, frames = clip
     fp = frame_path
@@ -543,15 +543,13 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     coarse = coarse_map(cur, ref, box)
     fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(8, -4, 2))
     # The live slot: the face under a light from the left (some of it dark: the trust ramps act).
-    live = np.array(fp.relighter.relight_texels(_texel_point(fp.relighter, [-0.8, 0.2, 0.55]), slot="live"))
-    lum = live.reshape(-1, 3)[fp.rig.live_full] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    live, live_median = _live_slot(fp, [-0.8, 0.2, 0.55])
     settings = dict(mode=mode, gain=1.3, strength=0.8, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
-                    live_median=float(np.median(lum)))
+                    live_median=live_median)
     turn = rotation_matrix(25, -10, 5)  # some of the face turned away: it fades out
     got = fp.compositor.run(rgb, box, coarse, GRID_STEP, relit=fp.relighter.buffer(), live=fp.relighter.slot("live")[1],
                             rotation=turn, **settings)
-    layer = build_layer_numpy(fp.relighter.frame, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape), fp.rig.inv_ambient,
-                              fp.rig.alpha_crop, fp.compositor.normal, turn, live=live, **settings)
+    layer = _layer_numpy(fp, turn, live=live, **settings)
     if mode == "live":
         s = layer[0][..., 3][fp.rig.alpha_crop > 0.5]
         # the live pixel trusted in places, and distrusted in others
@@ -609,7 +607,7 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
     rounding - on the frame (scale 1) and on a smaller copy of it (the work scale's pass); with
     no person grid, the face's composite alone, as warp_composite makes it."""
     from relight.engine.warp import GRID_STEP, coarse_map
-    from relight.kernels.compositor import build_layer_numpy, composite_person_numpy
+    from relight.kernels.compositor import composite_person_numpy
 
     _, frames = clip
     fp = frame_path
@@ -622,14 +620,12 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
                 min(int(cur[:, 1].max()) + 1, h))
     coarse = coarse_map(cur, ref, face_box)
     fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(5, -3, 1))
-    live = np.array(fp.relighter.relight_texels(_texel_point(fp.relighter, [-0.7, 0.2, 0.6]), slot="live"))
-    lum = live.reshape(-1, 3)[fp.rig.live_full] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    live, live_median = _live_slot(fp, [-0.7, 0.2, 0.6])
     settings = dict(mode="live", gain=1.2, strength=1.0, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
-                    live_median=float(np.median(lum)))
+                    live_median=live_median)
     turn = rotation_matrix(10, -5, 2)
     fp.compositor.layer(relit=fp.relighter.buffer(), live=fp.relighter.slot("live")[1], rotation=turn, **settings)
-    layer = build_layer_numpy(fp.relighter.frame, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape), fp.rig.inv_ambient,
-                              fp.rig.alpha_crop, fp.compositor.normal, turn, live=live, **settings)
+    layer = _layer_numpy(fp, turn, live=live, **settings)
     sx, sy = np.broadcast_to(np.asarray(scale, float), (2,))
     img = rgb if sx == 1.0 else cv2.resize(rgb, (round(w / sx), round(h / sy)), interpolation=cv2.INTER_AREA)
     grid = _person_grid(rng, (h // 8, w // 8))
@@ -703,11 +699,8 @@ def test_the_person_region_leaves_the_face_composite_as_it_is(frame_path, clip):
     grid[:, : w // 8, 3] = 1.0  # the matte: the left half of the frame only (misses the face's right)
     out = fp.compositor.composite_person(rgb, (0, 0, w, h), face_box, coarse, GRID_STEP, mode="paste", person=grid,
                                          frame_size=(w, h), floor=0.02)
-    from relight.kernels.compositor import build_layer_numpy
-
-    layer, _ = build_layer_numpy(fp.relighter.frame, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape),
-                                 fp.rig.inv_ambient, fp.rig.alpha_crop, fp.compositor.normal, np.eye(3), mode="paste",
-                                 gain=1.0, strength=1.0, eps=float(fp.rig.ratio_eps), ratio_max=6.0)
+    layer, _ = _layer_numpy(fp, np.eye(3), mode="paste", gain=1.0, strength=1.0, eps=float(fp.rig.ratio_eps),
+                            ratio_max=6.0)
     shift = np.float32([[1, 0, fp.rig.origin[0]], [0, 1, fp.rig.origin[1]]])
     alpha = cv2.warpAffine(np.ascontiguousarray(layer[..., 7]), shift, (w, h))  # the composited share
     full = alpha > 0.999
@@ -744,6 +737,22 @@ def _texel_point(relighter, direction):
 
     lp = point_light(np.asarray(direction, float) / np.linalg.norm(direction), relighter.map_size, relighter.texels)
     return np.repeat(lp[:, None], 3, axis=1) if lp.ndim == 1 else lp
+
+
+def _live_slot(fp, direction):
+    """The frame path's live slot relit by one light toward ``direction``: (the (H, W, 3) frame,
+    the median luminance of the live light's sample pixels in it)."""
+    live = np.array(fp.relighter.relight_texels(_texel_point(fp.relighter, direction), slot="live"))
+    lum = live.reshape(-1, 3)[fp.rig.live_full] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    return live, float(np.median(lum))
+
+
+def _layer_numpy(fp, rotation, **settings):
+    """build_layer_numpy over the frame path's rig and relit frame (settings: its keywords)."""
+    from relight.kernels.compositor import build_layer_numpy
+
+    return build_layer_numpy(fp.relighter.frame, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape),
+                             fp.rig.inv_ambient, fp.rig.alpha_crop, fp.compositor.normal, rotation, **settings)
 
 
 def test_filter_keeps_variable_frame_rate_timestamps(small_bundle, clip, tmp_path):
