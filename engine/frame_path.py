@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -83,6 +84,11 @@ PERSON_EVERY = 2
 #: grown by this share of the frame's larger side (the person moves between the maps; beyond the
 #: box, the whole frame is converted).
 YUV_PERSON_MARGIN = 0.04
+#: Work pixels beyond the person's share the ratio is made over: the kernel's bilinear reach and a
+#: few cells of the ratio's coarser grid, so its smoothing sees past the person's edge as over the
+#: whole frame (measured on the truth clip against the whole frame's maps: 4 px cost 0.04 dB and
+#: the seam 0.02; 12 px gave the same figures).
+RATIO_REACH = 12
 #: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
 ANGLE_MIN_CUTOFF = 1.5
 ANGLE_BETA = 0.2
@@ -513,6 +519,18 @@ class FaceRig:
         return cls(**{k: getattr(r, k) for k in cls.__dataclass_fields__})
 
 
+class PersonMaps(NamedTuple):
+    """The person's maps of a frame (region person), at the work scale (:data:`.person.WORK_ROWS`
+    rows) over the box of it the person reaches: ``grid`` (h, w, 4) float32 read-only, rho - 1
+    and the matte; ``origin`` (x, y) its corner in work px; ``scale`` (sx, sy) work px per frame
+    px; ``box`` the frame's box (x0, y0, x1, y1) the person reaches, None when nowhere."""
+
+    grid: np.ndarray
+    origin: tuple[int, int]
+    scale: tuple[float, float]
+    box: tuple[int, int, int, int] | None
+
+
 class FramePath:
     """Relights faces in frames with one bundle (see the module docstring).
 
@@ -775,9 +793,9 @@ class FramePath:
             if self.whole_head and self.strength > 0:
                 last = self._last_person()
                 fh, fw = rgb.shape[:2]
-                if last is not None and last[2] is not None:
+                if last is not None and last[1].box is not None:
                     g = int(np.ceil(YUV_PERSON_MARGIN * max(fw, fh)))
-                    pb = last[2]
+                    pb = last[1].box
                     want = _union_box(box, (pb[0] - g, pb[1] - g, pb[2] + g, pb[3] + g))
                 else:  # no person's box yet: the whole frame
                     want = (0, 0, fw, fh)
@@ -852,17 +870,17 @@ class FramePath:
             t6 = time.perf_counter()
             from .head_light import MATTE_FLOOR
 
-            grid, union = self._person(frame, frame_box, coarse, rotation, tau, still=info.reused)
+            maps, union = self._person(frame, frame_box, coarse, rotation, tau, still=info.reused)
             ox, oy = int(offset[0]), int(offset[1])
             if frame is not rgb and not (union[0] >= ox and union[1] >= oy and union[2] <= ox + rgb.shape[1]
                                          and union[3] <= oy + rgb.shape[0]):
                 # the person reached beyond the frame's converted box: all of it in RGB
                 rgb, ox, oy, box = frame.to_rgb(), 0, 0, frame_box
                 ebox = (0, 0, rgb.shape[1], rgb.shape[0])
-            h, w = frame.shape[:2]
             out = self.compositor.composite_person(rgb, (union[0] - ox, union[1] - oy, union[2] - ox, union[3] - oy),
-                                                   box, coarse, GRID_STEP, mode="live", tau=tau, person=grid,
-                                                   frame_size=(w, h), floor=MATTE_FLOOR, offset=(ox, oy))
+                                                   box, coarse, GRID_STEP, mode="live", tau=tau, person=maps.grid,
+                                                   person_origin=maps.origin, person_scale=maps.scale,
+                                                   floor=MATTE_FLOOR, offset=(ox, oy))
             tm["person"] = (time.perf_counter() - t6) * 1e3
         else:
             out = self.compositor.composite(rgb, box, coarse, GRID_STEP, mode=layer_mode, tau=tau)
@@ -883,17 +901,18 @@ class FramePath:
         depth = model @ r[2] + float(pose.tvec[2, 0])
         return cur, depth
 
-    def _face_alpha_work(self, box, coarse: np.ndarray, rotation: np.ndarray, size, work):
-        """At the work scale: the compositor's face alpha (feathered mask x facing x strength),
-        (h, w) float32; the bundle's normals turned with the head (camera frame, (h, w, 3)); and
-        where the bundle has them (its mask, bilinear: (h, w) in 0-1)."""
+    def _face_alpha_work(self, box, coarse: np.ndarray, rotation: np.ndarray, size, work, wbox):
+        """Over the box ``wbox`` (x0, y0, x1, y1) of the work scale ``work`` (ww, wh): the
+        compositor's face alpha (feathered mask x facing x strength), (h, w) float32; the bundle's
+        normals turned with the head (camera frame, (h, w, 3)); and where the bundle has them (its
+        mask, bilinear: (h, w) in 0-1). ``box``: the face's box in the frame (``coarse``'s)."""
         from relight.kernels.compositor import FACING
 
         w, h = size
         ww, wh = work
         x0, y0 = box[0], box[1]
-        gx = (((np.arange(ww) + 0.5) * w / ww - 0.5) - x0 + 0.5) / GRID_STEP + 0.5
-        gy = (((np.arange(wh) + 0.5) * h / wh - 0.5) - y0 + 0.5) / GRID_STEP + 0.5
+        gx = (((np.arange(wbox[0], wbox[2]) + 0.5) * w / ww - 0.5) - x0 + 0.5) / GRID_STEP + 0.5
+        gy = (((np.arange(wbox[1], wbox[3]) + 0.5) * h / wh - 0.5) - y0 + 0.5) / GRID_STEP + 0.5
         mx, my = np.meshgrid(gx.astype(np.float32), gy.astype(np.float32))
         pos = cv2.remap(coarse, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e4, -1e4))
         px = (pos[..., 0] - self.rig.origin[0]).astype(np.float32)
@@ -909,18 +928,17 @@ class FramePath:
         return (alpha * facing * self.strength).astype(np.float32), turned, cover
 
     def _last_person(self):
-        """The person's maps (work size, grid, the frame's box, the back() call that used them) if
+        """The person's maps (work size, :class:`PersonMaps`, the back() call that used them) if
         the last back() call used them - they serve only the call right after (not across a frame
         the person was left out of: no face, another mode, strength 0) - else None."""
         last = self._person_last
-        return last if last is not None and last[3] == self._backs - 1 else None
+        return last if last is not None and last[2] == self._backs - 1 else None
 
     def _person(self, frame, face_box, coarse, rotation, tau: float, still: bool):
-        """(the person grid (h, w, 4) at the work scale: rho - 1 and the matte; the frame's box the
-        face and the person reach) for this frame: the maps (smooth, slow to change) made every
-        PERSON_EVERY frames and reused between, kept while the head is ``still`` (the face's own
-        alpha in the kernel is this frame's). ``frame``: as given (an array or a YuvFrame);
-        ``face_box``: the face's box in it."""
+        """(:class:`PersonMaps` of this frame, the frame's box the face and the person reach): the
+        maps (smooth, slow to change) made every PERSON_EVERY frames and reused between, kept while
+        the head is ``still`` (the face's own alpha in the kernel is this frame's). ``frame``: as
+        given (an array or a YuvFrame); ``face_box``: the face's box in it."""
         from .person import WORK_ROWS
 
         h, w = frame.shape[:2]
@@ -929,39 +947,54 @@ class FramePath:
         last = self._last_person()
         if last is not None and last[0] == work and (still or self._person_age + 1 < PERSON_EVERY):
             self._person_age += 1
-            grid, person_box = last[1], last[2]
+            maps = last[1]
         else:
-            grid, person_box = self._person_maps(frame, face_box, coarse, rotation, tau, work)
+            maps = self._person_maps(frame, face_box, coarse, rotation, tau, work)
             self._person_age = 0
-        self._person_last = (work, grid, person_box, self._backs)
-        return grid, face_box if person_box is None else _union_box(face_box, person_box)
+        self._person_last = (work, maps, self._backs)
+        return maps, face_box if maps.box is None else _union_box(face_box, maps.box)
 
-    def _person_maps(self, frame, box, coarse, rotation, tau: float, work):
-        """(the person grid (h, w, 4) float32 at the work scale: rho - 1 and the matte; the frame's
-        box it reaches (x0, y0, x1, y1), None when nowhere) - see :meth:`_person` (``box``: the
-        face's, in the frame). The maps are made at the work scale from one copy of the frame
-        whose face is composited by the same kernel as the frame's."""
+    def _person_maps(self, frame, box, coarse, rotation, tau: float, work) -> PersonMaps:
+        """The person's :class:`PersonMaps` - see :meth:`_person` (``box``: the face's, in the
+        frame). The maps are made at the work scale from one copy of the frame whose face is
+        composited by the same kernel as the frame's, over the box of it the person and a margin
+        reach (:func:`.head_light.person_crop`: their cost is the person's size, not the frame's)."""
         from relight.colour import decode_lut8
         from relight.spherical_harmonics import lights_sh9
 
         from . import head_light
-        from .person import PersonMatte
+        from .person import GUIDE_RADIUS, PersonMatte
 
         if self.person is None:
             self.person = PersonMatte()
         h, w = frame.shape[:2]
         ww, wh = work
-        alpha, face_normals, cover = self._face_alpha_work(box, coarse, rotation, (w, h), work)
-        face_px = float(np.sqrt(max(float((alpha > 0.5).sum()), 1.0)))
         # One copy of the frame at the work scale serves the matte, its colour check and the ratio;
         # its face composited by the same kernel as the frame's (the face's ratio, at that scale).
         small = downscale_area(frame, work) if isinstance(frame, np.ndarray) else frame.small_rgb(work)
         sx, sy = w / ww, h / wh
         face_small = (max(int(box[0] / sx) - 1, 0), max(int(box[1] / sy) - 1, 0),
                       min(int(np.ceil(box[2] / sx)) + 1, ww), min(int(np.ceil(box[3] / sy)) + 1, wh))
+        fa, fn, fc = self._face_alpha_work(box, coarse, rotation, (w, h), work, face_small)
+        face_px = float(np.sqrt(max(float((fa > 0.5).sum()), 1.0)))
+        prob = self.person.probability(small)
+        margin = max(int(round(head_light.BACKGROUND_RING * face_px)), 2) + 2 * GUIDE_RADIUS + 2
+        cx0, cy0, cx1, cy1 = crop = head_light.person_crop(prob, face_small, work, margin)
+        cw, ch = cx1 - cx0, cy1 - cy0
+        # the face's maps placed in the crop (none beyond the face's box, as in the kernel)
+        fsl = np.s_[face_small[1] - cy0:face_small[3] - cy0, face_small[0] - cx0:face_small[2] - cx0]
+        alpha = np.zeros((ch, cw), np.float32)
+        alpha[fsl] = fa
+        cover = np.zeros((ch, cw), np.float32)
+        cover[fsl] = fc
+        face_normals = np.zeros((ch, cw, 3), np.float32)
+        face_normals[..., 2] = 1.0
+        face_normals[fsl] = fn
         c_small = self.compositor.composite_person(small, face_small, box, coarse, GRID_STEP, mode="live", tau=tau,
                                                    scale=(sx, sy))
-        matte = head_light.colour_check(small, self.person(small), alpha, face_px)
+        sl = np.s_[cy0:cy1, cx0:cx1]
+        small_c = np.ascontiguousarray(small[sl])
+        matte = head_light.colour_check(small_c, self.person.refine(small, prob, crop), alpha, face_px)
         matte = head_light.attached_to_face(matte, alpha)
         lut = decode_lut8()
         r = np.asarray(rotation, dtype=np.float64)
@@ -976,13 +1009,18 @@ class FramePath:
         target_sh = lights_sh9(env_dirs @ r.T if self.fixed_env else env_dirs, env_power)
         live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T,
                              self.light_estimator.texel_light())
-        rho = head_light.ratio_field(lut[small], lut[c_small], alpha, matte, target_sh, live_sh, face_px,
-                                     face_normals=face_normals, face_cover=cover)
-        grid = np.empty((wh, ww, 4), np.float32)
+        # The ratio over the box the person's share reaches (the ring beyond served the colour check)
+        share = np.maximum(matte, alpha)
+        tx0, ty0, tx1, ty1 = head_light.share_box(share, RATIO_REACH)
+        tsl = np.s_[ty0:ty1, tx0:tx1]
+        rho = head_light.ratio_field(lut[small_c[tsl]], lut[c_small[sl][tsl]], alpha[tsl], matte[tsl], target_sh,
+                                     live_sh, face_px, face_normals=face_normals[tsl], face_cover=cover[tsl])
+        grid = np.empty((ty1 - ty0, tx1 - tx0, 4), np.float32)
         grid[..., :3] = rho - np.float32(1.0)
-        grid[..., 3] = matte
+        grid[..., 3] = matte[tsl]
         grid.flags.writeable = False  # reused as it is (the compositor keeps its device copy)
-        return grid, head_light.person_box(np.maximum(matte, alpha), (w, h))
+        return PersonMaps(grid, (cx0 + tx0, cy0 + ty0), (ww / w, wh / h),
+                          head_light.person_box(share, (w, h), work, (cx0, cy0)))
 
     def _locked_exposure(self, gain: float) -> float:
         """Mode transfer's exposure: the target brought to the live face's exposure over the first

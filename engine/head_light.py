@@ -23,8 +23,8 @@ The output is ``out = c + P (1 - A) (f rho - f)`` (linear): ``c`` the frame with
 composited, ``A`` the face's alpha, ``P`` the person's matte joined with the face's alpha, ``f``
 the frame. ``n(x)`` is the bundle's own normal wherever the bundle has one (turned with the head):
 the inflation only guesses the geometry the bundle knows.
-All maps are computed at the work scale (a few hundred rows: the ratio is smooth) and applied at
-full resolution in the person's box.
+All maps are computed at the work scale (a few hundred rows: the ratio is smooth) over the box of
+it the person reaches (:func:`person_crop`) and applied at full resolution in the person's box.
 """
 
 from __future__ import annotations
@@ -215,15 +215,57 @@ def _ratio_field(frame_lin, composite_lin, face_alpha, matte, target_sh, live_sh
     return np.clip(proxy * np.exp(corr), 1.0 / RATIO_MAX, RATIO_MAX).astype(np.float32)
 
 
-def person_box(share: np.ndarray, frame_size: tuple[int, int]):
+def person_box(share: np.ndarray, frame_size: tuple[int, int], work_size: tuple[int, int] | None = None,
+               origin: tuple[int, int] = (0, 0)):
     """The frame's box (x0, y0, x1, y1) where the person's ``share`` (h, w) at the work scale is
     above :data:`MATTE_FLOOR` - a work pixel of margin: the bilinear sample's reach - or None when
-    nowhere. ``frame_size``: (W, H) of the frame."""
+    nowhere. ``frame_size``: (W, H) of the frame; ``share`` covers the box of the work scale
+    ``work_size`` (its (w, h); None: ``share`` is all of it) from ``origin`` (x, y)."""
     w, h = frame_size
-    sh, sw = share.shape
+    sw, sh = (share.shape[1], share.shape[0]) if work_size is None else work_size
     ys, xs = np.nonzero(share > MATTE_FLOOR)
     if ys.size == 0:
         return None
-    x0, x1 = max(0, int((xs.min() - 1) * w / sw)), min(w, int(np.ceil((xs.max() + 2) * w / sw)))
-    y0, y1 = max(0, int((ys.min() - 1) * h / sh)), min(h, int(np.ceil((ys.max() + 2) * h / sh)))
+    xs_min, xs_max = int(xs.min()) + origin[0], int(xs.max()) + origin[0]
+    ys_min, ys_max = int(ys.min()) + origin[1], int(ys.max()) + origin[1]
+    x0, x1 = max(0, int((xs_min - 1) * w / sw)), min(w, int(np.ceil((xs_max + 2) * w / sw)))
+    y0, y1 = max(0, int((ys_min - 1) * h / sh)), min(h, int(np.ceil((ys_max + 2) * h / sh)))
     return x0, y0, x1, y1
+
+
+def share_box(share: np.ndarray, reach: int) -> tuple[int, int, int, int]:
+    """The box (x0, y0, x1, y1) of ``share`` (h, w) where it is above :data:`MATTE_FLOOR`, grown by
+    ``reach`` px and clipped, its corner even (the ratio's coarser grid keeps its alignment); a
+    2x2 box at the centre when nowhere (an empty grid is no grid)."""
+    h, w = share.shape
+    ys, xs = np.nonzero(share > MATTE_FLOOR)
+    if ys.size == 0:
+        return w // 2 & ~1, h // 2 & ~1, min(w, (w // 2 & ~1) + 2), min(h, (h // 2 & ~1) + 2)
+    x0, y0 = max(0, int(xs.min()) - reach), max(0, int(ys.min()) - reach)
+    x0, y0 = x0 - x0 % 2, y0 - y0 % 2
+    return x0, y0, min(w, int(xs.max()) + 1 + reach), min(h, int(ys.max()) + 1 + reach)
+
+
+#: The model's probability that places a pixel in the person's box (:func:`person_crop`): half
+#: the solid matte's 0.5.
+CROP_PROB = 0.25
+
+
+def person_crop(prob: np.ndarray, face_box, work_size: tuple[int, int], margin: int) -> tuple[int, int, int, int]:
+    """The box (x0, y0, x1, y1) of the work scale ``work_size`` (w, h) the person's maps need:
+    where the segmentation's ``prob`` (at its own scale, the frame's aspect) is above
+    :data:`CROP_PROB`, joined with ``face_box`` (work px), grown by ``margin`` px (the guided
+    filter's reach, the colour check's ring) and clipped; its corner even (the ratio's coarser
+    grid keeps its alignment). Beyond it the matte is taken as 0: only the solid matte (> 0.5)
+    and the pixel around it survive :func:`attached_to_face`, and the guided filter lifts no
+    pixel above 0.5 beyond its reach of one the model gives at least CROP_PROB."""
+    ww, wh = work_size
+    x0, y0, x1, y1 = face_box
+    ys, xs = np.nonzero(prob > CROP_PROB)
+    if ys.size:
+        ph, pw = prob.shape
+        x0, x1 = min(x0, int(xs.min() * ww / pw)), max(x1, int(np.ceil((xs.max() + 1) * ww / pw)))
+        y0, y1 = min(y0, int(ys.min() * wh / ph)), max(y1, int(np.ceil((ys.max() + 1) * wh / ph)))
+    x0, y0 = max(0, x0 - margin), max(0, y0 - margin)
+    x0, y0 = x0 - x0 % 2, y0 - y0 % 2
+    return x0, y0, min(ww, x1 + margin), min(wh, y1 + margin)

@@ -79,17 +79,25 @@ class PersonMatte:
 
     def __call__(self, rgb: np.ndarray, *, work: bool = False) -> np.ndarray:
         """(H, W) float32 matte in [0, 1] (``work``: at :data:`WORK_ROWS` rows instead)."""
-        prob = self.probability(rgb)
         h, w = rgb.shape[:2]
         s = min(1.0, WORK_ROWS / h)
         ww, wh = max(1, round(w * s)), max(1, round(h * s))
-        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        if s < 1:
-            grey = cv2.resize(grey, (ww, wh), interpolation=cv2.INTER_AREA)
-        coarse = cv2.resize(prob, (ww, wh), interpolation=cv2.INTER_LINEAR)
-        guide = grey.astype(np.float32) * np.float32(1.0 / 255.0)
-        fine = cv2.ximgproc.guidedFilter(guide, coarse, GUIDE_RADIUS, GUIDE_EPS)
-        fine = np.clip(fine, 0.0, 1.0)
+        small = cv2.resize(rgb, (ww, wh), interpolation=cv2.INTER_AREA) if s < 1 else rgb
+        fine = self.refine(small, self.probability(rgb))
         if work or s == 1:
             return fine
         return cv2.resize(fine, (w, h), interpolation=cv2.INTER_LINEAR)
+
+    @staticmethod
+    def refine(small: np.ndarray, prob: np.ndarray, box=None) -> np.ndarray:
+        """The matte at the scale of ``small`` (h, w, 3) uint8 (the frame at :data:`WORK_ROWS`
+        rows): the model's ``prob`` (:meth:`probability`) brought up to it bilinearly and
+        refined by the guided filter with ``small``'s grey as the guide - over ``box`` (x0, y0,
+        x1, y1) of it alone when given (the person and a margin: the work is the box's)."""
+        h, w = small.shape[:2]
+        x0, y0, x1, y1 = (0, 0, w, h) if box is None else (int(v) for v in box)
+        coarse = cv2.resize(prob, (w, h), interpolation=cv2.INTER_LINEAR)[y0:y1, x0:x1]
+        grey = cv2.cvtColor(np.ascontiguousarray(small[y0:y1, x0:x1]), cv2.COLOR_RGB2GRAY)
+        guide = grey.astype(np.float32) * np.float32(1.0 / 255.0)
+        fine = cv2.ximgproc.guidedFilter(guide, np.ascontiguousarray(coarse), GUIDE_RADIUS, GUIDE_EPS)
+        return np.clip(fine, 0.0, 1.0)

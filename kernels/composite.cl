@@ -238,10 +238,11 @@ __kernel void warp_composite(
  *     out = f + a (face - f) + f w G,    w = max(m, a) (1 - a), counted where w > floor,
  * the face's composite as warp_composite makes it inside the face's box (fx0, fy0, fw, fh: frame
  * px; a = 0 outside it), G = rho - 1 the light's change over the person and m its matte: the
- * float4 (G, m) of a grid (gh, gw) over the frame, bilinear at the pixel's centre (sx, sy: the
- * grid's size over the frame's; edges replicated; gw = 0: none, the face alone) - the image's
- * positions moved by (gox, goy) there (an image of a box of the frame: the box's corner). The face's
- * composite is never scaled by the matte: the compositor holds it to the face. */
+ * float4 (G, m) of a grid (gh, gw) over the frame or a box of it, bilinear at the pixel's centre
+ * (sx, sy: grid cells per frame px; edges replicated; gw = 0: none, the face alone) - the image's
+ * positions moved by (gox, goy) there (an image of a box of the frame: the box's corner; a grid of
+ * a box: less its corner in frame px). The face's composite is never scaled by the matte: the
+ * compositor holds it to the face. */
 __kernel void composite_person(
     __global uchar *img, int img_w, int bx0, int by0, int bw, int bh, float scx, float scy,
     int fx0, int fy0, int fw, int fh,

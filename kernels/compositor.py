@@ -128,15 +128,17 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
 
 def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, origin, layer, *,
                            mode: str, tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
-                           frame_size=None, floor: float = 0.0, offset=(0.0, 0.0)) -> np.ndarray:
+                           frame_size=None, floor: float = 0.0, offset=(0.0, 0.0), person_origin=(0, 0),
+                           person_scale=None) -> np.ndarray:
     """NumPy twin of ``composite_person``: a new image. ``img`` (h, w, 3) uint8 sRGB whose pixel
     (i, j) sits at frame position ((i + 0.5) sx - 0.5, (j + 0.5) sy - 0.5), ``scale`` = sx or
     (sx, sy); ``box`` (x0, y0,
     x1, y1) the image's pixels worked on; ``face_box`` the face's box in the frame (the one
     ``coarse`` covers); ``person`` (gh, gw, 4) float32 (rho - 1, matte) on a grid over the frame
     (None: the face alone) of ``frame_size`` (W, H), read at the image's positions plus ``offset``
-    (an image of a box of the frame: the box's corner); ``floor``: the person's share below which
-    nothing is added."""
+    (an image of a box of the frame: the box's corner) - or a box of such a grid: ``person_scale``
+    (sx, sy) its cells per frame px and ``person_origin`` (x, y) its first cell in the whole grid;
+    ``floor``: the person's share below which nothing is added."""
     from relight.colour import LUMINANCE
 
     layer, expect = layer
@@ -184,11 +186,9 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
         a_all[k] = a[:, 0]
         changed[k] = True
     if person is not None:
-        gh, gw = person.shape[:2]
-        w, h = (np.float32(v) for v in frame_size)
-        ox, oy = (np.float32(v) for v in offset)
-        g = _bilinear_replicate(person, (fx + ox + np.float32(0.5)) * np.float32(gw / w) - np.float32(0.5),
-                                (fy + oy + np.float32(0.5)) * np.float32(gh / h) - np.float32(0.5))
+        (sx, sy), (gox, goy) = _person_sampling(person, frame_size, offset, person_origin, person_scale)
+        g = _bilinear_replicate(person, (fx + gox + np.float32(0.5)) * sx - np.float32(0.5),
+                                (fy + goy + np.float32(0.5)) * sy - np.float32(0.5))
         wgt = np.maximum(g[:, 3], a_all) * (1.0 - a_all)
         on = wgt > np.float32(floor)
         res_all[on] += f_all[on] * wgt[on, None] * g[on, :3]
@@ -198,6 +198,19 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
     region[changed] = lut[idx]
     out[by0:by1, bx0:bx1] = region.reshape(bh, bw, 3)
     return out
+
+
+def _person_sampling(person: np.ndarray, frame_size, offset, origin, scale):
+    """((sx, sy), (gox, goy)) float32 of the kernel's person grid: its cells per frame px and the
+    shift of the image's positions (``offset`` less the grid box's ``origin`` in frame px)."""
+    if scale is None:
+        gh, gw = person.shape[:2]
+        scale = (gw / float(frame_size[0]), gh / float(frame_size[1]))
+    sx, sy = (float(v) for v in scale)
+    if not (sx > 0 and sy > 0):
+        raise InputError(f"person grid scale {scale}: two positive numbers (cells per frame px)")
+    return ((np.float32(sx), np.float32(sy)),
+            (np.float32(float(offset[0]) - origin[0] / sx), np.float32(float(offset[1]) - origin[1] / sy)))
 
 
 def _bilinear_replicate(grid: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
@@ -348,7 +361,8 @@ class Compositor:
 
     def composite_person(self, img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, *, mode: str,
                          tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
-                         frame_size=None, floor: float = 0.0, offset=(0.0, 0.0)) -> np.ndarray:
+                         frame_size=None, floor: float = 0.0, offset=(0.0, 0.0), person_origin=(0, 0),
+                         person_scale=None) -> np.ndarray:
         """``img`` with the face of the last :meth:`layer` and the person's change of light
         composited over ``box`` (a new array): the ``composite_person`` kernel (its twin and the
         arguments: :func:`composite_person_numpy`). A read-only ``person`` grid handed again (the
@@ -365,7 +379,7 @@ class Compositor:
         scx, scy = (float(v) for v in np.broadcast_to(np.asarray(scale, np.float64), (2,)))
         gw = gh = 0
         grid_buf = self._layer  # any buffer: gw = 0 never reads it
-        sx = sy = 0.0
+        sx = sy = gox = goy = 0.0
         if person is not None:
             if self._person is None or self._person[0] is not person or person.flags.writeable:
                 grid = np.ascontiguousarray(person, dtype=np.float32)
@@ -375,7 +389,7 @@ class Compositor:
                 self._person = (person, buf)
             gh, gw = person.shape[:2]
             grid_buf = self._person[1]
-            sx, sy = gw / float(frame_size[0]), gh / float(frame_size[1])
+            (sx, sy), (gox, goy) = _person_sampling(person, frame_size, offset, person_origin, person_scale)
 
         def launch(buf):
             self._k_person(self.rt.queue, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(img.shape[1]),
@@ -384,7 +398,7 @@ class Compositor:
                            np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
                            np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch),
                            self._expect, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx), np.float32(sy),
-                           np.float32(offset[0]), np.float32(offset[1]), np.float32(floor), self._dec, self._enc,
+                           np.float32(gox), np.float32(goy), np.float32(floor), self._dec, self._enc,
                            np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau))
 
         return self._rows_through(img, (bx0, by0, bx1, by1), launch)

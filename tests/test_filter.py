@@ -654,6 +654,41 @@ def _no_face(compositor, frame, grid, box=None):
                                        GRID_STEP, mode="live", person=grid, frame_size=(w, h), floor=0.02)
 
 
+def test_the_person_pass_reads_a_box_of_the_grid_as_the_whole_grid(frame_path, clip):
+    """The person's maps made over the box the person reaches (PersonMaps: a grid of that box,
+    its origin in the work grid): the kernel and its twin read it as the whole grid it is cut
+    from - the same bytes but for rounding - on the frame and on a box of it (offset)."""
+    from relight.engine.warp import GRID_STEP
+    from relight.kernels.compositor import composite_person_numpy
+
+    _, frames = clip
+    rgb = frames[5]
+    h, w = rgb.shape[:2]
+    gh, gw = h // 4, w // 4
+    rng = np.random.default_rng(5)
+    whole = np.zeros((gh, gw, 4), np.float32)
+    whole[..., :3] = (rng.random((gh, gw, 3)) - 0.5) * 1.5
+    cy0, cy1, cx0, cx1 = gh // 5, 4 * gh // 5, gw // 3, 5 * gw // 6
+    whole[cy0 + 2:cy1 - 2, cx0 + 2:cx1 - 2, 3] = rng.random((cy1 - cy0 - 4, cx1 - cx0 - 4)) * 0.6 + 0.4
+    part = np.ascontiguousarray(whole[cy0:cy1, cx0:cx1])
+    assert (_no_face(frame_path.compositor, rgb, whole) != rgb).any(axis=2).sum() > 1000  # it did something
+    for offset in ((0, 0), (40, 24)):
+        img = np.ascontiguousarray(rgb[offset[1]:, offset[0]:])
+        ih, iw = img.shape[:2]
+        common = dict(mode="live", floor=0.02, offset=offset)
+        args = (img, (0, 0, iw, ih), (0, 0, 0, 0), np.zeros((3, 3, 2), np.float32))
+        want = frame_path.compositor.composite_person(*args, GRID_STEP, person=whole, frame_size=(w, h), **common)
+        got = frame_path.compositor.composite_person(*args, GRID_STEP, person=part, person_origin=(cx0, cy0),
+                                                     person_scale=(gw / w, gh / h), **common)
+        twin = composite_person_numpy(*args, GRID_STEP, frame_path.rig.origin, (None, None), person=part,
+                                      person_origin=(cx0, cy0), person_scale=(gw / w, gh / h), **common)
+        twin_whole = composite_person_numpy(*args, GRID_STEP, frame_path.rig.origin, (None, None), person=whole,
+                                            frame_size=(w, h), **common)
+        for a, b in ((got, want), (twin, twin_whole), (got, twin)):
+            diff = np.abs(a.astype(int) - b.astype(int))
+            assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
+
+
 def test_the_person_pass_changes_nothing_without_a_change_of_light_nor_anything_off_the_person(frame_path):
     """rho = 1 changes no byte; a brighter target brightens the person and leaves every pixel off
     the matte as it was (its bilinear reach aside); each pixel is f (1 + m (rho - 1)) in linear light."""
