@@ -143,6 +143,7 @@ def test_variable_frame_rate_video_captures_as_well(synth_capture_60fps, tmp_pat
     _meets_capture_goals(m)
 
 
+@pytest.mark.slow  # a whole capture more (~10-15 s): `make test-slow`, CI
 def test_downscaled_capture_meets_the_goals_and_relights_full_size_frames(synth_capture, tmp_path):
     """--face-pixels below the head's size: the capture is worked on downscaled (face and sphere
     found on scaled-down first seconds, the first seconds decoded again instead of held), meets
@@ -362,6 +363,7 @@ def test_image_set_with_nan_is_refused(tmp_path):
         capture(tmp_path, tmp_path / "x.bundle", images=True, progress=False)
 
 
+@pytest.mark.slow  # a whole capture more (~10-15 s): `make test-slow`, CI
 def test_no_face_falls_back_to_the_whole_frame(synth_capture, tmp_path, monkeypatch):
     from relight import faces
 
@@ -373,6 +375,7 @@ def test_no_face_falls_back_to_the_whole_frame(synth_capture, tmp_path, monkeypa
     assert b.pixels.size > 1000 and np.isfinite(b.pixel_maps().astype(np.float32)).all()
 
 
+@pytest.mark.slow  # a whole capture more (~10-15 s): `make test-slow`, CI
 def test_user_mesh_and_mesh_export(synth_capture, tmp_path):
     from relight.directions import angle_between_deg
     from relight.imageio import read_image

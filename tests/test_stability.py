@@ -32,14 +32,19 @@ EXPECTED_ERRORS = {("degenerate_hull", "ptm"): "InputError: ptm needs at least 6
 #: The cases that render through bundles (one tiny bundle per variant, built once per call of
 #: run_stability): tested together so the bundles are built once.
 BUNDLE_CASES = ("sun_1e5", "exposure_extremes")
+#: Single cases left to `make test-slow` for their time (the rest keep every variant's checks in
+#: `make test`).
+SLOW_CASES = {"poles", "degenerate_hull"}
 
 
 def _case_params():
     groups = [(c,) for c in CASES if c not in BUNDLE_CASES] + [BUNDLE_CASES]
-    # The bundle cases (~22 s: a bundle built per variant) run in `make test-slow` (CI runs both).
+    # The bundle cases (~22 s: a bundle built per variant) and the longest single ones (~10 s
+    # each) run in `make test-slow` (CI runs both).
     return [pytest.param(g, id="+".join(g), marks=[pytest.mark.xfail(strict=True, reason=KNOWN_NON_FINITE[c])
                                                    for c in g if c in KNOWN_NON_FINITE]
-                         + ([pytest.mark.slow] if g == BUNDLE_CASES else [])) for g in groups]
+                         + ([pytest.mark.slow] if g == BUNDLE_CASES or set(g) & SLOW_CASES else []))
+            for g in groups]
 
 
 @pytest.mark.parametrize("cases", _case_params())
