@@ -523,12 +523,15 @@ class PersonMaps(NamedTuple):
     """The person's maps of a frame (region person), at the work scale (:data:`.person.WORK_ROWS`
     rows) over the box of it the person reaches: ``grid`` (h, w, 4) float32 read-only, rho - 1
     and the matte; ``origin`` (x, y) its corner in work px; ``scale`` (sx, sy) work px per frame
-    px; ``box`` the frame's box (x0, y0, x1, y1) the person reaches, None when nowhere."""
+    px; ``box`` the frame's box (x0, y0, x1, y1) the person reaches, None when nowhere; ``gate``:
+    the matte is trusted around the face (:func:`.head_light.matte_trusted`) - the face's
+    composite is held to it too."""
 
     grid: np.ndarray
     origin: tuple[int, int]
     scale: tuple[float, float]
     box: tuple[int, int, int, int] | None
+    gate: bool = False
 
 
 class FramePath:
@@ -591,7 +594,7 @@ class FramePath:
         self.region = region
         self.person = None
         # (work size, matte, ratio, the back() call that last used them), frames reused since made
-        self._person_last, self._person_age = None, 0
+        self._person_last, self._person_age, self._trust_run = None, 0, 0
         self._backs = 0  # back() calls: the person's maps serve only the call right after their last use
         maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
             np.float32(self.relighter.sample_scale)
@@ -655,7 +658,7 @@ class FramePath:
         self._since_light = 0
         self._next_reference = None
         self._exposure_lock, self._exposure_fits = None, []
-        self._person_last = None
+        self._person_last, self._trust_run = None, 0
         for est in self._estimators.values():
             est.last = None
 
@@ -880,7 +883,7 @@ class FramePath:
             out = self.compositor.composite_person(rgb, (union[0] - ox, union[1] - oy, union[2] - ox, union[3] - oy),
                                                    box, coarse, GRID_STEP, mode="live", tau=tau, person=maps.grid,
                                                    person_origin=maps.origin, person_scale=maps.scale,
-                                                   floor=MATTE_FLOOR, offset=(ox, oy))
+                                                   floor=MATTE_FLOOR, offset=(ox, oy), gate=maps.gate)
             tm["person"] = (time.perf_counter() - t6) * 1e3
         else:
             out = self.compositor.composite(rgb, box, coarse, GRID_STEP, mode=layer_mode, tau=tau)
@@ -1009,6 +1012,8 @@ class FramePath:
         target_sh = lights_sh9(env_dirs @ r.T if self.fixed_env else env_dirs, env_power)
         live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T,
                              self.light_estimator.texel_light())
+        # The face's composite held to the matte once the matte has held the face steadily
+        self._trust_run = self._trust_run + 1 if head_light.matte_trusted(matte, alpha) else 0
         # The ratio over the box the person's share reaches (the ring beyond served the colour check)
         share = np.maximum(matte, alpha)
         tx0, ty0, tx1, ty1 = head_light.share_box(share, RATIO_REACH)
@@ -1020,7 +1025,8 @@ class FramePath:
         grid[..., 3] = matte[tsl]
         grid.flags.writeable = False  # reused as it is (the compositor keeps its device copy)
         return PersonMaps(grid, (cx0 + tx0, cy0 + ty0), (ww / w, wh / h),
-                          head_light.person_box(share, (w, h), work, (cx0, cy0)))
+                          head_light.person_box(share, (w, h), work, (cx0, cy0)),
+                          self._trust_run >= head_light.MATTE_TRUST_RUN)
 
     def _locked_exposure(self, gain: float) -> float:
         """Mode transfer's exposure: the target brought to the live face's exposure over the first

@@ -54,6 +54,8 @@
 #define CLIP_HI 0.99f
 #define AGREE_LO 0.30f
 #define AGREE_HI 0.60f
+/* relight.kernels.compositor.GATE_HI: the matte above which the face's composite is whole */
+#define GATE_HI 0.50f
 
 /* PoCL 3.0 calls its math builtins (floor, clamp, fmax, ...) out of line, spilling vector registers
    around each call (measured: this kernel took 9 ms for a 300x450 box with them): these
@@ -241,14 +243,17 @@ __kernel void warp_composite(
  * float4 (G, m) of a grid (gh, gw) over the frame or a box of it, bilinear at the pixel's centre
  * (sx, sy: grid cells per frame px; edges replicated; gw = 0: none, the face alone) - the image's
  * positions moved by (gox, goy) there (an image of a box of the frame: the box's corner; a grid of
- * a box: less its corner in frame px). The face's composite is never scaled by the matte: the
- * compositor holds it to the face. */
+ * a box: less its corner in frame px). With ``gate`` (a matte the frame path trusts around this
+ * face) the face's composite is held to the person too: its share a, and its change, scaled by
+ * k = m from floor up to GATE_HI (a face's warp reaching past the jaw onto the wall leaves the wall
+ * as it was); without, the face's composite is never scaled by the matte. */
 __kernel void composite_person(
     __global uchar *img, int img_w, int bx0, int by0, int bw, int bh, float scx, float scy,
     int fx0, int fy0, int fw, int fh,
     __global const float2 *coarse, int cgw, int step, float ox, float oy,
     __global const float8 *layer, int cw, int ch, __global const float *expect,
     __global const float4 *person, int gw, int gh, float sx, float sy, float gox, float goy, float floor_w,
+    int gate,
     __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau)
 {
     int x = get_global_id(0), y = get_global_id(1);
@@ -271,6 +276,12 @@ __kernel void composite_person(
         int ya = y0 < 0 ? 0 : (y0 > gh - 1 ? gh - 1 : y0), yb = y0 + 1 < 0 ? 0 : (y0 + 1 > gh - 1 ? gh - 1 : y0 + 1);
         float4 g = (person[ya * gw + xa] * (1.0f - ax) + person[ya * gw + xb] * ax) * (1.0f - ay)
                  + (person[yb * gw + xa] * (1.0f - ax) + person[yb * gw + xb] * ax) * ay;
+        if (gate && a > 0.0f) {
+            /* the face's composite held to the person where the matte is trusted */
+            float k = fclamp((g.w - floor_w) / (GATE_HI - floor_w), 0.0f, 1.0f);
+            res = f + k * (res - f);
+            a *= k;
+        }
         float w = fmx(g.w, a) * (1.0f - a);
         if (w > floor_w) {
             res += f * w * g.xyz;

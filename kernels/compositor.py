@@ -44,6 +44,9 @@ CLIP_RAMP = (0.90, 0.99)
 #: ... and as the frame's pixel is darker than the live light predicts (lum f / lum E from the
 #: second value down to the first: AGREE_HI, AGREE_LO).
 AGREE_RAMP = (0.30, 0.60)
+#: composite_person with ``gate``: the person's matte at and above which the face's composite is
+#: whole (the kernel's GATE_HI; it fades to nothing at the floor) - the solid matte's threshold.
+GATE_HI = 0.5
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | None = None) -> np.ndarray:
@@ -129,7 +132,7 @@ def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, 
 def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, origin, layer, *,
                            mode: str, tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
                            frame_size=None, floor: float = 0.0, offset=(0.0, 0.0), person_origin=(0, 0),
-                           person_scale=None) -> np.ndarray:
+                           person_scale=None, gate: bool = False) -> np.ndarray:
     """NumPy twin of ``composite_person``: a new image. ``img`` (h, w, 3) uint8 sRGB whose pixel
     (i, j) sits at frame position ((i + 0.5) sx - 0.5, (j + 0.5) sy - 0.5), ``scale`` = sx or
     (sx, sy); ``box`` (x0, y0,
@@ -138,7 +141,9 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
     (None: the face alone) of ``frame_size`` (W, H), read at the image's positions plus ``offset``
     (an image of a box of the frame: the box's corner) - or a box of such a grid: ``person_scale``
     (sx, sy) its cells per frame px and ``person_origin`` (x, y) its first cell in the whole grid;
-    ``floor``: the person's share below which nothing is added."""
+    ``floor``: the person's share below which nothing is added; ``gate``: the face's composite
+    held to the person's matte too (its share and change scaled by the matte from ``floor`` up to
+    :data:`GATE_HI`; the frame path's choice where the matte is trusted)."""
     from relight.colour import LUMINANCE
 
     layer, expect = layer
@@ -189,6 +194,12 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
         (sx, sy), (gox, goy) = _person_sampling(person, frame_size, offset, person_origin, person_scale)
         g = _bilinear_replicate(person, (fx + gox + np.float32(0.5)) * sx - np.float32(0.5),
                                 (fy + goy + np.float32(0.5)) * sy - np.float32(0.5))
+        if gate:
+            fl = np.float32(floor)
+            k = np.clip((g[:, 3] - fl) / (np.float32(GATE_HI) - fl), 0.0, 1.0).astype(np.float32)
+            k = np.where(a_all > 0, k, np.float32(1.0))
+            res_all = f_all + k[:, None] * (res_all - f_all)
+            a_all = a_all * k
         wgt = np.maximum(g[:, 3], a_all) * (1.0 - a_all)
         on = wgt > np.float32(floor)
         res_all[on] += f_all[on] * wgt[on, None] * g[on, :3]
@@ -362,7 +373,7 @@ class Compositor:
     def composite_person(self, img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, *, mode: str,
                          tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
                          frame_size=None, floor: float = 0.0, offset=(0.0, 0.0), person_origin=(0, 0),
-                         person_scale=None) -> np.ndarray:
+                         person_scale=None, gate: bool = False) -> np.ndarray:
         """``img`` with the face of the last :meth:`layer` and the person's change of light
         composited over ``box`` (a new array): the ``composite_person`` kernel (its twin and the
         arguments: :func:`composite_person_numpy`). A read-only ``person`` grid handed again (the
@@ -398,7 +409,8 @@ class Compositor:
                            np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
                            np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch),
                            self._expect, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx), np.float32(sy),
-                           np.float32(gox), np.float32(goy), np.float32(floor), self._dec, self._enc,
+                           np.float32(gox), np.float32(goy), np.float32(floor), np.int32(bool(gate) and gw > 0),
+                           self._dec, self._enc,
                            np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau))
 
         return self._rows_through(img, (bx0, by0, bx1, by1), launch)

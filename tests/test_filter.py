@@ -631,11 +631,11 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
     grid = _person_grid(rng, (h // 8, w // 8))
     box = (2, 1, img.shape[1] - 1, img.shape[0] - 2)
     args = (img, box, face_box, coarse, GRID_STEP)
-    for person in (grid, None):
+    for person, gate in ((grid, False), (grid, True), (None, False)):
         got = fp.compositor.composite_person(*args, mode="live", scale=scale, person=person, frame_size=(w, h),
-                                             floor=0.02)
+                                             floor=0.02, gate=gate)
         want = composite_person_numpy(*args[:4], GRID_STEP, fp.rig.origin, layer, mode="live", scale=scale,
-                                      person=person, frame_size=(w, h), floor=0.02)
+                                      person=person, frame_size=(w, h), floor=0.02, gate=gate)
         diff = np.abs(got.astype(int) - want.astype(int))
         changed = np.abs(want.astype(int) - img.astype(int)).sum(axis=2) > 3
         assert changed.sum() > 300  # it did something
@@ -715,7 +715,8 @@ def test_the_person_region_leaves_the_face_composite_as_it_is(frame_path, clip):
     """Region person adds the ratio only beyond the face's alpha: where the face is composited in
     full (alpha 1) the output is the face's composite, even where the person's matte misses the
     face (a side-lit face's dark half) - scaling the composite by the matte there lost 0.3-1.5 dB
-    on every real face."""
+    on every real face - unless the frame path trusts the matte (gate: it has held the face
+    steadily), when the face's composite is held to it too."""
     from relight.engine.warp import GRID_STEP, coarse_map
 
     _, frames = clip
@@ -747,6 +748,20 @@ def test_the_person_region_leaves_the_face_composite_as_it_is(frame_path, clip):
     left = np.zeros((h, w), bool)
     left[:, : w // 2 - 4] = True
     assert (out[left & (alpha == 0)].astype(int) >= rgb[left & (alpha == 0)].astype(int)).all()
+    # With a matte the frame path trusts (gate): the face's composite held to it too - off the matte
+    # the frame's bytes, the face included; on it the face's composite as it was.
+    cx = (face_box[0] + face_box[2]) // 2 // 4 * 4  # the matte's edge through the face's middle
+    split = grid.copy()
+    split[..., 3] = 0.0
+    split[:, : cx // 4, 3] = 1.0
+    gated = fp.compositor.composite_person(rgb, (0, 0, w, h), face_box, coarse, GRID_STEP, mode="paste",
+                                           person=split, frame_size=(w, h), floor=0.02, gate=True)
+    off, on = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    off[:, cx + 4:] = True
+    on[:, : cx - 4] = True
+    assert (full & off).sum() > 100 and (full & on).sum() > 100
+    np.testing.assert_array_equal(gated[off], rgb[off])
+    np.testing.assert_array_equal(gated[on & full], face[on & full])
 
 
 def test_gaussian_smooth_follows_a_direct_gaussian():

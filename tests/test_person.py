@@ -130,3 +130,16 @@ def test_the_matte_over_the_persons_box_is_the_whole_frames(clip):
         beyond[y0:y1, x0:x1] = False
         assert whole[beyond].max(initial=0.0) < 0.5  # the solid matte, all in the box
         assert sil[beyond].sum() == 0
+
+
+def test_the_matte_is_trusted_only_where_it_holds_the_face():
+    """The face's composite is held to the matte (gate) only where the matte covers the face's
+    core: a matte that misses part of it (a side-lit face's dark half) or finds no face is not."""
+    alpha = np.zeros((60, 80), np.float32)
+    alpha[20:40, 30:50] = 1.0
+    matte = np.zeros_like(alpha)
+    matte[10:60, 20:60] = 1.0
+    assert head_light.matte_trusted(matte, alpha)
+    matte[20:40, 30:33] = 0.0  # 15 % of the core missed
+    assert not head_light.matte_trusted(matte, alpha)
+    assert not head_light.matte_trusted(matte, np.zeros_like(alpha))
