@@ -260,9 +260,14 @@ def share_box(share: np.ndarray, reach: int) -> tuple[int, int, int, int]:
     ys, xs = np.nonzero(share > MATTE_FLOOR)
     if ys.size == 0:
         return w // 2 & ~1, h // 2 & ~1, min(w, (w // 2 & ~1) + 2), min(h, (h // 2 & ~1) + 2)
-    x0, y0 = max(0, int(xs.min()) - reach), max(0, int(ys.min()) - reach)
-    x0, y0 = x0 - x0 % 2, y0 - y0 % 2
-    return x0, y0, min(w, int(xs.max()) + 1 + reach), min(h, int(ys.max()) + 1 + reach)
+    return _grown_box((int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1), reach, (w, h))
+
+
+def _grown_box(box, margin: int, size: tuple[int, int]) -> tuple[int, int, int, int]:
+    """``box`` (x0, y0, x1, y1) grown by ``margin`` px, clipped to ``size`` (w, h), its corner
+    moved down to even coordinates (the ratio's coarser grid keeps its alignment)."""
+    x0, y0 = max(0, box[0] - margin), max(0, box[1] - margin)
+    return x0 - x0 % 2, y0 - y0 % 2, min(size[0], box[2] + margin), min(size[1], box[3] + margin)
 
 
 #: The model's probability that places a pixel in the person's box (:func:`person_crop`): half
@@ -285,6 +290,4 @@ def person_crop(prob: np.ndarray, face_box, work_size: tuple[int, int], margin: 
         ph, pw = prob.shape
         x0, x1 = min(x0, int(xs.min() * ww / pw)), max(x1, int(np.ceil((xs.max() + 1) * ww / pw)))
         y0, y1 = min(y0, int(ys.min() * wh / ph)), max(y1, int(np.ceil((ys.max() + 1) * wh / ph)))
-    x0, y0 = max(0, x0 - margin), max(0, y0 - margin)
-    x0, y0 = x0 - x0 % 2, y0 - y0 % 2
-    return x0, y0, min(ww, x1 + margin), min(wh, y1 + margin)
+    return _grown_box((x0, y0, x1, y1), margin, work_size)

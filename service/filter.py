@@ -419,7 +419,6 @@ def _filter_video(inp, out, pipeline, crf, res, progress, tqdm):
     from relight.video import MAX_VIDEO_FRAMES, METADATA_ERRORS, frame_to_rgb, probe_video, release_frames, to_yuv
     from relight.video_yuv import YuvFrame
 
-
     info = probe_video(inp)
     suffix = out.suffix.lower()
     if suffix not in VIDEO_CODECS:

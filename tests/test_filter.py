@@ -526,7 +526,7 @@ def test_filter_bad_input_fails_cleanly_and_leaves_no_output(small_bundle, clip,
 
 @pytest.mark.parametrize("mode", ["ambient", "paste", "live"])
 def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
-    from relight.engine.warp import GRID_STEP, coarse_map
+    from relight.engine.warp import GRID_STEP, coarse_map, points_box
     from relight.kernels.compositor import warp_composite_numpy
 
     _, frames = clip
@@ -538,8 +538,7 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     a = np.array([[1.03, 0.04], [-0.03, 0.98]])
     cur = (ref - ref.mean(0)) @ a.T + ref.mean(0) + np.array([4.0, -3.0]) + rng.normal(0, 0.3, ref.shape)
     h, w = rgb.shape[:2]
-    box = (max(int(cur[:, 0].min()), 0), max(int(cur[:, 1].min()), 0), min(int(cur[:, 0].max()) + 1, w),
-           min(int(cur[:, 1].max()) + 1, h))
+    box = points_box(cur, (w, h), pad=0)
     coarse = coarse_map(cur, ref, box)
     fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(8, -4, 2))
     # The live slot: the face under a light from the left (some of it dark: the trust ramps act).
@@ -606,7 +605,7 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
     over the person's matte beyond): the kernel and its NumPy twin give the same bytes but for
     rounding - on the frame (scale 1) and on a smaller copy of it (the work scale's pass); with
     no person grid, the face's composite alone, as warp_composite makes it."""
-    from relight.engine.warp import GRID_STEP, coarse_map
+    from relight.engine.warp import GRID_STEP, coarse_map, points_box
     from relight.kernels.compositor import composite_person_numpy
 
     _, frames = clip
@@ -616,8 +615,7 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
     ref = fp.rig.control_ref
     cur = ref + np.array([3.0, -2.0]) + rng.normal(0, 0.3, ref.shape)
     h, w = rgb.shape[:2]
-    face_box = (max(int(cur[:, 0].min()), 0), max(int(cur[:, 1].min()), 0), min(int(cur[:, 0].max()) + 1, w),
-                min(int(cur[:, 1].max()) + 1, h))
+    face_box = points_box(cur, (w, h), pad=0)
     coarse = coarse_map(cur, ref, face_box)
     fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(5, -3, 1))
     live, live_median = _live_slot(fp, [-0.7, 0.2, 0.6])
