@@ -222,10 +222,11 @@ __kernel void warp_composite(
     float ox, float oy,                                 /* the crop's origin in the reference */
     __global const float8 *layer, int cw, int ch,       /* (ch, cw) from build_layer */
     __global const float *expect,                       /* (ch, cw) from build_layer (MODE_LIVE) */
+    __global const uchar *groups,                       /* per work-group: may the face reach it */
     __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau)
 {
     int x = get_global_id(0), y = get_global_id(1);
-    if (x >= bw || y >= bh)
+    if (x >= bw || y >= bh || !groups[get_group_id(1) * get_num_groups(0) + get_group_id(0)])
         return;
     size_t o = 3 * ((size_t)(by0 + y) * frame_w + (bx0 + x));
     float3 f = decode3(decode_lut, frame + o), res;
@@ -253,11 +254,16 @@ __kernel void composite_person(
     __global const float2 *coarse, int cgw, int step, float ox, float oy,
     __global const float8 *layer, int cw, int ch, __global const float *expect,
     __global const float4 *person, int gw, int gh, float sx, float sy, float gox, float goy, float floor_w,
-    int gate,
+    int gate, __global const uchar *groups,
     __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau)
 {
     int x = get_global_id(0), y = get_global_id(1);
     if (x >= bw || y >= bh)
+        return;
+    /* what may change in this work-group (bit 0 the face, bit 1 the person: one flag per group,
+       no divergence): nothing - the pixels keep their bytes */
+    int here = groups[get_group_id(1) * get_num_groups(0) + get_group_id(0)];
+    if (!here)
         return;
     int i = bx0 + x, j = by0 + y;
     float X = ((float)i + 0.5f) * scx - 0.5f, Y = ((float)j + 0.5f) * scy - 0.5f;
@@ -266,7 +272,7 @@ __kernel void composite_person(
     float a = 0.0f;
     int changed = 0;
     float fx = X - (float)fx0, fy = Y - (float)fy0;
-    if (fx >= 0.0f && fy >= 0.0f && fx <= (float)(fw - 1) && fy <= (float)(fh - 1))
+    if ((here & 1) && fx >= 0.0f && fy >= 0.0f && fx <= (float)(fw - 1) && fy <= (float)(fh - 1))
         changed = face_at(fx, fy, f, coarse, cgw, step, ox, oy, layer, cw, ch, expect, mode, tau, &res, &a);
     if (gw > 0) {
         float gx = (X + gox + 0.5f) * sx - 0.5f, gy = (Y + goy + 0.5f) * sy - 0.5f;

@@ -17,6 +17,7 @@ uint8 sRGB.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from relight.colour import decode_lut8, encode_lut
@@ -47,6 +48,8 @@ AGREE_RAMP = (0.30, 0.60)
 #: composite_person with ``gate``: the person's matte at and above which the face's composite is
 #: whole (the kernel's GATE_HI; it fades to nothing at the floor) - the solid matte's threshold.
 GATE_HI = 0.5
+#: The composite kernels' work-group (x, y): the face is skipped per group (:func:`face_groups`).
+GROUP = (16, 4)
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | None = None) -> np.ndarray:
@@ -235,6 +238,92 @@ def _bilinear_replicate(grid: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.
             + (grid[yb, xa] * (1 - ax) + grid[yb, xb] * ax) * ay).astype(np.float32)
 
 
+def face_cells(coarse: np.ndarray, origin, reach_sat: np.ndarray) -> np.ndarray:
+    """(gh - 1, gw - 1) bool: the cells of the coarse map (``coarse`` (gh, gw, 2) reference
+    positions, ``OUTSIDE_HALF`` marking points outside the warp) where the face's layer may be
+    non-zero - a cell's pixels take their reference position inside the box of its four corners
+    (bilinear weights are convex), and the layer's bilinear sample reads the texels around it:
+    the cell is kept where that box, grown by two texels (float32 rounding), holds a crop pixel
+    the layer reaches. ``reach_sat``: (ch + 1, cw + 1) summed-area table of those pixels
+    (``cv2.integral``); ``origin``: the crop's corner in the reference."""
+    ch, cw = reach_sat.shape[0] - 1, reach_sat.shape[1] - 1
+    x = coarse[..., 0].astype(np.float64) - origin[0]
+    y = coarse[..., 1].astype(np.float64) - origin[1]
+    inside = coarse[..., 0] >= OUTSIDE_HALF
+    quad = np.s_[:-1, :-1], np.s_[:-1, 1:], np.s_[1:, :-1], np.s_[1:, 1:]
+    ok = inside[quad[0]] & inside[quad[1]] & inside[quad[2]] & inside[quad[3]]
+    x0 = np.floor(np.minimum.reduce([x[q] for q in quad])) - 2
+    x1 = np.floor(np.maximum.reduce([x[q] for q in quad])) + 3
+    y0 = np.floor(np.minimum.reduce([y[q] for q in quad])) - 2
+    y1 = np.floor(np.maximum.reduce([y[q] for q in quad])) + 3
+    ok &= (x1 >= 0) & (y1 >= 0) & (x0 < cw) & (y0 < ch)
+    x0, x1 = (np.clip(np.where(ok, v, 0), 0, cw - 1).astype(np.int64) for v in (x0, x1))
+    y0, y1 = (np.clip(np.where(ok, v, 0), 0, ch - 1).astype(np.int64) for v in (y0, y1))
+    n = reach_sat[y1 + 1, x1 + 1] - reach_sat[y0, x1 + 1] - reach_sat[y1 + 1, x0] + reach_sat[y0, x0]
+    return ok & (n > 0)
+
+
+def _group_spans(lo: int, n: int, group: int, scale: float, clip, offset: float, step: float, cells: int):
+    """Per work-group along one axis: (any pixel at a frame position in ``clip`` (lo, hi or None),
+    first cell, last cell) - the group's pixels at frame positions X = (i + 0.5) scale - 0.5 read
+    cell floor((X + offset) / step) and the next (a bilinear sample); one more each side
+    (rounding), clipped to the ``cells``."""
+    ng = -(-n // group)
+    first = lo + np.arange(ng) * group
+    last = np.minimum(first + group, lo + n) - 1
+    a, b = (first + 0.5) * scale - 0.5, (last + 0.5) * scale - 0.5
+    if clip is not None:
+        a, b = np.maximum(a, clip[0]), np.minimum(b, clip[1])
+    c0 = np.clip(np.floor((a + offset) / step) - 1, 0, max(cells - 1, 0)).astype(np.int64)
+    c1 = np.clip(np.floor((b + offset) / step) + 2, 0, max(cells - 1, 0)).astype(np.int64)
+    return a <= b, c0, c1
+
+
+def _any_in(flags: np.ndarray, ys, xs) -> np.ndarray:
+    """(ny, nx) bool: any of ``flags`` (h, w) bool in the rectangles rows ys, columns xs (each
+    (hit, first, last) per group from :func:`_group_spans`)."""
+    (hy, y0, y1), (hx, x0, x1) = ys, xs
+    if flags.size == 0:
+        return np.zeros((hy.size, hx.size), bool)
+    sat = np.zeros((flags.shape[0] + 1, flags.shape[1] + 1), np.int64)
+    sat[1:, 1:] = flags.cumsum(0).cumsum(1)
+    n = (sat[y1[:, None] + 1, x1[None, :] + 1] - sat[y0[:, None], x1[None, :] + 1]
+         - sat[y1[:, None] + 1, x0[None, :]] + sat[y0[:, None], x0[None, :]])
+    return (n > 0) & hy[:, None] & hx[None, :]
+
+
+def work_groups(box, scale, face_box, cells: np.ndarray | None, step: int, person: np.ndarray | None = None,
+                person_sampling=None, floor: float = 0.0, gate: bool = False, group=GROUP) -> np.ndarray:
+    """(ngy, ngx) uint8 flags of the composite kernels' work-groups over ``box`` (x0, y0, x1, y1
+    of the image, its pixels at frame positions (i + 0.5) ``scale`` - 0.5): bit 0 - the face's
+    composite may change a pixel of the group (its pixels inside ``face_box`` read the coarse
+    map's ``cells``, from :func:`face_cells`); bit 1 - the person's change may (a grid cell it
+    reads has a matte above ``floor``: ``person`` (gh, gw, 4), ``person_sampling`` ((sx, sy),
+    (gox, goy)) as :func:`_person_sampling` gives); with ``gate`` the face's only where bit 1 is
+    set (the face's composite is scaled by the matte there: nothing of it is left beyond). A group
+    with neither keeps its bytes: the kernel skips it (exactly what the kernel would leave)."""
+    bx0, by0, bx1, by1 = box
+    flags = np.zeros((-(-(by1 - by0) // group[1]), -(-(bx1 - bx0) // group[0])), np.uint8)
+    if cells is not None and face_box[2] > face_box[0] and face_box[3] > face_box[1]:
+        # face_at: cell floor((fx + 0.5) / step + 0.5) of fx = X - fx0 in [0, fw - 1]
+        xs = _group_spans(bx0, bx1 - bx0, group[0], scale[0], (face_box[0], face_box[2] - 1.0),
+                          0.5 + 0.5 * step - face_box[0], step, cells.shape[1])
+        ys = _group_spans(by0, by1 - by0, group[1], scale[1], (face_box[1], face_box[3] - 1.0),
+                          0.5 + 0.5 * step - face_box[1], step, cells.shape[0])
+        flags |= _any_in(cells, ys, xs).astype(np.uint8)
+    if person is not None:
+        (sx, sy), (gox, goy) = person_sampling
+        # the grid at (X + go + 0.5) s - 0.5: cell floor(...) and the next, edges replicated
+        gh, gw = person.shape[:2]
+        xs = _group_spans(bx0, bx1 - bx0, group[0], scale[0], None, gox + 0.5 - 0.5 / sx, 1.0 / sx, gw)
+        ys = _group_spans(by0, by1 - by0, group[1], scale[1], None, goy + 0.5 - 0.5 / sy, 1.0 / sy, gh)
+        on = _any_in(person[..., 3] > floor, ys, xs)
+        if gate:
+            flags &= on
+        flags |= on.astype(np.uint8) << 1
+    return flags
+
+
 class Compositor:
     """The ``warp_composite`` kernel bound to one reference crop and the Relighter's frame."""
 
@@ -274,6 +363,8 @@ class Compositor:
         self._enc = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(lut))
         # The layer is zero except at the crop pixels with alpha > 0, the only ones rebuilt per frame.
         self.support = np.flatnonzero(self.alpha.ravel() > 0).astype(np.int32)
+        self._reach = cv2.integral((self.alpha > 0).astype(np.uint8))  # face_cells' table
+        self._tiles_buf, self._tiles_cap = None, 0
         self._support = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                   hostbuf=self.support if self.support.size else np.zeros(1, np.int32))
         self._layer = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
@@ -322,6 +413,19 @@ class Compositor:
         cl.enqueue_copy(self.rt.queue, self._coarse_buf, coarse, is_blocking=False)
         return coarse
 
+    def _groups(self, box, scale, face_box, coarse: np.ndarray, step: int, person=None, person_sampling=None,
+                floor: float = 0.0, gate: bool = False) -> object:
+        """The device buffer of :func:`work_groups` for a launch over ``box``."""
+        import pyopencl as cl
+
+        groups = work_groups(box, scale, face_box, face_cells(coarse, self.origin, self._reach), step, person,
+                             person_sampling, floor, gate)
+        if groups.nbytes > self._tiles_cap:
+            self._tiles_cap = max(groups.nbytes, 2 * self._tiles_cap)
+            self._tiles_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY, self._tiles_cap)
+        cl.enqueue_copy(self.rt.queue, self._tiles_buf, groups, is_blocking=False)
+        return self._tiles_buf
+
     def _rows_through(self, img: np.ndarray, box, launch) -> np.ndarray:
         """``img`` (a new array) after ``launch(buf)`` ran on the device copy of its rows of ``box``:
         only those rows go in and come out, through explicit copies (a host-pointer buffer written
@@ -361,12 +465,16 @@ class Compositor:
         bx0, by0, bx1, by1 = box
         bw, bh = bx1 - bx0, by1 - by0
 
+        groups = self._groups(box, (1.0, 1.0), box, coarse, step)
+        gx, gy = GROUP
+
         def launch(buf):
-            self._kernel(self.rt.queue, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(rgb.shape[1]),
+            self._kernel(self.rt.queue, (-(-bw // gx) * gx, -(-bh // gy) * gy), GROUP, buf, np.int32(rgb.shape[1]),
                          np.int32(bx0), np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf,
                          np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
                          np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch), self._expect,
-                         self._dec, self._enc, np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau))
+                         groups, self._dec, self._enc, np.int32(self.lut_n), np.int32(LAYER_MODES[mode]),
+                         np.float32(tau))
 
         return self._rows_through(rgb, box, launch)
 
@@ -401,16 +509,19 @@ class Compositor:
             gh, gw = person.shape[:2]
             grid_buf = self._person[1]
             (sx, sy), (gox, goy) = _person_sampling(person, frame_size, offset, person_origin, person_scale)
+        groups = self._groups((bx0, by0, bx1, by1), (scx, scy), (fx0, fy0, fx1, fy1), coarse, step, person,
+                              ((sx, sy), (gox, goy)), floor, bool(gate) and gw > 0)
+        gx, gy = GROUP
 
         def launch(buf):
-            self._k_person(self.rt.queue, (-(-bw // 16) * 16, -(-bh // 4) * 4), (16, 4), buf, np.int32(img.shape[1]),
+            self._k_person(self.rt.queue, (-(-bw // gx) * gx, -(-bh // gy) * gy), GROUP, buf, np.int32(img.shape[1]),
                            np.int32(bx0), np.int32(by0), np.int32(bw), np.int32(bh), np.float32(scx), np.float32(scy),
                            np.int32(fx0), np.int32(fy0), np.int32(fx1 - fx0), np.int32(fy1 - fy0), self._coarse_buf,
                            np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
                            np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch),
                            self._expect, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx), np.float32(sy),
                            np.float32(gox), np.float32(goy), np.float32(floor), np.int32(bool(gate) and gw > 0),
-                           self._dec, self._enc,
+                           groups, self._dec, self._enc,
                            np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau))
 
         return self._rows_through(img, (bx0, by0, bx1, by1), launch)

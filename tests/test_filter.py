@@ -643,6 +643,59 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
         np.testing.assert_array_equal(got, fp.compositor.composite(img, face_box, coarse, GRID_STEP, mode="live"))
 
 
+@pytest.mark.parametrize("scale", [1.0, (2.5, 2.4)])
+def test_the_composite_skips_only_work_groups_it_would_leave_as_they_are(frame_path, clip, scale, monkeypatch):
+    """The composite kernels skip the work-groups the face cannot reach and the person's matte
+    does not cover (compositor.work_groups): the same bytes as with every group run - with the
+    person and without, gated and not, on the frame and on a smaller copy - and they do skip."""
+    from relight.engine.warp import GRID_STEP, coarse_map, points_box
+    from relight.kernels import compositor as cm
+
+    _, frames = clip
+    fp = frame_path
+    rgb = frames[5]
+    rng = np.random.default_rng(3)
+    ref = fp.rig.control_ref
+    cur = ref + np.array([-4.0, 3.0]) + rng.normal(0, 0.3, ref.shape)
+    h, w = rgb.shape[:2]
+    face_box = points_box(cur, (w, h), pad=0)
+    coarse = coarse_map(cur, ref, face_box)
+    fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(-5, 3, 1))
+    _, live_median = _live_slot(fp, [0.6, 0.3, 0.7])
+    fp.compositor.layer(relit=fp.relighter.buffer(), live=fp.relighter.slot("live")[1], rotation=rotation_matrix(8, 4, 0),
+                        mode="live", gain=1.1, strength=1.0, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
+                        live_median=live_median)
+    sx, sy = np.broadcast_to(np.asarray(scale, float), (2,))
+    img = rgb if sx == 1.0 else cv2.resize(rgb, (round(w / sx), round(h / sy)), interpolation=cv2.INTER_AREA)
+    grid = _person_grid(rng, (h // 8, w // 8))
+    grid[:, : grid.shape[1] // 4, 3] = 0.0  # a quarter of the frame off the person
+    box = (0, 0, img.shape[1], img.shape[0])
+    real = cm.work_groups
+    skipped = []
+
+    def counted(*a, **k):
+        flags = real(*a, **k)
+        skipped.append(float((flags == 0).mean()))
+        return flags
+
+    runs = [dict(person=grid, gate=False), dict(person=grid, gate=True), dict(person=None, gate=False)]
+    for kw in runs:
+        monkeypatch.setattr(cm, "work_groups", counted)
+        got = fp.compositor.composite_person(img, box, face_box, coarse, GRID_STEP, mode="live", scale=scale,
+                                             frame_size=(w, h), floor=0.02, **kw)
+        monkeypatch.setattr(cm, "work_groups", lambda *a, **k: np.full_like(real(*a, **k), 3))
+        every = fp.compositor.composite_person(img, box, face_box, coarse, GRID_STEP, mode="live", scale=scale,
+                                               frame_size=(w, h), floor=0.02, **kw)
+        assert (got != img).any(axis=2).sum() > 300  # it did something
+        np.testing.assert_array_equal(got, every)
+    if sx == 1.0:  # the face's own kernel (region face) skips as well
+        monkeypatch.setattr(cm, "work_groups", counted)
+        got = fp.compositor.composite(img, face_box, coarse, GRID_STEP, mode="live")
+        monkeypatch.setattr(cm, "work_groups", lambda *a, **k: np.full_like(real(*a, **k), 3))
+        np.testing.assert_array_equal(got, fp.compositor.composite(img, face_box, coarse, GRID_STEP, mode="live"))
+    assert min(skipped) > 0.05, skipped  # every pass skipped groups
+
+
 def _no_face(compositor, frame, grid, box=None):
     """composite_person with the person grid alone (a face box of no size)."""
     from relight.engine.warp import GRID_STEP
