@@ -663,8 +663,8 @@ def test_the_composite_skips_only_work_groups_it_would_leave_as_they_are(frame_p
     fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(-5, 3, 1))
     _, live_median = _live_slot(fp, [0.6, 0.3, 0.7])
     fp.compositor.layer(relit=fp.relighter.buffer(), live=fp.relighter.slot("live")[1],
-                        rotation=rotation_matrix(8, 4, 0), mode="live", gain=1.1, strength=1.0, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
-                        live_median=live_median)
+                        rotation=rotation_matrix(8, 4, 0), mode="live", gain=1.1, strength=1.0,
+                        eps=float(fp.rig.ratio_eps), ratio_max=6.0, live_median=live_median)
     sx, sy = np.broadcast_to(np.asarray(scale, float), (2,))
     img = rgb if sx == 1.0 else cv2.resize(rgb, (round(w / sx), round(h / sy)), interpolation=cv2.INTER_AREA)
     grid = _person_grid(rng, (h // 8, w // 8))
