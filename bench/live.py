@@ -1,8 +1,10 @@
 """``relight bench live``: the live paths measured on the same synthetic clip of a captured head.
 
 1. ``relight live`` (in this process): a clip played as the camera at its own rate (30 fps),
-   relit and recorded - frames per second in, relit and out, dropped, latency (camera frame read
-   -> relit frame ready), CPU share (of one core; 200 % is both cores), per frame size.
+   relit into the preview page with no viewer (the frames as a virtual camera would take them:
+   nothing encoded) and, with ``record``, relit and recorded (H.264 at the output rate) as well -
+   frames per second in, relit and out, dropped, latency (camera frame read -> relit frame
+   ready), CPU share (of one core; 200 % is both cores), per frame size.
 2. The browser page in headless Chromium (:mod:`relight.bench.browser`): WebRTC against the
    websocket on the same 640x360 clip - fps, round trip from the frames' bar codes, bandwidth.
 
@@ -26,7 +28,7 @@ def _clip(out: Path, size, progress: bool) -> Path:
 
 
 def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float = 15.0,
-        browser: bool = True) -> dict:
+        browser: bool = True, record: bool = False) -> dict:
     import relight
     from relight.service.live import StatusLine, run_live
 
@@ -41,11 +43,14 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float
     doc: dict = {"live": [], "browser": []}
     for size in sizes:
         clip = _clip(out, size, progress)
-        if progress:
-            print(f"relight live {size[0]}x{size[1]} for {seconds:g} s ...", flush=True)
-        res = run_live(bundle, ["builtin:sunset"], camera=str(clip), duration=seconds, focal="ortho",
-                       record=out / f"live-{size[0]}x{size[1]}.mp4", status=StatusLine(io.StringIO()))
-        doc["live"].append(res.as_json())
+        for recorded in (False, True) if record else (False,):
+            if progress:
+                print(f"relight live {size[0]}x{size[1]}{', recorded' if recorded else ''} for {seconds:g} s ...",
+                      flush=True)
+            res = run_live(bundle, ["builtin:sunset"], camera=str(clip), duration=seconds, focal="ortho",
+                           preview=True, record=out / f"live-{size[0]}x{size[1]}.mp4" if recorded else None,
+                           status=StatusLine(io.StringIO()))
+            doc["live"].append(res.as_json())
     if browser:
         from .browser import find_chromium, run_browser_bench
 
@@ -62,12 +67,13 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float
 def table(doc: dict) -> str:
     from .browser import format_results
 
-    lines = ["relight live (a clip played as the camera at 30 fps, recorded):",
-             f"{'size':>10s} {'in fps':>7s} {'relit':>6s} {'out':>6s} {'dropped':>8s} {'lat p50':>8s} {'p95':>6s} "
-             f"{'CPU %':>6s}"]
+    lines = ["relight live (a clip played as the camera at 30 fps; the preview page with no viewer, and recorded):",
+             f"{'size':>10s} {'sink':>9s} {'in fps':>7s} {'relit':>6s} {'out':>6s} {'dropped':>8s} {'lat p50':>8s} "
+             f"{'p95':>6s} {'CPU %':>6s}"]
     for r in doc["live"]:
         lat = r["latency_ms"]
-        lines.append(f"{r['size'][0]:>5d}x{r['size'][1]:<4d} {r['fps_in']:7.1f} {r['fps_relit']:6.1f} "
+        sink = "recorded" if r.get("record") else "preview"
+        lines.append(f"{r['size'][0]:>5d}x{r['size'][1]:<4d} {sink:>9s} {r['fps_in']:7.1f} {r['fps_relit']:6.1f} "
                      f"{r['fps_out']:6.1f} {r['dropped']:8d} {lat.get('median', 0):8.1f} {lat.get('p95', 0):6.1f} "
                      f"{r['cpu_percent']:6.0f}")
     if doc.get("browser"):

@@ -501,7 +501,8 @@ def _add_bench(sub) -> None:
     sv.set_defaults(func=_run_bench_serve)
     lv = bsub.add_parser("live", help="relight live and the browser page (WebRTC vs websocket) on one clip",
                          description="relight live with a synthetic clip played as the camera (640x360 and "
-                                     "1280x720, recorded): fps in/relit/out, dropped, latency, CPU; then the browser "
+                                     "1280x720, into the preview page with no viewer; --record: recorded too): fps "
+                                     "in/relit/out, dropped, latency, CPU; then the browser "
                                      "page in headless Chromium over WebRTC and over the websocket on the same "
                                      "640x360 clip: fps, round trip from the frames' bar codes, bandwidth. Writes "
                                      "bench.json.",
@@ -509,6 +510,8 @@ def _add_bench(sub) -> None:
     lv.add_argument("-o", "--out", type=Path, default=Path("out/bench-live"), help="output and cache folder")
     lv.add_argument("--seconds", type=float, default=15.0, help="seconds measured per case")
     lv.add_argument("--no-browser", action="store_true", help="leave out the browser page")
+    lv.add_argument("--record", action="store_true",
+                    help="measure each size recorded as well (H.264 ultrafast at the output rate)")
     lv.add_argument("--quick", action="store_true", help="640x360 only, 6 s per case (for CI)")
     lv.add_argument("--quiet", action="store_true", help="no progress output")
     lv.set_defaults(func=_run_bench_live)
@@ -643,7 +646,7 @@ def _run_bench_live(args) -> int:
     if not (1 <= args.seconds <= 600):
         raise InputError(f"--seconds {args.seconds}: use 1 to 600")
     doc = live.run(args.out, quick=args.quick, progress=not args.quiet, seconds=args.seconds,
-                   browser=not args.no_browser)
+                   browser=not args.no_browser, record=args.record)
     print(live.table(doc))
     print(f"wrote {args.out / 'bench.json'}")
     return 0
