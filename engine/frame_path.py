@@ -29,7 +29,7 @@ from relight.errors import InputError
 from relight.numerics import EPS, EPS_VALUE
 from relight.video_yuv import downscale_area
 
-from . import composite
+from . import composite, head_light
 from .live_light import SAMPLES, LightEstimator, LiveLight
 from .pose import OneEuroFilter, PoseEstimator, camera_matrix, lift_landmarks
 from .tracking import MAX_TRACKED, FaceTracker, thin_points
@@ -534,6 +534,73 @@ class PersonMaps(NamedTuple):
     gate: bool = False
 
 
+class PersonInputs(NamedTuple):
+    """What :func:`build_person_maps` makes the person's maps of (see FramePath._person_inputs):
+    ``small`` the frame at the work scale ((h, w, 3) uint8 sRGB) and ``composited`` the same with
+    the face composited; ``face_box`` the face's box in it; ``alpha``, ``normals``, ``cover`` the
+    face's alpha, turned normals and the bundle's cover over that box; ``size`` the frame's (w, h);
+    ``target_sh``, ``live_sh`` (9, 3) the target's and the live light's SH9 in the camera's frame."""
+
+    small: np.ndarray
+    composited: np.ndarray
+    face_box: tuple[int, int, int, int]
+    alpha: np.ndarray
+    normals: np.ndarray
+    cover: np.ndarray
+    size: tuple[int, int]
+    target_sh: np.ndarray
+    live_sh: np.ndarray
+
+
+def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bool]:
+    """The person's :class:`PersonMaps` (``gate`` unset) and whether the matte is trusted around
+    the face (:func:`.head_light.matte_trusted`), made from ``inputs`` with ``matte_model``
+    (a :class:`.person.PersonMatte`) over the box of the work scale the person and a margin reach
+    (:func:`.head_light.person_crop`: their cost is the person's size, not the frame's). Touches
+    nothing but its arguments and the model: it may run on a worker."""
+    from relight.colour import decode_lut8
+
+    from .person import GUIDE_RADIUS
+
+    small, c_small, face_small = inputs.small, inputs.composited, inputs.face_box
+    wh, ww = small.shape[:2]
+    w, h = inputs.size
+    fa = inputs.alpha
+    face_px = float(np.sqrt(max(float((fa > 0.5).sum()), 1.0)))
+    prob = matte_model.probability(small)
+    margin = max(int(round(head_light.BACKGROUND_RING * face_px)), 2) + 2 * GUIDE_RADIUS + 2
+    cx0, cy0, cx1, cy1 = crop = head_light.person_crop(prob, face_small, (ww, wh), margin)
+    cw, ch = cx1 - cx0, cy1 - cy0
+    # the face's maps placed in the crop (none beyond the face's box, as in the kernel)
+    fsl = np.s_[face_small[1] - cy0:face_small[3] - cy0, face_small[0] - cx0:face_small[2] - cx0]
+    alpha = np.zeros((ch, cw), np.float32)
+    alpha[fsl] = fa
+    cover = np.zeros((ch, cw), np.float32)
+    cover[fsl] = inputs.cover
+    face_normals = np.zeros((ch, cw, 3), np.float32)
+    face_normals[..., 2] = 1.0
+    face_normals[fsl] = inputs.normals
+    sl = np.s_[cy0:cy1, cx0:cx1]
+    small_c = np.ascontiguousarray(small[sl])
+    matte = head_light.colour_check(small_c, matte_model.refine(small, prob, crop), alpha, face_px)
+    matte = head_light.attached_to_face(matte, alpha)
+    lut = decode_lut8()
+    trusted = head_light.matte_trusted(matte, alpha)
+    # The ratio over the box the person's share reaches (the ring beyond served the colour check)
+    share = np.maximum(matte, alpha)
+    tx0, ty0, tx1, ty1 = head_light.share_box(share, RATIO_REACH)
+    tsl = np.s_[ty0:ty1, tx0:tx1]
+    rho = head_light.ratio_field(lut[small_c[tsl]], lut[c_small[sl][tsl]], alpha[tsl], matte[tsl],
+                                 inputs.target_sh, inputs.live_sh, face_px, face_normals=face_normals[tsl],
+                                 face_cover=cover[tsl])
+    grid = np.empty((ty1 - ty0, tx1 - tx0, 4), np.float32)
+    grid[..., :3] = rho - np.float32(1.0)
+    grid[..., 3] = matte[tsl]
+    grid.flags.writeable = False  # reused as it is (the compositor keeps its device copy)
+    return PersonMaps(grid, (cx0 + tx0, cy0 + ty0), (ww / w, wh / h),
+                      head_light.person_box(share, (w, h), (ww, wh), (cx0, cy0))), trusted
+
+
 class FramePath:
     """Relights faces in frames with one bundle (see the module docstring).
 
@@ -550,13 +617,17 @@ class FramePath:
     truth: the warp's displacement halved on both synthetic heads (the still prediction warped
     with it +2-4 dB), the smear the ring's extrapolation left beside the cheek gone, real faces
     +0.3/+0.5 dB (yaleB04, yaleB07).
+    person_async : region person - the person's maps made on a worker thread while frames go on
+    with the newest made (a frame or two older: for a live source, whose next frame should not
+    wait for them); False (files, the service's requests) makes them in the frame that needs
+    them, so runs are repeatable.
     """
 
     def __init__(self, bundle, env: np.ndarray, *, mode: str = composite.DEFAULT_MODE, strength: float = 1.0,
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
                  tolerance: float = 0.01, relighter=None, reuse_deg: float = REUSE_DEG,
                  region: str = composite.DEFAULT_REGION,
-                 rigid_warp: bool = True):
+                 rigid_warp: bool = True, person_async: bool = False):
         from relight.kernels.relighter import Relighter
 
         limit_threads()
@@ -595,6 +666,10 @@ class FramePath:
         self.person = None
         # (work size, matte, ratio, the back() call that last used them), frames reused since made
         self._person_last, self._person_age, self._trust_run = None, 0, 0
+        # person_async: the maps made on a worker (_person); the job's generation - a new
+        # environment or a reset discards what was being made for the old
+        self.person_async = bool(person_async)
+        self._person_job, self._person_gen, self._person_pool = None, 0, None
         self._backs = 0  # back() calls: the person's maps serve only the call right after their last use
         maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
             np.float32(self.relighter.sample_scale)
@@ -619,6 +694,7 @@ class FramePath:
         self._exposure_lock, self._exposure_fits = None, []
         self._env_texels = None  # its low frequencies, made when the person beyond the face needs them
         self._person_last = None  # the person's ratio was the last environment's
+        self._person_gen = getattr(self, "_person_gen", 0) + 1
 
     @property
     def whole_head(self) -> bool:
@@ -659,6 +735,7 @@ class FramePath:
         self._next_reference = None
         self._exposure_lock, self._exposure_fits = None, []
         self._person_last, self._trust_run = None, 0
+        self._person_gen += 1
         for est in self._estimators.values():
             est.last = None
 
@@ -940,66 +1017,84 @@ class FramePath:
     def _person(self, frame, face_box, coarse, rotation, tau: float, still: bool):
         """(:class:`PersonMaps` of this frame, the frame's box the face and the person reach): the
         maps (smooth, slow to change) made every PERSON_EVERY frames and reused between, kept while
-        the head is ``still`` (the face's own alpha in the kernel is this frame's). ``frame``: as
-        given (an array or a YuvFrame); ``face_box``: the face's box in it."""
+        the head is ``still`` (the face's own alpha in the kernel is this frame's). With
+        ``person_async`` the making (all but the inputs the device and this thread's state give,
+        :meth:`_person_inputs`) runs on a worker: the frame uses the newest maps made, a frame or
+        two old, and the next are made while it is composited. ``frame``: as given (an array or a
+        YuvFrame); ``face_box``: the face's box in it."""
         from .person import WORK_ROWS
 
         h, w = frame.shape[:2]
         sc = min(1.0, WORK_ROWS / h)
         work = (max(1, round(w * sc)), max(1, round(h * sc)))
         last = self._last_person()
-        if last is not None and last[0] == work and (still or self._person_age + 1 < PERSON_EVERY):
-            self._person_age += 1
-            maps = last[1]
+        job = self._person_job  # (the maps' generation, a future) or None
+        if job is not None and job[0] != self._person_gen:  # made for what no longer holds
+            job[1].result()  # (the model is one: never two at once)
+            self._person_job = job = None
+        if last is None or last[0] != work:  # none to go on with: made now, on this thread
+            if job is not None:
+                job[1].result()
+                self._person_job = None
+            maps = self._took_maps(build_person_maps(self._matte(), self._person_inputs(
+                frame, face_box, coarse, rotation, tau, work)))
         else:
-            maps = self._person_maps(frame, face_box, coarse, rotation, tau, work)
-            self._person_age = 0
+            maps = last[1]
+            due = not still and self._person_age + 1 >= PERSON_EVERY
+            if job is not None and job[1].done():
+                self._person_job = None
+                maps = self._took_maps(job[1].result())
+            elif due and job is None:
+                inputs = self._person_inputs(frame, face_box, coarse, rotation, tau, work)
+                if self.person_async:
+                    self._person_job = (self._person_gen,
+                                        self._person_worker().submit(build_person_maps, self._matte(), inputs))
+                    self._person_age += 1
+                else:
+                    maps = self._took_maps(build_person_maps(self._matte(), inputs))
+            else:
+                self._person_age += 1
         self._person_last = (work, maps, self._backs)
         return maps, face_box if maps.box is None else _union_box(face_box, maps.box)
 
-    def _person_maps(self, frame, box, coarse, rotation, tau: float, work) -> PersonMaps:
-        """The person's :class:`PersonMaps` - see :meth:`_person` (``box``: the face's, in the
-        frame). The maps are made at the work scale from one copy of the frame whose face is
-        composited by the same kernel as the frame's, over the box of it the person and a margin
-        reach (:func:`.head_light.person_crop`: their cost is the person's size, not the frame's)."""
-        from relight.colour import decode_lut8
-        from relight.spherical_harmonics import lights_sh9
+    def _took_maps(self, made) -> PersonMaps:
+        """The maps :func:`build_person_maps` made, taken into use on this thread: the matte's run
+        of trusted remakes counted and the gate set from it."""
+        maps, trusted = made
+        self._trust_run = self._trust_run + 1 if trusted else 0
+        self._person_age = 0
+        return maps._replace(gate=self._trust_run >= head_light.MATTE_TRUST_RUN)
 
-        from . import head_light
-        from .person import GUIDE_RADIUS, PersonMatte
+    def _matte(self):
+        from .person import PersonMatte
 
         if self.person is None:
             self.person = PersonMatte()
+        return self.person
+
+    def _person_worker(self):
+        if self._person_pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._person_pool = ThreadPoolExecutor(1, thread_name_prefix="relight-person")
+        return self._person_pool
+
+    def _person_inputs(self, frame, box, coarse, rotation, tau: float, work) -> PersonInputs:
+        """What the person's maps are made of (:class:`PersonInputs`), from this frame and this
+        path's state: one copy of the frame at the work scale, its face composited by the same
+        kernel as the frame's (the face's ratio at that scale), the face's maps over its box,
+        and the target's and the live light's irradiance in the camera's frame."""
+        from relight.spherical_harmonics import lights_sh9
+
         h, w = frame.shape[:2]
         ww, wh = work
-        # One copy of the frame at the work scale serves the matte, its colour check and the ratio;
-        # its face composited by the same kernel as the frame's (the face's ratio, at that scale).
         small = downscale_area(frame, work) if isinstance(frame, np.ndarray) else frame.small_rgb(work)
         sx, sy = w / ww, h / wh
         face_small = (max(int(box[0] / sx) - 1, 0), max(int(box[1] / sy) - 1, 0),
                       min(int(np.ceil(box[2] / sx)) + 1, ww), min(int(np.ceil(box[3] / sy)) + 1, wh))
         fa, fn, fc = self._face_alpha_work(box, coarse, rotation, (w, h), work, face_small)
-        face_px = float(np.sqrt(max(float((fa > 0.5).sum()), 1.0)))
-        prob = self.person.probability(small)
-        margin = max(int(round(head_light.BACKGROUND_RING * face_px)), 2) + 2 * GUIDE_RADIUS + 2
-        cx0, cy0, cx1, cy1 = crop = head_light.person_crop(prob, face_small, work, margin)
-        cw, ch = cx1 - cx0, cy1 - cy0
-        # the face's maps placed in the crop (none beyond the face's box, as in the kernel)
-        fsl = np.s_[face_small[1] - cy0:face_small[3] - cy0, face_small[0] - cx0:face_small[2] - cx0]
-        alpha = np.zeros((ch, cw), np.float32)
-        alpha[fsl] = fa
-        cover = np.zeros((ch, cw), np.float32)
-        cover[fsl] = fc
-        face_normals = np.zeros((ch, cw, 3), np.float32)
-        face_normals[..., 2] = 1.0
-        face_normals[fsl] = fn
         c_small = self.compositor.composite_person(small, face_small, box, coarse, GRID_STEP, mode="live", tau=tau,
                                                    scale=(sx, sy))
-        sl = np.s_[cy0:cy1, cx0:cx1]
-        small_c = np.ascontiguousarray(small[sl])
-        matte = head_light.colour_check(small_c, self.person.refine(small, prob, crop), alpha, face_px)
-        matte = head_light.attached_to_face(matte, alpha)
-        lut = decode_lut8()
         r = np.asarray(rotation, dtype=np.float64)
         if self._env_texels is None:  # the environment's 64x32 texels: directions and power
             from relight.directions import equirect_directions, equirect_solid_angles
@@ -1012,21 +1107,7 @@ class FramePath:
         target_sh = lights_sh9(env_dirs @ r.T if self.fixed_env else env_dirs, env_power)
         live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T,
                              self.light_estimator.texel_light())
-        # The face's composite held to the matte once the matte has held the face steadily
-        self._trust_run = self._trust_run + 1 if head_light.matte_trusted(matte, alpha) else 0
-        # The ratio over the box the person's share reaches (the ring beyond served the colour check)
-        share = np.maximum(matte, alpha)
-        tx0, ty0, tx1, ty1 = head_light.share_box(share, RATIO_REACH)
-        tsl = np.s_[ty0:ty1, tx0:tx1]
-        rho = head_light.ratio_field(lut[small_c[tsl]], lut[c_small[sl][tsl]], alpha[tsl], matte[tsl], target_sh,
-                                     live_sh, face_px, face_normals=face_normals[tsl], face_cover=cover[tsl])
-        grid = np.empty((ty1 - ty0, tx1 - tx0, 4), np.float32)
-        grid[..., :3] = rho - np.float32(1.0)
-        grid[..., 3] = matte[tsl]
-        grid.flags.writeable = False  # reused as it is (the compositor keeps its device copy)
-        return PersonMaps(grid, (cx0 + tx0, cy0 + ty0), (ww / w, wh / h),
-                          head_light.person_box(share, (w, h), work, (cx0, cy0)),
-                          self._trust_run >= head_light.MATTE_TRUST_RUN)
+        return PersonInputs(small, c_small, face_small, fa, fn, fc, (w, h), target_sh, live_sh)
 
     def _locked_exposure(self, gain: float) -> float:
         """Mode transfer's exposure: the target brought to the live face's exposure over the first

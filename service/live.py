@@ -501,7 +501,9 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     reader = CameraReader(camera, size=size, fps=fps)
     res = LiveResult(camera=reader.name)
     out_fps = float(fps or reader.rate or 30.0)
-    fp = FramePath(bundle, env_array(0), mode=mode, strength=strength, focal=focal, region=region)
+    # a live source: the person's maps made beside the frames, not in one of them
+    fp = FramePath(bundle, env_array(0), mode=mode, strength=strength, focal=focal, region=region,
+                   person_async=True)
     relit_slot = LatestFrame()
     status = status if status is not None else StatusLine()
     restore_keys = _key_reader(controls)

@@ -261,6 +261,16 @@ FACE_FINDER_PX = 6.0
 #: conversion only); a phone's display-rotated video shown upright (mean codes over the inside).
 VIDEO_BIAS_CODES = 0.1
 VIDEO_MEAN_CODES = 0.6
+#: relight.video_yuv's own planes <-> RGB conversions against swscale's exact settings on a real
+#: photo with saturated edges (scikit-image's astronaut): mean absolute difference (their chroma
+#: filters differ: bilinear against bicubic), and a round trip's mean absolute error (4:2:0's loss
+#: at colour edges; swscale's own: 1.2 codes there).
+YUV_FAST_MEAN_CODES = 0.6
+#: The person's maps made beside the frames (person_async) against made in them: mean change of
+#: the changed pixels between the two paths' frames (8-bit codes; the maps a frame or two older on a
+#: head that turns ~1 deg a frame).
+PERSON_ASYNC_MEAN_CODES = 2.0
+YUV_FAST_ROUNDTRIP_CODES = 1.5
 DISPLAY_MATRIX_CODES = 3.0
 #: The fast sRGB encoder against the exact curve: share of codes that may differ (by one).
 FAST_SRGB_MISMATCH = 0.01
