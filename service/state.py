@@ -113,8 +113,9 @@ class Engine:
         from ..engine.frame_path import FramePath
 
         env = self.environment(self.env_name)
+        # a stream is a live source: its person's maps made beside its frames (no device work)
         return Session(FramePath(self.bundle, env, mode=self.config.mode, focal=self.config.focal,
-                                 region=self.config.region, relighter=self.path.relighter), env)
+                                 region=self.config.region, relighter=self.path.relighter, person_async=True), env)
 
     def set_uploaded(self, name: str, env: np.ndarray) -> None:
         """An uploaded (validated) environment becomes the current one under ``name``."""
