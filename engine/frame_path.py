@@ -617,17 +617,17 @@ class FramePath:
     truth: the warp's displacement halved on both synthetic heads (the still prediction warped
     with it +2-4 dB), the smear the ring's extrapolation left beside the cheek gone, real faces
     +0.3/+0.5 dB (yaleB04, yaleB07).
-    person_async : region person - the person's maps made on a worker thread while frames go on
-    with the newest made (a frame or two older: for a live source, whose next frame should not
-    wait for them); False (files, the service's requests) makes them in the frame that needs
-    them, so runs are repeatable.
+    live_source : the slow maps - the person's matte and ratio (region person) and the live
+    light's fit (mode transfer) - made on a worker thread while frames go on with the newest made
+    (a frame or two older: a live source's next frame should not wait for them); False (files,
+    the service's single requests) makes them in the frame that needs them: runs are repeatable.
     """
 
     def __init__(self, bundle, env: np.ndarray, *, mode: str = composite.DEFAULT_MODE, strength: float = 1.0,
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
                  tolerance: float = 0.01, relighter=None, reuse_deg: float = REUSE_DEG,
                  region: str = composite.DEFAULT_REGION,
-                 rigid_warp: bool = True, person_async: bool = False):
+                 rigid_warp: bool = True, live_source: bool = False):
         from relight.kernels.relighter import Relighter
 
         limit_threads()
@@ -666,15 +666,18 @@ class FramePath:
         self.person = None
         # (work size, matte, ratio, the back() call that last used them), frames reused since made
         self._person_last, self._person_age, self._trust_run = None, 0, 0
-        # person_async: the maps made on a worker (_person); the job's generation - a new
+        # live_source: the slow maps made on a worker (_person, the light fit); the person job's generation - a new
         # environment or a reset discards what was being made for the old
-        self.person_async = bool(person_async)
-        self._person_job, self._person_gen, self._person_pool = None, 0, None
+        self.live_source = bool(live_source)
+        self._person_job, self._person_gen, self._pool = None, 0, None
         self._backs = 0  # back() calls: the person's maps serve only the call right after their last use
         maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
             np.float32(self.relighter.sample_scale)
         self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
         self._last_light: LiveLight | None = None
+        # the live light in use - (texel light, spread) of the last fit taken - and a fit made
+        # beside the frames (live_source), if one is
+        self._light_now, self._light_job = None, None
         self._next_reference = None  # a live-lit reference back(defer_reference=True) made
         self._since_light = 0
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
@@ -729,8 +732,11 @@ class FramePath:
         self.tracker.prev = None
         self.angle_filter.reset()
         self.gain_filter.reset()
+        if self._light_job is not None:  # the estimator is the worker's until its fit ends
+            self._light_job.result()
+            self._light_job = None
         self.light_estimator.reset()
-        self._last_light = None
+        self._last_light, self._light_now = None, None
         self._since_light = 0
         self._next_reference = None
         self._exposure_lock, self._exposure_fits = None, []
@@ -893,31 +899,29 @@ class FramePath:
         if self.mode == "transfer":
             # The live light, fitted to this frame's face; the target exposure-matched to it.
             t5 = time.perf_counter()
-            if self.light_estimator.light is None or self._since_light + 1 >= LIGHT_EVERY:
+            job = self._light_job
+            if job is not None and job.done():  # a fit made beside the frames, taken into use
+                self._light_job = None
+                waited = self._took_light(job.result(), tm, front.track_gain, defer_reference)
+            if job is None and (self._light_now is None or self._since_light + 1 >= LIGHT_EVERY):
                 lin, valid = self._sample_live(rgb, cur, ref, rotation)
-                self._last_light = self.light_estimator.fit(lin, valid, t, rotation)
                 self._since_light = 0
-                if self.light_estimator.light is not None:
-                    waited = self._sync_relight(tm)  # the main relight first (counted as its stage)
-                    # The live light through the low-rank part alone (direct=0): no texel row is
-                    # made for it (a recipe bundle's rows cost ~35 ms each at 100k face pixels and
-                    # the fitted light's brightest texels change every fit). Measured on the 720p
-                    # live clip against the exact maps: 0.74 % relative L2 median, 0.94 % max (0.47 /
-                    # 0.68 % with 8 exact texels) - within the default tolerance and far below the
-                    # fit's own residual (8-15 % on the real faces).
-                    lit = self.relighter.relight_texels(self.light_estimator.texel_light(), slot="live", direct=0)
-                    self._set_lit_reference(lit, front.track_gain, defer_reference)
+                if self.live_source and self._light_now is not None:
+                    self._light_job = self._worker().submit(self._fit_light, lin, valid, t, rotation)
+                else:
+                    waited += self._took_light(self._fit_light(lin, valid, t, rotation), tm, front.track_gain,
+                                               defer_reference)
             else:
                 self._since_light += 1
             info.light = self._last_light
             waited += self._sync_relight(tm)
-            if self.light_estimator.light is not None:
+            if self._light_now is not None:
                 est = self.relighter.slot("live")[0].reshape(-1, 3)
                 le = est[self.rig.live_full] @ _LUM
                 lt = flat[self.rig.live_full] @ _LUM
                 live_median = float(np.median(le)) if le.size else 0.0
                 gain = self._locked_exposure(composite.exposure_match(le, lt))
-                spread = self.light_estimator.spread
+                spread = self._light_now[1]
                 tau = composite.DETAIL_SHRINK * spread if np.isfinite(spread) else 0.0
                 eps = composite.RATIO_EPS * max(live_median, composite.TINY)
             else:  # no light yet (the first frames showed too little): the capture room's ratio
@@ -1018,7 +1022,7 @@ class FramePath:
         """(:class:`PersonMaps` of this frame, the frame's box the face and the person reach): the
         maps (smooth, slow to change) made every PERSON_EVERY frames and reused between, kept while
         the head is ``still`` (the face's own alpha in the kernel is this frame's). With
-        ``person_async`` the making (all but the inputs the device and this thread's state give,
+        ``live_source`` the making (all but the inputs the device and this thread's state give,
         :meth:`_person_inputs`) runs on a worker: the frame uses the newest maps made, a frame or
         two old, and the next are made while it is composited. ``frame``: as given (an array or a
         YuvFrame); ``face_box``: the face's box in it."""
@@ -1046,9 +1050,9 @@ class FramePath:
                 maps = self._took_maps(job[1].result())
             elif due and job is None:
                 inputs = self._person_inputs(frame, face_box, coarse, rotation, tau, work)
-                if self.person_async:
+                if self.live_source:
                     self._person_job = (self._person_gen,
-                                        self._person_worker().submit(build_person_maps, self._matte(), inputs))
+                                        self._worker().submit(build_person_maps, self._matte(), inputs))
                     self._person_age += 1
                 else:
                     maps = self._took_maps(build_person_maps(self._matte(), inputs))
@@ -1072,12 +1076,12 @@ class FramePath:
             self.person = PersonMatte()
         return self.person
 
-    def _person_worker(self):
-        if self._person_pool is None:
+    def _worker(self):
+        if self._pool is None:
             from concurrent.futures import ThreadPoolExecutor
 
-            self._person_pool = ThreadPoolExecutor(1, thread_name_prefix="relight-person")
-        return self._person_pool
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="relight-maps")
+        return self._pool
 
     def _person_inputs(self, frame, box, coarse, rotation, tau: float, work) -> PersonInputs:
         """What the person's maps are made of (:class:`PersonInputs`), from this frame and this
@@ -1105,9 +1109,39 @@ class FramePath:
                                 (texels.reshape(-1, 3) * omega).astype(np.float64))
         env_dirs, env_power = self._env_texels
         target_sh = lights_sh9(env_dirs @ r.T if self.fixed_env else env_dirs, env_power)
-        live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T,
-                             self.light_estimator.texel_light())
+        live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T, self._texel_light())
         return PersonInputs(small, c_small, face_small, fa, fn, fc, (w, h), target_sh, live_sh)
+
+    def _fit_light(self, lin: np.ndarray, valid: np.ndarray, t: float, rotation: np.ndarray):
+        """The live light fitted to a frame's sampled face (:meth:`LightEstimator.fit`): (its
+        report, (the texel light, its spread) or None before any light). Touches only the
+        estimator (a worker's while a fit runs beside the frames: the frame's thread reads the
+        snapshot :meth:`_took_light` keeps)."""
+        report = self.light_estimator.fit(lin, valid, t, rotation)
+        est = self.light_estimator
+        return report, (est.texel_light().copy(), float(est.spread)) if est.light is not None else None
+
+    def _took_light(self, fitted, tm: dict, track_gain: float, defer_reference: bool) -> float:
+        """A fit (:meth:`_fit_light`) taken into use on the frame's thread: its snapshot kept, the
+        face relit under it for the layer and the tracker's reference; the ms waited for the main
+        relight first (counted in the relight stage)."""
+        self._last_light, now = fitted
+        if now is None:
+            return 0.0
+        self._light_now = now
+        waited = self._sync_relight(tm)  # the main relight first (counted as its stage)
+        # The live light through the low-rank part alone (direct=0): no texel row is made for it
+        # (a recipe bundle's rows cost ~35 ms each at 100k face pixels and the fitted light's
+        # brightest texels change every fit). Measured on the 720p live clip against the exact
+        # maps: 0.74 % relative L2 median, 0.94 % max (0.47 / 0.68 % with 8 exact texels) - within
+        # the default tolerance and far below the fit's own residual (8-15 % on the real faces).
+        lit = self.relighter.relight_texels(now[0], slot="live", direct=0)
+        self._set_lit_reference(lit, track_gain, defer_reference)
+        return waited
+
+    def _texel_light(self) -> np.ndarray:
+        """(T, 3) the live light in use, in the bundle's texels (zeros before the first)."""
+        return self._light_now[0] if self._light_now is not None else self.light_estimator.texel_light()
 
     def _locked_exposure(self, gain: float) -> float:
         """Mode transfer's exposure: the target brought to the live face's exposure over the first

@@ -503,7 +503,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     out_fps = float(fps or reader.rate or 30.0)
     # a live source: the person's maps made beside the frames, not in one of them
     fp = FramePath(bundle, env_array(0), mode=mode, strength=strength, focal=focal, region=region,
-                   person_async=True)
+                   live_source=True)
     relit_slot = LatestFrame()
     status = status if status is not None else StatusLine()
     restore_keys = _key_reader(controls)

@@ -115,7 +115,7 @@ class Engine:
         env = self.environment(self.env_name)
         # a stream is a live source: its person's maps made beside its frames (no device work)
         return Session(FramePath(self.bundle, env, mode=self.config.mode, focal=self.config.focal,
-                                 region=self.config.region, relighter=self.path.relighter, person_async=True), env)
+                                 region=self.config.region, relighter=self.path.relighter, live_source=True), env)
 
     def set_uploaded(self, name: str, env: np.ndarray) -> None:
         """An uploaded (validated) environment becomes the current one under ``name``."""

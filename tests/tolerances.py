@@ -266,7 +266,7 @@ VIDEO_MEAN_CODES = 0.6
 #: filters differ: bilinear against bicubic), and a round trip's mean absolute error (4:2:0's loss
 #: at colour edges; swscale's own: 1.2 codes there).
 YUV_FAST_MEAN_CODES = 0.6
-#: The person's maps made beside the frames (person_async) against made in them: mean change of
+#: The person's maps made beside the frames (live_source) against made in them: mean change of
 #: the changed pixels between the two paths' frames (8-bit codes; the maps a frame or two older on a
 #: head that turns ~1 deg a frame).
 PERSON_ASYNC_MEAN_CODES = 2.0
