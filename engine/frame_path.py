@@ -120,7 +120,8 @@ class Front:
     ``track`` the tracked points, ``keep`` the pose's inliers among them and ``ref_idx`` their
     landmark indices, ``xy`` ((M, 2) float32) where the warp puts those landmarks, ``pose`` and
     ``rotation`` (3x3, smoothed) the head's, ``size`` (w, h), ``track_gain`` the tracking copy's
-    brightening gain."""
+    brightening gain, ``warp`` (cur, ref, box, coarse) the warp the pose gives
+    (:meth:`FramePath._warp`)."""
 
     frame: object
     t: float
@@ -134,6 +135,7 @@ class Front:
     rotation: np.ndarray | None = None
     size: tuple[int, int] = (0, 0)
     track_gain: float = 1.0
+    warp: tuple | None = None
 
 
 def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -821,8 +823,28 @@ class FramePath:
         info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles
         info.points = int(keep.size)
         tm["pose"] = (time.perf_counter() - t1) * 1e3
+        t2 = time.perf_counter()
+        warp = self._warp(pose, size, ref_idx, xy)  # the pose alone decides it: this half's work
+        tm["warp"] = (time.perf_counter() - t2) * 1e3
         return Front(rgb, t, t0, info, track=track, keep=keep, ref_idx=ref_idx, xy=xy, pose=pose, rotation=rotation,
-                     size=size, track_gain=track_gain)
+                     size=size, track_gain=track_gain, warp=warp)
+
+    def _warp(self, pose, size, ref_idx: np.ndarray, xy: np.ndarray):
+        """(cur, ref, box, coarse): where the warp's points sit in the frame (N, 2) and in the
+        reference, the frame's box they span and the coarse map over it (None: the face is outside
+        the frame or its points do not triangulate)."""
+        if self.rigid_warp:
+            cur, depth = self._mesh_positions(pose, size, ref_idx, xy)
+            ref = self.rig.mesh_ref
+            box = points_box(cur, size)
+            coarse = mesh_coarse_map(cur, ref, self.rig.mesh_triangles, box, depth) if box is not None else None
+        else:
+            ring = self.rig.control_ref[self.rig.ring_index]
+            cur = np.concatenate([xy, _affine_ring(self.rig.control_ref[ref_idx], xy, ring)])
+            ref = np.concatenate([self.rig.control_ref[ref_idx], ring])
+            box = points_box(cur, size)
+            coarse = coarse_map(cur, ref, box) if box is not None else None
+        return cur, ref, box, coarse
 
     def back(self, front: Front, defer_reference: bool = False):
         """The second half of :meth:`process` (relight, warp, live light, composite) for the
@@ -831,8 +853,7 @@ class FramePath:
         if front.pose is None:
             return front.frame, front.info
         rgb, t, t0, info = front.frame, front.t, front.t0, front.info
-        track, keep, ref_idx, xy = front.track, front.keep, front.ref_idx, front.xy
-        rotation, size = front.rotation, front.size
+        track, keep, ref_idx, rotation = front.track, front.keep, front.ref_idx, front.rotation
         tm = info.timings
         t2 = time.perf_counter()
         # Leave out a relight the head's small turn does not need (REUSE_DEG): this path's own
@@ -852,21 +873,10 @@ class FramePath:
         img = self.relit_frame
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()
-        if self.rigid_warp:
-            cur, depth = self._mesh_positions(front.pose, size, ref_idx, xy)
-            ref = self.rig.mesh_ref
-            box = points_box(cur, size)
-            coarse = mesh_coarse_map(cur, ref, self.rig.mesh_triangles, box, depth) if box is not None else None
-        else:
-            ring = self.rig.control_ref[self.rig.ring_index]
-            cur = np.concatenate([xy, _affine_ring(self.rig.control_ref[ref_idx], xy, ring)])
-            ref = np.concatenate([self.rig.control_ref[ref_idx], ring])
-            box = points_box(cur, size)
-            coarse = coarse_map(cur, ref, box) if box is not None else None
+        cur, ref, box, coarse = front.warp
         if coarse is None:
             info.face = False
             info.note = "face outside the frame"
-            tm["warp"] = (time.perf_counter() - t3) * 1e3
             tm["total"] = (time.perf_counter() - t0) * 1e3
             return rgb, info
         # A YuvFrame: its box alone in RGB (offset: the box's corner in the frame) - with the
@@ -941,7 +951,7 @@ class FramePath:
             num, den = float(np.median(live)) if live.size else 0.0, float(np.median(relit_l)) if relit_l.size else 0.0
             gain = num / den if num > composite.TINY and den > composite.TINY else 1.0
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
-        tm["warp"] = (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
+        tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
         t4 = time.perf_counter()
         live_buf = self.relighter.slot("live")[1] if layer_mode == "live" else None
         self.compositor.layer(relit=self.relighter.buffer(self.relit_frame), live=live_buf, mode=layer_mode,
