@@ -51,8 +51,11 @@ def _ycbcr_matrix() -> np.ndarray:
                      [_Y_SCALE, 2.0 * (1.0 - _KB) * _C_SCALE, 0.0]])
 
 
-_TO_RGB = np.hstack([_ycbcr_matrix(), -(_ycbcr_matrix() @ np.array([16.0, 128.0, 128.0]))[:, None]]).astype(np.float32)
-_TO_YCBCR = np.hstack([np.linalg.inv(_ycbcr_matrix()), np.array([[16.0], [128.0], [128.0]])]).astype(np.float32)
+_YCBCR = _ycbcr_matrix()
+_OFFSET = np.array([16.0, 128.0, 128.0])
+#: (3, 4) float32 affine maps for cv2.transform: codes (Y', Cb, Cr) -> R'G'B', and back.
+_TO_RGB = np.hstack([_YCBCR, -(_YCBCR @ _OFFSET)[:, None]]).astype(np.float32)
+_TO_YCBCR = np.hstack([np.linalg.inv(_YCBCR), _OFFSET[:, None]]).astype(np.float32)
 
 
 def planes_to_rgb(y: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -83,15 +86,9 @@ def rgb_to_planes(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _grey_weights() -> tuple[float, float, float, float]:
     """(a, b, c, d): cv2's grey of the RGB a limited-range BT.709 pixel decodes to, as
     a Y + b (Cb - 128) + c (Cr - 128) + d (before clipping) - the conversion is linear."""
-    kg = 1.0 - _KR - _KB
-    # R' = Y' + 2 (1 - Kr) Cr, B' = Y' + 2 (1 - Kb) Cb, G' = Y' - (2 Kb (1 - Kb) Cb + 2 Kr (1 - Kr) Cr) / Kg
-    r_cr, b_cb = 2.0 * (1.0 - _KR), 2.0 * (1.0 - _KB)
-    g_cb, g_cr = -2.0 * _KB * (1.0 - _KB) / kg, -2.0 * _KR * (1.0 - _KR) / kg
-    wr, wg, wb = _GREY
-    a = _Y_SCALE  # wr + wg + wb = 1
-    b = (wg * g_cb + wb * b_cb) * _C_SCALE
-    c = (wr * r_cr + wg * g_cr) * _C_SCALE
-    return a, b, c, -16.0 * _Y_SCALE
+    _, b, c = np.asarray(_GREY) @ _YCBCR
+    a = _Y_SCALE  # the grey weights sum to 1
+    return a, float(b), float(c), -16.0 * _Y_SCALE
 
 
 class YuvFrame:
