@@ -48,7 +48,7 @@ AGREE_RAMP = (0.30, 0.60)
 #: composite_person with ``gate``: the person's matte at and above which the face's composite is
 #: whole (the kernel's GATE_HI; it fades to nothing at the floor) - the solid matte's threshold.
 GATE_HI = 0.5
-#: The composite kernels' work-group (x, y): the face is skipped per group (:func:`face_groups`).
+#: The composite kernels' work-group (x, y): what nothing changes in is skipped per group (:func:`work_groups`).
 GROUP = (16, 4)
 
 
@@ -259,8 +259,7 @@ def face_cells(coarse: np.ndarray, origin, reach_sat: np.ndarray) -> np.ndarray:
     ok &= (x1 >= 0) & (y1 >= 0) & (x0 < cw) & (y0 < ch)
     x0, x1 = (np.clip(np.where(ok, v, 0), 0, cw - 1).astype(np.int64) for v in (x0, x1))
     y0, y1 = (np.clip(np.where(ok, v, 0), 0, ch - 1).astype(np.int64) for v in (y0, y1))
-    n = reach_sat[y1 + 1, x1 + 1] - reach_sat[y0, x1 + 1] - reach_sat[y1 + 1, x0] + reach_sat[y0, x0]
-    return ok & (n > 0)
+    return ok & (_box_sums(reach_sat, y0, y1, x0, x1) > 0)
 
 
 def _group_spans(lo: int, n: int, group: int, scale: float, clip, offset: float, step: float, cells: int):
@@ -279,17 +278,20 @@ def _group_spans(lo: int, n: int, group: int, scale: float, clip, offset: float,
     return a <= b, c0, c1
 
 
+def _box_sums(sat: np.ndarray, y0, y1, x0, x1) -> np.ndarray:
+    """Sums over the inclusive boxes rows y0..y1, columns x0..x1 (index arrays, broadcast) of the
+    image whose summed-area table (``cv2.integral``: (h + 1, w + 1)) is ``sat``."""
+    return sat[y1 + 1, x1 + 1] - sat[y0, x1 + 1] - sat[y1 + 1, x0] + sat[y0, x0]
+
+
 def _any_in(flags: np.ndarray, ys, xs) -> np.ndarray:
     """(ny, nx) bool: any of ``flags`` (h, w) bool in the rectangles rows ys, columns xs (each
     (hit, first, last) per group from :func:`_group_spans`)."""
     (hy, y0, y1), (hx, x0, x1) = ys, xs
     if flags.size == 0:
         return np.zeros((hy.size, hx.size), bool)
-    sat = np.zeros((flags.shape[0] + 1, flags.shape[1] + 1), np.int64)
-    sat[1:, 1:] = flags.cumsum(0).cumsum(1)
-    n = (sat[y1[:, None] + 1, x1[None, :] + 1] - sat[y0[:, None], x1[None, :] + 1]
-         - sat[y1[:, None] + 1, x0[None, :]] + sat[y0[:, None], x0[None, :]])
-    return (n > 0) & hy[:, None] & hx[None, :]
+    sat = cv2.integral(flags.astype(np.uint8))
+    return (_box_sums(sat, y0[:, None], y1[:, None], x0[None, :], x1[None, :]) > 0) & hy[:, None] & hx[None, :]
 
 
 def work_groups(box, scale, face_box, cells: np.ndarray | None, step: int, person: np.ndarray | None = None,
@@ -364,7 +366,7 @@ class Compositor:
         # The layer is zero except at the crop pixels with alpha > 0, the only ones rebuilt per frame.
         self.support = np.flatnonzero(self.alpha.ravel() > 0).astype(np.int32)
         self._reach = cv2.integral((self.alpha > 0).astype(np.uint8))  # face_cells' table
-        self._tiles_buf, self._tiles_cap = None, 0
+        self._groups_buf, self._groups_cap = None, 0
         self._support = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                   hostbuf=self.support if self.support.size else np.zeros(1, np.int32))
         self._layer = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
@@ -420,11 +422,11 @@ class Compositor:
 
         groups = work_groups(box, scale, face_box, face_cells(coarse, self.origin, self._reach), step, person,
                              person_sampling, floor, gate)
-        if groups.nbytes > self._tiles_cap:
-            self._tiles_cap = max(groups.nbytes, 2 * self._tiles_cap)
-            self._tiles_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY, self._tiles_cap)
-        cl.enqueue_copy(self.rt.queue, self._tiles_buf, groups, is_blocking=False)
-        return self._tiles_buf
+        if groups.nbytes > self._groups_cap:
+            self._groups_cap = max(groups.nbytes, 2 * self._groups_cap)
+            self._groups_buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY, self._groups_cap)
+        cl.enqueue_copy(self.rt.queue, self._groups_buf, groups, is_blocking=False)
+        return self._groups_buf
 
     def _rows_through(self, img: np.ndarray, box, launch) -> np.ndarray:
         """``img`` (a new array) after ``launch(buf)`` ran on the device copy of its rows of ``box``:
