@@ -666,12 +666,12 @@ class FramePath:
             raise InputError(f"region {region!r}: use one of {', '.join(composite.REGIONS)}")
         self.region = region
         self.person = None
-        # (work size, matte, ratio, the back() call that last used them), frames reused since made
+        # (work size, PersonMaps, the back() call that last used them), frames reused since made
         self._person_last, self._person_age, self._trust_run = None, 0, 0
-        # live_source: the slow maps made on a worker (_person, the light fit); the person job's generation - a new
-        # environment or a reset discards what was being made for the old
+        # live_source: the slow maps made on a worker (_person, the light fit); the person's maps
+        # being made there (a future), dropped with the maps in use (a new environment, a reset)
         self.live_source = bool(live_source)
-        self._person_job, self._person_gen, self._pool = None, 0, None
+        self._person_job, self._pool = None, None
         self._backs = 0  # back() calls: the person's maps serve only the call right after their last use
         maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
             np.float32(self.relighter.sample_scale)
@@ -699,7 +699,6 @@ class FramePath:
         self._exposure_lock, self._exposure_fits = None, []
         self._env_texels = None  # its low frequencies, made when the person beyond the face needs them
         self._person_last = None  # the person's ratio was the last environment's
-        self._person_gen = getattr(self, "_person_gen", 0) + 1
 
     @property
     def whole_head(self) -> bool:
@@ -743,7 +742,6 @@ class FramePath:
         self._next_reference = None
         self._exposure_lock, self._exposure_fits = None, []
         self._person_last, self._trust_run = None, 0
-        self._person_gen += 1
         for est in self._estimators.values():
             est.last = None
 
@@ -1042,27 +1040,23 @@ class FramePath:
         sc = min(1.0, WORK_ROWS / h)
         work = (max(1, round(w * sc)), max(1, round(h * sc)))
         last = self._last_person()
-        job = self._person_job  # (the maps' generation, a future) or None
-        if job is not None and job[0] != self._person_gen:  # made for what no longer holds
-            job[1].result()  # (the model is one: never two at once)
-            self._person_job = job = None
+        job = self._person_job  # the maps being made on the worker, or None
         if last is None or last[0] != work:  # none to go on with: made now, on this thread
-            if job is not None:
-                job[1].result()
+            if job is not None:  # made for maps no longer in use (another environment, a gap,
+                job.result()     # a reset): dropped once done - the model is one, never two at once
                 self._person_job = None
             maps = self._took_maps(build_person_maps(self._matte(), self._person_inputs(
                 frame, face_box, coarse, rotation, tau, work)))
         else:
             maps = last[1]
             due = not still and self._person_age + 1 >= PERSON_EVERY
-            if job is not None and job[1].done():
+            if job is not None and job.done():
                 self._person_job = None
-                maps = self._took_maps(job[1].result())
+                maps = self._took_maps(job.result())
             elif due and job is None:
                 inputs = self._person_inputs(frame, face_box, coarse, rotation, tau, work)
                 if self.live_source:
-                    self._person_job = (self._person_gen,
-                                        self._worker().submit(build_person_maps, self._matte(), inputs))
+                    self._person_job = self._worker().submit(build_person_maps, self._matte(), inputs)
                     self._person_age += 1
                 else:
                     maps = self._took_maps(build_person_maps(self._matte(), inputs))

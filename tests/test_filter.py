@@ -623,7 +623,7 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
         for i, f in enumerate(frames[:12]):
             run.append(fp.process(f, i / 30))
             if live:  # the worker's maps are ready by the next frame here (a slow machine's may not)
-                for job in (fp._person_job and fp._person_job[1], fp._light_job):
+                for job in (fp._person_job, fp._light_job):
                     if job is not None:
                         job.result()
         assert all(info.face for _, info in run)
