@@ -998,7 +998,7 @@ class FramePath:
         compositor's face alpha (feathered mask x facing x strength), (h, w) float32; the bundle's
         normals turned with the head (camera frame, (h, w, 3)); and where the bundle has them (its
         mask, bilinear: (h, w) in 0-1). ``box``: the face's box in the frame (``coarse``'s)."""
-        from relight.kernels.compositor import FACING
+        from relight.kernels.compositor import facing_weight
 
         w, h = size
         ww, wh = work
@@ -1015,8 +1015,7 @@ class FramePath:
         turned = normal @ np.asarray(rotation, np.float32).T
         cover = cv2.remap(self.rig.mask_crop.astype(np.float32), px, py, cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        lo, hi = FACING
-        facing = np.clip((turned[..., 2] - lo) / (hi - lo), 0.0, 1.0)
+        facing = facing_weight(turned[..., 2], normal[..., 2])
         return (alpha * facing * self.strength).astype(np.float32), turned, cover
 
     def _last_person(self):

@@ -1,17 +1,21 @@
 /* The relit face warped into a video frame and composited, in two passes.
  *
  * Every mode is one per-pixel rule in linear light, with f the frame's pixel:
- *     face = s f r + (1 - s) T,        out = f + a (face - f)
+ *     face = s (f + lift) r + (1 - s) T,        out = f + a (face - f)
  * r the lighting ratio applied to the live pixel, T the bundle's own prediction, s in 0-1 how far
- * the live pixel is trusted, a the composited share (feathered mask x strength x facing).
+ * the live pixel is trusted, a the composited share (feathered mask x strength x facing); lift
+ * the ratio's regulariser (MODE_LIVE: eps; 0 in the other modes).
  *
  * build_layer (reference crop, one work item per crop pixel with a > 0) writes (r, s, T, a):
  *   MODE_AMBIENT  r = gain (relit + eps) / (ambient + eps), clamped to [0, ratio_max]; s = 1
  *                 (the capture room's light swapped for the target's: the paper's setting);
  *   MODE_PASTE    s = 0, T = gain relit (the relit reference face, the paper's warp);
  *   MODE_LIVE     T = gain relit (the target light, exposure-matched to the live face),
- *                 E = the face under the live light (fitted to the frame), r = (T + eps) / (E + eps)
- *                 clamped; s falls from 1 to 0 where the live light leaves the pixel much darker
+ *                 E = the face under the live light (fitted to the frame), r = T / (E + eps)
+ *                 clamped - with lift = eps the trusted face is T (f + eps) / (E + eps): exactly T
+ *                 where the live pixel is what the live light predicts, the regulariser biasing
+ *                 nothing there (a (T + eps) / (E + eps) ratio lifted T by eps (1 - T / E), most
+ *                 where the target darkens what the live light lit); s falls from 1 to 0 where the live light leaves the pixel much darker
  *                 than the target wants (q = lum E / max(lum E, lum T) from Q_HI down to Q_LO: a
  *                 ratio would only amplify noise and cannot bring back detail a shadow hid) or
  *                 near black (lum E / the face's median from D_HI down to D_LO).
@@ -29,8 +33,8 @@
  *      light draws a pixel off, which a ratio would keep), and where the live pixel differs from
  *      what the live light predicts by no more than `tau` (relative; the fit's own scatter:
  *      the ratio would only carry the model's error and the camera's noise into the output) -
- *      soft-thresholded, so what the bundle cannot explain (eyes, mouth, expression) passes:
- *      face = T (1 + s soft(lum f / lum E - 1, tau)) in luminance; the rule above;
+ *      soft-thresholded (s scaled by (dev - tau) / dev, dev = |lum f / lum E - 1|), so what
+ *      the bundle cannot explain (eyes, mouth, expression) passes; the rule above;
  *   4. sRGB encode through the 16k-entry table (as relight.colour.encode_srgb8).
  * Pixels outside the warp keep their bytes.
  * composite_person (region person): warp_composite's face plus the light's change over the rest
@@ -108,9 +112,11 @@ __kernel void build_layer(
         return;
     int p = support[i];
     int f = fill[p];
-    /* Surface turned away from the camera by the head's rotation fades out: the warp of the
-       reference cannot place it, and its light would land on the background. */
+    /* Surface the head's rotation turns away from the camera, past where the reference saw it,
+       fades out: the warp of the reference cannot place it, and its light would land on the
+       background (relight.kernels.compositor.facing_weight). */
     float nz = rz0 * normal[3 * p] + rz1 * normal[3 * p + 1] + rz2 * normal[3 * p + 2];
+    nz += fmx(FACING_HI - normal[3 * p + 2], 0.0f);
     float a = alpha[p] * strength * fclamp((nz - FACING_LO) / (FACING_HI - FACING_LO), 0.0f, 1.0f);
     float3 rel = read3(relit, f);
     float3 r = (float3)(0.0f), t = (float3)(0.0f);
@@ -126,7 +132,7 @@ __kernel void build_layer(
     } else {
         float3 e = read3(live, f);
         t = gain * rel;
-        float3 q = (t + eps) / (e + eps);
+        float3 q = t / (e + eps);
         r = (float3)(fclamp(q.x, 0.0f, ratio_max), fclamp(q.y, 0.0f, ratio_max), fclamp(q.z, 0.0f, ratio_max));
         float le = lum3(e), lt = lum3(t);
         float share = le / fmx(fmx(le, lt), 1e-12f);
@@ -173,7 +179,7 @@ __attribute__((always_inline)) inline float bilerp1(__global const float *img, i
 __attribute__((always_inline)) inline int face_at(
     float x, float y, float3 f, __global const float2 *coarse, int gw, int step, float ox, float oy,
     __global const float8 *layer, int cw, int ch, __global const float *expect, int mode, float tau,
-    float3 *res, float *a_out)
+    float lift, float3 *res, float *a_out)
 {
     float cx = (x + (float)step + 0.5f) / (float)step - 0.5f;
     float cy = (y + (float)step + 0.5f) / (float)step - 0.5f;
@@ -197,7 +203,7 @@ __attribute__((always_inline)) inline int face_at(
         float dev = fabs(agree - 1.0f);
         s *= dev > tau ? (dev - tau) / dev : 0.0f;
     }
-    float3 face = s * f * l.s012 + (1.0f - s) * l.s456;
+    float3 face = s * (f + lift) * l.s012 + (1.0f - s) * l.s456;
     *res = f + a * (face - f);
     *a_out = a;
     return 1;
@@ -223,7 +229,7 @@ __kernel void warp_composite(
     __global const float8 *layer, int cw, int ch,       /* (ch, cw) from build_layer */
     __global const float *expect,                       /* (ch, cw) from build_layer (MODE_LIVE) */
     __global const uchar *groups,                       /* per work-group: may the face reach it */
-    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau)
+    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau, float lift)
 {
     int x = get_global_id(0), y = get_global_id(1);
     if (x >= bw || y >= bh || !groups[get_group_id(1) * get_num_groups(0) + get_group_id(0)])
@@ -231,7 +237,7 @@ __kernel void warp_composite(
     size_t o = 3 * ((size_t)(by0 + y) * frame_w + (bx0 + x));
     float3 f = decode3(decode_lut, frame + o), res;
     float a;
-    if (face_at((float)x, (float)y, f, coarse, gw, step, ox, oy, layer, cw, ch, expect, mode, tau, &res, &a))
+    if (face_at((float)x, (float)y, f, coarse, gw, step, ox, oy, layer, cw, ch, expect, mode, tau, lift, &res, &a))
         encode3(encode_lut, lut_n, frame + o, res);
 }
 
@@ -255,7 +261,7 @@ __kernel void composite_person(
     __global const float8 *layer, int cw, int ch, __global const float *expect,
     __global const float4 *person, int gw, int gh, float sx, float sy, float gox, float goy, float floor_w,
     int gate, __global const uchar *groups,
-    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau)
+    __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau, float lift)
 {
     int x = get_global_id(0), y = get_global_id(1);
     if (x >= bw || y >= bh)
@@ -273,7 +279,7 @@ __kernel void composite_person(
     int changed = 0;
     float fx = X - (float)fx0, fy = Y - (float)fy0;
     if ((here & 1) && fx >= 0.0f && fy >= 0.0f && fx <= (float)(fw - 1) && fy <= (float)(fh - 1))
-        changed = face_at(fx, fy, f, coarse, cgw, step, ox, oy, layer, cw, ch, expect, mode, tau, &res, &a);
+        changed = face_at(fx, fy, f, coarse, cgw, step, ox, oy, layer, cw, ch, expect, mode, tau, lift, &res, &a);
     if (gw > 0) {
         float gx = (X + gox + 0.5f) * sx - 0.5f, gy = (Y + goy + 0.5f) * sy - 0.5f;
         int x0 = ifloor(gx), y0 = ifloor(gy);

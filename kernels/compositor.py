@@ -3,10 +3,11 @@ composited (mode ``ambient``, ``paste`` or ``live``), sRGB in and out, in one pa
 
 Three kernels: ``build_layer`` makes the crop's float8 layer (lighting ratio r, live trust s,
 the bundle's prediction T, alpha), ``warp_composite`` samples it once per frame pixel and
-composites ``face = s f r + (1 - s) T``, ``out = f + a (face - f)`` (see the .cl file for each
-mode); ``composite_person`` does the same and adds the light's change over the rest of the
-person, ``f max(m, a) (1 - a) (rho - 1)``, over the face's box and the person's - on the frame
-or on a smaller copy of it (region person: :mod:`relight.engine.head_light`).
+composites ``face = s (f + lift) r + (1 - s) T``, ``out = f + a (face - f)`` (see the .cl file
+for each mode; ``lift`` is mode live's ratio regulariser, 0 in the others); ``composite_person``
+does the same and adds the light's change over the rest of the person, ``f max(m, a) (1 - a)
+(rho - 1)``, over the face's box and the person's - on the frame or on a smaller copy of it
+(region person: :mod:`relight.engine.head_light`).
 Arrays (reference crop of ch x cw pixels whose top-left is reference pixel ``origin``):
 alpha (ch, cw) float32 feathered mask; fill (ch, cw) int32 index into the relit frame's pixels
 (-1 = none); inv_amb (ch, cw, 3) float32 = 1 / (reference ambient + eps); relit, live: the
@@ -29,7 +30,8 @@ from .runtime import build_program, get_runtime
 #: Reference positions below this mark grid points outside the warp (see warp.OUTSIDE).
 OUTSIDE_HALF = -5.0e3
 #: A turned normal's camera-facing component: the face fades out from the second value down
-#: to the first (the kernel's FACING_HI, FACING_LO).
+#: to the first (the kernel's FACING_HI, FACING_LO) - counted from where the reference saw the
+#: surface (:func:`facing_weight`).
 FACING = (0.15, 0.45)
 #: Feathered-mask values below this are zero (no work, no denormals).
 ALPHA_FLOOR = 1e-4
@@ -82,6 +84,20 @@ def _ramp(v, lo_hi) -> np.ndarray:
     return np.clip((v - lo) / (hi - lo), 0.0, 1.0).astype(np.float32)
 
 
+def facing_weight(turned_z, reference_z) -> np.ndarray:
+    """The share of the face composited where the head's rotation turns the surface away (0-1,
+    float32): a turned normal's camera-facing component ``turned_z`` fades it out over
+    :data:`FACING`, lifted by how far below the ramp's top the reference's own ``reference_z``
+    was - a surface the capture saw at a grazing angle is placed as well as the reference holds
+    it (weight 1 unturned) and fades only as the rotation turns it further. (A ramp on the
+    turned normal alone dimmed the sides of every face at rest: a real face's cheeks and jaw
+    sit at 0.2-0.45 in the photos' own view, 10-25 % of the face, and there the output was the
+    live frame blended in, not the relit face.)"""
+    z = np.asarray(turned_z, np.float32) + np.maximum(np.float32(FACING[1]) - np.asarray(reference_z, np.float32),
+                                                        np.float32(0.0))
+    return _ramp(z, FACING)
+
+
 def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, alpha: np.ndarray,
                       normal: np.ndarray, rotation: np.ndarray, *, mode: str, gain: float, strength: float,
                       eps: float, ratio_max: float, live: np.ndarray | None = None,
@@ -100,7 +116,7 @@ def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, 
 
     rel = read(relit)
     nz = normal.reshape(-1, 3) @ np.asarray(rotation, dtype=np.float32)[2]
-    facing = _ramp(nz, FACING)
+    facing = facing_weight(nz, normal.reshape(-1, 3)[:, 2])
     a = np.where(alpha >= ALPHA_FLOOR, alpha, 0.0).astype(np.float32).ravel() * np.float32(strength) * facing
     r = np.zeros_like(rel)
     t = np.zeros_like(rel)
@@ -116,7 +132,7 @@ def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, 
     else:
         e = read(live)
         t = g * rel
-        r = np.clip((t + e32) / (e + e32), 0.0, rmax)
+        r = np.clip(t / (e + e32), 0.0, rmax)
         le, lt = e @ LUMINANCE, t @ LUMINANCE
         share = le / np.maximum(np.maximum(le, lt), np.float32(EPS))
         s = _ramp(share, TRUST_RATIO) * _ramp(le / np.float32(max(live_median, EPS)), TRUST_DARK)
@@ -127,15 +143,16 @@ def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, 
 
 
 def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, layer, *,
-                         mode: str, tau: float = 0.0) -> np.ndarray:
-    """NumPy twin of ``warp_composite``: a new frame (layer: the pair from :func:`build_layer_numpy`)."""
-    return composite_person_numpy(frame, box, box, coarse, step, origin, layer, mode=mode, tau=tau)
+                         mode: str, tau: float = 0.0, lift: float = 0.0) -> np.ndarray:
+    """NumPy twin of ``warp_composite``: a new frame (layer: the pair from :func:`build_layer_numpy`;
+    ``lift``: mode live's ``eps`` that layer was built with, 0 in the other modes)."""
+    return composite_person_numpy(frame, box, box, coarse, step, origin, layer, mode=mode, tau=tau, lift=lift)
 
 
 def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, origin, layer, *,
                            mode: str, tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
                            frame_size=None, floor: float = 0.0, offset=(0.0, 0.0), person_origin=(0, 0),
-                           person_scale=None, gate: bool = False) -> np.ndarray:
+                           person_scale=None, gate: bool = False, lift: float = 0.0) -> np.ndarray:
     """NumPy twin of ``composite_person``: a new image. ``img`` (h, w, 3) uint8 sRGB whose pixel
     (i, j) sits at frame position ((i + 0.5) sx - 0.5, (j + 0.5) sy - 0.5), ``scale`` = sx or
     (sx, sy); ``box`` (x0, y0,
@@ -189,7 +206,7 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
             shrink = np.where(dev > tau, (dev - np.float32(tau)) / np.maximum(dev, np.float32(EPS)), 0.0)
             s = np.where(s > 0, s * (1.0 - _ramp(f.max(axis=1, keepdims=True), CLIP_RAMP))
                          * _ramp(agree, AGREE_RAMP) * shrink, s)
-        face = s * f * lay[:, 0:3] + (1.0 - s) * lay[:, 4:7]
+        face = s * (f + np.float32(lift)) * lay[:, 0:3] + (1.0 - s) * lay[:, 4:7]
         res_all[k] = f + a * (face - f)
         a_all[k] = a[:, 0]
         changed[k] = True
@@ -373,6 +390,7 @@ class Compositor:
                                 hostbuf=np.zeros((self.alpha.size, 8), dtype=np.float32))
         self._expect = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
                                  hostbuf=np.zeros(self.alpha.size, dtype=np.float32))
+        self._lift = 0.0  # the last layer's (mode live: its eps)
         self._bufs: dict = {}  # image shape -> device buffer
         self._coarse_buf = None
         self._coarse_cap = 0
@@ -399,6 +417,8 @@ class Compositor:
             raise InputError("mode live composites the face under the live light: pass its buffer as live=")
         n = self.support.size
         rz = np.eye(3)[2] if rotation is None else np.asarray(rotation, dtype=np.float64)[2]
+        # the layer's ratio regulariser, which the composites add to the live pixel (mode live)
+        self._lift = float(eps) if mode == "live" else 0.0
         self._k_layer(self.rt.queue, (max(-(-n // 64), 1) * 64,), (64,), relit, live if mode == "live" else relit,
                       self._fill, self._inv, self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]),
                       np.float32(rz[2]), self._support, np.int32(n), np.int32(LAYER_MODES[mode]), np.float32(gain),
@@ -476,7 +496,7 @@ class Compositor:
                          np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
                          np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch), self._expect,
                          groups, self._dec, self._enc, np.int32(self.lut_n), np.int32(LAYER_MODES[mode]),
-                         np.float32(tau))
+                         np.float32(tau), np.float32(self._lift))
 
         return self._rows_through(rgb, box, launch)
 
@@ -524,6 +544,7 @@ class Compositor:
                            self._expect, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx), np.float32(sy),
                            np.float32(gox), np.float32(goy), np.float32(floor), np.int32(bool(gate) and gw > 0),
                            groups, self._dec, self._enc,
-                           np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau))
+                           np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau),
+                           np.float32(self._lift))
 
         return self._rows_through(img, (bx0, by0, bx1, by1), launch)

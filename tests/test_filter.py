@@ -17,6 +17,7 @@ from .tolerances import (
     F32_EXACT,
     F32_LOOSE,
     F64_EXACT,
+    LIVE_RATIO_BOUND_CODES,
     NCC_SELF_PEAK,
     OFF_PERSON_CODES,
     OFF_PERSON_MEAN_CODES,
@@ -555,11 +556,54 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
         # the live pixel trusted in places, and distrusted in others
         # trust spans both ends (0.05/0.95: 'near 0', 'near 1') (definitional bound, not a tolerance)
         assert (s < 0.05).mean() > TRUST_LOW_SHARE and (s > 0.95).mean() > TRUST_HIGH_SHARE
-    want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.rig.origin, layer, mode=mode)
+    want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.rig.origin, layer, mode=mode,
+                                lift=settings["eps"] if mode == "live" else 0.0)
     diff = np.abs(got.astype(int) - want.astype(int))
     assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
     # differing pixels: a rounding-level share (1 %) (definitional bound, not a tolerance)
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
+
+
+def test_the_live_ratio_lifts_nothing_the_target_light_darkens(frame_path):
+    """Mode live, the live pixel fully trusted: where the target leaves a pixel darker than the live
+    light does (T < E), the relit face follows the live pixel's own departure from E and no more -
+    face <= T max(f / E, 1). A ratio regularised as (T + eps) / (E + eps) broke this: it lifted T
+    by eps (1 - T / E), most where the target shades what the live light lit (a real face under a
+    side light, relit toward a light from the other side: +0.006 linear in its shadows)."""
+    from relight.colour import decode_srgb8, encode_srgb8
+    from relight.engine.warp import GRID_STEP, coarse_map, points_box
+    from relight.kernels.compositor import build_layer_numpy
+
+    fp = frame_path
+    main = np.array(fp.relighter.relight_texels(_texel_point(fp.relighter, [-0.8, 0.1, 0.6])))  # the target
+    live, live_median = _live_slot(fp, [0.8, 0.1, 0.6])  # the live light: from the other side
+    k = 1.15  # the live frame 15 % brighter than the live light predicts: a departure the ratio carries
+    frame = encode_srgb8(np.clip(k * live, 0.0, 1.0))
+    ref = fp.rig.control_ref
+    h, w = frame.shape[:2]
+    box = points_box(ref, (w, h), pad=0)
+    coarse = coarse_map(ref, ref, box)  # the frame is the reference: the identity warp
+    settings = dict(mode="live", gain=1.0, strength=1.0, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
+                    live_median=live_median)
+    got = decode_srgb8(fp.compositor.run(frame, box, coarse, GRID_STEP, relit=fp.relighter.buffer(main),
+                                         live=fp.relighter.slot("live")[1], **settings))
+    layer, expect = build_layer_numpy(main, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape),
+                                      fp.rig.inv_ambient, fp.rig.alpha_crop, fp.compositor.normal, np.eye(3),
+                                      live=live, **settings)
+    # crop pixels wholly composited and trusted, where the target leaves a quarter of the live light or less
+    ox, oy = fp.rig.origin
+    t = layer[..., 4:7]
+    lum = np.array([0.2126, 0.7152, 0.0722], np.float32)
+    f_lin = decode_srgb8(frame)[oy:oy + layer.shape[0], ox:ox + layer.shape[1]]
+    sel = ((layer[..., 7] > 0.999) & (layer[..., 3] > 0.999) & (t @ lum < 0.25 * expect)
+           & (f_lin.max(axis=2) < 0.85))
+    sel[:2] = sel[-2:] = False
+    sel[:, :2] = sel[:, -2:] = False
+    assert sel.sum() > 200, sel.sum()  # the case is there
+    out = encode_srgb8(got[oy:oy + layer.shape[0], ox:ox + layer.shape[1]][sel]).astype(int)
+    bound = encode_srgb8(np.clip(k * t[sel], 0.0, 1.0)).astype(int)  # f = k E: T max(f / E, 1) = k T
+    excess = (out - bound).max(axis=1)
+    assert np.quantile(excess, 0.99) <= LIVE_RATIO_BOUND_CODES, np.quantile(excess, [0.5, 0.99])
 
 
 def test_the_persons_maps_are_not_reused_across_a_new_environment_or_a_gap(small_bundle, clip, monkeypatch):
@@ -685,7 +729,7 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
         got = fp.compositor.composite_person(*args, mode="live", scale=scale, person=person, frame_size=(w, h),
                                              floor=0.02, gate=gate)
         want = composite_person_numpy(*args[:4], GRID_STEP, fp.rig.origin, layer, mode="live", scale=scale,
-                                      person=person, frame_size=(w, h), floor=0.02, gate=gate)
+                                      person=person, frame_size=(w, h), floor=0.02, gate=gate, lift=settings["eps"])
         diff = np.abs(got.astype(int) - want.astype(int))
         changed = np.abs(want.astype(int) - img.astype(int)).sum(axis=2) > 3
         assert changed.sum() > 300  # it did something

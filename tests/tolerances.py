@@ -77,6 +77,9 @@ REFIND_MEDIAN_PX = 0.25
 #: warp_composite kernel vs its NumPy twin: largest difference in 8-bit codes (float rounding
 #: at a LUT step), and it may touch at most 1 % of the pixels.
 COMPOSITE_TWIN_CODES = 1
+#: Mode live's trusted face over its bound T max(f / E, 1) where the target darkens the live light:
+#: the 99th percentile's excess in 8-bit codes (the 8-bit round trip of the frame and the output).
+LIVE_RATIO_BOUND_CODES = 1
 #: The live light: the estimated dominant direction within this angle of the light that made the
 #: frame (degrees), and the frame relit by the estimate within this mean relative error of it.
 LIGHT_DIRECTION_DEG = 12.0
@@ -86,6 +89,9 @@ LIGHT_REFIT_REL = 0.05
 #: than the unchanged input (the issue's goal is +6 dB; measured +16 to +18 at full size).
 REAL_CLIP_FOUND = 0.95
 REAL_CLIP_GAIN_DB = 6.0
+#: ... and at most this far below the bundle's still prediction of that light (dB; the issue's goal:
+#: within 2 dB on every real face).
+REAL_CLIP_STILL_GAP_DB = 2.0
 
 # ------------------------------------------------------------------ numeric precision classes
 #: Identities that hold to the arithmetic's precision, by the dtype the code computes in. A test
