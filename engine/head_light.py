@@ -50,6 +50,9 @@ DARK_LUM = 0.01
 SPREAD = 0.5
 #: Matte values below this are off the person (no work).
 MATTE_FLOOR = 0.02
+#: Beyond the bundle's cover its normals fade into the inflated body's over this share of the
+#: face's size (:func:`joined_normals`).
+NORMAL_REACH = 0.25
 
 
 #: The matte is trusted around a face when it covers (> 0.5) at least this share of the face's
@@ -207,14 +210,39 @@ def ratio_field(frame_lin: np.ndarray, composite_lin: np.ndarray, face_alpha: np
                         face_cover)
 
 
+def joined_normals(inflated: np.ndarray, face_normals: np.ndarray, face_cover: np.ndarray,
+                   face_px: float) -> np.ndarray:
+    """(h, w, 3) unit normals: the bundle's ``face_normals`` where ``face_cover`` (h, w, 0-1) has
+    them, the ``inflated`` body's beyond - joined without a step: the bundle's normals carried
+    past the cover's edge (each pixel takes the cover's nearest normal: a cheek's turned edge
+    stays turned at the outline) and faded into the inflated body's over :data:`NORMAL_REACH` x
+    ``face_px`` px. (Switched at the edge, the two surfaces' irradiance differs by a step: where a capture's face region ends on
+    the neck, or the face's box cuts it, the ratio showed the cover's outline as a block.)"""
+    cov = np.clip(face_cover, 0.0, 1.0).astype(np.float32)
+    solid = cov > 0.5
+    if not solid.any():
+        return inflated
+    reach = max(NORMAL_REACH * float(face_px), 1.0)
+    # each pixel's distance to the cover and the cover's nearest pixel (labels number the
+    # cover's pixels in scan order)
+    near, labels = cv2.distanceTransformWithLabels((~solid).astype(np.uint8), cv2.DIST_L2, 5,
+                                                   labelType=cv2.DIST_LABEL_PIXEL)
+    fade = np.clip(1.0 - near / np.float32(reach), 0.0, 1.0).astype(np.float32)
+    idx = np.flatnonzero(solid.ravel())
+    nearest = idx[np.clip(labels.ravel() - 1, 0, idx.size - 1)]
+    carried = face_normals.reshape(-1, 3)[nearest].reshape(face_normals.shape)
+    bundle = cov[..., None] * face_normals + (1.0 - cov[..., None]) * carried
+    wb = np.maximum(cov, fade)[..., None]
+    out = wb * bundle + (1.0 - wb) * inflated
+    return (out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-6)).astype(np.float32)
+
+
 def _ratio_field(frame_lin, composite_lin, face_alpha, matte, target_sh, live_sh, face_px, face_normals,
                  face_cover) -> np.ndarray:
     """:func:`ratio_field` at the grid of its arguments."""
     normals = inflate_normals(matte, INFLATE_RADIUS * face_px)
     if face_normals is not None and face_cover is not None:
-        wb = np.clip(face_cover, 0.0, 1.0)[..., None]
-        normals = wb * face_normals + (1.0 - wb) * normals
-        normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-6)
+        normals = joined_normals(normals, face_normals, face_cover, face_px)
     e_t = np.maximum(sh9_irradiance(target_sh, normals), 0.0)
     e_l = np.maximum(sh9_irradiance(live_sh, normals), 0.0)
     person = matte > 0.5

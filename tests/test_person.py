@@ -23,6 +23,9 @@ EMPTY_SHARE = 0.01
 #: Inflated normals: the centre faces the camera, the outline faces sideways (cosines).
 CENTRE_Z = 0.95
 EDGE_OUTWARD = 0.7
+#: The bundle's normals joined to the inflated body's: the largest step between neighbouring
+#: pixels as a share of the two surfaces' difference (a fade over NORMAL_REACH x 40 px: 1/10 each).
+JOIN_STEP_SHARE = 0.2
 #: The guided matte over a box of the frame against the whole frame's there: the filter's box
 #: sums taken over another extent round differently (measured 6e-4 at most).
 MATTE_BOX_ATOL = 2e-3
@@ -79,6 +82,28 @@ def test_inflated_normals_face_the_camera_inside_and_turn_out_at_the_outline():
     assert n[60, 80, 2] > CENTRE_Z
     # just inside the outline: right edge toward +X, top edge toward +Y (camera up), bottom -Y
     assert n[60, 128, 0] > EDGE_OUTWARD and n[12, 80, 1] > EDGE_OUTWARD and n[108, 80, 1] < -EDGE_OUTWARD
+
+
+def test_the_bundles_normals_join_the_inflated_body_without_a_step():
+    """Where the bundle's cover ends (its face region on the neck, or the face's box cutting it),
+    its normals are kept inside and fade into the inflated body's beyond: no pixel-to-pixel step
+    anywhere (switched at the edge, the step was the two surfaces' whole difference - a block the
+    ratio showed on the neck)."""
+    h, w, face_px = 80, 120, 40.0
+    inflated = np.zeros((h, w, 3), np.float32)
+    inflated[..., 2] = 1.0
+    tilt = np.array([0.6, 0.0, 0.8], np.float32)  # 37 degrees from the inflated body's
+    face = np.broadcast_to(tilt, (h, w, 3)).astype(np.float32)
+    cover = np.zeros((h, w), np.float32)
+    cover[:, :50] = 1.0  # a hard edge, as the face's box cuts it
+    n = head_light.joined_normals(inflated, face, cover, face_px)
+    assert np.allclose(np.linalg.norm(n, axis=2), 1.0, atol=1e-5)
+    np.testing.assert_allclose(n[:, :49], face[:, :49], atol=1e-5)  # the bundle's own, inside
+    np.testing.assert_allclose(n[:, 50 + int(head_light.NORMAL_REACH * face_px) + 1:], inflated[:, 60:61].repeat(
+        w - 50 - int(head_light.NORMAL_REACH * face_px) - 1, axis=1), atol=1e-5)  # the body's, beyond the reach
+    step = np.degrees(np.arccos(np.clip((n[:, 1:] * n[:, :-1]).sum(axis=2), -1, 1)))
+    whole = np.degrees(np.arccos(float(tilt[2])))
+    assert step.max() < JOIN_STEP_SHARE * whole, (step.max(), whole)
 
 
 def test_no_change_of_light_gives_a_ratio_of_one():
