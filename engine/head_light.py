@@ -216,8 +216,9 @@ def joined_normals(inflated: np.ndarray, face_normals: np.ndarray, face_cover: n
     them, the ``inflated`` body's beyond - joined without a step: the bundle's normals carried
     past the cover's edge (each pixel takes the cover's nearest normal: a cheek's turned edge
     stays turned at the outline) and faded into the inflated body's over :data:`NORMAL_REACH` x
-    ``face_px`` px. (Switched at the edge, the two surfaces' irradiance differs by a step: where a capture's face region ends on
-    the neck, or the face's box cuts it, the ratio showed the cover's outline as a block.)"""
+    ``face_px`` px. (Switched at the edge, the two surfaces' irradiance differs by a step: where a
+    capture's face region ends on the neck, or the face's box cuts it, the ratio showed the
+    cover's outline as a block.)"""
     cov = np.clip(face_cover, 0.0, 1.0).astype(np.float32)
     solid = cov > 0.5
     if not solid.any():
