@@ -15,8 +15,8 @@
  *                 clamped - with lift = eps the trusted face is T (f + eps) / (E + eps): exactly T
  *                 where the live pixel is what the live light predicts, the regulariser biasing
  *                 nothing there (a (T + eps) / (E + eps) ratio lifted T by eps (1 - T / E), most
- *                 where the target darkens what the live light lit); s falls from 1 to 0 where the live light leaves the pixel much darker
- *                 than the target wants (q = lum E / max(lum E, lum T) from Q_HI down to Q_LO: a
+ *                 where the target darkens what the live light lit); s falls from 1 to 0 where
+ *                 the live light leaves the pixel much darker than the target wants (q = lum E / max(lum E, lum T) from Q_HI down to Q_LO: a
  *                 ratio would only amplify noise and cannot bring back detail a shadow hid) or
  *                 near black (lum E / the face's median from D_HI down to D_LO).
  *   with relit / E read through `fill` (crop pixel -> relit frame pixel, -1 = none: the nearest

@@ -115,8 +115,8 @@ def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, 
         return out
 
     rel = read(relit)
-    nz = normal.reshape(-1, 3) @ np.asarray(rotation, dtype=np.float32)[2]
-    facing = facing_weight(nz, normal.reshape(-1, 3)[:, 2])
+    normals = normal.reshape(-1, 3)
+    facing = facing_weight(normals @ np.asarray(rotation, dtype=np.float32)[2], normals[:, 2])
     a = np.where(alpha >= ALPHA_FLOOR, alpha, 0.0).astype(np.float32).ravel() * np.float32(strength) * facing
     r = np.zeros_like(rel)
     t = np.zeros_like(rel)

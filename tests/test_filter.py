@@ -570,7 +570,7 @@ def test_the_live_ratio_lifts_nothing_the_target_light_darkens(frame_path):
     face <= T max(f / E, 1). A ratio regularised as (T + eps) / (E + eps) broke this: it lifted T
     by eps (1 - T / E), most where the target shades what the live light lit (a real face under a
     side light, relit toward a light from the other side: +0.006 linear in its shadows)."""
-    from relight.colour import decode_srgb8, encode_srgb8
+    from relight.colour import LUMINANCE, decode_srgb8, encode_srgb8
     from relight.engine.warp import GRID_STEP, coarse_map, points_box
     from relight.kernels.compositor import build_layer_numpy
 
@@ -593,9 +593,8 @@ def test_the_live_ratio_lifts_nothing_the_target_light_darkens(frame_path):
     # crop pixels wholly composited and trusted, where the target leaves a quarter of the live light or less
     ox, oy = fp.rig.origin
     t = layer[..., 4:7]
-    lum = np.array([0.2126, 0.7152, 0.0722], np.float32)
     f_lin = decode_srgb8(frame)[oy:oy + layer.shape[0], ox:ox + layer.shape[1]]
-    sel = ((layer[..., 7] > 0.999) & (layer[..., 3] > 0.999) & (t @ lum < 0.25 * expect)
+    sel = ((layer[..., 7] > 0.999) & (layer[..., 3] > 0.999) & (t @ LUMINANCE < 0.25 * expect)
            & (f_lin.max(axis=2) < 0.85))
     sel[:2] = sel[-2:] = False
     sel[:, :2] = sel[:, -2:] = False
