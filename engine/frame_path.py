@@ -527,13 +527,29 @@ class PersonMaps(NamedTuple):
     and the matte; ``origin`` (x, y) its corner in work px; ``scale`` (sx, sy) work px per frame
     px; ``box`` the frame's box (x0, y0, x1, y1) the person reaches, None when nowhere; ``gate``:
     the matte is trusted around the face (:func:`.head_light.matte_trusted`) - the face's
-    composite is held to it too."""
+    composite is held to it too; ``anchor`` (x, y) the head's place in the frame (px) when they
+    were made (:meth:`moved` carries them with the head)."""
 
     grid: np.ndarray
-    origin: tuple[int, int]
+    origin: tuple[float, float]
     scale: tuple[float, float]
     box: tuple[int, int, int, int] | None
     gate: bool = False
+    anchor: tuple[float, float] = (0.0, 0.0)
+
+    def moved(self, anchor) -> PersonMaps:
+        """The maps carried to the head at ``anchor`` (frame px): the grid's origin and the box
+        shifted by the head's move since they were made (the hair and ears move with the head;
+        the maps are remade every PERSON_EVERY frames, the face's own alpha is every frame's)."""
+        dx, dy = float(anchor[0]) - self.anchor[0], float(anchor[1]) - self.anchor[1]
+        if dx == 0.0 and dy == 0.0:
+            return self
+        box = self.box
+        if box is not None:
+            ix, iy = int(np.floor(dx)), int(np.floor(dy))
+            box = (box[0] + ix, box[1] + iy, box[2] + ix + 1, box[3] + iy + 1)
+        return self._replace(origin=(self.origin[0] + dx * self.scale[0], self.origin[1] + dy * self.scale[1]),
+                             box=box, anchor=(float(anchor[0]), float(anchor[1])))
 
 
 class PersonInputs(NamedTuple):
@@ -541,7 +557,8 @@ class PersonInputs(NamedTuple):
     ``small`` the frame at the work scale ((h, w, 3) uint8 sRGB) and ``composited`` the same with
     the face composited; ``face_box`` the face's box in it; ``alpha``, ``normals``, ``cover`` the
     face's alpha, turned normals and the bundle's cover over that box; ``size`` the frame's (w, h);
-    ``target_sh``, ``live_sh`` (9, 3) the target's and the live light's SH9 in the camera's frame."""
+    ``target_sh``, ``live_sh`` (9, 3) the target's and the live light's SH9 in the camera's frame;
+    ``anchor`` (x, y) the head's place in the frame (px: :attr:`PersonMaps.anchor`)."""
 
     small: np.ndarray
     composited: np.ndarray
@@ -552,6 +569,7 @@ class PersonInputs(NamedTuple):
     size: tuple[int, int]
     target_sh: np.ndarray
     live_sh: np.ndarray
+    anchor: tuple[float, float] = (0.0, 0.0)
 
 
 def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bool]:
@@ -600,7 +618,7 @@ def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bo
     grid[..., 3] = matte[tsl]
     grid.flags.writeable = False  # reused as it is (the compositor keeps its device copy)
     return PersonMaps(grid, (cx0 + tx0, cy0 + ty0), (ww / w, wh / h),
-                      head_light.person_box(share, (w, h), (ww, wh), (cx0, cy0))), trusted
+                      head_light.person_box(share, (w, h), (ww, wh), (cx0, cy0)), anchor=inputs.anchor), trusted
 
 
 class FramePath:
@@ -872,6 +890,7 @@ class FramePath:
         tm["relight"] = (time.perf_counter() - t2) * 1e3
         t3 = time.perf_counter()
         cur, ref, box, coarse = front.warp
+        anchor = tuple(float(v) for v in cur.mean(axis=0))  # the head's place (frame px): the person's maps follow it
         if coarse is None:
             info.face = False
             info.note = "face outside the frame"
@@ -887,9 +906,9 @@ class FramePath:
             if self.whole_head and self.strength > 0:
                 last = self._last_person()
                 fh, fw = rgb.shape[:2]
-                if last is not None and last[1].box is not None:
+                pb = last[1].moved(anchor).box if last is not None else None
+                if pb is not None:
                     g = int(np.ceil(YUV_PERSON_MARGIN * max(fw, fh)))
-                    pb = last[1].box
                     want = _union_box(box, (pb[0] - g, pb[1] - g, pb[2] + g, pb[3] + g))
                 else:  # no person's box yet: the whole frame
                     want = (0, 0, fw, fh)
@@ -962,7 +981,7 @@ class FramePath:
             t6 = time.perf_counter()
             from .head_light import MATTE_FLOOR
 
-            maps, union = self._person(frame, frame_box, coarse, rotation, tau, still=info.reused)
+            maps, union = self._person(frame, frame_box, coarse, rotation, tau, anchor, still=info.reused)
             ox, oy = int(offset[0]), int(offset[1])
             if frame is not rgb and not (union[0] >= ox and union[1] >= oy and union[2] <= ox + rgb.shape[1]
                                          and union[3] <= oy + rgb.shape[0]):
@@ -1025,14 +1044,15 @@ class FramePath:
         last = self._person_last
         return last if last is not None and last[2] == self._backs - 1 else None
 
-    def _person(self, frame, face_box, coarse, rotation, tau: float, still: bool):
+    def _person(self, frame, face_box, coarse, rotation, tau: float, anchor, still: bool):
         """(:class:`PersonMaps` of this frame, the frame's box the face and the person reach): the
         maps (smooth, slow to change) made every PERSON_EVERY frames and reused between, kept while
         the head is ``still`` (the face's own alpha in the kernel is this frame's). With
         ``live_source`` the making (all but the inputs the device and this thread's state give,
         :meth:`_person_inputs`) runs on a worker: the frame uses the newest maps made, a frame or
         two old, and the next are made while it is composited. ``frame``: as given (an array or a
-        YuvFrame); ``face_box``: the face's box in it."""
+        YuvFrame); ``face_box``: the face's box in it; ``anchor``: the head's place in it (maps
+        made on another frame are carried with the head: :meth:`PersonMaps.moved`)."""
         from .person import WORK_ROWS
 
         h, w = frame.shape[:2]
@@ -1045,7 +1065,7 @@ class FramePath:
                 job.result()     # a reset): dropped once done - the model is one, never two at once
                 self._person_job = None
             maps = self._took_maps(build_person_maps(self._matte(), self._person_inputs(
-                frame, face_box, coarse, rotation, tau, work)))
+                frame, face_box, coarse, rotation, tau, work, anchor)))
         else:
             maps = last[1]
             due = not still and self._person_age + 1 >= PERSON_EVERY
@@ -1053,7 +1073,7 @@ class FramePath:
                 self._person_job = None
                 maps = self._took_maps(job.result())
             elif due and job is None:
-                inputs = self._person_inputs(frame, face_box, coarse, rotation, tau, work)
+                inputs = self._person_inputs(frame, face_box, coarse, rotation, tau, work, anchor)
                 if self.live_source:
                     self._person_job = self._worker().submit(build_person_maps, self._matte(), inputs)
                     self._person_age += 1
@@ -1062,7 +1082,11 @@ class FramePath:
             else:
                 self._person_age += 1
         self._person_last = (work, maps, self._backs)
-        return maps, face_box if maps.box is None else _union_box(face_box, maps.box)
+        maps = maps.moved(anchor)
+        if maps.box is None:
+            return maps, face_box
+        x0, y0, x1, y1 = _union_box(face_box, maps.box)
+        return maps, (max(x0, 0), max(y0, 0), min(x1, w), min(y1, h))
 
     def _took_maps(self, made) -> PersonMaps:
         """The maps :func:`build_person_maps` made, taken into use on this thread: the matte's run
@@ -1086,7 +1110,7 @@ class FramePath:
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="relight-maps")
         return self._pool
 
-    def _person_inputs(self, frame, box, coarse, rotation, tau: float, work) -> PersonInputs:
+    def _person_inputs(self, frame, box, coarse, rotation, tau: float, work, anchor) -> PersonInputs:
         """What the person's maps are made of (:class:`PersonInputs`), from this frame and this
         path's state: one copy of the frame at the work scale, its face composited by the same
         kernel as the frame's (the face's ratio at that scale), the face's maps over its box,
@@ -1113,7 +1137,8 @@ class FramePath:
         env_dirs, env_power = self._env_texels
         target_sh = lights_sh9(env_dirs @ r.T if self.fixed_env else env_dirs, env_power)
         live_sh = lights_sh9(np.asarray(self.bundle.texel_dirs, np.float64) @ r.T, self._texel_light())
-        return PersonInputs(small, c_small, face_small, fa, fn, fc, (w, h), target_sh, live_sh)
+        return PersonInputs(small, c_small, face_small, fa, fn, fc, (w, h), target_sh, live_sh,
+                            (float(anchor[0]), float(anchor[1])))
 
     def _fit_light(self, lin: np.ndarray, valid: np.ndarray, t: float, rotation: np.ndarray):
         """The live light fitted to a frame's sampled face (:meth:`LightEstimator.fit`): (its

@@ -835,6 +835,43 @@ def test_the_person_pass_reads_a_box_of_the_grid_as_the_whole_grid(frame_path, c
             assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
 
 
+def test_the_person_maps_move_with_the_head(frame_path, clip):
+    """PersonMaps.moved: maps made with the head at one place, used on a frame where the head (and
+    the person with it) moved by (dx, dy), relight the moved person as maps made there would -
+    the frame shifted, composited with the moved maps, is the composite shifted."""
+    from relight.engine.frame_path import PersonMaps
+    from relight.engine.warp import GRID_STEP
+
+    _, frames = clip
+    rgb = frames[5]
+    h, w = rgb.shape[:2]
+    gh, gw = h // 4, w // 4
+    rng = np.random.default_rng(7)
+    grid = np.zeros((gh, gw, 4), np.float32)
+    grid[..., :3] = (rng.random((gh, gw, 3)) - 0.5) * 1.5
+    grid[gh // 4:3 * gh // 4, gw // 3:2 * gw // 3, 3] = 1.0
+    grid.flags.writeable = False
+    maps = PersonMaps(grid, (0, 0), (gw / w, gh / h), (w // 3, h // 4, 2 * w // 3, 3 * h // 4), anchor=(100.0, 80.0))
+    dx, dy = 12, 8
+    moved = maps.moved((100.0 + dx, 80.0 + dy))
+    assert moved.box == (maps.box[0] + dx, maps.box[1] + dy, maps.box[2] + dx + 1, maps.box[3] + dy + 1)
+    assert maps.moved(maps.anchor) is maps
+    shifted = np.ascontiguousarray(np.roll(rgb, (dy, dx), axis=(0, 1)))
+
+    def composite(img, m):
+        return frame_path.compositor.composite_person(img, (0, 0, w, h), (0, 0, 0, 0), np.zeros((3, 3, 2), np.float32),
+                                                      GRID_STEP, mode="live", person=m.grid, person_origin=m.origin,
+                                                      person_scale=m.scale, floor=0.02)
+
+    want = np.roll(composite(rgb, maps), (dy, dx), axis=(0, 1))[dy + 2:-2, dx + 2:-2]
+    got = composite(shifted, moved)[dy + 2:-2, dx + 2:-2]
+    assert (composite(rgb, maps) != rgb).any(axis=2).sum() > 1000  # it did something
+    diff = np.abs(got.astype(int) - want.astype(int))
+    assert diff.max() <= 1, diff.max()
+    unmoved = np.abs(composite(shifted, maps)[dy + 2:-2, dx + 2:-2].astype(int) - want.astype(int))
+    assert unmoved.max() > 8  # the test can see a map left where the head was
+
+
 def test_the_person_pass_changes_nothing_without_a_change_of_light_nor_anything_off_the_person(frame_path):
     """rho = 1 changes no byte; a brighter target brightens the person and leaves every pixel off
     the matte as it was (its bilinear reach aside); each pixel is f (1 + m (rho - 1)) in linear light."""
