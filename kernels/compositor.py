@@ -18,6 +18,8 @@ uint8 sRGB.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 
@@ -98,12 +100,29 @@ def facing_weight(turned_z, reference_z) -> np.ndarray:
     return _ramp(z, FACING)
 
 
+class LayerPair(NamedTuple):
+    """What :func:`build_layer_numpy` makes (the device's layer and expect buffers and the lift
+    :class:`Compositor` keeps with them): ``layer`` (ch, cw, 8) float32 (r rgb, s, T rgb, alpha),
+    ``expect`` (ch, cw) float32 lum E, the live light's prediction (zero but in mode live), and
+    ``lift`` (:func:`layer_lift`) the composite adds to the live pixel."""
+
+    layer: np.ndarray
+    expect: np.ndarray
+    lift: float
+
+
+def layer_lift(mode: str, eps: float) -> float:
+    """The composite's ``lift`` for a layer built in ``mode`` with regulariser ``eps``: mode live's
+    ratio (T / (E + eps)) multiplies f + eps (exactly T where the frame is what the live light
+    predicts), the other modes' nothing."""
+    return float(eps) if mode == "live" else 0.0
+
+
 def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, alpha: np.ndarray,
                       normal: np.ndarray, rotation: np.ndarray, *, mode: str, gain: float, strength: float,
                       eps: float, ratio_max: float, live: np.ndarray | None = None,
-                      live_median: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """NumPy twin of ``build_layer``: ((ch, cw, 8) float32 (r rgb, s, T rgb, alpha), (ch, cw)
-    float32 lum E, the live light's prediction - zero but in mode live)."""
+                      live_median: float = 0.0) -> LayerPair:
+    """NumPy twin of ``build_layer``: the :class:`LayerPair`."""
     from relight.colour import LUMINANCE
 
     f = fill.ravel()
@@ -139,20 +158,19 @@ def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, 
         expect = np.where(a > 0, le, 0.0).astype(np.float32)
         a = np.where(ok, a, 0.0)
     layer = np.concatenate([r, s[:, None], t, a[:, None]], axis=1).astype(np.float32).reshape(*fill.shape, 8)
-    return layer, expect.reshape(fill.shape)
+    return LayerPair(layer, expect.reshape(fill.shape), layer_lift(mode, eps))
 
 
-def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, layer, *,
-                         mode: str, tau: float = 0.0, lift: float = 0.0) -> np.ndarray:
-    """NumPy twin of ``warp_composite``: a new frame (layer: the pair from :func:`build_layer_numpy`;
-    ``lift``: mode live's ``eps`` that layer was built with, 0 in the other modes)."""
-    return composite_person_numpy(frame, box, box, coarse, step, origin, layer, mode=mode, tau=tau, lift=lift)
+def warp_composite_numpy(frame: np.ndarray, box, coarse: np.ndarray, step: int, origin, layer: LayerPair, *,
+                         mode: str, tau: float = 0.0) -> np.ndarray:
+    """NumPy twin of ``warp_composite``: a new frame (``layer``: :func:`build_layer_numpy`'s)."""
+    return composite_person_numpy(frame, box, box, coarse, step, origin, layer, mode=mode, tau=tau)
 
 
-def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, origin, layer, *,
-                           mode: str, tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
+def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, origin, layer: LayerPair,
+                           *, mode: str, tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
                            frame_size=None, floor: float = 0.0, offset=(0.0, 0.0), person_origin=(0, 0),
-                           person_scale=None, gate: bool = False, lift: float = 0.0) -> np.ndarray:
+                           person_scale=None, gate: bool = False) -> np.ndarray:
     """NumPy twin of ``composite_person``: a new image. ``img`` (h, w, 3) uint8 sRGB whose pixel
     (i, j) sits at frame position ((i + 0.5) sx - 0.5, (j + 0.5) sy - 0.5), ``scale`` = sx or
     (sx, sy); ``box`` (x0, y0,
@@ -166,7 +184,7 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
     :data:`GATE_HI`; the frame path's choice where the matte is trusted)."""
     from relight.colour import LUMINANCE
 
-    layer, expect = layer
+    layer, expect, lift = layer
     out = np.array(img)
     bx0, by0, bx1, by1 = box
     bw, bh = bx1 - bx0, by1 - by0
@@ -418,7 +436,7 @@ class Compositor:
         n = self.support.size
         rz = np.eye(3)[2] if rotation is None else np.asarray(rotation, dtype=np.float64)[2]
         # the layer's ratio regulariser, which the composites add to the live pixel (mode live)
-        self._lift = float(eps) if mode == "live" else 0.0
+        self._lift = layer_lift(mode, eps)
         self._k_layer(self.rt.queue, (max(-(-n // 64), 1) * 64,), (64,), relit, live if mode == "live" else relit,
                       self._fill, self._inv, self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]),
                       np.float32(rz[2]), self._support, np.int32(n), np.int32(LAYER_MODES[mode]), np.float32(gain),

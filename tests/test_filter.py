@@ -556,8 +556,7 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
         # the live pixel trusted in places, and distrusted in others
         # trust spans both ends (0.05/0.95: 'near 0', 'near 1') (definitional bound, not a tolerance)
         assert (s < 0.05).mean() > TRUST_LOW_SHARE and (s > 0.95).mean() > TRUST_HIGH_SHARE
-    want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.rig.origin, layer, mode=mode,
-                                lift=settings["eps"] if mode == "live" else 0.0)
+    want = warp_composite_numpy(rgb, box, coarse, GRID_STEP, fp.rig.origin, layer, mode=mode)
     diff = np.abs(got.astype(int) - want.astype(int))
     assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
     # differing pixels: a rounding-level share (1 %) (definitional bound, not a tolerance)
@@ -587,7 +586,7 @@ def test_the_live_ratio_lifts_nothing_the_target_light_darkens(frame_path):
                     live_median=live_median)
     got = decode_srgb8(fp.compositor.run(frame, box, coarse, GRID_STEP, relit=fp.relighter.buffer(main),
                                          live=fp.relighter.slot("live")[1], **settings))
-    layer, expect = build_layer_numpy(main, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape),
+    layer, expect, _ = build_layer_numpy(main, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape),
                                       fp.rig.inv_ambient, fp.rig.alpha_crop, fp.compositor.normal, np.eye(3),
                                       live=live, **settings)
     # crop pixels wholly composited and trusted, where the target leaves a quarter of the live light or less
@@ -728,7 +727,7 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
         got = fp.compositor.composite_person(*args, mode="live", scale=scale, person=person, frame_size=(w, h),
                                              floor=0.02, gate=gate)
         want = composite_person_numpy(*args[:4], GRID_STEP, fp.rig.origin, layer, mode="live", scale=scale,
-                                      person=person, frame_size=(w, h), floor=0.02, gate=gate, lift=settings["eps"])
+                                      person=person, frame_size=(w, h), floor=0.02, gate=gate)
         diff = np.abs(got.astype(int) - want.astype(int))
         changed = np.abs(want.astype(int) - img.astype(int)).sum(axis=2) > 3
         assert changed.sum() > 300  # it did something
@@ -826,9 +825,9 @@ def test_the_person_pass_reads_a_box_of_the_grid_as_the_whole_grid(frame_path, c
         want = frame_path.compositor.composite_person(*args, GRID_STEP, person=whole, frame_size=(w, h), **common)
         got = frame_path.compositor.composite_person(*args, GRID_STEP, person=part, person_origin=(cx0, cy0),
                                                      person_scale=(gw / w, gh / h), **common)
-        twin = composite_person_numpy(*args, GRID_STEP, frame_path.rig.origin, (None, None), person=part,
+        twin = composite_person_numpy(*args, GRID_STEP, frame_path.rig.origin, (None, None, 0.0), person=part,
                                       person_origin=(cx0, cy0), person_scale=(gw / w, gh / h), **common)
-        twin_whole = composite_person_numpy(*args, GRID_STEP, frame_path.rig.origin, (None, None), person=whole,
+        twin_whole = composite_person_numpy(*args, GRID_STEP, frame_path.rig.origin, (None, None, 0.0), person=whole,
                                             frame_size=(w, h), **common)
         for a, b in ((got, want), (twin, twin_whole), (got, twin)):
             diff = np.abs(a.astype(int) - b.astype(int))
@@ -918,8 +917,8 @@ def test_the_person_region_leaves_the_face_composite_as_it_is(frame_path, clip):
     grid[:, : w // 8, 3] = 1.0  # the matte: the left half of the frame only (misses the face's right)
     out = fp.compositor.composite_person(rgb, (0, 0, w, h), face_box, coarse, GRID_STEP, mode="paste", person=grid,
                                          frame_size=(w, h), floor=0.02)
-    layer, _ = _layer_numpy(fp, np.eye(3), mode="paste", gain=1.0, strength=1.0, eps=float(fp.rig.ratio_eps),
-                            ratio_max=6.0)
+    layer = _layer_numpy(fp, np.eye(3), mode="paste", gain=1.0, strength=1.0, eps=float(fp.rig.ratio_eps),
+                         ratio_max=6.0).layer
     shift = np.float32([[1, 0, fp.rig.origin[0]], [0, 1, fp.rig.origin[1]]])
     alpha = cv2.warpAffine(np.ascontiguousarray(layer[..., 7]), shift, (w, h))  # the composited share
     full = alpha > 0.999
