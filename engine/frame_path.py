@@ -524,7 +524,7 @@ class FaceRig:
 class PersonMaps(NamedTuple):
     """The person's maps of a frame (region person), at the work scale (:data:`.person.WORK_ROWS`
     rows) over the box of it the person reaches: ``grid`` (h, w, 4) float32 read-only, rho - 1
-    and the matte; ``origin`` (x, y) its corner in work px; ``scale`` (sx, sy) work px per frame
+    and the person's share (:func:`.head_light.person_share` of the matte); ``origin`` (x, y) its corner in work px; ``scale`` (sx, sy) work px per frame
     px; ``box`` the frame's box (x0, y0, x1, y1) the person reaches, None when nowhere; ``gate``:
     the matte is trusted around the face (:func:`.head_light.matte_trusted`) - the face's
     composite is held to it too; ``anchor`` (x, y) the head's place in the frame (px) when they
@@ -615,7 +615,7 @@ def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bo
                                  face_cover=cover[tsl])
     grid = np.empty((ty1 - ty0, tx1 - tx0, 4), np.float32)
     grid[..., :3] = rho - np.float32(1.0)
-    grid[..., 3] = matte[tsl]
+    grid[..., 3] = head_light.person_share(matte[tsl])  # the person's share of its change: to its outline
     grid.flags.writeable = False  # reused as it is (the compositor keeps its device copy)
     return PersonMaps(grid, (cx0 + tx0, cy0 + ty0), (ww / w, wh / h),
                       head_light.person_box(share, (w, h), (ww, wh), (cx0, cy0)), anchor=inputs.anchor), trusted

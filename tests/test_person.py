@@ -26,6 +26,11 @@ EDGE_OUTWARD = 0.7
 #: The bundle's normals joined to the inflated body's: the largest step between neighbouring
 #: pixels as a share of the two surfaces' difference (a fade over NORMAL_REACH x 40 px: 1/10 each).
 JOIN_STEP_SHARE = 0.2
+#: The person's share (head_light.person_share) on the outer 2 px of the true silhouette, at least
+#: (the matte itself gives 0.72-0.77 there: the person's change faded out at its outline), and on a
+#: ring 2-4 px outside it, at most (the matte gives 0.22-0.29 at this small size).
+RIM_SHARE = 0.9
+RING_SHARE = 0.45
 #: The guided matte over a box of the frame against the whole frame's there: the filter's box
 #: sums taken over another extent round differently (measured 6e-4 at most).
 MATTE_BOX_ATOL = 2e-3
@@ -71,6 +76,29 @@ def test_the_matte_finds_the_person_and_nothing_else(clip):
     assert (pm(wall) > 0.5).mean() < EMPTY_SHARE
     with pytest.raises(InputError, match="uint8"):
         pm(frames[0].astype(np.float32))
+
+
+def test_the_person_is_relit_to_its_outline(clip):
+    """The share of the person's change (head_light.person_share of the matte) is whole up to the
+    true outline, and little beyond it: the matte's own ramp (the model's footprint) is not the
+    person's edge."""
+    frames, sils = clip
+    pm = PersonMatte()
+    rims, rings, raw = [], [], []
+    for rgb, sil in zip(frames, sils, strict=True):
+        m = pm(rgb)
+        inside = cv2.distanceTransform(sil.astype(np.uint8), cv2.DIST_L2, 3)
+        outside = cv2.distanceTransform((~sil).astype(np.uint8), cv2.DIST_L2, 3)
+        rim, ring = sil & (inside <= 2), ~sil & (outside > 2) & (outside <= 4)
+        share = head_light.person_share(m)
+        assert share.dtype == np.float32 and share.min() >= 0.0 and share.max() <= 1.0
+        rims.append(share[rim].mean())
+        rings.append(share[ring].mean())
+        raw.append(m[rim].mean())
+    assert min(rims) >= RIM_SHARE, rims
+    assert max(rings) <= RING_SHARE, rings
+    assert max(raw) < RIM_SHARE  # the matte alone fades out at the outline: the case is there
+    np.testing.assert_array_equal(head_light.person_share(np.float32([0.0, 0.1, 0.6, 1.0])), [0.0, 0.0, 1.0, 1.0])
 
 
 def test_inflated_normals_face_the_camera_inside_and_turn_out_at_the_outline():
