@@ -524,10 +524,10 @@ class FaceRig:
 class PersonMaps(NamedTuple):
     """The person's maps of a frame (region person), at the work scale (:data:`.person.WORK_ROWS`
     rows) over the box of it the person reaches: ``grid`` (h, w, 4) float32 read-only, rho - 1
-    and the person's share (:func:`.head_light.person_share` of the matte); ``origin`` (x, y) its corner in work px; ``scale`` (sx, sy) work px per frame
-    px; ``box`` the frame's box (x0, y0, x1, y1) the person reaches, None when nowhere; ``gate``:
-    the matte is trusted around the face (:func:`.head_light.matte_trusted`) - the face's
-    composite is held to it too; ``anchor`` (x, y) the head's place in the frame (px) when they
+    and the person's share (:func:`.head_light.person_share` of the matte); ``origin`` (x, y)
+    its corner in work px; ``scale`` (sx, sy) work px per frame px; ``box`` the frame's box
+    (x0, y0, x1, y1) the person reaches, None when nowhere; ``gate``: the matte is trusted around
+    the face (:func:`.head_light.matte_trusted`) - the face's composite is held to it too; ``anchor`` (x, y) the head's place in the frame (px) when they
     were made (:meth:`moved` carries them with the head)."""
 
     grid: np.ndarray
