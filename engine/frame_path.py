@@ -527,8 +527,9 @@ class PersonMaps(NamedTuple):
     and the person's share (:func:`.head_light.person_share` of the matte); ``origin`` (x, y)
     its corner in work px; ``scale`` (sx, sy) work px per frame px; ``box`` the frame's box
     (x0, y0, x1, y1) the person reaches, None when nowhere; ``gate``: the matte is trusted around
-    the face (:func:`.head_light.matte_trusted`) - the face's composite is held to it too; ``anchor`` (x, y) the head's place in the frame (px) when they
-    were made (:meth:`moved` carries them with the head)."""
+    the face (:func:`.head_light.matte_trusted`) - the face's composite is held to it too;
+    ``anchor`` (x, y) the head's place in the frame (px) when they were made (:meth:`moved`
+    carries them with the head)."""
 
     grid: np.ndarray
     origin: tuple[float, float]
