@@ -49,8 +49,9 @@ FEATHER_SIGMA = 0.02
 #: as its noise (:meth:`FramePath._regularised_points`).
 POINT_NOISE_AT_540 = 2.0
 #: Mode transfer: the live light is fitted every this many frames (it is smoothed over a tenth of a
-#: second anyway; the frames between reuse it).
-LIGHT_EVERY = 2
+#: second anyway; the frames between reuse it). Measured against 2: the same figures on the truth
+#: clips (+-0.02 dB) and the real faces (+-0.03 dB) at two thirds of the fits; 4 cost 0.1-0.16 dB.
+LIGHT_EVERY = 3
 #: Re-anchoring (:meth:`FramePath._refind`): template side and search radius (px at the tracking
 #: scale), the least contrast a template needs (std of its 8-bit codes) and the least normalised
 #: cross-correlation a match needs. Measured on three synthetic heads at 640x360 (each its own
@@ -75,7 +76,7 @@ REUSE_DEG = 0.1
 #: The warp's rigid grid: one reference point every this share of the landmarks' extent.
 WARP_GRID_SHARE = 1.0 / 16.0
 #: Mode transfer: light fits whose exposure gains (their running median) set the exposure, then
-#: held (FramePath._locked_exposure): half a second of fits at LIGHT_EVERY.
+#: held (FramePath._locked_exposure): 0.8 s of fits at LIGHT_EVERY.
 EXPOSURE_LOCK_FITS = 8
 #: Region person: the person's matte and the light's ratio over it are made every this many
 #: frames and reused between (the face's own alpha is every frame's).
@@ -587,7 +588,7 @@ def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bo
     wh, ww = small.shape[:2]
     w, h = inputs.size
     fa = inputs.alpha
-    face_px = float(np.sqrt(max(float((fa > 0.5).sum()), 1.0)))
+    face_px = float(np.sqrt(max(float(np.count_nonzero(fa > 0.5)), 1.0)))
     prob = matte_model.probability(small)
     margin = max(int(round(head_light.BACKGROUND_RING * face_px)), 2) + 2 * GUIDE_RADIUS + 2
     cx0, cy0, cx1, cy1 = crop = head_light.person_crop(prob, face_small, (ww, wh), margin)

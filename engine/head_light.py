@@ -88,8 +88,8 @@ def matte_trusted(matte: np.ndarray, face_alpha: np.ndarray) -> bool:
     """Whether ``matte`` (h, w) covers at least :data:`MATTE_TRUST` of the face's core in
     ``face_alpha`` (h, w): False without a core."""
     core = face_alpha > FACE_CORE
-    n = int(core.sum())
-    return n > 0 and float((matte[core] > 0.5).sum()) >= MATTE_TRUST * n
+    n = np.count_nonzero(core)
+    return n > 0 and np.count_nonzero(matte[core] > 0.5) >= MATTE_TRUST * n
 
 
 def attached_to_face(matte: np.ndarray, face_alpha: np.ndarray) -> np.ndarray:
@@ -131,15 +131,25 @@ def colour_check(rgb: np.ndarray, matte: np.ndarray, face_alpha: np.ndarray, fac
     off = (matte <= 0.05).astype(np.uint8)
     ring = (cv2.distanceTransform(off, cv2.DIST_L2, 3) <= grow) & (off > 0)
     doubt = (matte > 0.05) & (face_alpha <= 0.5)
-    if ring.sum() < 16 or not doubt.any():
+    if np.count_nonzero(ring) < 16 or not doubt.any():
         return matte
     local = normalised_convolution(lab, ring.astype(np.float32), float(grow))
     reach = gaussian_smooth(ring.astype(np.float32), float(grow)) > 1e-3
-    d2 = ((lab - local) ** 2).sum(axis=2)
+    d = lab - local
+    d *= d
+    d2 = d[..., 0] + d[..., 1] + d[..., 2]  # numpy's sum over the last axis, in its order: 5x faster
     wall = doubt & reach & (d2 < BACKGROUND_DELTA_E ** 2)
     out = np.where(wall, 0.0, matte).astype(np.float32)
     # soft again at the cut: a 3x3 mean of the kept matte, never above the model's own value
     return np.minimum(cv2.blur(out, (3, 3)), matte).astype(np.float32)
+
+
+def _norm3(v: np.ndarray) -> np.ndarray:
+    """(..., 1) Euclidean norms of vectors (..., 3): ``np.linalg.norm(v, axis=-1, keepdims=True)``
+    to the bit (the same sums in the same order), without NumPy's slow reduction over a last axis
+    of three (5x at the work scale)."""
+    sq = v * v
+    return np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])[..., None]
 
 
 def inflate_normals(matte: np.ndarray, radius_px: float) -> np.ndarray:
@@ -156,7 +166,7 @@ def inflate_normals(matte: np.ndarray, radius_px: float) -> np.ndarray:
     z = cv2.GaussianBlur(z, (0, 0), sigma)
     gy, gx = np.gradient(z)
     n = np.stack([-gx, gy, np.ones_like(z)], axis=-1)  # image rows run down, camera +Y up
-    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    n /= _norm3(n)
     return n.astype(np.float32)
 
 
@@ -253,7 +263,7 @@ def joined_normals(inflated: np.ndarray, face_normals: np.ndarray, face_cover: n
     bundle = cov[..., None] * face_normals + (1.0 - cov[..., None]) * carried
     wb = np.maximum(cov, fade)[..., None]
     out = wb * bundle + (1.0 - wb) * inflated
-    return (out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-6)).astype(np.float32)
+    return (out / np.maximum(_norm3(out), 1e-6)).astype(np.float32)
 
 
 def _ratio_field(frame_lin, composite_lin, face_alpha, matte, target_sh, live_sh, face_px, face_normals,
@@ -265,13 +275,14 @@ def _ratio_field(frame_lin, composite_lin, face_alpha, matte, target_sh, live_sh
     e_t = np.maximum(sh9_irradiance(target_sh, normals), 0.0)
     e_l = np.maximum(sh9_irradiance(live_sh, normals), 0.0)
     person = matte > 0.5
-    eps = RATIO_EPS * max(float(np.median(e_l[person].mean(axis=1))) if person.any() else 0.0, 1e-12)
+    e_p = e_l[person]
+    eps = RATIO_EPS * max(float(np.median((e_p[:, 0] + e_p[:, 1] + e_p[:, 2]) / 3.0)) if e_p.size else 0.0, 1e-12)
     proxy = ((e_t + eps) / (e_l + eps)).astype(np.float32)
     lum_f = frame_lin @ np.array([0.2126, 0.7152, 0.0722], np.float32)
     core = (face_alpha > FACE_CORE) & (lum_f > DARK_LUM)
     face_ratio = (composite_lin + 1e-4) / (frame_lin + 1e-4)
     log_c = np.log(np.clip(face_ratio, 1.0 / RATIO_MAX, RATIO_MAX) / np.maximum(proxy, 1e-6))
-    if core.sum() >= 16:
+    if np.count_nonzero(core) >= 16:
         corr = normalised_convolution(log_c, core.astype(np.float32), SPREAD * face_px)
         # where the Gaussian does not reach: the core's median correction
         far = gaussian_smooth(core.astype(np.float32), SPREAD * face_px) <= 1e-6
