@@ -19,6 +19,8 @@ from .tolerances import (
     EDGE_STILL_CODES,
     OFF_PERSON_CODES,
     OFF_PERSON_MEAN_CODES,
+    SHADOW_CODES_GAIN,
+    SHADOW_KEPT_SHARE,
 )
 
 
@@ -139,6 +141,28 @@ def test_glasses_stay_on_the_relit_face(path, frames, small_bundle):
         if info.face:
             lum = out.astype(np.float32).mean(axis=2)
             assert lum[rim].mean() < 0.5 * lum[ring & ~rim].mean()  # the rims stay darker than around them
+
+
+def test_a_broad_shadow_is_still_taken_away(path, frames, small_bundle):
+    """Mode transfer's rule that takes the glasses' rims (above): a shadow the room casts over a
+    cheek, far darker than the live light predicts, is replaced by the bundle's prediction - the
+    output there is what it is without the shadow, not the shadow's darkness."""
+    lm = np.asarray(small_bundle.landmarks, np.float32).reshape(-1, 2)
+    x0, y0 = lm.min(axis=0)
+    x1, y1 = lm.max(axis=0)
+    patch = np.zeros(frames[0].shape[:2], bool)
+    patch[int(y0 + 0.45 * (y1 - y0)):int(y0 + 0.85 * (y1 - y0)), int(x0):int(x0 + 0.35 * (x1 - x0))] = True
+    core = cv2.erode(patch.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    seq = [f.copy() for f in frames[:20]]
+    for f in seq:
+        f[patch] = (f[patch].astype(np.float32) * SHADOW_CODES_GAIN).astype(np.uint8)
+    plain, _ = _run(path, frames[:20])
+    shaded, infos = _run(path, seq)
+    gaps = [np.abs(a.astype(np.float32) - b.astype(np.float32)).mean(axis=2)[core].mean()
+            for a, b, i in zip(plain, shaded, infos, strict=True) if i.face]
+    drop = np.abs(frames[0].astype(np.float32) - seq[0].astype(np.float32)).mean(axis=2)[core].mean()
+    assert len(gaps) >= 10 and drop > 30
+    assert np.median(gaps) < SHADOW_KEPT_SHARE * drop, (np.median(gaps), drop)
 
 
 @pytest.mark.parametrize("gain", [0.15, 2.5])

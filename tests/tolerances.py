@@ -368,3 +368,8 @@ EDGE_STILL_CODES = 2
 EDGE_MIN_FOUND = 0.9
 #: ... and with dark rims over the eyes the reference does not have (glasses): measured 0.87.
 EDGE_MIN_FOUND_OCCLUDED = 0.8
+#: A room's shadow over a cheek (tests/test_live_edge_cases.py): the face's codes
+#: scaled by this (about a quarter of the light), and the share of that drop the relit output may keep
+#: there (the bundle's prediction replaces what the live light does not predict; measured 22 %).
+SHADOW_CODES_GAIN = 0.55
+SHADOW_KEPT_SHARE = 0.25
