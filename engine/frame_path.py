@@ -536,8 +536,8 @@ class PersonMaps(NamedTuple):
     origin: tuple[float, float]
     scale: tuple[float, float]
     box: tuple[int, int, int, int] | None
+    anchor: tuple[float, float]
     gate: bool = False
-    anchor: tuple[float, float] = (0.0, 0.0)
 
     def moved(self, anchor) -> PersonMaps:
         """The maps carried to the head at ``anchor`` (frame px): the grid's origin and the box
@@ -547,9 +547,10 @@ class PersonMaps(NamedTuple):
         if dx == 0.0 and dy == 0.0:
             return self
         box = self.box
-        if box is not None:
-            ix, iy = int(np.floor(dx)), int(np.floor(dy))
-            box = (box[0] + ix, box[1] + iy, box[2] + ix + 1, box[3] + iy + 1)
+        if box is not None:  # over both places (a box at the frame's edge keeps reaching it; the
+            ix, iy = int(np.floor(dx)), int(np.floor(dy))  # grid's edges are replicated there)
+            box = (min(box[0], box[0] + ix), min(box[1], box[1] + iy), max(box[2], box[2] + ix + 1),
+                   max(box[3], box[3] + iy + 1))
         return self._replace(origin=(self.origin[0] + dx * self.scale[0], self.origin[1] + dy * self.scale[1]),
                              box=box, anchor=(float(anchor[0]), float(anchor[1])))
 
@@ -571,7 +572,7 @@ class PersonInputs(NamedTuple):
     size: tuple[int, int]
     target_sh: np.ndarray
     live_sh: np.ndarray
-    anchor: tuple[float, float] = (0.0, 0.0)
+    anchor: tuple[float, float]
 
 
 def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bool]:
@@ -608,9 +609,9 @@ def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bo
     matte = head_light.attached_to_face(matte, alpha)
     lut = decode_lut8()
     trusted = head_light.matte_trusted(matte, alpha)
-    # The ratio over the box the person's share reaches (the ring beyond served the colour check)
-    share = np.maximum(matte, alpha)
-    tx0, ty0, tx1, ty1 = head_light.share_box(share, RATIO_REACH)
+    # The ratio over the box the person and the face reach (the ring beyond served the colour check)
+    covered = np.maximum(matte, alpha)
+    tx0, ty0, tx1, ty1 = head_light.share_box(covered, RATIO_REACH)
     tsl = np.s_[ty0:ty1, tx0:tx1]
     rho = head_light.ratio_field(lut[small_c[tsl]], lut[c_small[sl][tsl]], alpha[tsl], matte[tsl],
                                  inputs.target_sh, inputs.live_sh, face_px, face_normals=face_normals[tsl],
@@ -620,7 +621,7 @@ def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bo
     grid[..., 3] = head_light.person_share(matte[tsl])  # the person's share of its change: to its outline
     grid.flags.writeable = False  # reused as it is (the compositor keeps its device copy)
     return PersonMaps(grid, (cx0 + tx0, cy0 + ty0), (ww / w, wh / h),
-                      head_light.person_box(share, (w, h), (ww, wh), (cx0, cy0)), anchor=inputs.anchor), trusted
+                      head_light.person_box(covered, (w, h), (ww, wh), (cx0, cy0)), inputs.anchor), trusted
 
 
 class FramePath:

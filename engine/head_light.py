@@ -49,7 +49,8 @@ FACE_CORE = 0.9
 DARK_LUM = 0.01
 #: Spread of the correction's extrapolation, as a share of the face's size.
 SPREAD = 0.5
-#: Matte values below this are off the person (no work).
+#: Matte values - and the person's share (:func:`person_share`) - below this are off the person
+#: (no work).
 MATTE_FLOOR = 0.02
 #: The share of the person's change a pixel takes ramps from 0 to 1 across this range of the
 #: matte (:func:`person_share`). The matte is a probability: the segmentation model's 256x144

@@ -58,8 +58,9 @@
 #define CLIP_HI 0.99f
 #define AGREE_LO 0.30f
 #define AGREE_HI 0.60f
-/* relight.kernels.compositor.GATE_HI: the matte above which the face's composite is whole */
-#define GATE_HI 0.50f
+/* relight.kernels.compositor.GATE_HI: the person's share above which the face's composite is whole
+   (the solid matte's) */
+#define GATE_HI 0.80f
 
 /* PoCL 3.0 calls its math builtins (floor, clamp, fmax, ...) out of line, spilling vector registers
    around each call (measured: this kernel took 9 ms for a 300x450 box with them): these
@@ -246,14 +247,14 @@ __kernel void warp_composite(
  * - the frame itself (scales 1) or a smaller copy of it (scales > 1) -
  *     out = f + a (face - f) + f w G,    w = max(m, a) (1 - a), counted where w > floor,
  * the face's composite as warp_composite makes it inside the face's box (fx0, fy0, fw, fh: frame
- * px; a = 0 outside it), G = rho - 1 the light's change over the person and m its matte: the
+ * px; a = 0 outside it), G = rho - 1 the light's change over the person and m its share: the
  * float4 (G, m) of a grid (gh, gw) over the frame or a box of it, bilinear at the pixel's centre
  * (sx, sy: grid cells per frame px; edges replicated; gw = 0: none, the face alone) - the image's
  * positions moved by (gox, goy) there (an image of a box of the frame: the box's corner; a grid of
  * a box: less its corner in frame px). With ``gate`` (a matte the frame path trusts around this
  * face) the face's composite is held to the person too: its share a, and its change, scaled by
  * k = m from floor up to GATE_HI (a face's warp reaching past the jaw onto the wall leaves the wall
- * as it was); without, the face's composite is never scaled by the matte. */
+ * as it was); without, the face's composite is never scaled by the person's share. */
 __kernel void composite_person(
     __global uchar *img, int img_w, int bx0, int by0, int bw, int bh, float scx, float scy,
     int fx0, int fy0, int fw, int fh,

@@ -49,9 +49,10 @@ CLIP_RAMP = (0.90, 0.99)
 #: ... and as the frame's pixel is darker than the live light predicts (lum f / lum E from the
 #: second value down to the first: AGREE_HI, AGREE_LO).
 AGREE_RAMP = (0.30, 0.60)
-#: composite_person with ``gate``: the person's matte at and above which the face's composite is
-#: whole (the kernel's GATE_HI; it fades to nothing at the floor) - the solid matte's threshold.
-GATE_HI = 0.5
+#: composite_person with ``gate``: the person's share (the grid's 4th channel) at and above which
+#: the face's composite is whole (the kernel's GATE_HI; it fades to nothing at the floor) - the
+#: share of the solid matte (0.5): relight.engine.head_light.person_share(0.5).
+GATE_HI = 0.8
 #: The composite kernels' work-group (x, y): what nothing changes in is skipped per group (:func:`work_groups`).
 GROUP = (16, 4)
 
@@ -173,15 +174,15 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
                            person_scale=None, gate: bool = False) -> np.ndarray:
     """NumPy twin of ``composite_person``: a new image. ``img`` (h, w, 3) uint8 sRGB whose pixel
     (i, j) sits at frame position ((i + 0.5) sx - 0.5, (j + 0.5) sy - 0.5), ``scale`` = sx or
-    (sx, sy); ``box`` (x0, y0,
-    x1, y1) the image's pixels worked on; ``face_box`` the face's box in the frame (the one
-    ``coarse`` covers); ``person`` (gh, gw, 4) float32 (rho - 1, matte) on a grid over the frame
-    (None: the face alone) of ``frame_size`` (W, H), read at the image's positions plus ``offset``
-    (an image of a box of the frame: the box's corner) - or a box of such a grid: ``person_scale``
-    (sx, sy) its cells per frame px and ``person_origin`` (x, y) its first cell in the whole grid;
+    (sx, sy); ``box`` (x0, y0, x1, y1) the image's pixels worked on; ``face_box`` the face's box in
+    the frame (the one ``coarse`` covers); ``person`` (gh, gw, 4) float32 (rho - 1, the person's
+    share: 0-1) on a grid over the frame (None: the face alone) of ``frame_size`` (W, H), read at
+    the image's positions plus ``offset`` (an image of a box of the frame: the box's corner) - or
+    a box of such a grid: ``person_scale`` (sx, sy) its cells per frame px and ``person_origin``
+    (x, y) its first cell in the whole grid;
     ``floor``: the person's share below which nothing is added; ``gate``: the face's composite
-    held to the person's matte too (its share and change scaled by the matte from ``floor`` up to
-    :data:`GATE_HI`; the frame path's choice where the matte is trusted)."""
+    held to the person's share too (its share and change scaled by the person's from ``floor`` up
+    to :data:`GATE_HI`; the frame path's choice where the matte is trusted)."""
     from relight.colour import LUMINANCE
 
     layer, expect, lift = layer

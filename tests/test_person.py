@@ -99,6 +99,10 @@ def test_the_person_is_relit_to_its_outline(clip):
     assert max(rings) <= RING_SHARE, rings
     assert max(raw) < RIM_SHARE  # the matte alone fades out at the outline: the case is there
     np.testing.assert_array_equal(head_light.person_share(np.float32([0.0, 0.1, 0.6, 1.0])), [0.0, 0.0, 1.0, 1.0])
+    # the compositor's gate holds the face to the solid matte (0.5) in the share's units
+    from relight.kernels.compositor import GATE_HI
+
+    assert head_light.person_share(np.float32([0.5]))[0] == pytest.approx(GATE_HI)
 
 
 def test_inflated_normals_face_the_camera_inside_and_turn_out_at_the_outline():
