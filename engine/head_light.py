@@ -136,21 +136,25 @@ def colour_check(rgb: np.ndarray, matte: np.ndarray, face_alpha: np.ndarray, fac
         return matte
     local = normalised_convolution(lab, ring.astype(np.float32), float(grow))
     reach = gaussian_smooth(ring.astype(np.float32), float(grow)) > 1e-3
-    d = lab - local
-    d *= d
-    d2 = d[..., 0] + d[..., 1] + d[..., 2]  # numpy's sum over the last axis, in its order: 5x faster
+    d2 = _square_norm3(lab - local)
     wall = doubt & reach & (d2 < BACKGROUND_DELTA_E ** 2)
     out = np.where(wall, 0.0, matte).astype(np.float32)
     # soft again at the cut: a 3x3 mean of the kept matte, never above the model's own value
     return np.minimum(cv2.blur(out, (3, 3)), matte).astype(np.float32)
 
 
+def _square_norm3(v: np.ndarray) -> np.ndarray:
+    """(...) squared Euclidean norms of vectors (..., 3): ``(v ** 2).sum(axis=-1)`` to the bit (the
+    same sums in the same order), without NumPy's slow reduction over a last axis of three (5x at
+    the work scale)."""
+    sq = v * v
+    return sq[..., 0] + sq[..., 1] + sq[..., 2]
+
+
 def _norm3(v: np.ndarray) -> np.ndarray:
     """(..., 1) Euclidean norms of vectors (..., 3): ``np.linalg.norm(v, axis=-1, keepdims=True)``
-    to the bit (the same sums in the same order), without NumPy's slow reduction over a last axis
-    of three (5x at the work scale)."""
-    sq = v * v
-    return np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])[..., None]
+    to the bit (:func:`_square_norm3`)."""
+    return np.sqrt(_square_norm3(v))[..., None]
 
 
 def inflate_normals(matte: np.ndarray, radius_px: float) -> np.ndarray:
