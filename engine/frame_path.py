@@ -668,7 +668,6 @@ class FramePath:
         self.env = None
         self._relit_key = None  # (env, exposure, rotation) of the relight in relit_frame
         self._track_gain = 1.0  # the last tracking copy's brightening (_track_exposure)
-        self.set_environment(env)
         self.rig = rig = FaceRig.build(bundle, self.relighter, focal)
         self.focal = rig.focal
         room = bundle.room_light
@@ -677,6 +676,9 @@ class FramePath:
         finder = FaceFinder.from_relighter(self.relighter, rig.solid_full, scale=rig.ref_track_scale,
                                            room=bundle.ambient_frame() if room is not None else None)
         self.tracker = FaceTracker(rig.track_reference, rig.track_landmarks, rig.track_mask, finder=finder)
+        # (after the finder's basis: the environment's rows, made ahead on the device's queue,
+        # would hold its two dozen renders back - 1.5 s of a 720p bundle's start)
+        self.set_environment(env)
         from relight.kernels.compositor import Compositor
 
         self.compositor = Compositor(rig.alpha_crop, rig.fill, rig.inv_ambient, rig.normal_crop, rig.origin,
