@@ -1,10 +1,11 @@
 /* The relit face warped into a video frame and composited, in two passes.
  *
  * Every mode is one per-pixel rule in linear light, with f the frame's pixel:
- *     face = s (f + lift) r + (1 - s) T,        out = f + a (face - f)
+ *     face = (s (f + lift) + k f) r + (1 - s - k) T,        out = f + a (face - f)
  * r the lighting ratio applied to the live pixel, T the bundle's own prediction, s in 0-1 how far
- * the live pixel is trusted, a the composited share (feathered mask x strength x facing); lift
- * the ratio's regulariser (MODE_LIVE: eps; 0 in the other modes).
+ * the live pixel is trusted, k the share kept as something over the face (MODE_LIVE, step 3; 0
+ * elsewhere), a the composited share (feathered mask x strength x facing); lift the ratio's
+ * regulariser (MODE_LIVE: eps; 0 in the other modes).
  *
  * build_layer (reference crop, one work item per crop pixel with a > 0) writes (r, s, T, a):
  *   MODE_AMBIENT  r = gain (relit + eps) / (ambient + eps), clamped to [0, ratio_max]; s = 1
@@ -30,7 +31,11 @@
  *   3. MODE_LIVE: s drops to 0 where the live pixel is clipped (max channel from CLIP_LO to
  *      CLIP_HI: a saturated pixel carries no ratio) and where it is much darker than the live
  *      light predicts (lum f / lum E from AGREE_HI down to AGREE_LO: a shadow edge the fitted
- *      light draws a pixel off, which a ratio would keep), and where the live pixel differs from
+ *      light draws a pixel off, which a ratio would keep) - unless its colour is not the face's
+ *      (the spread of f / E over the three channels, relative to their mean, from FOREIGN_LO up
+ *      to FOREIGN_HI gives it back, whatever the layer's s: a shadow scales the channels alike,
+ *      glasses' rims or a strand of hair do not, and take the ratio as they are - f r, without
+ *      the lift) - and where the live pixel differs from
  *      what the live light predicts by no more than `tau` (relative; the fit's own scatter:
  *      the ratio would only carry the model's error and the camera's noise into the output) -
  *      soft-thresholded (s scaled by (dev - tau) / dev, dev = |lum f / lum E - 1|), so what
@@ -42,25 +47,18 @@
  */
 
 #define OUTSIDE_HALF (-5.0e3f)
-/* Camera-facing component of a turned normal below which the face fades out, and above which
-   it is fully composited (relight.kernels.compositor.FACING). */
-#define FACING_LO 0.15f
-#define FACING_HI 0.45f
 #define MODE_AMBIENT 0
 #define MODE_PASTE 1
 #define MODE_LIVE 2
-/* relight.kernels.compositor.TRUST_RATIO, TRUST_DARK, CLIP_RAMP */
-#define Q_LO 0.25f
-#define Q_HI 0.50f
-#define D_LO 0.02f
-#define D_HI 0.08f
-#define CLIP_LO 0.90f
-#define CLIP_HI 0.99f
-#define AGREE_LO 0.30f
-#define AGREE_HI 0.60f
-/* relight.kernels.compositor.GATE_HI: the person's share above which the face's composite is whole
-   (the solid matte's) */
-#define GATE_HI 0.80f
+/* The rules' thresholds, named once in relight.kernels.compositor and given as build options
+   (Compositor: -D NAME=value): FACING (FACING_LO, FACING_HI: the camera-facing component of a
+   turned normal below which the face fades out, above which it is whole), TRUST_RATIO (Q_LO,
+   Q_HI), TRUST_DARK (D_LO, D_HI), CLIP_RAMP (CLIP_LO, CLIP_HI), AGREE_RAMP (AGREE_LO, AGREE_HI),
+   FOREIGN_RAMP (FOREIGN_LO, FOREIGN_HI), CHROMA_FLOOR, FOREIGN_NOISE and GATE_HI (the person's
+   share above which the face's composite is whole: the solid matte's). */
+#if !defined(FACING_LO) || !defined(AGREE_LO) || !defined(FOREIGN_LO) || !defined(GATE_HI)
+#error "build composite.cl through relight.kernels.compositor.Compositor: it defines the rules' thresholds"
+#endif
 
 /* PoCL 3.0 calls its math builtins (floor, clamp, fmax, ...) out of line, spilling vector registers
    around each call (measured: this kernel took 9 ms for a 300x450 box with them): these
@@ -106,7 +104,7 @@ __kernel void build_layer(
     __global const int *support, int n,                      /* the crop pixels with alpha > 0 */
     int mode, float gain, float strength, float eps, float ratio_max, float live_median,
     __global float8 *layer,                                  /* zero elsewhere (set once) */
-    __global float *expect)                                  /* MODE_LIVE: lum E (live units) */
+    __global float4 *expect)                                 /* MODE_LIVE: (E, lum E) (live units) */
 {
     int i = get_global_id(0);
     if (i >= n)
@@ -139,7 +137,7 @@ __kernel void build_layer(
         float share = le / fmx(fmx(le, lt), 1e-12f);
         float dark = le / fmx(live_median, 1e-12f);
         s = fclamp((share - Q_LO) / (Q_HI - Q_LO), 0.0f, 1.0f) * fclamp((dark - D_LO) / (D_HI - D_LO), 0.0f, 1.0f);
-        expect[p] = le;
+        expect[p] = (float4)(e, le);
         if (f < 0)
             a = 0.0f;
     }
@@ -160,7 +158,9 @@ __attribute__((always_inline)) inline float8 bilerp8(__global const float8 *img,
     return acc;
 }
 
-__attribute__((always_inline)) inline float bilerp1(__global const float *img, int cw, int ch, float x, float y)
+/* The bilinear sample of the 4th component of a float4 map (lum E), and the nearest texel's
+   first three (E: its colour is smooth; one read where the bilinear takes four). */
+__attribute__((always_inline)) inline float bilerp_w(__global const float4 *img, int cw, int ch, float x, float y)
 {
     int x0 = ifloor(x), y0 = ifloor(y);
     float ax = x - (float)x0, ay = y - (float)y0;
@@ -169,9 +169,16 @@ __attribute__((always_inline)) inline float bilerp1(__global const float *img, i
         int xi = x0 + (k & 1), yi = y0 + (k >> 1);
         float w = ((k & 1) ? ax : 1.0f - ax) * ((k >> 1) ? ay : 1.0f - ay);
         int ok = xi >= 0 && yi >= 0 && xi < cw && yi < ch;
-        acc += (ok ? w : 0.0f) * img[ok ? yi * cw + xi : 0];
+        acc += (ok ? w : 0.0f) * img[ok ? yi * cw + xi : 0].w;
     }
     return acc;
+}
+
+__attribute__((always_inline)) inline float3 nearest3(__global const float4 *img, int cw, int ch, float x, float y)
+{
+    int xi = ifloor(x + 0.5f), yi = ifloor(y + 0.5f);
+    int ok = xi >= 0 && yi >= 0 && xi < cw && yi < ch;
+    return ok ? img[yi * cw + xi].xyz : (float3)(0.0f);
 }
 
 /* The face composited at position (x, y) relative to the face's box (frame px, x, y >= 0) on
@@ -179,7 +186,7 @@ __attribute__((always_inline)) inline float bilerp1(__global const float *img, i
    else 0 (the pixel keeps its bytes). Steps 1-3 of the file comment. */
 __attribute__((always_inline)) inline int face_at(
     float x, float y, float3 f, __global const float2 *coarse, int gw, int step, float ox, float oy,
-    __global const float8 *layer, int cw, int ch, __global const float *expect, int mode, float tau,
+    __global const float8 *layer, int cw, int ch, __global const float4 *expect, int mode, float tau,
     float lift, float3 *res, float *a_out)
 {
     float cx = (x + (float)step + 0.5f) / (float)step - 0.5f;
@@ -195,16 +202,32 @@ __attribute__((always_inline)) inline int face_at(
     float a = l.s7;
     if (!(a > 0.0f))
         return 0;
-    float s = l.s3;
-    if (mode == MODE_LIVE && s > 0.0f) {
-        s *= 1.0f - fclamp((fmx(f.x, fmx(f.y, f.z)) - CLIP_LO) / (CLIP_HI - CLIP_LO), 0.0f, 1.0f);
-        float e = bilerp1(expect, cw, ch, m.x - ox, m.y - oy);
+    float s = l.s3, kf = 0.0f;
+    if (mode == MODE_LIVE) {
+        float e = bilerp_w(expect, cw, ch, m.x - ox, m.y - oy);
         float agree = lum3(f) / fmx(e, 1e-12f);
-        s *= fclamp((agree - AGREE_LO) / (AGREE_HI - AGREE_LO), 0.0f, 1.0f);
-        float dev = fabs(agree - 1.0f);
-        s *= dev > tau ? (dev - tau) / dev : 0.0f;
+        float dark = fclamp((agree - AGREE_LO) / (AGREE_HI - AGREE_LO), 0.0f, 1.0f);
+        if (s > 0.0f) {
+            s *= 1.0f - fclamp((fmx(f.x, fmx(f.y, f.z)) - CLIP_LO) / (CLIP_HI - CLIP_LO), 0.0f, 1.0f);
+            s *= dark;
+            float dev = fabs(agree - 1.0f);
+            s *= dev > tau ? (dev - tau) / dev : 0.0f;
+        }
+        /* darker than the live light predicts, and of another colour than the face there: not a
+           shadow (one scales the three channels alike) but something over the face - glasses'
+           rims, a strand of hair - kept as it is, taking the ratio, as far as the darkness took
+           its trust */
+        float3 ec = nearest3(expect, cw, ch, m.x - ox, m.y - oy);
+        float floor_e = CHROMA_FLOOR * e;
+        float3 q = (f + FOREIGN_NOISE) / ((float3)(fmx(ec.x, floor_e), fmx(ec.y, floor_e), fmx(ec.z, floor_e))
+                                          + FOREIGN_NOISE);
+        float qm = (q.x + q.y + q.z) * (1.0f / 3.0f);
+        float spread = fmx(fmx(fabs(q.x - qm), fabs(q.y - qm)), fabs(q.z - qm)) / fmx(qm, 1e-12f);
+        kf = fmx(fclamp((spread - FOREIGN_LO) / (FOREIGN_HI - FOREIGN_LO), 0.0f, 1.0f) * (1.0f - dark) - s, 0.0f);
     }
-    float3 face = s * (f + lift) * l.s012 + (1.0f - s) * l.s456;
+    /* (what is kept as foreign takes the ratio without the lift: its regulariser would brighten
+       a dark object by eps r, more than its own light) */
+    float3 face = (s * (f + lift) + kf * f) * l.s012 + (1.0f - s - kf) * l.s456;
     *res = f + a * (face - f);
     *a_out = a;
     return 1;
@@ -228,7 +251,7 @@ __kernel void warp_composite(
     __global const float2 *coarse, int gw, int step,   /* (gh, gw) reference positions (frame px) */
     float ox, float oy,                                 /* the crop's origin in the reference */
     __global const float8 *layer, int cw, int ch,       /* (ch, cw) from build_layer */
-    __global const float *expect,                       /* (ch, cw) from build_layer (MODE_LIVE) */
+    __global const float4 *expect,                       /* (ch, cw) from build_layer (MODE_LIVE) */
     __global const uchar *groups,                       /* per work-group: may the face reach it */
     __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau, float lift)
 {
@@ -259,7 +282,7 @@ __kernel void composite_person(
     __global uchar *img, int img_w, int bx0, int by0, int bw, int bh, float scx, float scy,
     int fx0, int fy0, int fw, int fh,
     __global const float2 *coarse, int cgw, int step, float ox, float oy,
-    __global const float8 *layer, int cw, int ch, __global const float *expect,
+    __global const float8 *layer, int cw, int ch, __global const float4 *expect,
     __global const float4 *person, int gw, int gh, float sx, float sy, float gox, float goy, float floor_w,
     int gate, __global const uchar *groups,
     __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau, float lift)

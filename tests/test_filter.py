@@ -14,6 +14,8 @@ from relight.video import VideoWriter, read_frames
 
 from .tolerances import (
     COMPOSITE_TWIN_CODES,
+    STROKE_DARKER,
+    STROKES_KEPT_SHARE,
     F32_EXACT,
     F32_LOOSE,
     F64_EXACT,
@@ -550,6 +552,13 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     settings = dict(mode=mode, gain=1.3, strength=0.8, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
                     live_median=live_median)
     turn = rotation_matrix(25, -10, 5)  # some of the face turned away: it fades out
+    lines = np.zeros((h, w), np.uint8)
+    if mode == "live":  # dark strokes of another colour than the face (glasses' rims): kept
+        rgb = rgb.copy()
+        for k in range(3):
+            y = box[1] + (k + 1) * (box[3] - box[1]) // 4
+            for img, colour in ((rgb, (20, 20, 25)), (lines, 1)):
+                cv2.line(img, (box[0] + 4, y), (box[2] - 4, y + 6), colour, 2)
     got = fp.compositor.run(rgb, box, coarse, GRID_STEP, relit=fp.relighter.buffer(), live=fp.relighter.slot("live")[1],
                             rotation=turn, **settings)
     layer = _layer_numpy(fp, turn, live=live, **settings)
@@ -563,6 +572,15 @@ def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     assert (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3).sum() > 1000  # it did something
     # differing pixels: a rounding-level share (1 %) (definitional bound, not a tolerance)
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
+    if mode == "live":  # the strokes stay darker than the face composited there without them, in
+        # both - most of them: where the live light leaves the face black, black has no colour to
+        # tell a stroke by
+        on = (lines > 0) & (np.abs(want.astype(int) - rgb.astype(int)).sum(axis=2) > 3)
+        plain = warp_composite_numpy(frames[5], box, coarse, GRID_STEP, fp.rig.origin, layer, mode=mode)
+        ref = plain.astype(np.float32).mean(axis=2)[on]
+        for out in (got, want):
+            kept = out.astype(np.float32).mean(axis=2)[on] < STROKE_DARKER * ref
+            assert kept.mean() > STROKES_KEPT_SHARE, kept.mean()
 
 
 def test_the_live_ratio_lifts_nothing_the_target_light_darkens(frame_path):
@@ -595,7 +613,7 @@ def test_the_live_ratio_lifts_nothing_the_target_light_darkens(frame_path):
     ox, oy = fp.rig.origin
     t = layer[..., 4:7]
     f_lin = decode_srgb8(frame)[oy:oy + layer.shape[0], ox:ox + layer.shape[1]]
-    sel = ((layer[..., 7] > 0.999) & (layer[..., 3] > 0.999) & (t @ LUMINANCE < 0.25 * expect)
+    sel = ((layer[..., 7] > 0.999) & (layer[..., 3] > 0.999) & (t @ LUMINANCE < 0.25 * expect[..., 3])
            & (f_lin.max(axis=2) < 0.85))
     sel[:2] = sel[-2:] = False
     sel[:, :2] = sel[:, -2:] = False

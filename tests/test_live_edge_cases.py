@@ -130,10 +130,9 @@ def _rims(frame, small_bundle):
     return out, rim > 0
 
 
-@pytest.mark.xfail(strict=True, reason="mode transfer trusts the bundle's prediction where the live pixel is far "
-                   "darker than the live light predicts (the rule that removes the room's shadows), so glasses' "
-                   "rims vanish from the relit face: a known defect (issue 32)")
 def test_glasses_stay_on_the_relit_face(path, frames, small_bundle):
+    """Dark rims far darker than the live light predicts for the skin there, but of another
+    colour: not a shadow (compositor.FOREIGN_RAMP) - they stay on the relit face."""
     seq, rims = zip(*(_rims(f, small_bundle) for f in frames[:20]), strict=True)
     outs, infos = _run(path, list(seq))
     ring = cv2.dilate(rims[0].astype(np.uint8), np.ones((7, 7), np.uint8)) > 0

@@ -77,6 +77,13 @@ REFIND_MEDIAN_PX = 0.25
 #: warp_composite kernel vs its NumPy twin: largest difference in 8-bit codes (float rounding
 #: at a LUT step), and it may touch at most 1 % of the pixels.
 COMPOSITE_TWIN_CODES = 1
+#: Dark strokes of another colour than the face drawn over a frame (glasses' rims) and composited
+#: in mode live: the share of their pixels that stay darker than this share of what the face
+#: there is composited as without them (measured 0.88 of them - where the live light leaves the
+#: face black, black has no colour to tell a stroke by; without the rule that keeps them,
+#: FOREIGN_RAMP, the bundle's prediction replaced them: 0.13).
+STROKE_DARKER = 0.8
+STROKES_KEPT_SHARE = 0.75
 #: Mode live's trusted face over its bound T max(f / E, 1) where the target darkens the live light:
 #: the 99th percentile's excess in 8-bit codes (the 8-bit round trip of the frame and the output).
 LIVE_RATIO_BOUND_CODES = 1
