@@ -14,8 +14,6 @@ from relight.video import VideoWriter, read_frames
 
 from .tolerances import (
     COMPOSITE_TWIN_CODES,
-    STROKE_DARKER,
-    STROKES_KEPT_SHARE,
     F32_EXACT,
     F32_LOOSE,
     F64_EXACT,
@@ -36,6 +34,8 @@ from .tolerances import (
     SMOOTH_BLUR_SHARE,
     STILL_HEAD_DEG,
     STILL_HEAD_RESIZED_DEG,
+    STROKE_DARKER,
+    STROKES_KEPT_SHARE,
     TIMESTAMP_S,
     TRUST_HIGH_SHARE,
     TRUST_LOW_SHARE,
