@@ -155,6 +155,12 @@ def kernel_defines() -> tuple[str, ...]:
     return tuple(f"-D{k}={float(np.float32(v)):.9e}f" for k, v in values.items())  # (always a C float literal)
 
 
+def program_options() -> tuple[str, ...]:
+    """The options ``composite.cl`` is built with: denormals flushed (a feathered mask's Gaussian
+    tails reach them: each costs a microcode assist) and :func:`kernel_defines`."""
+    return ("-cl-denorms-are-zero", *kernel_defines())
+
+
 def build_layer_numpy(relit: np.ndarray, fill: np.ndarray, inv_amb: np.ndarray, alpha: np.ndarray,
                       normal: np.ndarray, rotation: np.ndarray, *, mode: str, gain: float, strength: float,
                       eps: float, ratio_max: float, live: np.ndarray | None = None,
@@ -418,9 +424,8 @@ class Compositor:
         self.rt = rt
         ctx = rt.context
         mf = cl.mem_flags
-        # Denormals flushed (a feathered mask's Gaussian tails reach them: each costs a microcode
-        # assist); alpha below ALPHA_FLOOR counts as zero.
-        prg = build_program("composite", ("-cl-denorms-are-zero", *kernel_defines()))
+        # (alpha below ALPHA_FLOOR counts as zero)
+        prg = build_program("composite", program_options())
         self._kernel = cl.Kernel(prg, "warp_composite")
         self._k_person = cl.Kernel(prg, "composite_person")
         self._person = None  # (the person grid last sent, its buffer)

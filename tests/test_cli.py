@@ -192,8 +192,9 @@ def test_kernels_build_without_compiler_messages_and_verbose_shows_them(tmp_path
     # (the programs with 16-wide vectors: where clang warned; every program is built by the suite)
     code = ("import warnings; warnings.simplefilter('error')\n"
             "from relight.kernels.runtime import build_program\n"
+            "from relight.kernels.compositor import program_options\n"
             "for name, opts in [('reflectance', ('-DUSE_SPLINE=1', '-DSPLINE_ROOT25=1')),\n"
-            "                   ('relight', ('-cl-denorms-are-zero',)), ('composite', ('-cl-denorms-are-zero',))]:\n"
+            "                   ('relight', ('-cl-denorms-are-zero',)), ('composite', program_options())]:\n"
             "    build_program(name, opts)\n"
             "print('built')\n")
     env = dict(os.environ, POCL_CACHE_DIR=str(tmp_path / "pocl"), PYOPENCL_COMPILER_OUTPUT="1")
