@@ -665,6 +665,7 @@ class FramePath:
         if not (np.isfinite(reuse_deg) and 0 <= reuse_deg <= 5):
             raise InputError(f"reuse_deg {reuse_deg}: use 0 (always relight) to 5 degrees")
         self.reuse_deg = float(reuse_deg)
+        self.relighter.lights(env)  # a bad environment refused before the rig's seconds of work
         self.env = None
         self._relit_key = None  # (env, exposure, rotation) of the relight in relit_frame
         self._track_gain = 1.0  # the last tracking copy's brightening (_track_exposure)

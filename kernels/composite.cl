@@ -7,7 +7,8 @@
  * elsewhere), a the composited share (feathered mask x strength x facing); lift the ratio's
  * regulariser (MODE_LIVE: eps; 0 in the other modes).
  *
- * build_layer (reference crop, one work item per crop pixel with a > 0) writes (r, s, T, a):
+ * build_layer (reference crop, one work item per crop pixel with a > 0) writes (r, s, T, a), and
+ * in MODE_LIVE the live light's prediction there, expect = (E, lum E):
  *   MODE_AMBIENT  r = gain (relit + eps) / (ambient + eps), clamped to [0, ratio_max]; s = 1
  *                 (the capture room's light swapped for the target's: the paper's setting);
  *   MODE_PASTE    s = 0, T = gain relit (the relit reference face, the paper's warp);
@@ -33,9 +34,9 @@
  *      light predicts (lum f / lum E from AGREE_HI down to AGREE_LO: a shadow edge the fitted
  *      light draws a pixel off, which a ratio would keep) - unless its colour is not the face's
  *      (the spread of f / E over the three channels, relative to their mean, from FOREIGN_LO up
- *      to FOREIGN_HI gives it back, whatever the layer's s: a shadow scales the channels alike,
- *      glasses' rims or a strand of hair do not, and take the ratio as they are - f r, without
- *      the lift) - and where the live pixel differs from
+ *      to FOREIGN_HI: a shadow scales the channels alike, glasses' rims or a strand of hair do
+ *      not - those take a share k of f r, without the lift, with s + k up to what the darkness
+ *      took, whatever the layer's s was) - and where the live pixel differs from
  *      what the live light predicts by no more than `tau` (relative; the fit's own scatter:
  *      the ratio would only carry the model's error and the camera's noise into the output) -
  *      soft-thresholded (s scaled by (dev - tau) / dev, dev = |lum f / lum E - 1|), so what
@@ -217,13 +218,16 @@ __attribute__((always_inline)) inline int face_at(
            shadow (one scales the three channels alike) but something over the face - glasses'
            rims, a strand of hair - kept as it is, taking the ratio, as far as the darkness took
            its trust */
-        float3 ec = nearest3(expect, cw, ch, m.x - ox, m.y - oy);
-        float floor_e = CHROMA_FLOOR * e;
-        float3 q = (f + FOREIGN_NOISE) / ((float3)(fmx(ec.x, floor_e), fmx(ec.y, floor_e), fmx(ec.z, floor_e))
-                                          + FOREIGN_NOISE);
-        float qm = (q.x + q.y + q.z) * (1.0f / 3.0f);
-        float spread = fmx(fmx(fabs(q.x - qm), fabs(q.y - qm)), fabs(q.z - qm)) / fmx(qm, 1e-12f);
-        kf = fmx(fclamp((spread - FOREIGN_LO) / (FOREIGN_HI - FOREIGN_LO), 0.0f, 1.0f) * (1.0f - dark) - s, 0.0f);
+        if (dark < 1.0f) {  /* (k is 0 elsewhere) */
+            float3 ec = nearest3(expect, cw, ch, m.x - ox, m.y - oy);
+            float floor_e = CHROMA_FLOOR * e;
+            float3 q = (f + FOREIGN_NOISE) / ((float3)(fmx(fmx(ec.x, floor_e), 0.0f), fmx(fmx(ec.y, floor_e), 0.0f),
+                                                       fmx(fmx(ec.z, floor_e), 0.0f)) + FOREIGN_NOISE);
+            float qm = (q.x + q.y + q.z) * (1.0f / 3.0f);
+            float spread = fmx(fmx(fabs(q.x - qm), fabs(q.y - qm)), fabs(q.z - qm)) / fmx(qm, 1e-12f);
+            kf = fmx(fclamp((spread - FOREIGN_LO) / (FOREIGN_HI - FOREIGN_LO), 0.0f, 1.0f) * (1.0f - dark) - s,
+                     0.0f);
+        }
     }
     /* (what is kept as foreign takes the ratio without the lift: its regulariser would brighten
        a dark object by eps r, more than its own light) */

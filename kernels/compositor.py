@@ -3,8 +3,9 @@ composited (mode ``ambient``, ``paste`` or ``live``), sRGB in and out, in one pa
 
 Three kernels: ``build_layer`` makes the crop's float8 layer (lighting ratio r, live trust s,
 the bundle's prediction T, alpha), ``warp_composite`` samples it once per frame pixel and
-composites ``face = s (f + lift) r + (1 - s) T``, ``out = f + a (face - f)`` (see the .cl file
-for each mode; ``lift`` is mode live's ratio regulariser, 0 in the others); ``composite_person``
+composites ``face = (s (f + lift) + k f) r + (1 - s - k) T``, ``out = f + a (face - f)`` (see the
+.cl file for each mode; ``lift`` is mode live's ratio regulariser and ``k`` its share kept as
+something over the face - glasses' rims - both 0 in the others); ``composite_person``
 does the same and adds the light's change over the rest of the person, ``f max(m, a) (1 - a)
 (rho - 1)``, over the face's box and the person's - on the frame or on a smaller copy of it
 (region person: :mod:`relight.engine.head_light`).
@@ -272,7 +273,7 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
             shrink = np.where(dev > tau, (dev - np.float32(tau)) / np.maximum(dev, np.float32(EPS)), 0.0)
             s = np.where(s > 0, s * (1.0 - _ramp(f.max(axis=1, keepdims=True), CLIP_RAMP)) * dark * shrink, s)
             noise = np.float32(FOREIGN_NOISE)
-            q = (f + noise) / (np.maximum(ec, np.float32(CHROMA_FLOOR) * e) + noise)
+            q = (f + noise) / (np.maximum(np.maximum(ec, np.float32(CHROMA_FLOOR) * e), 0.0) + noise)
             qm = q.sum(axis=1, keepdims=True) * np.float32(1.0 / 3.0)
             spread = np.abs(q - qm).max(axis=1, keepdims=True) / np.maximum(qm, np.float32(EPS))
             kf = np.maximum(_ramp(spread, FOREIGN_RAMP) * (1.0 - dark) - s, 0.0)
