@@ -8,7 +8,7 @@
  * regulariser (MODE_LIVE: eps; 0 in the other modes).
  *
  * build_layer (reference crop, one work item per crop pixel with a > 0) writes (r, s, T, a), and
- * in MODE_LIVE the live light's prediction there, expect = (E, lum E):
+ * in MODE_LIVE the live light's prediction there: expect = lum E, expect_rgb = E:
  *   MODE_AMBIENT  r = gain (relit + eps) / (ambient + eps), clamped to [0, ratio_max]; s = 1
  *                 (the capture room's light swapped for the target's: the paper's setting);
  *   MODE_PASTE    s = 0, T = gain relit (the relit reference face, the paper's warp);
@@ -105,7 +105,8 @@ __kernel void build_layer(
     __global const int *support, int n,                      /* the crop pixels with alpha > 0 */
     int mode, float gain, float strength, float eps, float ratio_max, float live_median,
     __global float8 *layer,                                  /* zero elsewhere (set once) */
-    __global float4 *expect)                                 /* MODE_LIVE: (E, lum E) (live units) */
+    __global float *expect,                                  /* MODE_LIVE: lum E (live units) */
+    __global float4 *expect_rgb)                             /* MODE_LIVE: E (its colour: read nearest) */
 {
     int i = get_global_id(0);
     if (i >= n)
@@ -138,7 +139,8 @@ __kernel void build_layer(
         float share = le / fmx(fmx(le, lt), 1e-12f);
         float dark = le / fmx(live_median, 1e-12f);
         s = fclamp((share - Q_LO) / (Q_HI - Q_LO), 0.0f, 1.0f) * fclamp((dark - D_LO) / (D_HI - D_LO), 0.0f, 1.0f);
-        expect[p] = (float4)(e, le);
+        expect[p] = le;
+        expect_rgb[p] = (float4)(e, 0.0f);
         if (f < 0)
             a = 0.0f;
     }
@@ -159,9 +161,7 @@ __attribute__((always_inline)) inline float8 bilerp8(__global const float8 *img,
     return acc;
 }
 
-/* The bilinear sample of the 4th component of a float4 map (lum E), and the nearest texel's
-   first three (E: its colour is smooth; one read where the bilinear takes four). */
-__attribute__((always_inline)) inline float bilerp_w(__global const float4 *img, int cw, int ch, float x, float y)
+__attribute__((always_inline)) inline float bilerp1(__global const float *img, int cw, int ch, float x, float y)
 {
     int x0 = ifloor(x), y0 = ifloor(y);
     float ax = x - (float)x0, ay = y - (float)y0;
@@ -170,11 +170,12 @@ __attribute__((always_inline)) inline float bilerp_w(__global const float4 *img,
         int xi = x0 + (k & 1), yi = y0 + (k >> 1);
         float w = ((k & 1) ? ax : 1.0f - ax) * ((k >> 1) ? ay : 1.0f - ay);
         int ok = xi >= 0 && yi >= 0 && xi < cw && yi < ch;
-        acc += (ok ? w : 0.0f) * img[ok ? yi * cw + xi : 0].w;
+        acc += (ok ? w : 0.0f) * img[ok ? yi * cw + xi : 0];
     }
     return acc;
 }
 
+/* The nearest texel's colour (E's colour is smooth: one read where the bilinear takes four). */
 __attribute__((always_inline)) inline float3 nearest3(__global const float4 *img, int cw, int ch, float x, float y)
 {
     int xi = ifloor(x + 0.5f), yi = ifloor(y + 0.5f);
@@ -187,7 +188,8 @@ __attribute__((always_inline)) inline float3 nearest3(__global const float4 *img
    else 0 (the pixel keeps its bytes). Steps 1-3 of the file comment. */
 __attribute__((always_inline)) inline int face_at(
     float x, float y, float3 f, __global const float2 *coarse, int gw, int step, float ox, float oy,
-    __global const float8 *layer, int cw, int ch, __global const float4 *expect, int mode, float tau,
+    __global const float8 *layer, int cw, int ch, __global const float *expect,
+    __global const float4 *expect_rgb, int mode, float tau,
     float lift, float3 *res, float *a_out)
 {
     float cx = (x + (float)step + 0.5f) / (float)step - 0.5f;
@@ -205,7 +207,7 @@ __attribute__((always_inline)) inline int face_at(
         return 0;
     float s = l.s3, kf = 0.0f;
     if (mode == MODE_LIVE) {
-        float e = bilerp_w(expect, cw, ch, m.x - ox, m.y - oy);
+        float e = bilerp1(expect, cw, ch, m.x - ox, m.y - oy);
         float agree = lum3(f) / fmx(e, 1e-12f);
         float dark = fclamp((agree - AGREE_LO) / (AGREE_HI - AGREE_LO), 0.0f, 1.0f);
         if (s > 0.0f) {
@@ -219,7 +221,7 @@ __attribute__((always_inline)) inline int face_at(
            rims, a strand of hair - kept as it is, taking the ratio, as far as the darkness took
            its trust */
         if (dark < 1.0f) {  /* (k is 0 elsewhere) */
-            float3 ec = nearest3(expect, cw, ch, m.x - ox, m.y - oy);
+            float3 ec = nearest3(expect_rgb, cw, ch, m.x - ox, m.y - oy);
             float floor_e = CHROMA_FLOOR * e;
             float3 q = (f + FOREIGN_NOISE) / ((float3)(fmx(fmx(ec.x, floor_e), 0.0f), fmx(fmx(ec.y, floor_e), 0.0f),
                                                        fmx(fmx(ec.z, floor_e), 0.0f)) + FOREIGN_NOISE);
@@ -255,7 +257,7 @@ __kernel void warp_composite(
     __global const float2 *coarse, int gw, int step,   /* (gh, gw) reference positions (frame px) */
     float ox, float oy,                                 /* the crop's origin in the reference */
     __global const float8 *layer, int cw, int ch,       /* (ch, cw) from build_layer */
-    __global const float4 *expect,                       /* (ch, cw) from build_layer (MODE_LIVE) */
+    __global const float *expect, __global const float4 *expect_rgb,  /* (ch, cw) from build_layer (MODE_LIVE) */
     __global const uchar *groups,                       /* per work-group: may the face reach it */
     __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau, float lift)
 {
@@ -265,7 +267,8 @@ __kernel void warp_composite(
     size_t o = 3 * ((size_t)(by0 + y) * frame_w + (bx0 + x));
     float3 f = decode3(decode_lut, frame + o), res;
     float a;
-    if (face_at((float)x, (float)y, f, coarse, gw, step, ox, oy, layer, cw, ch, expect, mode, tau, lift, &res, &a))
+    if (face_at((float)x, (float)y, f, coarse, gw, step, ox, oy, layer, cw, ch, expect, expect_rgb, mode, tau, lift,
+                &res, &a))
         encode3(encode_lut, lut_n, frame + o, res);
 }
 
@@ -286,7 +289,7 @@ __kernel void composite_person(
     __global uchar *img, int img_w, int bx0, int by0, int bw, int bh, float scx, float scy,
     int fx0, int fy0, int fw, int fh,
     __global const float2 *coarse, int cgw, int step, float ox, float oy,
-    __global const float8 *layer, int cw, int ch, __global const float4 *expect,
+    __global const float8 *layer, int cw, int ch, __global const float *expect, __global const float4 *expect_rgb,
     __global const float4 *person, int gw, int gh, float sx, float sy, float gox, float goy, float floor_w,
     int gate, __global const uchar *groups,
     __constant float *decode_lut, __global const uchar *encode_lut, int lut_n, int mode, float tau, float lift)
@@ -307,7 +310,8 @@ __kernel void composite_person(
     int changed = 0;
     float fx = X - (float)fx0, fy = Y - (float)fy0;
     if ((here & 1) && fx >= 0.0f && fy >= 0.0f && fx <= (float)(fw - 1) && fy <= (float)(fh - 1))
-        changed = face_at(fx, fy, f, coarse, cgw, step, ox, oy, layer, cw, ch, expect, mode, tau, lift, &res, &a);
+        changed = face_at(fx, fy, f, coarse, cgw, step, ox, oy, layer, cw, ch, expect, expect_rgb, mode, tau, lift,
+                          &res, &a);
     if (gw > 0) {
         float gx = (X + gox + 0.5f) * sx - 0.5f, gy = (Y + goy + 0.5f) * sy - 0.5f;
         int x0 = ifloor(gx), y0 = ifloor(gy);

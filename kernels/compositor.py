@@ -129,7 +129,8 @@ def facing_weight(turned_z, reference_z) -> np.ndarray:
 
 
 class LayerPair(NamedTuple):
-    """What :func:`build_layer_numpy` makes (the device's layer and expect buffers and the lift
+    """What :func:`build_layer_numpy` makes (the device's layer and expect buffers - lum E and E
+    apart there, the one read bilinearly, the other at the nearest texel - and the lift
     :class:`Compositor` keeps with them): ``layer`` (ch, cw, 8) float32 (r rgb, s, T rgb, alpha),
     ``expect`` (ch, cw, 4) float32 (E, lum E), the live light's prediction (zero but in mode live), and
     ``lift`` (:func:`layer_lift`) the composite adds to the live pixel."""
@@ -459,7 +460,9 @@ class Compositor:
         self._layer = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
                                 hostbuf=np.zeros((self.alpha.size, 8), dtype=np.float32))
         self._expect = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
-                                 hostbuf=np.zeros((self.alpha.size, 4), dtype=np.float32))
+                                 hostbuf=np.zeros(self.alpha.size, dtype=np.float32))
+        self._expect_rgb = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
+                                     hostbuf=np.zeros((self.alpha.size, 4), dtype=np.float32))
         self._lift = 0.0  # the last layer's (mode live: its eps)
         self._bufs: dict = {}  # image shape -> device buffer
         self._coarse_buf = None
@@ -493,7 +496,7 @@ class Compositor:
                       self._fill, self._inv, self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]),
                       np.float32(rz[2]), self._support, np.int32(n), np.int32(LAYER_MODES[mode]), np.float32(gain),
                       np.float32(strength), np.float32(eps), np.float32(ratio_max), np.float32(live_median),
-                      self._layer, self._expect)
+                      self._layer, self._expect, self._expect_rgb)
 
     def _coarse(self, coarse: np.ndarray):
         import pyopencl as cl
@@ -565,8 +568,8 @@ class Compositor:
                          np.int32(bx0), np.int32(by0), np.int32(bw), np.int32(bh), self._coarse_buf,
                          np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
                          np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch), self._expect,
-                         groups, self._dec, self._enc, np.int32(self.lut_n), np.int32(LAYER_MODES[mode]),
-                         np.float32(tau), np.float32(self._lift))
+                         self._expect_rgb, groups, self._dec, self._enc, np.int32(self.lut_n),
+                         np.int32(LAYER_MODES[mode]), np.float32(tau), np.float32(self._lift))
 
         return self._rows_through(rgb, box, launch)
 
@@ -611,9 +614,9 @@ class Compositor:
                            np.int32(fx0), np.int32(fy0), np.int32(fx1 - fx0), np.int32(fy1 - fy0), self._coarse_buf,
                            np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
                            np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch),
-                           self._expect, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx), np.float32(sy),
-                           np.float32(gox), np.float32(goy), np.float32(floor), np.int32(bool(gate) and gw > 0),
-                           groups, self._dec, self._enc,
+                           self._expect, self._expect_rgb, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx),
+                           np.float32(sy), np.float32(gox), np.float32(goy), np.float32(floor),
+                           np.int32(bool(gate) and gw > 0), groups, self._dec, self._enc,
                            np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau),
                            np.float32(self._lift))
 
