@@ -426,13 +426,13 @@ class Compositor:
         self.rt = rt
         ctx = rt.context
         mf = cl.mem_flags
-        # (alpha below ALPHA_FLOOR counts as zero)
         prg = build_program("composite", program_options())
         self._kernel = cl.Kernel(prg, "warp_composite")
         self._k_person = cl.Kernel(prg, "composite_person")
         self._person = None  # (the person grid last sent, its buffer)
         self._k_layer = cl.Kernel(prg, "build_layer")
         self.alpha = np.ascontiguousarray(alpha, dtype=np.float32)
+        # alpha below ALPHA_FLOOR counts as zero
         self.alpha = np.where(self.alpha >= ALPHA_FLOOR, self.alpha, 0.0).astype(np.float32)
         self.fill = np.ascontiguousarray(fill, dtype=np.int32)
         self.inv_amb = np.ascontiguousarray(inv_amb, dtype=np.float32)
