@@ -86,12 +86,6 @@ def decode_samples(codes: np.ndarray, scale: np.ndarray, ids=slice(None), pixels
     return _DECODE[q] * np.asarray(scale[pixels], dtype=np.float32)[None]
 
 
-def quantise_samples(samples: np.ndarray) -> np.ndarray:
-    """The samples as a bundle stores them, decoded: (K, P, 3) float32."""
-    codes, scale = encode_samples(samples)
-    return decode_samples(codes, scale)
-
-
 def encode_horizon(elevations: np.ndarray) -> np.ndarray:
     """(P, n_az) uint8 codes of horizon elevations (radians, -pi/2..pi/2)."""
     e = np.asarray(elevations, dtype=np.float64)

@@ -1,7 +1,8 @@
-"""The light directions' triangulation (paper section 3.2, step 1): sample directions merged
-where the hand paused, virtual black lights added outside the captured hull, the spherical
-Delaunay triangulation (their convex hull), and each map texel's triangle with its spherical
-barycentric weights (the planar weights of its ray through the triangle, normalised)."""
+"""The light directions' triangulation (paper section 3.2, step 1): virtual black lights added
+outside the captured hull, the spherical Delaunay triangulation (their convex hull; directions
+that coincide where the hand paused are joggled apart by Qhull's ``QJ`` and their faces of no
+area never picked), and each map texel's triangle with its spherical barycentric weights (the
+planar weights of its ray through the triangle, normalised)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,6 @@ from relight.errors import InputError
 from relight.numerics import EPS, EPS_NORM
 
 DEFAULT_MAP_SIZE = (64, 32)
-#: Samples closer than this (degrees) are merged into one (the hand paused).
-MERGE_DEG = 0.75
 #: Virtual black lights sit where the nearest sample is farther than this many times the
 #: samples' typical spacing (and at least BLACK_MIN_DEG).
 BLACK_SPACING = 1.6
@@ -29,27 +28,6 @@ def _convex_hull(points: np.ndarray, **kw):
     from scipy.spatial import ConvexHull
 
     return ConvexHull(points, **kw)
-
-
-def merge_close(dirs: np.ndarray, values: np.ndarray | None = None, *, deg: float = MERGE_DEG):
-    """Merge directions closer than ``deg`` (their values averaged). Returns (dirs, values, groups)."""
-    dirs = np.asarray(dirs, dtype=np.float64)
-    n = len(dirs)
-    cos_t = np.cos(np.radians(deg))
-    group = -np.ones(n, dtype=np.int64)
-    g = 0
-    for i in range(n):
-        if group[i] >= 0:
-            continue
-        close = (dirs @ dirs[i] > cos_t) & (group < 0)
-        group[close] = g
-        g += 1
-    out_dirs = np.stack([dirs[group == k].mean(axis=0) for k in range(g)])
-    out_dirs /= np.linalg.norm(out_dirs, axis=1, keepdims=True)
-    out_vals = None
-    if values is not None:
-        out_vals = np.stack([values[group == k].mean(axis=0) for k in range(g)])
-    return out_dirs, out_vals, group
 
 
 @dataclass

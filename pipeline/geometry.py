@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse.linalg import spsolve
@@ -283,8 +282,3 @@ def rasterize_mesh(mesh, shape: tuple[int, int], origin=(0, 0)) -> tuple[np.ndar
     cover = np.isfinite(zbuf)
     depth = np.where(cover, zbuf, 0.0).reshape(h, w).astype(np.float32)
     return depth, nbuf.reshape(h, w, 3).astype(np.float32), cover.reshape(h, w)
-
-
-def smooth_mask_edges(mask: np.ndarray, width: float = 3.0) -> np.ndarray:
-    """A feathered version of a mask (0-1 float32) for compositing."""
-    return cv2.GaussianBlur(mask.astype(np.float32), (0, 0), width)
