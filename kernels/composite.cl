@@ -47,17 +47,16 @@
  * of the person, in one pass over the face's box and the person's (see the kernel).
  */
 
-#define OUTSIDE_HALF (-5.0e3f)
-#define MODE_AMBIENT 0
-#define MODE_PASTE 1
-#define MODE_LIVE 2
 /* The rules' thresholds, named once in relight.kernels.compositor and given as build options
    (Compositor: -D NAME=value): FACING (FACING_LO, FACING_HI: the camera-facing component of a
    turned normal below which the face fades out, above which it is whole), TRUST_RATIO (Q_LO,
    Q_HI), TRUST_DARK (D_LO, D_HI), CLIP_RAMP (CLIP_LO, CLIP_HI), AGREE_RAMP (AGREE_LO, AGREE_HI),
    FOREIGN_RAMP (FOREIGN_LO, FOREIGN_HI), CHROMA_FLOOR, FOREIGN_NOISE and GATE_HI (the person's
-   share above which the face's composite is whole: the solid matte's). */
-#if !defined(FACING_LO) || !defined(AGREE_LO) || !defined(FOREIGN_LO) || !defined(GATE_HI)
+   share above which the face's composite is whole: the solid matte's); OUTSIDE_HALF (reference
+   positions below it mark grid points outside the warp) and the layer modes' codes
+   (MODE_AMBIENT, MODE_PASTE, MODE_LIVE: compositor.LAYER_MODES). */
+#if !defined(FACING_LO) || !defined(AGREE_LO) || !defined(FOREIGN_LO) || !defined(GATE_HI) || \
+    !defined(OUTSIDE_HALF) || !defined(MODE_LIVE)
 #error "build composite.cl through relight.kernels.compositor.Compositor: it defines the rules' thresholds"
 #endif
 

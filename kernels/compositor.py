@@ -72,6 +72,8 @@ FOREIGN_NOISE = 9.1e-4
 GATE_HI = 0.8
 #: The composite kernels' work-group (x, y): what nothing changes in is skipped per group (:func:`work_groups`).
 GROUP = (16, 4)
+#: Work-group size of ``build_layer`` (one work item per face pixel).
+LAYER_GROUP = 64
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | None = None) -> np.ndarray:
@@ -148,13 +150,15 @@ def layer_lift(mode: str, eps: float) -> float:
 
 
 def kernel_defines() -> tuple[str, ...]:
-    """The build options that give ``composite.cl`` the rules' thresholds named here (each once)."""
+    """The build options that give ``composite.cl`` the rules' thresholds named here (each once),
+    the outside-the-warp mark (``OUTSIDE_HALF``) and the layer modes' codes (``MODE_LIVE``, ...)."""
     values = {"FACING_LO": FACING[0], "FACING_HI": FACING[1], "Q_LO": TRUST_RATIO[0], "Q_HI": TRUST_RATIO[1],
               "D_LO": TRUST_DARK[0], "D_HI": TRUST_DARK[1], "CLIP_LO": CLIP_RAMP[0], "CLIP_HI": CLIP_RAMP[1],
               "AGREE_LO": AGREE_RAMP[0], "AGREE_HI": AGREE_RAMP[1], "FOREIGN_LO": FOREIGN_RAMP[0],
               "FOREIGN_HI": FOREIGN_RAMP[1], "CHROMA_FLOOR": CHROMA_FLOOR, "FOREIGN_NOISE": FOREIGN_NOISE,
-              "GATE_HI": GATE_HI}
-    return tuple(f"-D{k}={float(np.float32(v)):.9e}f" for k, v in values.items())  # (always a C float literal)
+              "GATE_HI": GATE_HI, "OUTSIDE_HALF": OUTSIDE_HALF}
+    floats = tuple(f"-D{k}={float(np.float32(v)):.9e}f" for k, v in values.items())  # (always a C float literal)
+    return floats + tuple(f"-DMODE_{name.upper()}={code:d}" for name, code in LAYER_MODES.items())
 
 
 def program_options() -> tuple[str, ...]:
@@ -492,7 +496,8 @@ class Compositor:
         rz = np.eye(3)[2] if rotation is None else np.asarray(rotation, dtype=np.float64)[2]
         # the layer's ratio regulariser, which the composites add to the live pixel (mode live)
         self._lift = layer_lift(mode, eps)
-        self._k_layer(self.rt.queue, (max(-(-n // 64), 1) * 64,), (64,), relit, live if mode == "live" else relit,
+        size = (max(-(-n // LAYER_GROUP), 1) * LAYER_GROUP,)
+        self._k_layer(self.rt.queue, size, (LAYER_GROUP,), relit, live if mode == "live" else relit,
                       self._fill, self._inv, self._alpha, self._normal, np.float32(rz[0]), np.float32(rz[1]),
                       np.float32(rz[2]), self._support, np.int32(n), np.int32(LAYER_MODES[mode]), np.float32(gain),
                       np.float32(strength), np.float32(eps), np.float32(ratio_max), np.float32(live_median),
