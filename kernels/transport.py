@@ -353,6 +353,18 @@ def dequantise_basis(q: np.ndarray, scale: np.ndarray, q4: np.ndarray | None = N
     return flush_subnormal_halves(out)
 
 
+def leading_eigenpairs(g: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` largest eigenvalues of the symmetric (T, T) Gram matrix ``g``, largest first and
+    clipped at 0 (rounding leaves tiny negatives), and their (T, k) eigenvectors. Only those are
+    computed (LAPACK's MRRR driver), the rest are never used."""
+    from scipy.linalg import eigh
+
+    n = g.shape[0]
+    w, vecs = eigh(g, subset_by_index=[n - k, n - 1], driver="evr")
+    order = np.argsort(w)[::-1]
+    return np.clip(w[order], 0.0, None), vecs[:, order]
+
+
 def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int = MAX_RANK,
               direct: int = DIRECT_TEXELS, store_tolerance: float = STORE_TOLERANCE,
               texel_major: bool = False) -> Transport:
@@ -365,16 +377,10 @@ def factorize(maps: np.ndarray, map_size, texels: np.ndarray, *, max_rank: int =
     ``rank_errors`` include that rounding's noise (its expected energy added to the
     truncation's), so a rank meeting a tolerance meets it as stored.
     """
-    from scipy.linalg import eigh
-
     n_t = texels.size
     g = gram_rows(maps) if texel_major else gram(maps, n_texels=n_t)
     k_all = min(max_rank, n_t)
-    # Only the k_all leading eigenpairs are ever used (LAPACK's MRRR driver computes just those).
-    w, vecs = eigh(g, subset_by_index=[n_t - k_all, n_t - 1], driver="evr")
-    order = np.argsort(w)[::-1]
-    sig2 = np.clip(w[order], 0.0, None)
-    vecs = vecs[:, order]
+    sig2, vecs = leading_eigenpairs(g, k_all)
     envs = [lp for _, lp in validation_environments(map_size, texels)]
     total = np.zeros(len(envs))
     resid = np.zeros((k_all, len(envs)))
@@ -432,8 +438,6 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
     :func:`factorize`. Ranks are stored up to the first meeting ``store_tolerance``.
     ``progress(n)`` is called with the pixels done in the second pass.
     """
-    from scipy.linalg import eigh
-
     n_t = texels.size
     step = max(1, -(-n_pix // max(gram_pixels, 1)))
     sub = np.arange(0, n_pix, step)
@@ -452,10 +456,7 @@ def factorize_stream(make, n_pix: int, map_size, texels: np.ndarray, *, max_rank
 
     g = _syrk_sum(keep(sub), n_t)
     k_all = min(max_rank, n_t)
-    w, vecs = eigh(g, subset_by_index=[n_t - k_all, n_t - 1], driver="evr")
-    order = np.argsort(w)[::-1]
-    sig2 = np.clip(w[order], 0.0, None)
-    vecs = vecs[:, order]
+    sig2, vecs = leading_eigenpairs(g, k_all)
     envs = [lp for _, lp in validation_environments(map_size, texels)]
     rests = [split_direct(lp, direct)[1] for lp in envs]
     # The subsample's own errors bound the ranks worth projecting on (with room: the whole face
