@@ -533,7 +533,7 @@ def test_filter_bad_input_fails_cleanly_and_leaves_no_output(small_bundle, clip,
 @pytest.mark.parametrize("mode", ["ambient", "paste", "live"])
 def test_warp_composite_kernel_matches_its_numpy_twin(frame_path, clip, mode):
     from relight.engine.warp import GRID_STEP, coarse_map, points_box
-    from relight.kernels.compositor import warp_composite_numpy
+    from relight.kernels.composite_twin import warp_composite_numpy
 
     _, frames = clip
     fp = frame_path
@@ -591,7 +591,7 @@ def test_the_live_ratio_lifts_nothing_the_target_light_darkens(frame_path):
     side light, relit toward a light from the other side: +0.006 linear in its shadows)."""
     from relight.colour import LUMINANCE, decode_srgb8, encode_srgb8
     from relight.engine.warp import GRID_STEP, coarse_map, points_box
-    from relight.kernels.compositor import build_layer_numpy
+    from relight.kernels.composite_twin import build_layer_numpy
 
     fp = frame_path
     main = np.array(fp.relighter.relight_texels(_texel_point(fp.relighter, [-0.8, 0.1, 0.6])))  # the target
@@ -720,7 +720,7 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
     rounding - on the frame (scale 1) and on a smaller copy of it (the work scale's pass); with
     no person grid, the face's composite alone, as warp_composite makes it."""
     from relight.engine.warp import GRID_STEP, coarse_map, points_box
-    from relight.kernels.compositor import composite_person_numpy
+    from relight.kernels.composite_twin import composite_person_numpy
 
     _, frames = clip
     fp = frame_path
@@ -824,7 +824,7 @@ def test_the_person_pass_reads_a_box_of_the_grid_as_the_whole_grid(frame_path, c
     its origin in the work grid): the kernel and its twin read it as the whole grid it is cut
     from - the same bytes but for rounding - on the frame and on a box of it (offset)."""
     from relight.engine.warp import GRID_STEP
-    from relight.kernels.compositor import composite_person_numpy
+    from relight.kernels.composite_twin import composite_person_numpy
 
     _, frames = clip
     rgb = frames[5]
@@ -1006,7 +1006,7 @@ def _live_slot(fp, direction):
 
 def _layer_numpy(fp, rotation, **settings):
     """build_layer_numpy over the frame path's rig and relit frame (settings: its keywords)."""
-    from relight.kernels.compositor import build_layer_numpy
+    from relight.kernels.composite_twin import build_layer_numpy
 
     return build_layer_numpy(fp.relighter.frame, fp.rig.fill_flat.reshape(fp.rig.alpha_crop.shape),
                              fp.rig.inv_ambient, fp.rig.alpha_crop, fp.compositor.normal, rotation, **settings)
