@@ -33,13 +33,10 @@ from . import composite, head_light
 from .live_light import SAMPLES, LightEstimator, LiveLight
 from .pose import OneEuroFilter, PoseEstimator, camera_matrix, lift_landmarks
 from .tracking import MAX_TRACKED, FaceTracker, thin_points
+from .tracking_image import TRACK_ROWS, aligned_box, lit_reference, tracking_image
 from .warp import GRID_STEP, coarse_map, face_ring, mesh_coarse_map, points_box, reference_triangles
 
 _LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
-#: Rows of the frames the tracker sees (larger frames are scaled down for tracking only), and the
-#: level (8-bit codes) a dark frame's brightest face tones are brought to for tracking.
-TRACK_ROWS = 270
-TRACK_BRIGHT = 200
 #: The composited region reaches this share of the landmarks' extent beyond their hull.
 HULL_MARGIN = 0.2
 #: Feather of the face mask: erosion and Gaussian sigma, as shares of the face's size.
@@ -195,33 +192,6 @@ def normalised_correlation(windows: np.ndarray, templates: np.ndarray) -> tuple[
     return np.clip(r, -1.0, 1.0), np.sqrt(t_norm2 / area)
 
 
-def _percentile_u8(codes: np.ndarray, q: float) -> float:
-    """``np.percentile(codes, q)`` (linear interpolation) of uint8 codes from their histogram
-    (no sort: ~5x faster on a tracking frame)."""
-    hist = cv2.calcHist([np.ascontiguousarray(codes)], [0], None, [256], [0, 256]).ravel()
-    n = int(hist.sum())
-    if n == 0:
-        return 0.0
-    pos = (n - 1) * q / 100.0
-    lo = int(pos)
-    cum = np.cumsum(hist)
-    v0 = int(np.searchsorted(cum, lo + 1))  # the code of the lo-th smallest value (0-based)
-    v1 = int(np.searchsorted(cum, min(lo + 2, n)))
-    return v0 + (pos - lo) * (v1 - v0)
-
-
-def _track_exposure(grey: np.ndarray) -> tuple[np.ndarray, float]:
-    """(the tracking image, the gain on its codes): a dark frame brightened (a gain in quarter stops, so it holds still
-    while the exposure does): its 99th percentile brought to ``TRACK_BRIGHT`` codes. Tracking
-    compares brightness gradients against fixed thresholds; a frame a twentieth as bright as the
-    capture would otherwise lose the face."""
-    top = _percentile_u8(grey[::4, ::4], 99.0)
-    if top >= TRACK_BRIGHT / 2 or top <= 0:
-        return grey, 1.0
-    gain = float(2.0 ** (np.floor(4.0 * np.log2(TRACK_BRIGHT / top)) / 4.0))
-    return cv2.convertScaleAbs(grey, alpha=gain), gain
-
-
 def limit_threads() -> None:
     """One thread for NumPy's BLAS and for OpenCV in this process: the per-frame path's matrix
     products and image operations are small, and the pools' idle threads spin after each call,
@@ -240,35 +210,6 @@ def limit_threads() -> None:
     except ImportError:  # pragma: no cover - a dependency; without it the path is only slower
         return
     threadpool_limits(limits=max(blas, 1), user_api="blas")
-
-
-def _aligned_box(small_mask: np.ndarray, full_shape: tuple[int, int]):
-    """The box of ``small_mask`` (a mask on a downscaled copy of a ``full_shape`` frame) and the
-    full frame's box that INTER_AREA downscales to exactly those pixels: ((y0, y1, x0, x1) small,
-    (y0, y1, x0, x1) full). The boxes start and end on the scales' periods (a scale p/q in lowest
-    terms repeats every q full pixels), so resizing the full box gives the same pixels as resizing
-    the whole frame; when a scale's period is long (> 64 px) or the mask is empty, the whole frames."""
-    from fractions import Fraction
-
-    sh, sw = small_mask.shape
-    fh, fw = full_shape
-    whole = ((0, sh, 0, sw), (0, fh, 0, fw))
-    ys, xs = np.nonzero(small_mask)
-    if ys.size == 0:
-        return whole
-    out_s, out_f = [], []
-    for lo, hi, n_small, n_full in ((ys.min(), ys.max() + 1, sh, fh), (xs.min(), xs.max() + 1, sw, fw)):
-        r = Fraction(n_small, n_full)
-        if r.denominator > 64 or r > 1:
-            return whole
-        p = r.numerator  # small pixels per period
-        s0 = (int(lo) - 1) // p * p if lo > 0 else 0
-        s1 = min(-(-(int(hi) + 1) // p) * p, n_small)
-        f0 = s0 * r.denominator // p
-        f1 = n_full if s1 == n_small else s1 * r.denominator // p
-        out_s += [max(s0, 0), s1]
-        out_f += [max(f0, 0), f1]
-    return (out_s[0], out_s[1], out_s[2], out_s[3]), (out_f[0], out_f[1], out_f[2], out_f[3])
 
 
 def _union_box(a, b) -> tuple[int, int, int, int]:
@@ -336,7 +277,7 @@ class FaceRig:
     track_landmarks: np.ndarray  # (L, 2) the landmarks at the tracking scale
     track_mask: np.ndarray  # the face mask at the tracking scale
     track_face: np.ndarray  # the composited face at the tracking scale (the live-lit reference's pixels)
-    lit_box: tuple  # the boxes the live-lit reference is remade in (_aligned_box)
+    lit_box: tuple  # the boxes the live-lit reference is remade in (.tracking_image.aligned_box)
     solid_full: np.ndarray  # (H, W) bool: the composited face in the reference frame
     alpha_crop: np.ndarray  # (ch, cw) float32: the feathered face mask
     grid_ref: np.ndarray  # (G, 2) the warp's rigid grid in the reference
@@ -428,7 +369,7 @@ class FaceRig:
         solid_full[y0:y0 + h, x0:x0 + w] = solid
         r.track_face = cv2.resize(solid_full.astype(np.uint8), small_ref.shape[::-1],
                                      interpolation=cv2.INTER_NEAREST) > 0
-        r.lit_box = _aligned_box(r.track_face, (ref_h, ref_w))
+        r.lit_box = aligned_box(r.track_face, (ref_h, ref_w))
         # Feathered face mask (reference crop).
         size = max(h, w)
         er = max(int(round(FEATHER_ERODE * size)), 1)
@@ -668,7 +609,7 @@ class FramePath:
         self.relighter.lights(env)  # a bad environment refused before the rig's seconds of work
         self.env = None
         self._relit_key = None  # (env, exposure, rotation) of the relight in relit_frame
-        self._track_gain = 1.0  # the last tracking copy's brightening (_track_exposure)
+        self._track_gain = 1.0  # the last tracking copy's brightening (.tracking_image.track_exposure)
         self.rig = rig = FaceRig.build(bundle, self.relighter, focal)
         self.focal = rig.focal
         room = bundle.room_light
@@ -796,14 +737,7 @@ class FramePath:
         h, w = rgb.shape[:2]
         size = (w, h)
         est = self._estimator(size)
-        ts = min(1.0, TRACK_ROWS / h)
-        if yuv:
-            grey = rgb.tracking_grey((round(w * ts), round(h * ts)) if ts < 1 else (w, h))
-        else:
-            grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-            if ts < 1:
-                grey = downscale_area(grey, (round(w * ts), round(h * ts)))
-        grey, track_gain = _track_exposure(grey)
+        grey, ts, track_gain = tracking_image(rgb)
         if track_gain != self._track_gain and self.tracker.prev is not None:
             # The tracking copy's brightening changed (a bright hand or a lamp entered the frame,
             # the camera's exposure stepped): the last frame brought to this one's codes, or LK's
@@ -1279,20 +1213,9 @@ class FramePath:
     def _set_lit_reference(self, lit: np.ndarray, gain: float, defer: bool) -> None:
         """The tracker's reference with the face as the live light shows it (``lit``: the reference
         frame relit by the estimate, linear; ``gain``: the tracking gain of the frame the light was
-        fitted to): re-anchoring then matches like with like. ``defer``: kept for
-        :meth:`commit_reference` instead of handed to the tracker now."""
-        from relight.colour import encode_srgb8
-
-        (sy0, sy1, sx0, sx1), (ry0, ry1, rx0, rx1) = self.rig.lit_box
-        crop = np.ascontiguousarray(lit[ry0:ry1, rx0:rx1], dtype=np.float32) @ _LUM
-        if crop.shape != (sy1 - sy0, sx1 - sx0):
-            crop = downscale_area(crop, (sx1 - sx0, sy1 - sy0))
-        ref = self.tracker.reference.copy()
-        face = encode_srgb8(np.clip(crop[self.rig.track_face[sy0:sy1, sx0:sx1]], 0.0, 1.0))
-        # in the codes the tracker sees (a dark frame's are brightened by the same gain)
-        region = ref[sy0:sy1, sx0:sx1]
-        region[self.rig.track_face[sy0:sy1, sx0:sx1]] = face if gain == 1.0 else \
-            cv2.convertScaleAbs(face, alpha=gain).ravel()
+        fitted to): re-anchoring then matches like with like (:func:`.tracking_image.lit_reference`).
+        ``defer``: kept for :meth:`commit_reference` instead of handed to the tracker now."""
+        ref = lit_reference(self.tracker.reference, lit, self.rig.lit_box, self.rig.track_face, gain)
         if defer:
             self._next_reference = ref
         else:

@@ -141,7 +141,7 @@ def test_pose_is_not_held_back_by_a_lagging_warm_start():
 def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, small_bundle):
     """The reference moved by a known similarity; the pose given to the search is 2 px off: the
     landmarks are found where they are, not where the pose puts them."""
-    from relight.engine.frame_path import TRACK_ROWS, _track_exposure
+    from relight.engine.tracking_image import TRACK_ROWS, track_exposure
 
     fp = frame_path
     fp.reset()
@@ -161,7 +161,7 @@ def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, s
     grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
     if ts < 1:
         grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
-    grey, _ = _track_exposure(grey)
+    grey, _ = track_exposure(grey)
     found = fp._refind(est, pose, ts, grey, idx)
     assert found is not None and len(found) >= REFIND_FOUND_SHARE * len(idx)
     err = np.linalg.norm(found.xy / ts - truth[found.ref_index], axis=1)
@@ -196,14 +196,14 @@ def test_the_lit_reference_box_downscales_to_the_same_pixels(full):
     """The face box the live-lit tracking reference is remade in: the tracker's downscale of the
     full box equals the same pixels of the whole frame downscaled (the template matching must not
     shift)."""
-    from relight.engine.frame_path import _aligned_box
+    from relight.engine.tracking_image import aligned_box
     from relight.video_yuv import downscale_area
 
     img = np.random.default_rng(0).random(full).astype(np.float32)
     small = downscale_area(img, (480, 270))
     mask = np.zeros((270, 480), bool)
     mask[90:181, 170:311] = True
-    (a, b, c, d), (e, f, g, h) = _aligned_box(mask, full)
+    (a, b, c, d), (e, f, g, h) = aligned_box(mask, full)
     assert mask[a:b, c:d].sum() == mask.sum()
     crop = downscale_area(img[e:f, g:h], (d - c, b - a))
     assert np.abs(crop - small[a:b, c:d]).max() < 1e-6
