@@ -1,0 +1,403 @@
+"""The reflectance bundle's file format - the one module that knows its fields: writing
+(:func:`write_bundle`), reading and validating (:func:`read_bundle_file`; :func:`relight.kernels.bundle.load_bundle`
+wraps it into a :class:`relight.kernels.bundle.Bundle`).
+
+Format (version 4), little-endian::
+
+    offset 0   8 bytes   magic b"RLBUNDLE"
+    offset 8   u32       format version (4; 3 loads too - its basis all 8-bit - and 1 and 2, which hold the maps)
+    offset 12  u32       CRC-32 of the header bytes
+    offset 16  u64       header length H
+    offset 24  H bytes   header: UTF-8 JSON {"format", "version", "meta", "arrays"}
+    then       arrays, each starting on a 64-byte boundary
+
+``arrays`` maps a field name to ``{"dtype", "shape", "offset", "nbytes", "crc32"}`` (dtype in
+NumPy's string form, offset absolute). Arrays are raw C-order data, so loading memory-maps
+them (read-only); every array's CRC-32 is checked on load (about 3 GB/s). No pickle anywhere.
+Writes go to a temporary file in the same folder that is renamed over the target, so a killed
+writer leaves any previous bundle intact.
+
+Fields (P = head pixels, K = light samples, T = active map texels; crop = the stored region
+of the reference frame, ``crop_origin`` its top-left pixel in the frame):
+
+======================  ===========================  ========================================
+field                   shape, dtype                 meaning
+======================  ===========================  ========================================
+pixels                  (P,) int32                   flat row-major indices of the head pixels in the crop
+mask_crop               (h, w) bool                  head pixels in the crop
+ambient                 (h, w, 3) float16            registered no-flash average (image sets: their
+                                                     ambient frame, or 0), linear (float32 before version 3)
+background              (H, W, 3) uint8              a full no-flash frame, sRGB
+normal                  (P, 3) float32               camera-space unit normals
+albedo                  (P, 3) float16               Lambertian albedo, linear, flash units (float32 before 3)
+depth                   (h, w) float32               height toward the camera, pixels
+landmarks               (N, 2) float32               trackable points of the reference (frame px)
+light_dirs              (K, 3) float32               sample light directions (camera space)
+samples_code (r)        (K, P, 3) uint8              the light samples, 8-bit codes (:mod:`relight.kernels.recipe`)
+samples_scale (r)       (P, 3) float16               their per-pixel, per-channel scale (linear, flash units)
+horizon_code (r)        (R, n_az) uint8              horizon elevations (visibility; absent without it)
+horizon_index (r)       (P,) int32                   each pixel's row of horizon_code (large heads share a row
+                                                     per 2x2 pixels; absent: a row per pixel)
+model_albedo (r)        (P, 3) float16               the shading model's albedo, linear, flash units
+model_spec (r)          (P, 3) float16               its specular lobe's weight
+model_trust (r)         (P,) float16                 its trust, 0-1
+spline_blend (r)        (P,) float16                 the model path's weight against the spline, 0-1
+tri_texel_vertices      (h_map * w_map, 3) int32     each map texel's triangle (vertex ids)
+tri_texel_weights       (h_map * w_map, 3) float32   its spherical barycentric weights
+samples (*)             (K, P, 3) float16            flash-only colour of each pixel per sample
+maps (*)                (P, 3, Tp) float16           reflectance maps, pixel-major: per pixel and channel
+                                                     the T active texels, zero padded to Tp (multiple of 16)
+maps_rows (*)           (T, 3, P) float16            the maps texel-major
+map_texels              (T,) int32                   map texel (row-major in the lat-long map) of each column
+transport_u             (T, K) float32               compact transport: orthogonal texel basis (orthonormal
+                                                     times a power of two that keeps transport_v's peaks
+                                                     in float16's range, transport.V_HALF_PEAK)
+transport_v             (P / 16, 3, K8, 16) int8     maps projected on it: the first K8 (<= 16) ranks in
+                                                     8 bits, blocks of 16 pixels (every rank before
+                                                     version 4; float16 before version 3)
+transport_v_scale       (P, 3) float16               per pixel and channel: transport_v's peak (step x 127)
+transport_v4 (4)        (P / 16, 3, K - K8, 8) uint8 the other ranks in 4 bits (two's complement, -7..7):
+                                                     byte s of a block holds pixel s (low bits), s + 8 (high)
+transport_v4_scale (4)  (P, 3) float16               per pixel and channel: transport_v4's peak (step x 7)
+transport_errors        (K,) float32                 largest validation error (relative L2) at each rank
+transport_sigma         (K,) float32                 singular values
+tri_vertices            (V, 3) float64               triangulation vertices (samples, then black lights)
+tri_faces               (F, 3) int32                 triangulation faces
+======================  ===========================  ========================================
+
+(r) the maps' recipe: a bundle stores what its maps are made of, not the maps (12 KB per face
+pixel); any texel of any map is made again from it exactly as the capture made it
+(:meth:`Bundle.texel_rows`, :meth:`Bundle.pixel_maps`). (*) only in bundles captured with
+``--keep-maps`` (the maps themselves) or by a method without a recipe (the classical fits,
+``--paper-adaptation``): those hold ``maps_rows`` instead of the recipe. (4) only when the
+bundle stores more than 16 ranks (format 4).
+``meta["stored"]`` lists the fields a bundle holds.
+
+Units: linear Rec.709; "flash units" means a pixel's value under a light as strong as the
+capture flash (a white Lambertian surface facing it reads 1). Relighting under an environment
+of radiance L is ``sum_t maps[p, :, t] * L(t) * solid_angle(t) / pi`` (the solid angle is the
+exact form of the paper's sin-latitude normalisation); see :mod:`relight.kernels.transport`.
+"""
+
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from relight.errors import InputError, NumericalError
+from relight.imageio import atomic_path, image_size
+
+from .layout import padded_texels
+
+MAGIC = b"RLBUNDLE"
+VERSION = 4
+#: Format versions this relight reads (versions 1 and 2 store the maps, not their recipe).
+READABLE_VERSIONS = (1, 2, 3, 4)
+ALIGN = 64
+_PREFIX = struct.Struct("<8sIIQ")
+#: Largest header accepted (a corrupt length must not make us allocate gigabytes).
+MAX_HEADER = 64 << 20
+REQUIRED = ("pixels", "mask_crop", "ambient", "normal", "albedo", "depth", "light_dirs", "map_texels")
+#: The reference frame: a JPEG (format 3 and later) or raw pixels (before).
+BACKGROUND = ("background_jpeg", "background")
+#: JPEG quality of the stored reference frame (sRGB, display and tracking only: never relit).
+BACKGROUND_QUALITY = 95
+#: A bundle holds its maps (``maps_rows``) or all of these (their recipe).
+RECIPE = ("samples_code", "samples_scale", "model_albedo", "model_spec", "model_trust", "spline_blend",
+          "tri_vertices", "tri_faces", "tri_texel_vertices", "tri_texel_weights")
+#: Fields only ``--keep-maps`` bundles hold (the maps themselves, the float16 samples).
+MAPS_ONLY = ("maps", "maps_rows", "samples")
+_ALLOWED_DTYPES = {"|b1", "|u1", "|i1", "<i4", "<i8", "<f2", "<f4", "<f8"}
+#: The meta keys every bundle must hold, each a pair of whole numbers within the bound: the
+#: reference frame's (W, H), the stored crop's top-left pixel in it, the lat-long map's (W, H).
+META_PAIRS = {"frame_size": (1, 1 << 16), "crop_origin": (0, 1 << 16), "map_size": (2, 4096)}
+
+
+def check_meta(meta, where: str = "bundle") -> dict:
+    """``meta`` checked against the schema the readers rely on (:data:`META_PAIRS`; a
+    ``sample_scale``, when present, a positive finite number): InputError naming the key."""
+    if not isinstance(meta, dict):
+        raise InputError(f"{where}: its meta is not a JSON object; the file is corrupt")
+    for key, (lo, hi) in META_PAIRS.items():
+        v = meta.get(key)
+        if not (isinstance(v, list | tuple) and len(v) == 2
+                and all(isinstance(x, int) and not isinstance(x, bool) and lo <= x < hi for x in v)):
+            raise InputError(f"{where}: meta {key!r} is {v!r}, not two whole numbers in [{lo}, {hi}); "
+                             "the bundle is incomplete or corrupt: capture it again")
+    scale = meta.get("sample_scale", 1.0)
+    if not (isinstance(scale, int | float) and not isinstance(scale, bool) and np.isfinite(scale) and scale > 0):
+        raise InputError(f"{where}: meta 'sample_scale' is {scale!r}, not a positive number; capture it again")
+    direct = meta.get("transport_direct", 0)
+    if not (isinstance(direct, int) and not isinstance(direct, bool) and 0 <= direct <= MAX_DIRECT_TEXELS):
+        raise InputError(f"{where}: meta 'transport_direct' is {direct!r}, not a whole number in [0, "
+                         f"{MAX_DIRECT_TEXELS}]; the bundle is corrupt: capture it again")
+    return meta
+
+
+#: Most exact texels a bundle may ask the compact path for (its kernel's direct rows; captures use 8).
+MAX_DIRECT_TEXELS = 64
+
+
+#: Bundles store samples and maps as float16 (largest 65504, smallest normal 6.1e-5): samples
+#: are scaled by a power of two so their peak lies at most at ``STORE_PEAK`` (light adaptation
+#: may multiply a value by up to 1 / MIN_COS = 10) and at least at ``STORE_FLOOR``.
+STORE_PEAK = 2.0 ** 12
+STORE_FLOOR = 2.0 ** -4
+
+
+def storage_scale(samples: np.ndarray) -> float:
+    """Power of two to divide samples by before float16 storage: 1.0 when their peak is within
+    [STORE_FLOOR, STORE_PEAK] (every ordinary capture), else the one that brings the peak to
+    about 1. All-zero samples: 1.0."""
+    peak = float(np.max(samples)) if samples.size else 0.0
+    if not np.isfinite(peak):
+        raise InputError("light samples hold NaN or infinite values; check the input images")
+    if peak <= 0.0 or STORE_FLOOR <= peak <= STORE_PEAK:
+        return 1.0
+    return float(2.0 ** np.round(np.log2(peak)))
+
+
+def encode_background(rgb: np.ndarray) -> np.ndarray:
+    """(N,) uint8 JPEG of an (H, W, 3) uint8 sRGB frame (quality BACKGROUND_QUALITY, 4:4:4)."""
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]),
+                           [cv2.IMWRITE_JPEG_QUALITY, BACKGROUND_QUALITY,
+                            cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444])
+    if not ok:
+        raise RuntimeError("could not encode the reference frame as JPEG; this is a bug, please report it")
+    return buf.reshape(-1)
+
+
+def decode_background(data: np.ndarray, frame_size: tuple[int, int]) -> np.ndarray:
+    """The (H, W, 3) uint8 sRGB frame of :func:`encode_background` data; its header must say
+    ``frame_size`` (width, height) before anything is decoded (a hostile file cannot make us
+    allocate more)."""
+    import cv2
+
+    from relight.imageio import image_size
+
+    size = image_size(memoryview(np.ascontiguousarray(data, dtype=np.uint8)).tobytes())
+    if size is None or tuple(size) != tuple(frame_size):
+        raise InputError(f"the bundle's reference frame is not a {frame_size[0]}x{frame_size[1]} JPEG "
+                         f"(header: {size}); the bundle is damaged - capture it again")
+    img = cv2.imdecode(np.ascontiguousarray(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    if img is None or img.shape[:2] != (frame_size[1], frame_size[0]):
+        raise InputError("the bundle's reference frame does not decode; the bundle is damaged - capture it again")
+    return np.ascontiguousarray(img[..., ::-1])
+
+
+def _dtype_str(a: np.ndarray) -> str:
+    return np.dtype(a.dtype).newbyteorder("<").str if a.dtype.byteorder not in ("|",) else a.dtype.str
+
+
+#: Permission bits of a bundle: owner only. A bundle is a person's face - biometric data; widen
+#: it deliberately (``relight capture --file-mode 0640``).
+BUNDLE_MODE = 0o600
+
+
+def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray], *,
+                 mode: int = BUNDLE_MODE) -> Path:
+    """Write a bundle atomically, with permission bits ``mode`` (default owner-only). ``arrays``
+    values are converted to little-endian C order."""
+    if not (isinstance(mode, int) and 0 <= mode <= 0o777 and mode & 0o600 == 0o600):
+        raise InputError(f"file mode {mode!r}: an octal mode from 600 to 777 that lets the owner read and write")
+    missing = [k for k in REQUIRED if k not in arrays]
+    if not any(k in arrays for k in BACKGROUND):
+        missing.append("background_jpeg")
+    if "maps_rows" not in arrays:
+        missing += [k for k in RECIPE if k not in arrays]
+    if missing:
+        raise InputError(f"bundle is missing required field(s): {', '.join(missing)}")
+    check_meta(meta, str(path))
+    prepared = {}
+    for name, a in arrays.items():
+        a = np.asarray(a)
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
+            raise NumericalError(f"bundle field {name!r} holds non-finite values")
+        a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<") if a.dtype.byteorder == ">" else a.dtype)
+        prepared[name] = a
+    directory = {}
+    # Offsets depend on the header length, which depends on the offsets' digits: iterate.
+    header_len = 4096
+    for _ in range(8):
+        offset = _align(_PREFIX.size + header_len)
+        directory = {}
+        for name, a in prepared.items():
+            directory[name] = {"dtype": _dtype_str(a), "shape": list(a.shape), "offset": offset,
+                               "nbytes": int(a.nbytes), "crc32": zlib.crc32(_raw(a))}
+            offset = _align(offset + a.nbytes)
+        header = json.dumps({"format": "relight-bundle", "version": VERSION, "meta": meta, "arrays": directory},
+                            sort_keys=True, allow_nan=False).encode("utf-8")
+        if len(header) <= header_len:
+            header = header + b" " * (header_len - len(header))
+            break
+        header_len = _align(len(header) + 1024)
+    path = Path(path)
+    with atomic_path(path, mode=mode) as tmp, open(tmp, "wb") as f:
+        f.write(_PREFIX.pack(MAGIC, VERSION, zlib.crc32(header), len(header)))
+        f.write(header)
+        for name, a in prepared.items():
+            pos = directory[name]["offset"]
+            f.write(b"\0" * (pos - f.tell()))
+            f.write(_raw(a))
+        f.flush()
+        os.fsync(f.fileno())
+    return path
+
+
+def _raw(a: np.ndarray) -> np.ndarray:
+    """The bytes of a C-contiguous array as a flat uint8 view (zero-size arrays included)."""
+    return a.reshape(-1).view(np.uint8)
+
+
+def _align(n: int) -> int:
+    return (n + ALIGN - 1) // ALIGN * ALIGN
+
+
+def read_bundle_file(path: str | os.PathLike, *, verify: bool = True) -> tuple[dict, dict]:
+    """A bundle file's (meta, arrays): header validated, every array checked (CRC-32) and
+    memory-mapped read-only.
+
+    Raises :class:`InputError` naming the problem and the field for a missing, truncated,
+    corrupted, foreign or wrong-version file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such bundle file; check the path")
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        prefix = f.read(_PREFIX.size)
+        if len(prefix) < _PREFIX.size:
+            raise InputError(f"{path}: too short to be a bundle ({size} bytes); it is truncated")
+        magic, version, crc, hlen = _PREFIX.unpack(prefix)
+        if magic != MAGIC:
+            raise InputError(f"{path}: not a relight bundle (bad magic); make one with `relight capture`")
+        if version not in READABLE_VERSIONS:
+            raise InputError(f"{path}: bundle format version {version}, this relight reads versions "
+                             f"{', '.join(map(str, READABLE_VERSIONS))}; re-run `relight capture` with this version "
+                             "(or use the relight that wrote it)")
+        if hlen > MAX_HEADER or _PREFIX.size + hlen > size:
+            raise InputError(f"{path}: header length {hlen} does not fit the {size}-byte file; it is truncated "
+                             "or corrupt")
+        header = f.read(hlen)
+    if zlib.crc32(header) != crc:
+        raise InputError(f"{path}: header checksum mismatch; the file is corrupt")
+    try:
+        doc = json.loads(header.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: header is not valid JSON ({exc}); the file is corrupt") from None
+    if not isinstance(doc, dict) or doc.get("format") != "relight-bundle" or not isinstance(doc.get("arrays"), dict):
+        raise InputError(f"{path}: header does not describe a relight bundle")
+    check_meta(doc.get("meta"), str(path))
+    arrays = {}
+    need = REQUIRED + (() if "maps_rows" in doc["arrays"] else RECIPE)
+    if not any(k in doc["arrays"] for k in BACKGROUND):
+        need = need + ("background_jpeg",)
+    for name in need:
+        if name not in doc["arrays"]:
+            raise InputError(f"{path}: field {name!r} is missing; the bundle is incomplete")
+    for name, spec in doc["arrays"].items():
+        if not isinstance(spec, dict) or not isinstance(spec.get("dtype"), str) or spec["dtype"] not in _ALLOWED_DTYPES:
+            raise InputError(f"{path}: field {name!r} has a malformed description or an unsupported type")
+        try:
+            dtype = np.dtype(spec["dtype"])
+            shape = tuple(int(s) for s in spec["shape"])
+            offset, nbytes = int(spec["offset"]), int(spec["nbytes"])
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"{path}: field {name!r} has a malformed description") from None
+        if any(s < 0 for s in shape):
+            raise InputError(f"{path}: field {name!r} has a negative size in its shape {shape}")
+        if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize != nbytes:
+            raise InputError(f"{path}: field {name!r}: shape {shape} does not match its {nbytes} bytes")
+        if offset < _PREFIX.size + hlen or offset + nbytes > size:
+            raise InputError(f"{path}: field {name!r} runs past the end of the file; the bundle is truncated")
+        if nbytes == 0:
+            arrays[name] = np.zeros(shape, dtype=dtype)
+            continue
+        mm = np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape)
+        if verify and zlib.crc32(memoryview(mm.reshape(-1).view(np.uint8))) != int(spec.get("crc32", -1)):
+            raise InputError(f"{path}: field {name!r} fails its checksum; the bundle is corrupt, re-run capture")
+        arrays[name] = mm
+    meta = doc.get("meta") if isinstance(doc.get("meta"), dict) else {}
+    check_fields(meta, arrays, str(path))
+    return meta, arrays
+
+
+#: Fields whose values are checked finite on load (the small ones; the maps, samples and
+#: transport bases are checked by the products made from them).
+FINITE_CHECKED_BYTES = 16 << 20
+
+
+def check_fields(meta: dict, arrays: dict, where: str = "bundle") -> None:
+    """The fields' shapes checked against each other and the meta (a crafted header with right
+    checksums must not reach the relighter: its kernels index frames, crops and maps with these
+    numbers), the head pixels inside the crop and the crop inside the frame; InputError naming
+    the field otherwise."""
+    def bad(name: str, why: str):
+        raise InputError(f"{where}: field {name!r} {why}; the bundle is damaged or not made by relight - "
+                         "capture it again")
+
+    def need(name: str, shape: tuple, kinds: str = "fiub"):
+        a = arrays.get(name)
+        if a is None:
+            return None
+        if a.ndim != len(shape) or any(w is not None and g != w for g, w in zip(a.shape, shape, strict=True)):
+            bad(name, f"has shape {a.shape}, expected {tuple('*' if d is None else d for d in shape)}")
+        if a.dtype.kind not in kinds:
+            bad(name, f"has type {a.dtype}, expected {'an integer' if kinds == 'iu' else 'a number'} type")
+        return a
+
+    fw, fh = meta["frame_size"]
+    x0, y0 = meta["crop_origin"]
+    mw, mh = meta["map_size"]
+    crop = need("mask_crop", (None, None), "b")
+    ch, cw = crop.shape
+    if x0 + cw > fw or y0 + ch > fh:
+        bad("mask_crop", f"of {cw}x{ch} at ({x0}, {y0}) does not fit the {fw}x{fh} frame")
+    pixels = need("pixels", (None,), "iu")
+    p = pixels.shape[0]
+    if p and (int(pixels.min()) < 0 or int(pixels.max()) >= ch * cw or np.any(np.diff(pixels) <= 0)):
+        bad("pixels", f"holds indices outside the {cw}x{ch} crop or out of order")
+    if p != int(np.count_nonzero(crop)):
+        bad("pixels", f"lists {p} head pixels but mask_crop marks {int(np.count_nonzero(crop))}")
+    need("ambient", (ch, cw, 3)), need("depth", (ch, cw)), need("normal", (p, 3)), need("albedo", (p, 3))
+    need("background", (fh, fw, 3), "u"), need("landmarks", (None, 2))
+    jpeg = need("background_jpeg", (None,), "u")
+    if jpeg is not None and image_size(bytes(jpeg[:1 << 16])) != (fw, fh):
+        bad("background_jpeg", f"is not a {fw}x{fh} JPEG (the frame size the meta gives)")
+    need("light_dirs", (None, 3))
+    tex = need("map_texels", (None,), "iu")
+    t = tex.shape[0]
+    if t and (int(tex.min()) < 0 or int(tex.max()) >= mw * mh):
+        bad("map_texels", f"holds texels outside the {mw}x{mh} map")
+    need("maps_rows", (t, 3, p)), need("maps", (p, 3, padded_texels(t))), need("samples", (None, p, 3))
+    need("samples_code", (None, p, 3), "u"), need("samples_scale", (p, 3)), need("horizon_index", (p,), "iu")
+    need("horizon_code", (None, None), "u")
+    for name in ("model_albedo", "model_spec"):
+        need(name, (p, 3))
+    for name in ("model_trust", "spline_blend"):
+        need(name, (p,))
+    need("tri_texel_vertices", (mw * mh, 3), "iu"), need("tri_texel_weights", (mw * mh, 3))
+    need("tri_vertices", (None, 3)), need("tri_faces", (None, 3), "iu")
+    u = need("transport_u", (t, None))
+    if u is not None:
+        r = u.shape[1]
+        need("transport_errors", (r,)), need("transport_sigma", (r,))
+        nb = -(-p // 16)
+        v = need("transport_v", (nb, 3, None, 16))
+        need("transport_v_scale", (nb * 16, 3)), need("transport_v4", (nb, 3, None, 8), "u")
+        need("transport_v4_scale", (nb * 16, 3))
+        if v is not None and v.dtype == np.int8:
+            k8 = v.shape[2] + (arrays["transport_v4"].shape[2] if "transport_v4" in arrays else 0)
+            if k8 != r:
+                bad("transport_v", f"holds {k8} ranks, transport_u {r}")
+    for name, a in arrays.items():
+        if a.dtype.kind == "f" and a.nbytes <= FINITE_CHECKED_BYTES and not np.isfinite(a).all():
+            bad(name, "holds NaN or infinite values")
