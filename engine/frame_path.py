@@ -32,6 +32,7 @@ from relight.video_yuv import downscale_area
 from . import composite, head_light
 from .live_light import SAMPLES, LightEstimator, LiveLight
 from .pose import OneEuroFilter, PoseEstimator, camera_matrix, lift_landmarks
+from .refind import REFIND_STEP, refind_landmarks
 from .tracking import MAX_TRACKED, FaceTracker, thin_points
 from .tracking_image import TRACK_ROWS, aligned_box, lit_reference, tracking_image
 from .warp import GRID_STEP, coarse_map, face_ring, mesh_coarse_map, points_box, reference_triangles
@@ -49,21 +50,6 @@ POINT_NOISE_AT_540 = 2.0
 #: second anyway; the frames between reuse it). Measured against 2: the same figures on the truth
 #: clips (+-0.02 dB) and the real faces (+-0.03 dB) at two thirds of the fits; 4 cost 0.1-0.16 dB.
 LIGHT_EVERY = 3
-#: Re-anchoring (:meth:`FramePath._refind`): template side and search radius (px at the tracking
-#: scale), the least contrast a template needs (std of its 8-bit codes) and the least normalised
-#: cross-correlation a match needs. Measured on three synthetic heads at 640x360 (each its own
-#: 24 s 4 Hz capture; `relight bench video`): head rotation error median 2.02 / 2.48 / 2.07 ->
-#: 1.15 / 1.23 / 1.29 deg, p95 3.95 / 5.97 / 5.49 -> 2.83 / 1.99 / 2.36, with the pose's RANSAC
-#: check (:meth:`relight.engine.pose.PoseEstimator.solve`); that check alone: 1.68 / 2.67 / 1.38.
-REFIND_TEMPLATE = 13
-REFIND_RADIUS = 4
-REFIND_MIN_STD = 4.0
-REFIND_MIN_NCC = 0.6
-#: Finite-difference step (reference px) of the pose's local affine at a landmark, and the least
-#: area that affine may keep (a landmark the turned head shows at a fifth of its area is grazing:
-#: its template would be a smear).
-REFIND_STEP = 2.0
-REFIND_MIN_AREA = 0.2
 #: Head turns (degrees) below which a frame reuses the last relight instead of relighting (the
 #: environment and exposure unchanged): measured on a 960x540 capture, a turn of 0.1 deg changes
 #: the relit face by at most 0.17 % (relative L2; a point light beside the face, the sharpest
@@ -140,56 +126,6 @@ def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
     m = cv2.remap(img.astype(np.float32), xy[:, 0:1].astype(np.float32), xy[:, 1:2].astype(np.float32),
                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return m.reshape(-1)
-
-
-def parabola_peaks(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray) -> np.ndarray:
-    """Sub-sample offsets (-0.5..0.5) of the peaks of the parabolas through three samples around
-    maxima ``a1`` (arrays of the same shape); 0 where they do not curve down."""
-    a0, a1, a2 = (np.asarray(a, np.float64) for a in (a0, a1, a2))
-    den = a0 - 2.0 * a1 + a2
-    curved = den < 0
-    off = 0.5 * (a0 - a2) / np.where(curved, den, -1.0)
-    return np.where(curved, np.clip(off, -0.5, 0.5), 0.0)
-
-
-def normalised_correlation(windows: np.ndarray, templates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised cross-correlation (``cv2.TM_CCOEFF_NORMED``: gain and offset free) of each
-    template over its window, all at once.
-
-    windows : (n, S, S) uint8; templates : (n, T, T) uint8, T <= S. Returns ((n, S-T+1, S-T+1)
-    float64 correlations in -1..1, 0 where a window patch or the template is flat; (n,) the
-    templates' standard deviations in codes)."""
-    win = np.ascontiguousarray(windows, dtype=np.uint8)
-    tpl = np.asarray(templates, np.float32)
-    n, s = win.shape[:2]
-    t = tpl.shape[1]
-    o = s - t + 1
-    area = float(t * t)
-    tz = tpl - tpl.mean(axis=(1, 2), keepdims=True, dtype=np.float64).astype(np.float32)
-    t_norm2 = np.einsum("nij,nij->n", tz, tz, dtype=np.float64)
-    # numerator: sum of tz x window patch (tz sums to 0, so the patch's mean drops out), in two
-    # separable steps: every template row against every window row at every column offset
-    # (one batched product), then summed along the diagonals. float32 is exact to ~1e-6 here
-    # (codes <= 255, T^2 terms); the four-dimensional patch array would be 5x the bytes.
-    rows = np.lib.stride_tricks.sliding_window_view(win.astype(np.float32), t, axis=2).reshape(n, s * o, t)
-    c = (rows @ tz.transpose(0, 2, 1)).reshape(n, s, o, t)  # c[k, y, x, i] = sum_j win[k, y, x + j] tz[k, i, j]
-    num = c[:, 0:o, :, 0].astype(np.float64)
-    for i in range(1, t):
-        num += c[:, i:i + o, :, i]
-    # each patch's sum and sum of squares: one integral image of the windows stacked in a column
-    ii, ii2 = cv2.integral2(win.reshape(n * s, s), sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F)
-    top = (np.arange(n) * s)[:, None] + np.arange(o)[None, :]  # (n, o) first row of each patch
-
-    def box(a):
-        b, u = a[top + t], a[top]
-        return b[:, :, t:] - b[:, :, :o] - u[:, :, t:] + u[:, :, :o]
-
-    s1, s2 = box(ii), box(ii2)
-    var = np.maximum(s2 - s1 * s1 / area, 0.0)
-    den = np.sqrt(var * t_norm2[:, None, None])
-    tiny = EPS_VALUE * area  # a patch or template flatter than a thousandth of a code
-    r = np.where(den > tiny, num / np.maximum(den, tiny), 0.0)
-    return np.clip(r, -1.0, 1.0), np.sqrt(t_norm2 / area)
 
 
 def limit_threads() -> None:
@@ -347,7 +283,7 @@ class FaceRig:
         crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
         model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
         # Each control point and its neighbours REFIND_STEP px right and down, lifted the same way:
-        # the pose's local affine at a landmark (:meth:`_refind`) by finite differences.
+        # the pose's local affine at a landmark (:func:`.refind.refind_landmarks`) by finite differences.
         steps = np.concatenate([pts + [REFIND_STEP, 0.0], pts + [0.0, REFIND_STEP]])
         steps_xy = np.clip(steps - np.array([x0, y0], np.float32), 0, [w - 1, h - 1]).astype(np.float32)
         r.refind_model = np.concatenate([model, lift_landmarks(steps, _bilinear(depth_filled, steps_xy), k_ref)])
@@ -1149,66 +1085,10 @@ class FramePath:
         return (base + shrink * e).astype(np.float32)
 
     def _refind(self, est, pose, ts, grey, idx):
-        """A Track of the landmarks ``idx`` found again in ``grey`` (the tracking image), or None.
-
-        Each landmark's template is cut from the tracker's reference (the live-lit one when there
-        is one) through the local affine map the head ``pose`` gives there (finite differences of
-        the lifted model), so a turned head's landmark looks as the frame shows it; it is searched
-        within ``REFIND_RADIUS`` px of where the pose puts it by normalised cross-correlation
-        (gain and offset free), the peak refined to sub-pixel by a parabola per axis. Templates
-        without contrast, matches below ``REFIND_MIN_NCC`` and peaks on the search border
-        (the landmark is farther) are left out."""
-        from .tracking import MIN_POINTS, Track
-
-        rs = self.rig.ref_track_scale
+        """The landmarks ``idx`` found again in ``grey`` (:func:`.refind.refind_landmarks`, against
+        the tracker's live-lit reference when there is one): a Track, or None."""
         ref = self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
-        idx = np.asarray(idx)
-        n, m_all = len(idx), len(self.rig.control_ref)
-        d = REFIND_STEP
-        P = est.project_points(pose, self.rig.refind_model[np.concatenate([idx, idx + m_all, idx + 2 * m_all])]) * ts
-        c, jx, jy = P[:n], (P[n:2 * n] - P[:n]) / (d * rs), (P[2 * n:] - P[:n]) / (d * rs)
-        T, R = REFIND_TEMPLATE, REFIND_RADIUS
-        h = (T - 1) / 2.0
-        H, W = grey.shape
-        # All landmarks at once (NumPy and one cv2.remap): per landmark, OpenCV's warpAffine,
-        # matchTemplate and minMaxLoc cost ~50 us each with their Python overhead (6 ms a call).
-        det = jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
-        gx = np.round(c[:, 0] - h).astype(np.int64) - R
-        gy = np.round(c[:, 1] - h).astype(np.int64) - R
-        ok = np.isfinite(det) & (det > REFIND_MIN_AREA) & (gx >= 0) & (gy >= 0) & \
-            (gx + T + 2 * R <= W) & (gy + T + 2 * R <= H)
-        sel = np.flatnonzero(ok)
-        if sel.size < MIN_POINTS:
-            return None
-        dt = det[sel]
-        i00, i01 = (jy[sel, 1] / dt)[:, None, None], (-jy[sel, 0] / dt)[:, None, None]  # the inverse affine
-        i10, i11 = (-jx[sel, 1] / dt)[:, None, None], (jx[sel, 0] / dt)[:, None, None]
-        u = (np.arange(T, dtype=np.float64) - h)[None, None, :]  # template column - h
-        v = u.transpose(0, 2, 1)  # template row - h
-        # template pixel (row v, column u) of landmark k reads the reference at L_k + inv_k (u, v)
-        lx = (self.rig.control_ref[idx[sel], 0] * rs)[:, None, None]
-        ly = (self.rig.control_ref[idx[sel], 1] * rs)[:, None, None]
-        mx, my = lx + i00 * u + i01 * v, ly + i10 * u + i11 * v
-        tmpl = cv2.remap(ref, mx.reshape(-1, T).astype(np.float32), my.reshape(-1, T).astype(np.float32),
-                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, T, T)
-        side = np.arange(T + 2 * R)
-        win = grey[gy[sel, None, None] + side[None, :, None], gx[sel, None, None] + side[None, None, :]]
-        r, contrast = normalised_correlation(win, tmpl)
-        flat = r.reshape(len(sel), -1)
-        best = flat.argmax(axis=1)  # the first maximum in row order
-        py, px = np.divmod(best, r.shape[2])
-        peak = flat[np.arange(len(sel)), best]
-        good = (contrast >= REFIND_MIN_STD) & (peak >= REFIND_MIN_NCC) & \
-            (px > 0) & (px < r.shape[2] - 1) & (py > 0) & (py < r.shape[1] - 1)
-        if int(good.sum()) < MIN_POINTS:
-            return None
-        k = np.flatnonzero(good)
-        px, py, rk = px[k], py[k], r[k]
-        ar = np.arange(k.size)
-        dx = parabola_peaks(rk[ar, py, px - 1], rk[ar, py, px], rk[ar, py, px + 1])
-        dy = parabola_peaks(rk[ar, py - 1, px], rk[ar, py, px], rk[ar, py + 1, px])
-        xy = np.stack([gx[sel[k]] + px + dx + h, gy[sel[k]] + py + dy + h], axis=1).astype(np.float32)
-        return Track(ref_index=idx[sel[k]], xy=xy)
+        return refind_landmarks(self.rig, ref, est, pose, ts, grey, idx)
 
     def _set_lit_reference(self, lit: np.ndarray, gain: float, defer: bool) -> None:
         """The tracker's reference with the face as the live light shows it (``lit``: the reference

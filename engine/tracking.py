@@ -269,7 +269,7 @@ class FaceTracker:
         """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
         current pose puts landmarks (used to re-anchor); without it tracks are only followed.
         ``refind(ref_index, grey) -> Track or None``: the landmarks searched again with templates
-        warped by the current pose (:meth:`relight.engine.frame_path.FramePath._refind`); when
+        warped by the current pose (:func:`relight.engine.refind.refind_landmarks`); when
         given, re-anchoring uses it instead of LK from the reference."""
         grey = np.ascontiguousarray(grey)
         track = None

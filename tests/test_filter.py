@@ -172,7 +172,7 @@ def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, s
 def test_batched_correlation_matches_opencv_match_template():
     """Re-anchoring's all-at-once normalised cross-correlation against cv2.matchTemplate
     (TM_CCOEFF_NORMED) per window, and the parabola peak against its closed form."""
-    from relight.engine.frame_path import normalised_correlation, parabola_peaks
+    from relight.engine.refind import normalised_correlation, parabola_peaks
 
     rng = np.random.default_rng(3)
     win = rng.integers(0, 256, (40, 21, 21)).astype(np.uint8)
