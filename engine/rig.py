@@ -1,0 +1,263 @@
+"""The face rig: everything the per-frame path (:class:`relight.engine.frame_path.FramePath`)
+needs of a bundle, prepared once (:meth:`FaceRig.build`) and never changed - the reference's
+geometry (crop, masks, feathered alpha), the control points and their 3D model, the warp's grid
+and mesh, the tracking copies, the reference light and the lighting ratio's arrays, the
+compositor's fill and normals, and the live light's sample pixels.
+
+Coordinates: reference frame pixels (x right, y down) unless a name says crop.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from relight.colour import LUMINANCE
+from relight.errors import InputError
+from relight.video_yuv import downscale_area
+
+from . import composite
+from .live_light import SAMPLES
+from .pose import camera_matrix, lift_landmarks
+from .refind import REFIND_STEP
+from .tracking import MAX_TRACKED, thin_points
+from .tracking_image import TRACK_ROWS, aligned_box
+from .warp import GRID_STEP, face_ring, reference_triangles
+
+#: The composited region reaches this share of the landmarks' extent beyond their hull.
+HULL_MARGIN = 0.2
+#: Feather of the face mask: erosion and Gaussian sigma, as shares of the face's size.
+FEATHER_ERODE = 0.015
+FEATHER_SIGMA = 0.02
+#: The warp's rigid grid: one reference point every this share of the landmarks' extent.
+WARP_GRID_SHARE = 1.0 / 16.0
+
+
+def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(N,) float32: the (H, W) ``img`` read bilinearly at points ``xy`` (N, 2) (edges replicated)."""
+    m = cv2.remap(img.astype(np.float32), xy[:, 0:1].astype(np.float32), xy[:, 1:2].astype(np.float32),
+                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return m.reshape(-1)
+
+
+def largest_component(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the mask's largest 8-connected component, the same with its holes filled): specks of
+    a capture's mask on the wall would otherwise be composited as dots."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        raise InputError("the bundle's face mask is empty: capture the bundle again")
+    keep = (labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
+    contours, _ = cv2.findContours(keep, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    filled = np.zeros_like(keep)
+    cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
+    return keep.astype(bool) & mask, filled.astype(bool)
+
+
+@dataclass(frozen=True)
+class FaceRig:
+    """What the per-frame path needs of a bundle, prepared once (:meth:`build`) and never changed:
+    the reference's geometry (crop, masks, feathered alpha), the control points and their 3D
+    model, the warp's grid and mesh, the tracking copies, the reference light and the lighting
+    ratio's arrays, the compositor's fill and normals, and the live light's sample pixels.
+    Coordinates: reference frame pixels (x right, y down) unless a name says crop."""
+
+    ref_size: tuple[int, int]  # the reference frame's (w, h)
+    origin: tuple[int, int]  # the face crop's corner (x0, y0) in the reference
+    focal: object  # the focal length the frames are solved with (px; 'ortho' made a long one; None: per frame)
+    mask_crop: np.ndarray  # (ch, cw) bool: the bundle's face, its largest component
+    ref_grey: np.ndarray  # (H, W) uint8: the reference frame in grey
+    control_ref: np.ndarray  # (N, 2) float32: the control points in the reference - landmarks, then a ring
+    n_landmarks: int  # how many of control_ref are landmarks
+    ring_index: np.ndarray  # indices of the ring's points in control_ref
+    model: np.ndarray  # (N, 3) the control points lifted with the bundle's depth (the pose's model)
+    refind_model: np.ndarray  # (3N, 3) model, then each point moved REFIND_STEP px right, then down
+    ref_track_scale: float  # the tracking copy's scale of the reference
+    track_reference: np.ndarray  # the reference grey at the tracking scale
+    track_landmarks: np.ndarray  # (L, 2) the landmarks at the tracking scale
+    track_mask: np.ndarray  # the face mask at the tracking scale
+    track_face: np.ndarray  # the composited face at the tracking scale (the live-lit reference's pixels)
+    lit_box: tuple  # the boxes the live-lit reference is remade in (.tracking_image.aligned_box)
+    solid_full: np.ndarray  # (H, W) bool: the composited face in the reference frame
+    alpha_crop: np.ndarray  # (ch, cw) float32: the feathered face mask
+    grid_ref: np.ndarray  # (G, 2) the warp's rigid grid in the reference
+    grid_model: np.ndarray  # (G, 3) the grid lifted with the bundle's depth
+    grid_step: int  # the grid's spacing (reference px)
+    mesh_ref: np.ndarray  # (M, 2) float32: the warp mesh's corners in the reference (landmarks first)
+    mesh_model: np.ndarray  # (M, 3) the mesh's corners lifted
+    mesh_triangles: np.ndarray  # (T, 3) int32: the mesh, triangulated once
+    reference_light: str  # 'room' (the capture room's light) or 'uniform' (even light): the ambient ratio's
+    ambient_crop: np.ndarray  # (ch, cw, 3) float32 linear: the face under the reference light
+    ratio_eps: np.float32  # the lighting ratio's floor (linear)
+    inv_ambient: np.ndarray  # (ch, cw, 3) float32: 1 / (ambient + eps)
+    fill: np.ndarray  # (ch, cw) int32: crop pixel -> relit frame pixel (the fringe: the nearest face pixel; -1 none)
+    fill_flat: np.ndarray  # fill, flat
+    sample_crop: np.ndarray  # every 7th face pixel of the crop (flat indices)
+    sample_full: np.ndarray  # their relit frame pixels
+    normal_crop: np.ndarray  # (ch, cw, 3) float32: the crop's normals (the nearest face pixel's off the face)
+    live_pixels: np.ndarray  # the bundle pixels the live light is fitted on
+    live_ref: np.ndarray  # (S, 2) float32: their reference positions
+    live_normal: np.ndarray  # (S, 3) their normals
+    live_full: np.ndarray  # (S,) their relit frame pixels
+    live_box: tuple  # (x0, y0, x1, y1) reference box around them
+
+    @classmethod
+    def build(cls, bundle, relighter, focal=None) -> FaceRig:
+        """The rig of ``bundle`` (``relighter``: its Relighter - a bundle without a room-light
+        frame takes its reference light from a uniform relight; ``focal``: px, "ortho" or None)."""
+        from types import SimpleNamespace
+
+        r = SimpleNamespace()
+        ref_w, ref_h = bundle.frame_size
+        r.ref_size = (ref_w, ref_h)
+        r.origin = tuple(int(v) for v in bundle.crop_origin)
+        mask_crop, solid = largest_component(np.asarray(bundle.mask_crop, dtype=bool))
+        r.mask_crop = mask_crop
+        h, w = mask_crop.shape
+        x0, y0 = r.origin
+        # Reference grey (the no-flash reference frame) and the landmarks' 3D model.
+        background = np.asarray(bundle.background)
+        r.ref_grey = cv2.cvtColor(np.ascontiguousarray(background), cv2.COLOR_RGB2GRAY)
+        landmarks = thin_points(np.asarray(bundle.landmarks, dtype=np.float32).reshape(-1, 2), MAX_TRACKED)
+        # The composited region: the head's mask within a margin of the landmarks' hull. Beyond
+        # the tracked points (neck, a turned head's far side) the warp would only extrapolate.
+        hull = cv2.convexHull((landmarks - np.array([x0, y0], np.float32)).astype(np.int32))
+        region = np.zeros((h, w), np.uint8)
+        cv2.fillConvexPoly(region, hull, 1)
+        grow = max(int(round(HULL_MARGIN * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 1)
+        region = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2)) > 0
+        solid = solid & region
+        if solid.sum() < 64:
+            raise InputError("the bundle's landmarks do not cover its face: capture the bundle again")
+        ring = face_ring(solid) + np.array([x0, y0], np.float32)
+        depth = np.asarray(bundle.depth, dtype=np.float32)
+        # Depth off the mask (the ring, landmarks on the edge) from the nearest mask pixel.
+        from scipy.ndimage import distance_transform_edt
+
+        _, (iy, ix) = distance_transform_edt(~mask_crop, return_indices=True)
+        depth_filled = depth[iy, ix]
+        if focal == "ortho":
+            # One long focal length for the reference and every frame (a crop or a resized copy of
+            # an orthographic view must not get a different perspective than the reference).
+            from .pose import ORTHOGRAPHIC_FOCAL
+
+            focal = ORTHOGRAPHIC_FOCAL * max(r.ref_size)
+        k_ref = camera_matrix(r.ref_size, focal)
+        pts = np.concatenate([landmarks, ring])
+        crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
+        model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
+        # Each control point and its neighbours REFIND_STEP px right and down, lifted the same way:
+        # the pose's local affine at a landmark (:func:`.refind.refind_landmarks`) by finite differences.
+        steps = np.concatenate([pts + [REFIND_STEP, 0.0], pts + [0.0, REFIND_STEP]])
+        steps_xy = np.clip(steps - np.array([x0, y0], np.float32), 0, [w - 1, h - 1]).astype(np.float32)
+        r.refind_model = np.concatenate([model, lift_landmarks(steps, _bilinear(depth_filled, steps_xy), k_ref)])
+        r.n_landmarks = len(landmarks)
+        r.ring_index = np.arange(len(landmarks), len(pts))
+        r.control_ref = pts
+        r.model = model
+        full_mask = np.zeros((ref_h, ref_w), dtype=bool)
+        full_mask[y0:y0 + h, x0:x0 + w] = mask_crop
+        # Tracking runs on frames scaled to at most TRACK_ROWS rows (LK's cost is its pyramids
+        # and windows; a third of a pixel at 1080 rows is still far below the pose's noise).
+        r.ref_track_scale = min(1.0, TRACK_ROWS / ref_h)
+        rs = r.ref_track_scale
+        small_ref = downscale_area(r.ref_grey, (round(ref_w * rs), round(ref_h * rs))) if rs < 1 else r.ref_grey
+        small_mask = cv2.resize(full_mask.astype(np.uint8), small_ref.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+        # The bundle's own face in its illumination subspace finds the face where a generic
+        # detector does not (one-sided light, tight crops).
+        solid_full = np.zeros((ref_h, ref_w), dtype=bool)
+        solid_full[y0:y0 + h, x0:x0 + w] = solid
+        r.track_face = cv2.resize(solid_full.astype(np.uint8), small_ref.shape[::-1],
+                                     interpolation=cv2.INTER_NEAREST) > 0
+        r.lit_box = aligned_box(r.track_face, (ref_h, ref_w))
+        # Feathered face mask (reference crop).
+        size = max(h, w)
+        er = max(int(round(FEATHER_ERODE * size)), 1)
+        m = cv2.erode(solid.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * er + 1,) * 2))
+        r.alpha_crop = cv2.GaussianBlur(m.astype(np.float32), (0, 0), FEATHER_SIGMA * size)
+        # The warp's rigid grid: reference points every WARP_GRID_SHARE of the face's size, lifted
+        # with the bundle's depth - a frame moves them with its head pose (the landmarks add what
+        # the pose does not explain: an expression). It reaches a GRID_STEP and a cell past the
+        # face's alpha (the inverse map is defined inside the grid's hull and evaluated on cells of
+        # GRID_STEP frame pixels), past the crop too: a mask that fills its crop - a tight photo -
+        # is covered to its edge (depths there are the nearest mask pixel's).
+        step = max(int(round(WARP_GRID_SHARE * max(np.ptp(landmarks[:, 0]), np.ptp(landmarks[:, 1])))), 3)
+        cells = int(np.ceil(GRID_STEP / step)) + 1
+        reach = cells * step
+        pad = reach + step
+        from relight.kernels.compositor import ALPHA_FLOOR
+
+        cover = cv2.dilate(np.pad((r.alpha_crop > ALPHA_FLOOR).astype(np.uint8), pad),
+                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1,) * 2))
+        gy, gx = np.mgrid[-reach:h + reach + 1:step, -reach:w + reach + 1:step]
+        on = cover[gy + pad, gx + pad] > 0
+        gx, gy = gx[on], gy[on]
+        r.grid_ref = np.stack([gx, gy], axis=1).astype(np.float32) + np.array([x0, y0], np.float32)
+        r.grid_model = lift_landmarks(r.grid_ref, depth_filled[np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)],
+                                         k_ref)
+        r.grid_step = step
+        # The warp's mesh: every landmark and the grid points farther than a cell from them,
+        # triangulated once in the reference (a frame moves its corners: the tracked landmarks
+        # where they were seen, the rest where the head pose puts them).
+        from scipy.spatial import cKDTree
+
+        near, _ = cKDTree(landmarks).query(r.grid_ref, k=1)
+        free = near > step
+        r.mesh_ref = np.concatenate([landmarks, r.grid_ref[free]]).astype(np.float32)
+        r.mesh_model = np.concatenate([model[:len(landmarks)], r.grid_model[free]])
+        r.mesh_triangles = reference_triangles(r.mesh_ref)
+        room = bundle.room_light
+        r.reference_light = "room"
+        if room is not None:
+            r.ambient_crop = np.asarray(room, dtype=np.float32)
+        else:
+            # An RTI-set bundle (or a capture in a dark room) has no usable room-light reference:
+            # the lighting ratio is taken against the face under even light (a uniform
+            # environment) instead.
+            from relight.envmap import load_environment
+
+            even = relighter.relight(load_environment("builtin:uniform", width=64))
+            r.ambient_crop = np.ascontiguousarray(even[y0:y0 + h, x0:x0 + w])
+            r.reference_light = "uniform"
+        amb_lum = (r.ambient_crop[mask_crop] @ LUMINANCE) if mask_crop.any() else np.zeros(1, np.float32)
+        r.ratio_eps = np.float32(composite.RATIO_EPS * max(float(np.median(amb_lum)), composite.TINY))
+        r.inv_ambient = (1.0 / (r.ambient_crop + r.ratio_eps)).astype(np.float32)
+        # Crop pixel -> relit frame pixel: the face's own, the nearest face pixel in the feathered
+        # fringe (no dark or bright halo from the background the maps never saw), else none.
+        ref_index = ((np.arange(h)[:, None] + y0) * ref_w + (np.arange(w)[None, :] + x0)).astype(np.int64)
+        fill = np.full((h, w), -1, dtype=np.int32)
+        fill[mask_crop] = ref_index[mask_crop]
+        from relight.kernels.compositor import ALPHA_FLOOR
+
+        fringe = (r.alpha_crop > ALPHA_FLOOR) & ~mask_crop
+        fill[fringe] = ref_index[iy[fringe], ix[fringe]]
+        r.fill_flat = fill.ravel()
+        # Every 7th face pixel: enough for the median of the lighting ratio.
+        r.sample_crop = np.flatnonzero(mask_crop.ravel())[::7]
+        r.sample_full = r.fill_flat[r.sample_crop]
+        # Normals of the crop (nearest face pixel's off the face) for fading out turned-away surface.
+        normal_full = np.zeros((ref_h * ref_w, 3), np.float32)
+        normal_full[bundle.frame_index] = np.asarray(bundle.normal, np.float32)
+        nfill = np.where(fill >= 0, fill, ref_index[iy, ix].astype(np.int32))
+        normal_crop = normal_full[nfill.ravel()].reshape(h, w, 3)
+        r.normal_crop = np.ascontiguousarray(normal_crop, dtype=np.float32)
+        # The live light (mode transfer): fitted on face pixels well inside the composited region
+        # that face the camera, at most SAMPLES of them, spread evenly.
+        pix = np.asarray(bundle.pixels, dtype=np.int64)
+        px, py = pix % w, pix // w
+        normals = np.asarray(bundle.normal, dtype=np.float32)
+        good = np.flatnonzero((r.alpha_crop[py, px] > 0.5) & (normals[:, 2] > 0.3))
+        if good.size > SAMPLES:
+            good = good[np.linspace(0, good.size - 1, SAMPLES).round().astype(np.int64)]
+        r.live_ref = np.stack([px[good] + x0, py[good] + y0], axis=1).astype(np.float32)
+        r.live_normal = normals[good]
+        r.live_full = bundle.frame_index[good]
+        r.live_box = (int(r.live_ref[:, 0].min(initial=0)) - 2, int(r.live_ref[:, 1].min(initial=0)) - 2,
+                         int(r.live_ref[:, 0].max(initial=0)) + 3, int(r.live_ref[:, 1].max(initial=0)) + 3)
+
+        r.focal = focal
+        r.track_reference, r.track_landmarks, r.track_mask = small_ref, landmarks * np.float32(rs), small_mask
+        r.solid_full = solid_full
+        r.fill = fill
+        r.live_pixels = good
+        return cls(**{k: getattr(r, k) for k in cls.__dataclass_fields__})
