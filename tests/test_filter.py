@@ -858,7 +858,7 @@ def test_the_person_maps_move_with_the_head(frame_path, clip):
     """PersonMaps.moved: maps made with the head at one place, used on a frame where the head (and
     the person with it) moved by (dx, dy), relight the moved person as maps made there would -
     the frame shifted, composited with the moved maps, is the composite shifted."""
-    from relight.engine.frame_path import PersonMaps
+    from relight.engine.person_maps import PersonMaps
     from relight.engine.warp import GRID_STEP
 
     _, frames = clip
