@@ -25,9 +25,10 @@ import numpy as np
 from relight.colour import decode_srgb8
 from relight.directions import rotation_matrix
 from relight.errors import InputError
-from relight.numerics import EPS, EPS_VALUE
+from relight.numerics import EPS_VALUE
 
 from . import composite, head_light
+from .frame_warp import face_warp, regularised_points, sample_live
 from .live_light import LightEstimator, LiveLight
 from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs
 from .pose import OneEuroFilter, PoseEstimator
@@ -35,12 +36,9 @@ from .refind import refind_landmarks
 from .rig import FaceRig
 from .tracking import FaceTracker
 from .tracking_image import lit_reference, tracking_image
-from .warp import GRID_STEP, coarse_map, mesh_coarse_map, points_box
+from .warp import GRID_STEP
 
 _LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
-#: Tracked points within this distance (px at 540 rows) of where the head pose puts them are taken
-#: as its noise (:meth:`FramePath._regularised_points`).
-POINT_NOISE_AT_540 = 2.0
 #: Mode transfer: the live light is fitted every this many frames (it is smoothed over a tenth of a
 #: second anyway; the frames between reuse it). Measured against 2: the same figures on the truth
 #: clips (+-0.02 dB) and the real faces (+-0.03 dB) at two thirds of the fits; 4 cost 0.1-0.16 dB.
@@ -93,7 +91,7 @@ class Front:
     landmark indices, ``xy`` ((M, 2) float32) where the warp puts those landmarks, ``pose`` and
     ``rotation`` (3x3, smoothed) the head's, ``size`` (w, h), ``track_gain`` the tracking copy's
     brightening gain, ``warp`` (cur, ref, box, coarse) the warp the pose gives
-    (:meth:`FramePath._warp`)."""
+    (:func:`.frame_warp.face_warp`)."""
 
     frame: object
     t: float
@@ -149,14 +147,6 @@ def _crop_index(xy: np.ndarray, origin, shape) -> np.ndarray:
     xi = np.clip(np.round(xy[:, 0] - origin[0]).astype(np.int64), 0, w - 1)
     yi = np.clip(np.round(xy[:, 1] - origin[1]).astype(np.int64), 0, h - 1)
     return yi * w + xi
-
-
-def _affine_ring(src: np.ndarray, dst: np.ndarray, ring: np.ndarray) -> np.ndarray:
-    """The ring around the face carried by the least-squares affine map of the tracked points
-    (robust where the bundle's depth is poor; the ring only anchors the mask's feathered edge)."""
-    a = np.c_[src, np.ones(len(src))].astype(np.float64)
-    m, *_ = np.linalg.lstsq(a, dst.astype(np.float64), rcond=None)
-    return (np.c_[ring, np.ones(len(ring))] @ m).astype(np.float32)
 
 
 class FramePath:
@@ -367,34 +357,17 @@ class FramePath:
         # The warp's control points: the pose's projection of the landmarks plus what it leaves
         # of each tracked point beyond the tracking noise (a rigid face is warped rigidly instead
         # of bent by every point's error).
-        xy = self._regularised_points(est.project(pose, ref_idx).astype(np.float32), track.xy[keep], size)
+        xy = regularised_points(est.project(pose, ref_idx).astype(np.float32), track.xy[keep], size)
         angles = self.angle_filter(pose.angles, t)
         rotation = rotation_matrix(*angles)
         info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles
         info.points = int(keep.size)
         tm["pose"] = (time.perf_counter() - t1) * 1e3
         t2 = time.perf_counter()
-        warp = self._warp(pose, size, ref_idx, xy)  # the pose alone decides it: this half's work
+        warp = face_warp(self.rig, est, pose, size, ref_idx, xy, self.rigid_warp)  # the pose alone decides it
         tm["warp"] = (time.perf_counter() - t2) * 1e3
         return Front(rgb, t, t0, info, track=track, keep=keep, ref_idx=ref_idx, xy=xy, pose=pose, rotation=rotation,
                      size=size, track_gain=track_gain, warp=warp)
-
-    def _warp(self, pose, size, ref_idx: np.ndarray, xy: np.ndarray):
-        """(cur, ref, box, coarse): where the warp's points sit in the frame (N, 2) and in the
-        reference, the frame's box they span and the coarse map over it (None: the face is outside
-        the frame or its points do not triangulate)."""
-        if self.rigid_warp:
-            cur, depth = self._mesh_positions(pose, size, ref_idx, xy)
-            ref = self.rig.mesh_ref
-            box = points_box(cur, size)
-            coarse = mesh_coarse_map(cur, ref, self.rig.mesh_triangles, box, depth) if box is not None else None
-        else:
-            ring = self.rig.control_ref[self.rig.ring_index]
-            cur = np.concatenate([xy, _affine_ring(self.rig.control_ref[ref_idx], xy, ring)])
-            ref = np.concatenate([self.rig.control_ref[ref_idx], ring])
-            box = points_box(cur, size)
-            coarse = coarse_map(cur, ref, box) if box is not None else None
-        return cur, ref, box, coarse
 
     def back(self, front: Front, defer_reference: bool = False):
         """The second half of :meth:`process` (relight, warp, live light, composite) for the
@@ -465,7 +438,7 @@ class FramePath:
                 self._light_job = None
                 waited = self._took_light(job.result(), tm, front.track_gain, defer_reference)
             if job is None and (self._light_now is None or self._since_light + 1 >= LIGHT_EVERY):
-                lin, valid = self._sample_live(rgb, cur, ref, rotation)
+                lin, valid = sample_live(self.rig, rgb, cur, ref, rotation, self.rigid_warp)
                 self._since_light = 0
                 if self.live_source and self._light_now is not None:
                     self._light_job = self._worker().submit(self._fit_light, lin, valid, t, rotation)
@@ -534,17 +507,6 @@ class FramePath:
         tm["composite"] = (time.perf_counter() - t4) * 1e3 - tm.get("person", 0.0)
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info
-
-    def _mesh_positions(self, pose, size, ref_idx: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The warp mesh's corners in this frame ((N, 2) float32) and their distance along the
-        view ((N,) camera z): where the head pose puts them, the tracked landmarks ``ref_idx``
-        at ``xy`` (the pose's projection plus what it leaves of each beyond the tracking noise)."""
-        model = self.rig.mesh_model
-        cur = self._estimator(size).project_points(pose, model).astype(np.float32)
-        cur[ref_idx] = xy
-        r, _ = cv2.Rodrigues(pose.rvec)
-        depth = model @ r[2] + float(pose.tvec[2, 0])
-        return cur, depth
 
     def _last_person(self):
         """The person's maps (work size, :class:`PersonMaps`, the back() call that used them) if
@@ -684,18 +646,6 @@ class FramePath:
         tm["relight"] = tm.get("relight", 0.0) + ms
         return ms
 
-    @staticmethod
-    def _regularised_points(base: np.ndarray, xy: np.ndarray, size) -> np.ndarray:
-        """Tracked points ``xy`` (N, 2) as ``base`` (where the head pose puts them) plus what the
-        pose leaves of each, shrunk toward zero where it is within the tracking noise
-        (``POINT_NOISE_AT_540`` px, scaled): noise does not bend the warp, a real departure from
-        the pose (an expression, the bundle's depth error) does."""
-        e = xy - base
-        noise = POINT_NOISE_AT_540 * size[1] / 540.0
-        n2 = (e * e).sum(axis=1, keepdims=True)
-        shrink = np.clip(1.0 - noise * noise / np.maximum(n2, EPS), 0.0, 1.0)
-        return (base + shrink * e).astype(np.float32)
-
     def _refind(self, est, pose, ts, grey, idx):
         """The landmarks ``idx`` found again in ``grey`` (:func:`.refind.refind_landmarks`, against
         the tracker's live-lit reference when there is one): a Track, or None."""
@@ -726,24 +676,3 @@ class FramePath:
         ratio = (flat[rig.sample_full] + rig.ratio_eps) * rig.inv_ambient.reshape(-1, 3)[rig.sample_crop]
         med = float(np.median(ratio @ _LUM)) if ratio.size else 1.0
         return 1.0 / med if med > composite.TINY else 1.0
-
-    def _sample_live(self, rgb: np.ndarray, cur: np.ndarray, ref: np.ndarray, rotation: np.ndarray):
-        """The live frame at the light estimator's sample pixels: ((S, 3) float32 linear, (S,) bool
-        where the frame shows them - inside it, the warp and facing the camera)."""
-        n = self.rig.live_ref.shape[0]
-        if self.rigid_warp:  # frame positions of a grid over the reference
-            grid = mesh_coarse_map(ref, cur, self.rig.mesh_triangles, self.rig.live_box)
-        else:
-            grid = coarse_map(ref, cur, self.rig.live_box)
-        if grid is None or n == 0:
-            return np.zeros((n, 3), np.float32), np.zeros(n, dtype=bool)
-        x0, y0 = self.rig.live_box[:2]
-        gx = ((self.rig.live_ref[:, 0] - x0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
-        gy = ((self.rig.live_ref[:, 1] - y0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
-        pos = cv2.remap(grid, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e4, -1e4))[0]
-        h, w = rgb.shape[:2]
-        valid = (pos[:, 0] >= 0) & (pos[:, 1] >= 0) & (pos[:, 0] <= w - 1) & (pos[:, 1] <= h - 1)
-        valid &= self.rig.live_normal @ np.asarray(rotation, np.float32)[2] > 0.3
-        px = cv2.remap(rgb, pos[:, 0:1].copy(), pos[:, 1:2].copy(), cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
-        return decode_srgb8(px).reshape(-1, 3), valid
