@@ -65,11 +65,12 @@ from relight.numerics import FLOAT
 from relight.spherical_harmonics import environment_sh9
 from relight.video import AUDIO_RATE, VideoWriter
 
+from .config import MAX_SIZE, MIN_SIZE, SynthConfig, head_info
 from .head import Head
 from .mesh_render import MeshLiveHead
 from .motion import AUDIO_KINDS, NOISE_RMS, TONE_HZ, TONE_PEAK, head_pose_track, make_audio
 from .render import LiveHead
-from .studio import MAX_SIZE, MIN_SIZE, Studio, SynthConfig, head_info
+from .studio import Studio
 
 LIVE_FORMAT_VERSION = 1
 #: Pivot depth behind the face's frontmost point, in head units (``Head.scale`` pixels each).
