@@ -1,6 +1,6 @@
 """Directions, the lat-long (equirectangular) layout, rotations and the mirror-sphere law.
 
-Conventions (used everywhere in relight, documented in the README):
+Conventions (used everywhere in relight, documented in docs/conventions.md):
 
 * Camera space: +X right in the image, +Y up, +Z toward the camera. A *light direction* is
   the unit vector from the face toward the light. Orthographic view direction (from the

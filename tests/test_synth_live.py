@@ -89,7 +89,7 @@ def _pivot(head):
 
 
 def _moved(points, rotation, pivot, t):
-    """R (P - C) + C + (tx, -ty, 0), written out from the README's convention."""
+    """R (P - C) + C + (tx, -ty, 0), written out from the convention in docs/studio.md (live video)."""
     return (np.asarray(points) - pivot) @ rotation.T + pivot + np.array([t[0], -t[1], 0.0])
 
 
