@@ -22,13 +22,13 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from relight.colour import decode_srgb8
 from relight.directions import rotation_matrix
 from relight.errors import InputError
 from relight.numerics import EPS_VALUE
 
 from . import composite, head_light
 from .frame_warp import face_warp, regularised_points, sample_live
+from .gains import ExposureLock, ambient_gain, live_gain, paste_gain
 from .live_light import LightEstimator, LiveLight
 from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs
 from .pose import OneEuroFilter, PoseEstimator
@@ -38,7 +38,6 @@ from .tracking import FaceTracker
 from .tracking_image import lit_reference, tracking_image
 from .warp import GRID_STEP
 
-_LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
 #: Mode transfer: the live light is fitted every this many frames (it is smoothed over a tenth of a
 #: second anyway; the frames between reuse it). Measured against 2: the same figures on the truth
 #: clips (+-0.02 dB) and the real faces (+-0.03 dB) at two thirds of the fits; 4 cost 0.1-0.16 dB.
@@ -49,9 +48,6 @@ LIGHT_EVERY = 3
 #: case; 0.07-0.13 % under the built-in environments) - a sixth of the default tolerance. The
 #: map's texels are 5.6 deg wide: the error grows linearly, ~1.7 % per degree at worst.
 REUSE_DEG = 0.1
-#: Mode transfer: light fits whose exposure gains (their running median) set the exposure, then
-#: held (FramePath._locked_exposure): 0.8 s of fits at LIGHT_EVERY.
-EXPOSURE_LOCK_FITS = 8
 #: Region person: the person's matte and the light's ratio over it are made every this many
 #: frames and reused between (the face's own alpha is every frame's).
 PERSON_EVERY = 2
@@ -131,22 +127,6 @@ def limit_threads() -> None:
 def _union_box(a, b) -> tuple[int, int, int, int]:
     """The smallest box (x0, y0, x1, y1) holding boxes ``a`` and ``b``."""
     return min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])
-
-
-def _sample_rgb(rgb: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(N, 3) uint8 pixels of ``rgb`` nearest to points ``xy`` (clipped to the frame)."""
-    h, w = rgb.shape[:2]
-    xi = np.clip(np.round(xy[:, 0]).astype(np.int64), 0, w - 1)
-    yi = np.clip(np.round(xy[:, 1]).astype(np.int64), 0, h - 1)
-    return rgb[yi, xi]
-
-
-def _crop_index(xy: np.ndarray, origin, shape) -> np.ndarray:
-    """Flat crop indices of the crop pixels nearest to reference points ``xy``."""
-    h, w = shape
-    xi = np.clip(np.round(xy[:, 0] - origin[0]).astype(np.int64), 0, w - 1)
-    yi = np.clip(np.round(xy[:, 1] - origin[1]).astype(np.int64), 0, h - 1)
-    return yi * w + xi
 
 
 class FramePath:
@@ -245,7 +225,7 @@ class FramePath:
         self.relighter.lights(env)  # validates and converts once
         self.env = env
         self.relighter.prefetch_rows(env)  # the exact texels' rows, ahead of the head's turns
-        self._exposure_lock, self._exposure_fits = None, []
+        self._exposure_lock = ExposureLock()  # mode transfer's exposure, locked anew
         self._env_texels = None  # its low frequencies, made when the person beyond the face needs them
         self._person_last = None  # the person's ratio was the last environment's
 
@@ -289,7 +269,7 @@ class FramePath:
         self._last_light, self._light_now = None, None
         self._since_light = 0
         self._next_reference = None
-        self._exposure_lock, self._exposure_fits = None, []
+        self._exposure_lock = ExposureLock()
         self._person_last, self._trust_run = None, 0
         for est in self._estimators.values():
             est.last = None
@@ -450,30 +430,22 @@ class FramePath:
             info.light = self._last_light
             waited += self._sync_relight(tm)
             if self._light_now is not None:
-                est = self.relighter.slot("live")[0].reshape(-1, 3)
-                le = est[self.rig.live_full] @ _LUM
-                lt = flat[self.rig.live_full] @ _LUM
-                live_median = float(np.median(le)) if le.size else 0.0
-                gain = self._locked_exposure(composite.exposure_match(le, lt))
+                live_median, gain = live_gain(self.rig, self.relighter.slot("live")[0], flat)
+                gain = self._exposure_lock(gain)
                 spread = self._light_now[1]
                 tau = composite.DETAIL_SHRINK * spread if np.isfinite(spread) else 0.0
                 eps = composite.RATIO_EPS * max(live_median, composite.TINY)
             else:  # no light yet (the first frames showed too little): the capture room's ratio
-                layer_mode, gain = "ambient", self._ambient_gain(flat)
+                layer_mode, gain = "ambient", ambient_gain(self.rig, flat)
             tm["light"] = (time.perf_counter() - t5) * 1e3 - waited
         elif self.mode == "ambient":
             # The lighting ratio's median is 1: the face keeps its brightness.
             waited = self._sync_relight(tm)
-            gain = self._ambient_gain(flat)
+            gain = ambient_gain(self.rig, flat)
         else:
             # paste: the relit face's median matched to the live face's at the tracked points.
             waited = self._sync_relight(tm)
-            live = decode_srgb8(_sample_rgb(rgb, track.xy[keep] - offset)) @ _LUM
-            rig = self.rig
-            ref_px = rig.fill_flat[_crop_index(rig.control_ref[ref_idx], rig.origin, rig.mask_crop.shape)]
-            relit_l = flat[ref_px[ref_px >= 0]] @ _LUM
-            num, den = float(np.median(live)) if live.size else 0.0, float(np.median(relit_l)) if relit_l.size else 0.0
-            gain = num / den if num > composite.TINY and den > composite.TINY else 1.0
+            gain = paste_gain(self.rig, rgb, flat, track.xy[keep] - offset, ref_idx)
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
         tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
         t4 = time.perf_counter()
@@ -621,23 +593,6 @@ class FramePath:
         """(T, 3) the live light in use, in the bundle's texels (zeros before the first)."""
         return self._light_now[0] if self._light_now is not None else self.light_estimator.texel_light()
 
-    def _locked_exposure(self, gain: float) -> float:
-        """Mode transfer's exposure: the target brought to the live face's exposure over the first
-        EXPOSURE_LOCK_FITS light fits (their running median), then held - the relit person then
-        brightens and darkens as the target light on it does when the head turns (a gain matched
-        every frame would undo that, as an auto-exposure does), while the live light's own
-        changes still cancel (it is fitted every frame). A new environment or reset() locks anew."""
-        if self._exposure_lock is not None:
-            return self._exposure_lock
-        if np.isfinite(gain) and gain > 0:
-            self._exposure_fits.append(float(np.log(gain)))
-        if not self._exposure_fits:
-            return gain
-        med = float(np.exp(np.median(self._exposure_fits)))
-        if len(self._exposure_fits) >= EXPOSURE_LOCK_FITS:
-            self._exposure_lock = med
-        return med
-
     def _sync_relight(self, tm: dict) -> float:
         """Wait for the queued relight; the ms waited are counted in the relight stage (returned)."""
         t = time.perf_counter()
@@ -669,10 +624,3 @@ class FramePath:
         if self._next_reference is not None:
             self.tracker.lit_reference = self._next_reference
             self._next_reference = None
-
-    def _ambient_gain(self, flat: np.ndarray) -> float:
-        """The gain that brings the median of the ratio to the reference light to 1."""
-        rig = self.rig
-        ratio = (flat[rig.sample_full] + rig.ratio_eps) * rig.inv_ambient.reshape(-1, 3)[rig.sample_crop]
-        med = float(np.median(ratio @ _LUM)) if ratio.size else 1.0
-        return 1.0 / med if med > composite.TINY else 1.0
