@@ -34,6 +34,7 @@ from .person_maps import PersonInputs, PersonMaps, build_person_maps, environmen
 from .pose import OneEuroFilter, PoseEstimator
 from .refind import refind_landmarks
 from .rig import FaceRig
+from .threads import limit_threads
 from .tracking import FaceTracker
 from .tracking_image import lit_reference, tracking_image
 from .warp import GRID_STEP
@@ -102,26 +103,6 @@ class Front:
     size: tuple[int, int] = (0, 0)
     track_gain: float = 1.0
     warp: tuple | None = None
-
-
-def limit_threads() -> None:
-    """One thread for NumPy's BLAS and for OpenCV in this process: the per-frame path's matrix
-    products and image operations are small, and the pools' idle threads spin after each call,
-    taking the cores from the tracker, the OpenCL kernels and the codec's threads. Measured:
-    BLAS at 640x360, 31 -> 12-15 ms of CPU per frame; OpenCV on the 720p clip (region person),
-    78.6 -> 61.6 ms of CPU per frame at the same wall time (52 -> 49 ms). Called by
-    :class:`FramePath`; set ``RELIGHT_BLAS_THREADS`` / ``RELIGHT_CV_THREADS`` to keep more (a
-    capture in the same process sets its own: :func:`relight.pipeline.capture.capture`)."""
-    import os
-
-    blas = int(os.environ.get("RELIGHT_BLAS_THREADS", "1") or 1)
-    cv = int(os.environ.get("RELIGHT_CV_THREADS", "1") or 1)
-    cv2.setNumThreads(max(cv, 1))
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - a dependency; without it the path is only slower
-        return
-    threadpool_limits(limits=max(blas, 1), user_api="blas")
 
 
 def _union_box(a, b) -> tuple[int, int, int, int]:
