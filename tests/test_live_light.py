@@ -13,9 +13,11 @@ from relight.colour import decode_srgb8, encode_srgb8
 from .tolerances import (
     FACE_FINDER_PX,
     FACE_FINDER_SCORE,
+    LIGHT_CLIPPED_REL,
     LIGHT_DIRECTION_DEG,
     LIGHT_FIT_RESIDUAL,
     LIGHT_REFIT_REL,
+    LIVE_LIGHT_PARTIAL_RTOL,
     REAL_CLIP_FOUND,
     REAL_CLIP_GAIN_DB,
     REAL_CLIP_STILL_GAP_DB,
@@ -76,19 +78,31 @@ def test_the_fit_finds_the_light_the_bundle_was_relit_by(estimator):
 
 @pytest.mark.parametrize("gain", [1 / 20, 20.0])
 def test_exposure_far_from_the_capture_stays_bounded(estimator, gain):
-    """x1/20: everything dark but not black (fitted, intensity follows); x20: most of it clipped
-    (flagged, fitted on what is left); never NaN."""
+    """x1/20: everything dark but not black (status "ok", fitted, intensity follows the gain);
+    x20: most of it clipped (status "clipped", fitted on what is left: its intensity within
+    LIGHT_CLIPPED_REL of the gain's); never NaN."""
+    from relight.engine.live_light import CLIP, MIN_PIXELS
+
     est, r, idx = estimator
-    est.reset()
     lp = _light(estimator, [([0.5, 0.2, 0.85], [1.0, 1.0, 1.0])])
     base = _live(estimator, lp)
+    valid = np.ones(len(idx), bool)
+    est.reset()
+    ref = est.fit(base, valid, 0.0)  # at the capture's exposure: nothing clipped (peak 0.76), nothing black
+    assert ref.status == "ok" and (base < CLIP).all()
+    est.reset()
     live = np.minimum(base * gain, 1.0)  # an 8-bit camera clips
-    got = est.fit(live, np.ones(len(idx), bool), 0.0)
+    got = est.fit(live, valid, 0.0)
     assert np.isfinite(est.texel_light()).all() and np.isfinite(got.intensity)
-    if gain > 1:
-        assert got.status in ("clipped", "ok")
-    else:
-        assert got.status == "ok" and _angle(got.direction, [0.5, 0.2, 0.85]) < LIGHT_DIRECTION_DEG
+    rel = abs(got.intensity / (gain * ref.intensity) - 1)
+    if gain > 1:  # (86 % of the pixels clipped)
+        assert got.status == "clipped" and "overexposed" in " ".join(got.notes), (got.status, got.notes)
+        assert MIN_PIXELS <= got.pixels <= (live < CLIP).all(axis=1).sum()  # fitted on what is left
+        assert rel <= LIGHT_CLIPPED_REL, rel
+    else:  # (0.8 % of the pixels black)
+        assert got.status == "ok", (got.status, got.notes)
+        assert _angle(got.direction, [0.5, 0.2, 0.85]) < LIGHT_DIRECTION_DEG
+        assert rel <= LIVE_LIGHT_PARTIAL_RTOL, rel
 
 
 def test_black_frames_and_few_pixels_keep_the_last_light(estimator):
@@ -131,11 +145,18 @@ def test_frame_path_finds_a_known_light_on_the_studio_truth(small_capture, small
         assert _angle(info.light.direction, meta["olat_dirs"][name]) < LIGHT_DIRECTION_DEG, (name, info.light)
 
 
-@pytest.mark.parametrize("case", ["dark", "bright", "saturated", "half shadow", "grey"])
+#: The live light's status each bad frame must give: exposure x1/20 leaves the face dim but not
+#: black (the fit is scale-free: "ok"); x20 and a frame whose brightest tenth is set to white
+#: clip most of the face ("clipped"); a half-shadowed face and a grey camera are fitted as they
+#: are ("ok").
+BAD_FRAME_STATUS = {"dark": "ok", "bright": "clipped", "saturated": "clipped", "half shadow": "ok", "grey": "ok"}
+
+
+@pytest.mark.parametrize("case", list(BAD_FRAME_STATUS))
 def test_bad_live_frames_give_bounded_output_and_a_status(small_bundle, small_capture, case):
     """Exposure x1/20 and x20, saturated highlights, a half-shadowed face (the studio's truth under
     a light from the side), a grey camera: the output is finite, the face not black, the light's
-    status says what happened."""
+    status says what happened (BAD_FRAME_STATUS)."""
     from relight.engine.frame_path import FramePath
     from relight.imageio import read_image
     from relight.video import read_frames
@@ -170,15 +191,14 @@ def test_bad_live_frames_give_bounded_output_and_a_status(small_bundle, small_ca
     for o, i, f in zip(outs, infos, frames, strict=True):  # a frame left alone says why, and is the input
         if not i.face:
             assert i.note and o.shape == f.shape
-    if case == "bright":  # most of the face clipped: found or not, the status or the note says so
-        assert all(i.light is None or i.light.status in ("clipped", "ok") for i in found)
-        return
-    if case == "half shadow" and not found:  # light from the side at a grazing angle: may stay unfound
+    for i in found:  # every frame the face was found in: its light, with the status the case gives
+        assert i.light is not None and i.light.status == BAD_FRAME_STATUS[case], (case, i.light.status, i.light.notes)
+        assert np.isfinite([i.light.intensity, *i.light.direction]).all()
+    # Light from the side at a grazing angle, a face x20 mostly white: may stay unfound (the finder's
+    # business; found in every frame when this was written). Found, they are relit as the others.
+    if case in ("half shadow", "bright") and not found:
         return
     assert found, [i.note for i in infos]
-    last = found[-1]
-    assert last.light is not None and last.light.status in ("ok", "dark", "clipped", "few pixels")
-    assert np.isfinite([last.light.intensity, *last.light.direction]).all()
     changed = np.abs(outs[-1].astype(int) - encode_srgb8(decode_srgb8(frames[-1])).astype(int)).max(axis=2) > 0
     assert changed.sum() > 200  # the face was relit
     assert outs[-1][changed].mean() > 3  # and is not black
