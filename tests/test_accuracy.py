@@ -8,15 +8,34 @@ from relight.bench import accuracy
 
 from .tolerances import (
     EXTRAPOLATION_GAIN,
-    F32_EXACT,
     F64_CLOSE,
+    F64_EXACT,
     OLAT_REL_RMSE_MAX,
     SPARSE_SIDES_REACH,
     SPARSE_SIDES_SHARE,
 )
 
 
+def test_env_metrics_psnr_of_a_known_error():
+    """A hand-computed case: inside the mask the prediction is 1.0 everywhere, the truth 0.625 and
+    0.375 in equal numbers. The least-squares gain is 0.5 (truth . pred / pred . pred = 0.5 n / n),
+    the residual +-0.125 (MSE 1/64) and the peak 0.625 (25/64): PSNR = 10 log10(25) = 13.9794 dB.
+    Outside the mask a brighter truth (100) and a wild prediction that must count for nothing."""
+    truth = np.full((16, 16, 3), 100.0, np.float32)  # (SSIM's window needs 11 x 11)
+    pred = np.full((16, 16, 3), -7.0, np.float32)
+    mask = np.zeros((16, 16), bool)
+    mask[4:12, 3:13] = True
+    checker = (np.add.outer(np.arange(16), np.arange(16)) % 2 == 0)[..., None]
+    truth[mask] = np.where(checker, 0.625, 0.375)[mask]
+    pred[mask] = 1.0
+    m = accuracy.env_metrics(pred, truth, mask)
+    assert m["gain"] == pytest.approx(0.5, rel=F64_EXACT)
+    assert m["psnr"] == pytest.approx(13.979400086720377, rel=F64_EXACT)  # 10 * log10(25)
+
+
 def test_env_metrics_fit_one_gain_and_follow_the_error():
+    from skimage.metrics import peak_signal_noise_ratio
+
     rng = np.random.default_rng(0)
     truth = rng.uniform(0.1, 2.0, (40, 50, 3)).astype(np.float32)
     mask = np.zeros((40, 50), bool)
@@ -25,10 +44,13 @@ def test_env_metrics_fit_one_gain_and_follow_the_error():
     assert same["gain"] == pytest.approx(0.5) and same["psnr"] > 100 and same["ssim"] == pytest.approx(1.0)
     noisy = truth + rng.normal(0, 0.02, truth.shape).astype(np.float32)
     m = accuracy.env_metrics(noisy, truth, mask)
-    a, b = noisy[mask].astype(np.float64), truth[mask].astype(np.float64)
-    g = (a * b).sum() / (a * a).sum()
-    want = 10 * np.log10(b.max() ** 2 / ((g * a - b) ** 2).mean())
-    assert m["psnr"] == pytest.approx(want, abs=F32_EXACT) and 0.5 < m["ssim"] < 1.0
+    # references: the gain by NumPy's least squares, the PSNR by scikit-image (peak: the truth's
+    # largest value in the mask, as the benchmark defines it)
+    a, b = noisy[mask].astype(np.float64).ravel(), truth[mask].astype(np.float64).ravel()
+    g = np.linalg.lstsq(a[:, None], b, rcond=None)[0][0]
+    want = peak_signal_noise_ratio(b, g * a, data_range=b.max())
+    assert m["gain"] == pytest.approx(g, rel=F64_CLOSE)
+    assert m["psnr"] == pytest.approx(want, rel=F64_CLOSE) and 0.5 < m["ssim"] < 1.0
     worse = accuracy.env_metrics(truth + rng.normal(0, 0.1, truth.shape).astype(np.float32), truth, mask)
     assert worse["psnr"] < m["psnr"] - 10 and worse["ssim"] < m["ssim"]
 

@@ -6,16 +6,15 @@ import numpy as np
 import pytest
 
 from relight.bench.stability import (
-    BASELINE_MAX_REL,
     CASES,
-    MAX_MAP_GAIN,
-    RENDER_MAX_REL,
     VARIANTS,
     MapProblem,
     evaluate,
     make_head,
     run_stability,
 )
+
+from .tolerances import STABILITY_MAP_GAIN, STABILITY_MAPS_REL, STABILITY_RENDER_REL
 
 #: Production defects the suite finds and that are not fixed yet: a case listed here is expected
 #: to fail the finiteness test (strictly: fixing it makes the test say so). Empty: the float16
@@ -25,8 +24,15 @@ KNOWN_NON_FINITE: dict[str, str] = {}
 RENDER_CASES = ("sun_1e5",)
 
 
-#: Errors a case must record for a variant (the input refused with a clear message).
-EXPECTED_ERRORS = {("degenerate_hull", "ptm"): "InputError: ptm needs at least 6 light samples, got 3"}
+#: The errors a case must record for a variant, whole (the input refused with a clear message,
+#: an InputError); every other row records none.
+EXPECTED_ERRORS = {
+    ("degenerate_hull", "ptm"): "3 lights: InputError: ptm needs at least 6 light samples, got 3; "
+                                "4 lights: InputError: ptm needs at least 6 light samples, got 4",
+    ("degenerate_hull", "hsh"): "3 lights: InputError: hsh needs at least 9 light samples, got 3; "
+                                "4 lights: InputError: hsh needs at least 9 light samples, got 4",
+    ("degenerate_hull", "hsh2"): "3 lights: InputError: hsh2 needs at least 4 light samples, got 3",
+}
 
 
 #: The cases that render through bundles (one tiny bundle per variant, built once per call of
@@ -51,29 +57,24 @@ def _case_params():
 def test_each_case_through_every_variant_is_finite_and_as_accurate_as_the_baseline(cases):
     """Cases of the suite through every variant (a test per case - the bundle cases together -
     so pytest-xdist's workers share the cases out): one row per variant with its keys; every
-    output finite and every failure a clear InputError; the error against float64 within the
-    baseline's bound (a render case: the exact path's); the maps never more than MAX_MAP_GAIN
-    times their pixel's brightest sample; the expected refusals recorded."""
+    output finite; no error but the expected refusals (EXPECTED_ERRORS, whole); the error against
+    float64 within STABILITY_MAPS_REL (a render case: the exact path's, STABILITY_RENDER_REL) -
+    so compared, and finite; the maps never more than STABILITY_MAP_GAIN times their pixel's
+    brightest sample. (The bench's own ``ok`` flag and bounds are not used: they are what is
+    checked.)"""
     rows = run_stability(cases=list(cases))
     assert [(r["case"], r["variant"]) for r in rows] == [(c, v) for c in cases for v in VARIANTS]
     for r in rows:
         case = r["case"]
-        bound = RENDER_MAX_REL if case in RENDER_CASES else BASELINE_MAX_REL
+        bound = STABILITY_RENDER_REL if case in RENDER_CASES else STABILITY_MAPS_REL
         assert {"case", "description", "variant", "max_rel_error", "finite", "error", "seconds", "max_gain"} <= set(r)
         assert isinstance(r["max_rel_error"], float) and isinstance(r["finite"], bool)
-        assert r["error"] is None or isinstance(r["error"], str)
         assert r["seconds"] >= 0 and "\n" not in r["description"]
         assert r["finite"], r
-        assert r["ok"], r  # compared with a finite error; any exception an InputError
-        if case == "float32_vs_float64":
-            assert r["error"] is None, r
-        assert r["max_rel_error"] <= bound, r
+        assert r["error"] == EXPECTED_ERRORS.get((case, r["variant"])), r
+        assert r["max_rel_error"] <= bound, r  # (NaN - nothing compared - fails too)
         if case not in RENDER_CASES:  # render-only cases have no maps of their own
-            assert r["max_gain"] <= MAX_MAP_GAIN, r
-        expected = EXPECTED_ERRORS.get((case, r["variant"]))
-        if expected is not None:
-            assert expected in r["error"], r
-            assert math.isfinite(r["max_rel_error"]), r  # what could be fitted was compared
+            assert r["max_gain"] <= STABILITY_MAP_GAIN, r
 
 
 def test_unknown_names_are_refused():
@@ -102,7 +103,7 @@ def _planted(p: MapProblem, label: str, dirs=None, samples=None) -> MapProblem:
 def test_the_planted_problems_are_healthy_unplanted(small_problem):
     for v in VARIANTS:
         r = evaluate("clean", "control", [small_problem], v)
-        assert r["ok"] and r["max_rel_error"] <= BASELINE_MAX_REL, r
+        assert r["finite"] and r["error"] is None and r["max_rel_error"] <= STABILITY_MAPS_REL, r
 
 
 @pytest.mark.parametrize("value", [np.nan, np.inf])
@@ -124,7 +125,7 @@ def test_the_suite_flags_non_finite_and_wrong_output():
     assert relative_error(bad, ref) == float("inf")
     off = ref.copy()
     off[0, 0, 0] = 1.01
-    assert relative_error(off, ref) == pytest.approx(0.01) and relative_error(off, ref) > BASELINE_MAX_REL
+    assert relative_error(off, ref) == pytest.approx(0.01) and relative_error(off, ref) > STABILITY_MAPS_REL
 
 
 def test_the_suite_records_a_refused_input_without_crashing(small_problem):

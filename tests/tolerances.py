@@ -104,6 +104,19 @@ REAL_CLIP_GAIN_DB = 6.0
 #: within 2 dB on every real face).
 REAL_CLIP_STILL_GAP_DB = 2.0
 
+#: The stability suite (tests/test_stability.py), production against float64: the maps, largest
+#: difference over the largest value - float16 storage rounds to 2^-11 (4.9e-4) relative and the
+#: OpenCL kernel adds at most 1e-4 (float32, a fast arctangent; measured 2.4e-4 .. 4.7e-4).
+STABILITY_MAPS_REL = 1e-3
+#: ... the exact render path: float32 sums of a few hundred float16 texels times float32 light
+#: (measured 1.2e-7 .. 1.9e-7).
+STABILITY_RENDER_REL = 1e-5
+#: ... a map's largest value over its pixel's brightest sample: the shading model's albedo at most
+#: the brightest sample over the least cosine a fit uses (0.2: x5), its lobe's weight at most it
+#: over the least lobe it must see (0.1: x10); interpolation stays within the samples (measured
+#: at most 2.1; an unseen lobe once reached 8e3).
+STABILITY_MAP_GAIN = 15.0
+
 # ------------------------------------------------------------------ numeric precision classes
 #: Identities that hold to the arithmetic's precision, by the dtype the code computes in. A test
 #: comparing two computations of the same quantity picks the class of the less precise one.
