@@ -19,6 +19,9 @@ from pathlib import Path
 
 #: Frame sizes ``relight live`` is measured at.
 SIZES = ((640, 360), (1280, 720))
+#: Seconds measured per case (``--seconds``), and at most that with ``--quick``.
+SECONDS = 15.0
+QUICK_SECONDS = 6.0
 
 
 def _clip(out: Path, size, progress: bool) -> Path:
@@ -27,7 +30,7 @@ def _clip(out: Path, size, progress: bool) -> Path:
     return synth_live(out, size, 4.0, progress) / "live.mp4"
 
 
-def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float = 15.0,
+def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float = SECONDS,
         browser: bool = True, record: bool = False) -> dict:
     import relight
     from relight.service.live import StatusLine, run_live
@@ -37,7 +40,7 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     sizes = SIZES[:1] if quick else SIZES
-    seconds = min(seconds, 6.0) if quick else seconds
+    seconds = min(seconds, QUICK_SECONDS) if quick else seconds
     bundle_path = synth_bundle(out, (640, 360), 20.0 if quick else 30.0, progress)
     bundle = relight.load_bundle(bundle_path)
     doc: dict = {"live": [], "browser": []}

@@ -145,9 +145,14 @@ def stop_server(proc: subprocess.Popen) -> str:
 
 #: The single client's frame size (the issue's live case: a 720p webcam).
 SINGLE_SIZE = (1280, 720)
+#: The load unless told (``--clients``, ``--fps``, ``--duration``): websocket clients at once, the
+#: frames per second each sends, seconds of load.
+CLIENTS = 4
+FPS = 30.0
+DURATION_S = 60.0
 
 
-def run(out: Path, bundle: Path | None = None, clients: int = 4, fps: float = 30.0, duration: float = 60.0,
+def run(out: Path, bundle: Path | None = None, clients: int = CLIENTS, fps: float = FPS, duration: float = DURATION_S,
         quick: bool = False, progress: bool = True, single_size: tuple[int, int] = SINGLE_SIZE,
         start_bundle: Path | None = None) -> dict:
     """The N-client load at 640x360, then one client alone at ``single_size``; start-up timed on

@@ -38,6 +38,9 @@ CLIENTS = 4
 FPS = 10.0
 SAMPLE_S = 5.0
 WARMUP_S = 60.0
+#: Length of the soak (``--minutes``), and with ``--quick``.
+MINUTES = 10.0
+QUICK_MINUTES = 2.0
 
 
 def _proc_counts(pid: int) -> tuple[int, int]:
@@ -173,7 +176,7 @@ def _slope(t: np.ndarray, v: np.ndarray) -> float | None:
     return float(np.polyfit(t[keep] / 60.0, v[keep], 1)[0])
 
 
-def run(out: Path, *, minutes: float = 10.0, bundle: Path | None = None, progress: bool = True) -> dict:
+def run(out: Path, *, minutes: float = MINUTES, bundle: Path | None = None, progress: bool = True) -> dict:
     import httpx
 
     from relight.imageio import atomic_path

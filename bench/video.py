@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.engine.composite import DEFAULT_REGION
+from relight.engine.composite import DEFAULT_MODE, DEFAULT_REGION
 
 from .clips import CAPTURE_HZ as CLIP_CAPTURE_HZ
 from .clips import flicker_step, synth_bundle, synth_live  # noqa: F401 (used by the other benches)
@@ -56,6 +56,8 @@ SPEED_KEYS = ("size", "frames", "faces", "face_pixels", "bundle_pixels", "stage_
 #: capture and live clip: a tracking change is judged over several heads, not tuned to one
 #: (the closed loop moves one clip's figures by a few tenths of a degree for small changes).
 POSE_HEADS = (1, 2)
+#: The environment the clips are relit under unless told (``--env``).
+ENV = "builtin:sunset"
 
 
 #: The scanned head shipped with relight, measured beside the procedural one (issue 31).
@@ -221,8 +223,8 @@ def _plots(doc: dict, pairs, out: Path) -> None:
         cv2.imwrite(str(out / "video_frames.png"), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
 
 
-def run(out: Path, quick: bool = False, progress: bool = True, env: str = "builtin:sunset",
-        mode: str = "transfer", faces: Path | None = None, region: str = DEFAULT_REGION) -> dict:
+def run(out: Path, quick: bool = False, progress: bool = True, env: str = ENV,
+        mode: str = DEFAULT_MODE, faces: Path | None = None, region: str = DEFAULT_REGION) -> dict:
     """The whole benchmark: the synthetic clips (pose, speed, flicker), a `relight filter` run,
     and the real faces (``faces``: one RTI set per subject; quick: ``QUICK_FACES``)."""
     from relight.bench.accuracy import FACES_TRANSFER, QUICK_FACES, face_subjects

@@ -24,6 +24,7 @@ from relight.imageio import read_image
 from relight.kernels import interpolation, reflectance, triangulation
 from relight.kernels.bundle import BUNDLE_MODE, storage_scale, write_bundle
 from relight.kernels.heightfield import HORIZON_DIRS
+from relight.kernels.transport import STORE_TOLERANCE
 from relight.numerics import EPS_VALUE, flush_subnormal_halves
 
 from . import geometry, methods
@@ -69,7 +70,7 @@ class CaptureOptions:
     keep_maps: bool = False
     face_pixels: int | None = DEFAULT_FACE_PIXELS
     # --store-tolerance: the finest relight tolerance the compact transport is stored for.
-    store_tolerance: float = 0.01  # relight.kernels.transport.STORE_TOLERANCE
+    store_tolerance: float = STORE_TOLERANCE
 
     def validate(self) -> CaptureOptions:
         methods.validate_method(self.method)

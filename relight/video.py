@@ -42,6 +42,11 @@ AUDIO_RATE = 48_000
 AUDIO_BIT_RATE = 96_000
 #: Longest audio track a writer accepts, in samples (an hour at 48 kHz).
 MAX_AUDIO_SAMPLES = 3600 * AUDIO_RATE
+#: H.264 quality (x264's CRF: lower = better and bigger) of the videos relight makes for people to
+#: watch - ``relight filter``'s output, ``relight live``'s recording - unless told otherwise
+#: (``--crf``); a .webm output is VP9 at this + 12. :class:`VideoWriter`'s own default, 16, is the
+#: near-lossless quality of the synthetic captures the pipeline measures.
+DEFAULT_CRF = 18
 
 
 def sws_flags():

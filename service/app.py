@@ -35,12 +35,11 @@ from pathlib import Path
 from fastapi import FastAPI
 from fastapi.responses import JSONResponse
 
-from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION
 from .codec import MAX_BODY
 from .errors import ServiceError
 from .routers import environment, frames, health, stream, webrtc
 from .security import AccessGuard
-from .settings import ServeConfig
+from .settings import DEFAULT_PORT, ServeConfig
 from .state import Engine, Metrics
 from .webrtc import WebRTCSessions
 
@@ -91,9 +90,9 @@ def create_app(config: ServeConfig) -> FastAPI:
     return app
 
 
-def serve(bundle: Path, *, env: str = "builtin:studio", host: str = "127.0.0.1", port: int = 8000,
-          mode: str = DEFAULT_MODE, region: str = DEFAULT_REGION, max_clients: int = 4, focal=None,
-          token: str | None = None, allowed_origins: tuple[str, ...] = ()) -> int:
+def serve(bundle: Path, *, env: str = ServeConfig.env, host: str = ServeConfig.host, port: int = DEFAULT_PORT,
+          mode: str = ServeConfig.mode, region: str = ServeConfig.region, max_clients: int = ServeConfig.max_clients,
+          focal=None, token: str | None = None, allowed_origins: tuple[str, ...] = ()) -> int:
     """Serve ``bundle`` with uvicorn until stopped (``relight serve`` / ``relight-serve``; the
     command line checks its arguments first: :mod:`relight.cli`)."""
     import uvicorn

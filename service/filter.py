@@ -28,6 +28,7 @@ import numpy as np
 from relight.errors import InputError, OutputError, os_reason
 from relight.imageio import atomic_path, clean_stale_temps, dir_mode, temp_prefix
 from relight.numerics import EPS_NORM
+from relight.video import DEFAULT_CRF
 
 from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION
 
@@ -170,7 +171,7 @@ class _Writer:
 
 
 def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bool = False, strength: float = 1.0,
-               exposure: float = 0.0, focal: float | None = None, fps: float = 30.0, crf: int = 18,
+               exposure: float = 0.0, focal: float | None = None, fps: float = 30.0, crf: int = DEFAULT_CRF,
                region: str = DEFAULT_REGION,
                report_dir=None, virtual_camera: bool = False, progress: bool = True, frame_path=None,
                start_time: float | None = None) -> FilterResult:

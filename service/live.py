@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from relight.errors import InputError
+from relight.video import DEFAULT_CRF
 
 from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES
 from .virtual_camera import VirtualCamera, check_virtual_camera_backend
@@ -471,8 +472,8 @@ def _light_text(light) -> str:
 def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[int, int] | None = None,
              fps: float | None = None, duration: float | None = None, mode: str = DEFAULT_MODE,
              region: str = DEFAULT_REGION, strength: float = 1.0, focal=None, virtual_camera: bool = False,
-             preview: bool = False, preview_port: int = 0, record: str | os.PathLike | None = None, crf: int = 18,
-             status=None, on_ready=None) -> LiveResult:
+             preview: bool = False, preview_port: int = 0, record: str | os.PathLike | None = None,
+             crf: int = DEFAULT_CRF, status=None, on_ready=None) -> LiveResult:
     """Relight a live camera (or a looped file) until ``duration`` seconds pass, ``q``, or a stop
     signal. ``bundle``: a loaded :class:`relight.kernels.bundle.Bundle`; ``envs``: environments
     (paths or ``builtin:NAME``) switched in turn. ``on_ready(result)`` is called once the sinks

@@ -13,6 +13,8 @@ from .codec import MAX_BODY, MAX_PIXELS
 
 #: The environments a request may name (``builtin:NAME``).
 PRESETS = ("studio", "sunset", "window", "uniform", "room")
+#: The port ``relight-serve`` listens on unless told (``--port``).
+DEFAULT_PORT = 8000
 
 
 @dataclass

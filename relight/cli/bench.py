@@ -10,6 +10,8 @@ from .common import COMMANDS, parse_size
 
 
 def add_parser(sub) -> None:
+    # the defaults: each benchmark's own
+    from ..bench import crash, fuzz, live, serve, soak, video
     from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES, REGIONS
 
     p = sub.add_parser("bench", help=COMMANDS["bench"],
@@ -58,7 +60,7 @@ def add_parser(sub) -> None:
                                     "video_frames.png.",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     v.add_argument("-o", "--out", type=Path, default=Path("out/bench-video"), help="output and cache folder")
-    v.add_argument("--env", default="builtin:sunset", metavar="FILE|builtin:NAME", help="environment to relight with")
+    v.add_argument("--env", default=video.ENV, metavar="FILE|builtin:NAME", help="environment to relight with")
     v.add_argument("--mode", choices=MODES, default=DEFAULT_MODE,
                    help="compositing mode of the synthetic clips (the real faces run every mode)")
     v.add_argument("--region", choices=REGIONS, default=DEFAULT_REGION,
@@ -81,12 +83,12 @@ def add_parser(sub) -> None:
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     sv.add_argument("-o", "--out", type=Path, default=Path("out/bench-serve"), help="output and cache folder")
     sv.add_argument("--bundle", type=Path, default=None, help="bundle to serve (default: a synthetic 640x360 one)")
-    sv.add_argument("--clients", type=int, default=4, help="websocket clients at once")
-    sv.add_argument("--fps", type=float, default=30.0, help="frames per second each client sends")
-    sv.add_argument("--duration", type=float, default=60.0, help="seconds of load")
+    sv.add_argument("--clients", type=int, default=serve.CLIENTS, help="websocket clients at once")
+    sv.add_argument("--fps", type=float, default=serve.FPS, help="frames per second each client sends")
+    sv.add_argument("--duration", type=float, default=serve.DURATION_S, help="seconds of load")
     sv.add_argument("--start-bundle", type=Path, default=None,
                     help="bundle whose start-up (launch -> ready) is timed, twice (default: the served one)")
-    sv.add_argument("--single-size", type=parse_size, default=(1280, 720), metavar="WxH",
+    sv.add_argument("--single-size", type=parse_size, default=serve.SINGLE_SIZE, metavar="WxH",
                     help="frame size the single client sends")
     sv.add_argument("--quick", action="store_true", help="8 s of load and 640x360 for the single client (for CI)")
     sv.add_argument("--quiet", action="store_true", help="no progress output")
@@ -100,11 +102,11 @@ def add_parser(sub) -> None:
                                      "bench.json.",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     lv.add_argument("-o", "--out", type=Path, default=Path("out/bench-live"), help="output and cache folder")
-    lv.add_argument("--seconds", type=float, default=15.0, help="seconds measured per case")
+    lv.add_argument("--seconds", type=float, default=live.SECONDS, help="seconds measured per case")
     lv.add_argument("--no-browser", action="store_true", help="leave out the browser page")
     lv.add_argument("--record", action="store_true",
                     help="measure each size recorded as well (H.264 ultrafast at the output rate)")
-    lv.add_argument("--quick", action="store_true", help="640x360 only, 6 s per case (for CI)")
+    lv.add_argument("--quick", action="store_true", help=f"640x360 only, {live.QUICK_SECONDS:g} s per case (for CI)")
     lv.add_argument("--quiet", action="store_true", help="no progress output")
     lv.set_defaults(func=_run_bench_live)
     fz = bsub.add_parser("fuzz", help="every reader of hostile input fed mutated real files (Hypothesis)",
@@ -117,11 +119,11 @@ def add_parser(sub) -> None:
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     fz.add_argument("-o", "--out", type=Path, default=Path("out/bench-fuzz"), help="output and seed folder")
     fz.add_argument("--examples", type=int, default=None,
-                    help="inputs per target (default 1500; 40 with --quick)")
+                    help=f"inputs per target (default {fuzz.DEFAULT_EXAMPLES}; {fuzz.QUICK_EXAMPLES} with --quick)")
     fz.add_argument("--target", action="append", default=None, metavar="NAME",
-                    help="fuzz only this target (repeatable): bundle, lp, envmap, frame, control, video")
+                    help="fuzz only this target (repeatable): " + ", ".join(fuzz.TARGETS))
     fz.add_argument("--seed", type=int, default=0, help="random seed (another seed tries other inputs)")
-    fz.add_argument("--quick", action="store_true", help="40 inputs per target (for CI)")
+    fz.add_argument("--quick", action="store_true", help=f"{fuzz.QUICK_EXAMPLES} inputs per target (for CI)")
     fz.add_argument("--quiet", action="store_true", help="no progress output")
     fz.set_defaults(func=_run_bench_fuzz)
     cr = bsub.add_parser("crash", help="writers killed with SIGKILL at random moments: no damaged file",
@@ -132,22 +134,23 @@ def add_parser(sub) -> None:
                                      "the next run. Needs ../shared/data (real faces). Writes bench.json.",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     cr.add_argument("-o", "--out", type=Path, default=Path("out/bench-crash"), help="output and work folder")
-    cr.add_argument("--kills", type=int, default=None, help="kills per writer (default 25; 4 with --quick)")
+    cr.add_argument("--kills", type=int, default=None,
+                    help=f"kills per writer (default {crash.DEFAULT_KILLS}; {crash.QUICK_KILLS} with --quick)")
     cr.add_argument("--seed", type=int, default=0, help="random seed of the kill times")
-    cr.add_argument("--quick", action="store_true", help="4 kills per writer (for CI)")
+    cr.add_argument("--quick", action="store_true", help=f"{crash.QUICK_KILLS} kills per writer (for CI)")
     cr.add_argument("--quiet", action="store_true", help="no progress output")
     cr.set_defaults(func=_run_bench_crash)
     so = bsub.add_parser("soak", help="relight-serve for minutes with good and misbehaving clients",
-                         description="A real relight-serve with 4 websocket clients at 10 fps for --minutes, beside "
-                                     "clients that vanish, send garbage, never read, or post broken frames: errors "
-                                     "seen by the good clients, round trip p50/p95/p99 per minute, the server's "
-                                     "RSS, open file descriptors and threads with their slopes. Writes bench.json "
-                                     "and soak.png.",
+                         description=f"A real relight-serve with {soak.CLIENTS} websocket clients at {soak.FPS:g} "
+                                     "fps for --minutes, beside clients that vanish, send garbage, never read, or "
+                                     "post broken frames: errors seen by the good clients, round trip p50/p95/p99 "
+                                     "per minute, the server's RSS, open file descriptors and threads with their "
+                                     "slopes. Writes bench.json and soak.png.",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     so.add_argument("-o", "--out", type=Path, default=Path("out/bench-soak"), help="output and cache folder")
-    so.add_argument("--minutes", type=float, default=10.0, help="length of the soak")
+    so.add_argument("--minutes", type=float, default=soak.MINUTES, help="length of the soak")
     so.add_argument("--bundle", type=Path, default=None, help="bundle to serve (default: a synthetic 640x360 one)")
-    so.add_argument("--quick", action="store_true", help="2 minutes (for CI)")
+    so.add_argument("--quick", action="store_true", help=f"{soak.QUICK_MINUTES:g} minutes (for CI)")
     so.add_argument("--quiet", action="store_true", help="no progress output")
     so.set_defaults(func=_run_bench_soak)
     a = bsub.add_parser("accuracy", help="every method against the truth and real held-out photos: one report",
@@ -277,7 +280,7 @@ def _run_bench_soak(args) -> int:
     from ..bench import soak
     from ..errors import InputError
 
-    minutes = 2.0 if args.quick else args.minutes
+    minutes = soak.QUICK_MINUTES if args.quick else args.minutes
     if not (0.5 <= minutes <= 24 * 60):
         raise InputError(f"--minutes {minutes}: use 0.5 to 1440")
     doc = soak.run(args.out, minutes=minutes, bundle=args.bundle, progress=not args.quiet)

@@ -31,10 +31,9 @@ def _circle(text: str) -> tuple[float, float, float]:
 
 def add_parser(sub) -> None:
     from ..kernels.bundle import BUNDLE_MODE
-    from ..kernels.transport import STORE_TOLERANCE
-    from ..pipeline.capture import TRANSFERS
-    from ..pipeline.ingest import DEFAULT_FACE_PIXELS
+    from ..pipeline.capture import TRANSFERS, CaptureOptions
     from ..pipeline.methods import METHODS
+    from ..pipeline.samples import SampleOptions  # the defaults: the pipeline's own options
 
     p = sub.add_parser(
         "capture", help=COMMANDS["capture"],
@@ -48,7 +47,7 @@ def add_parser(sub) -> None:
                    help="an RTI image set instead of a video: images plus dirs.lp (and optional mask.png, and "
                         "ambient.png: the room light alone, subtracted and kept as the bundle's ambient)")
     p.add_argument("-o", "--out", type=Path, required=True, help="bundle file to write")
-    p.add_argument("--method", default="full", choices=METHODS,
+    p.add_argument("--method", default=CaptureOptions.method, choices=METHODS,
                    help="how samples become maps: the paper's triangulation (full = with visibility and light "
                         "adaptation, barycentric = without) or a fitted baseline")
     p.add_argument("--no-visibility", action="store_true", help="leave out visibility-aware interpolation")
@@ -62,19 +61,20 @@ def add_parser(sub) -> None:
     p.add_argument("--no-spline", action="store_true",
                    help="leave out the thin-plate spline over light directions that pixels the shading model does "
                         "not explain (shiny, badly modelled) are blended with; barycentric only, as the paper")
-    p.add_argument("--model-reach", type=float, default=60.0, metavar="DEG",
+    p.add_argument("--model-reach", type=float, default=CaptureOptions.model_reach, metavar="DEG",
                    help="how far (degrees) beyond the captured directions the shading model's light reaches; "
                         "less: smaller bundle and faster capture, darker under light from behind the head")
-    p.add_argument("--map-size", type=parse_size, default=(64, 32), metavar="WxH", help="reflectance map size (2:1)")
+    p.add_argument("--map-size", type=parse_size, default=CaptureOptions.map_size, metavar="WxH",
+                   help="reflectance map size (2:1)")
     p.add_argument("--sphere", type=_circle, metavar="cx,cy,r", help="mirror sphere centre and radius (pixels) "
                    "instead of finding it")
     p.add_argument("--face", type=_box, metavar="x,y,w,h", help="face box (pixels) instead of detecting it")
     p.add_argument("--flash-hz", type=float, help="flash rate in Hz (estimated from the video when not given)")
-    p.add_argument("--flash-threshold", type=float, default=0.002,
+    p.add_argument("--flash-threshold", type=float, default=SampleOptions.flash_threshold,
                    help="least brightness (linear, 0-1) a flash must add to the face over the dark frames")
     p.add_argument("--focal", type=float, help="camera focal length in pixels for a perspective sphere "
                    "(orthographic when not given)")
-    p.add_argument("--highlight", default="blob", choices=("blob", "paper"),
+    p.add_argument("--highlight", default=SampleOptions.highlight, choices=("blob", "paper"),
                    help="highlight position: whole blob (default) or the paper's 0.85 threshold")
     p.add_argument("--no-registration", action="store_true", help="leave out head-motion registration")
     p.add_argument("--no-ambient-subtraction", action="store_true",
@@ -82,10 +82,10 @@ def add_parser(sub) -> None:
     p.add_argument("--mesh", type=Path, help="a mesh (any format trimesh reads) aligned to the reference camera, "
                    "vertices (column, -row, height) in pixels, instead of photometric-stereo geometry")
     p.add_argument("--export-mesh", type=Path, metavar="FILE", help="write the estimated head as a mesh (.ply, .obj)")
-    p.add_argument("--transfer", choices=TRANSFERS, default="srgb",
+    p.add_argument("--transfer", choices=TRANSFERS, default=CaptureOptions.transfer,
                    help="with --images: how the set's PNG/JPEG/TIFF files encode light - srgb (phones, most RTI "
                         "sets) or linear (a camera's raw response, e.g. Extended Yale B); EXR/HDR are always linear")
-    p.add_argument("--face-pixels", type=int, default=DEFAULT_FACE_PIXELS, metavar="N",
+    p.add_argument("--face-pixels", type=int, default=CaptureOptions.face_pixels, metavar="N",
                    help="work on the head at about N pixels: larger captures (1080p, 4K) are downscaled as they "
                         "are decoded, bounding time and memory; the bundle records the scale (0: never downscale)")
     p.add_argument("--keep-maps", action="store_true",
@@ -93,7 +93,7 @@ def add_parser(sub) -> None:
                         "(~25 KB per face pixel: the exact path and the accuracy bench start at once); without it "
                         "the bundle holds what the maps are made of (~1 KB per face pixel) and makes any texel "
                         "on demand")
-    p.add_argument("--store-tolerance", type=float, default=STORE_TOLERANCE, metavar="TOL",
+    p.add_argument("--store-tolerance", type=float, default=CaptureOptions.store_tolerance, metavar="TOL",
                    help="finest relight tolerance (relative L2) the bundle serves from its compact transport: "
                         "ranks are stored until their validation error, 8-bit storage included, meets it (finer "
                         "tolerances build the exact maps on load)")
@@ -122,7 +122,7 @@ def _run_capture(args) -> int:
 
     if (args.video is None) == (args.images is None):
         raise InputError("give either a capture video or --images DIR (not both)")
-    if args.images is None and args.transfer != "srgb":
+    if args.images is None and args.transfer != CaptureOptions.transfer:
         raise InputError("--transfer applies to --images sets; a video's transfer curve is read from its tags")
     if not (math.isfinite(args.store_tolerance) and 0 < args.store_tolerance < 1):
         raise InputError(f"--store-tolerance {args.store_tolerance}: use a relative error such as 0.01 (1 %)")

@@ -87,6 +87,13 @@ def parse_strength(text: str) -> float:
     return v
 
 
+def focal_default() -> str:
+    """What --focal defaults to, in words: the frame path's guess (:data:`relight.engine.pose.DEFAULT_FOCAL`)."""
+    from ..engine.pose import DEFAULT_FOCAL
+
+    return f"{DEFAULT_FOCAL:g} x the frame's larger side"
+
+
 def parse_focal(text: str):
     """--focal: a focal length in pixels, or 'ortho' (an orthographic camera)."""
     if text.strip().lower() == "ortho":

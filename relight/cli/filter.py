@@ -6,11 +6,12 @@ import argparse
 import time
 from pathlib import Path
 
-from .common import COMMANDS, REGION_HELP, parse_focal, parse_strength
+from .common import COMMANDS, REGION_HELP, focal_default, parse_focal, parse_strength
 
 
 def add_parser(sub) -> None:
     from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES, REGIONS
+    from ..video import DEFAULT_CRF
 
     p = sub.add_parser(
         "filter", help=COMMANDS["filter"],
@@ -38,10 +39,10 @@ def add_parser(sub) -> None:
     p.add_argument("--exposure", type=float, default=0.0,
                    help="stops (EV) on top of the automatic exposure matching")
     p.add_argument("--focal", type=parse_focal, default=None, metavar="PIXELS|ortho",
-                   help="the video's focal length in pixels (default: 0.85 x the frame's larger side, a phone or "
+                   help=f"the video's focal length in pixels (default: {focal_default()}, a phone or "
                         "webcam); 'ortho' for an orthographic camera such as relight synth's")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of an image-sequence input")
-    p.add_argument("--crf", type=int, default=18, help="output quality (lower = better, bigger)")
+    p.add_argument("--crf", type=int, default=DEFAULT_CRF, help="output quality (lower = better, bigger)")
     p.add_argument("--report", type=Path, metavar="DIR",
                    help="write DIR/report.json: head_rotation per frame, timings, counts")
     p.add_argument("--virtual-camera", action="store_true",

@@ -5,11 +5,20 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .common import COMMANDS, REGION_HELP, DefaultsUnlessNone, parse_focal, parse_size, parse_strength
+from .common import (
+    COMMANDS,
+    REGION_HELP,
+    DefaultsUnlessNone,
+    focal_default,
+    parse_focal,
+    parse_size,
+    parse_strength,
+)
 
 
 def add_parser(sub) -> None:
     from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES, REGIONS
+    from ..video import DEFAULT_CRF
 
     p = sub.add_parser(
         "live", help=COMMANDS["live"],
@@ -41,7 +50,7 @@ def add_parser(sub) -> None:
                    help=REGION_HELP)
     p.add_argument("--strength", type=parse_strength, default=1.0, help="blend with the camera's frame, 0 to 1")
     p.add_argument("--focal", type=parse_focal, default=None, metavar="PIXELS|ortho",
-                   help="the camera's focal length in pixels, or 'ortho' (default: 0.85 x the frame's larger side)")
+                   help=f"the camera's focal length in pixels, or 'ortho' (default: {focal_default()})")
     p.add_argument("--virtual-camera", action="store_true",
                    help="send the relit frames to a virtual camera (needs the pyvirtualcam extra and a driver; "
                         "without one the command says what to install and exits 2)")
@@ -50,7 +59,7 @@ def add_parser(sub) -> None:
     p.add_argument("--preview-port", type=int, default=0, help="the preview page's port (0: a free one)")
     p.add_argument("--record", type=Path, default=None, metavar="OUT.mp4",
                    help="record the relit frames (H.264, at the output rate; appears only when complete)")
-    p.add_argument("--crf", type=int, default=18, help="the recording's quality (lower = better, bigger)")
+    p.add_argument("--crf", type=int, default=DEFAULT_CRF, help="the recording's quality (lower = better, bigger)")
     p.add_argument("--stats-json", type=Path, default=None, metavar="FILE",
                    help="write the run's figures (frames in/out, dropped, latency, CPU) as JSON")
     p.set_defaults(func=_live_command)

@@ -8,6 +8,10 @@ from pathlib import Path
 
 from .common import COMMANDS
 
+#: --exposure's bound, stops either way: a still image takes a wider range than the frame path's
+#: +-20 EV (the light is scaled by 2^EV here, then checked by the relighter).
+MAX_EXPOSURE_EV = 40.0
+
 
 def _vec3(text: str) -> tuple[float, float, float]:
     try:
@@ -62,8 +66,9 @@ def _run_render(args) -> int:
     from ..imageio import write_image
     from ..kernels.relighter import Relighter
 
-    if not np.isfinite(args.exposure) or abs(args.exposure) > 40:
-        raise InputError(f"--exposure {args.exposure}: use a number of stops between -40 and 40")
+    if not np.isfinite(args.exposure) or abs(args.exposure) > MAX_EXPOSURE_EV:
+        raise InputError(f"--exposure {args.exposure}: use a number of stops between {-MAX_EXPOSURE_EV:g} and "
+                         f"{MAX_EXPOSURE_EV:g}")
     if args.out.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg", ".hdr"):
         raise InputError(f"{args.out}: write .exr (linear), .png or .jpg (sRGB)")
     t0 = time.perf_counter()

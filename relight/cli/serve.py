@@ -7,12 +7,12 @@ import os
 import re
 from pathlib import Path
 
-from .common import COMMANDS, REGION_HELP, parse_focal
+from .common import COMMANDS, REGION_HELP, focal_default, parse_focal
 
 
 def add_arguments(p) -> None:
     from ..engine.composite import MODES, REGIONS
-    from ..service.settings import ServeConfig  # the defaults: the service's own settings
+    from ..service.settings import DEFAULT_PORT, ServeConfig  # the defaults: the service's own settings
 
     p.add_argument("bundle", type=Path, help="reflectance bundle to serve (relight capture)")
     p.add_argument("--env", default=ServeConfig.env, metavar="FILE|builtin:NAME", help="starting environment")
@@ -24,7 +24,7 @@ def add_arguments(p) -> None:
     p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
                    help="a web page origin (https://example.org) allowed to drive this server besides its own "
                         "page; give it again for more")
-    p.add_argument("--port", type=int, default=8000, help="port to listen on")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help="port to listen on")
     p.add_argument("--mode", choices=MODES, default=ServeConfig.mode,
                    help="transfer: the live light measured from the face and swapped for the target; ambient: the "
                         "ratio to the capture room's light; paste: the relit reference face (the paper)")
@@ -32,7 +32,7 @@ def add_arguments(p) -> None:
                    help=REGION_HELP)
     p.add_argument("--max-clients", type=int, default=ServeConfig.max_clients, help="most stream clients at once")
     p.add_argument("--focal", type=parse_focal, default=None, metavar="PIXELS|ortho",
-                   help="the frames' focal length in pixels, or 'ortho' (default: 0.85 x the frame's larger side)")
+                   help=f"the frames' focal length in pixels, or 'ortho' (default: {focal_default()})")
 
 
 def serve_command(args) -> int:

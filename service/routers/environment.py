@@ -16,6 +16,7 @@ from ..codec import (
     preview_png,
     read_body,
 )
+from ..controls import RANGES
 from ..dependencies import EngineDep
 from ..errors import ServiceError
 from ..settings import PRESETS
@@ -33,7 +34,8 @@ async def get_environment(engine: EngineDep):
 async def put_environment(request: Request, engine: EngineDep,
                           builtin: str | None = Query(None, description="a built-in: " + ", ".join(PRESETS)),
                           rotation: str | None = Query(None, description="yaw,pitch,roll (degrees)"),
-                          exposure: float | None = Query(None, ge=-20, le=20, description="stops (EV)")):
+                          exposure: float | None = Query(None, ge=RANGES["exposure"][0], le=RANGES["exposure"][1],
+                                                         description="stops (EV)")):
     rot = parse_rotation(rotation)
     ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
     body = await read_body(request, ENV_MAX_BODY)

@@ -11,6 +11,7 @@ from relight.errors import RelightError
 
 from ...engine.composite import MODES
 from ..codec import CONTENT_TYPES, binary_body, decode_frame, encode_frame, parse_rotation, read_body
+from ..controls import RANGES
 from ..dependencies import EngineDep, MetricsDep, SettingsDep
 from ..errors import ServiceError
 from ..settings import PRESETS
@@ -23,8 +24,10 @@ router = APIRouter()
 async def relight_frame(request: Request, engine: EngineDep, metrics: MetricsDep, config: SettingsDep,
                         env: str | None = Query(None, description="built-in preset: " + ", ".join(PRESETS)),
                         rotation: str | None = Query(None, description="environment yaw,pitch,roll (degrees)"),
-                        exposure: float | None = Query(None, ge=-20, le=20, description="stops (EV)"),
-                        strength: float | None = Query(None, ge=0, le=1, description="blend, 0 to 1"),
+                        exposure: float | None = Query(None, ge=RANGES["exposure"][0], le=RANGES["exposure"][1],
+                                                       description="stops (EV)"),
+                        strength: float | None = Query(None, ge=RANGES["strength"][0], le=RANGES["strength"][1],
+                                                       description="blend, 0 to 1"),
                         mode: str | None = Query(None, pattern=f"^({'|'.join(MODES)})$",
                                                  description="transfer (the live light measured and swapped), "
                                                              "ambient (ratio to the capture room), paste")):
