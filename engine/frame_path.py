@@ -26,11 +26,12 @@ from relight.directions import rotation_matrix
 from relight.errors import InputError
 from relight.numerics import EPS_VALUE
 
-from . import composite, head_light
+from . import composite
+from .frame_person import PersonMixin
 from .frame_warp import face_warp, regularised_points, sample_live
 from .gains import ExposureLock, ambient_gain, live_gain, paste_gain
 from .live_light import LightEstimator, LiveLight
-from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs
+from .person_maps import union_box
 from .pose import OneEuroFilter, PoseEstimator
 from .refind import refind_landmarks
 from .rig import FaceRig
@@ -105,12 +106,7 @@ class Front:
     warp: tuple | None = None
 
 
-def _union_box(a, b) -> tuple[int, int, int, int]:
-    """The smallest box (x0, y0, x1, y1) holding boxes ``a`` and ``b``."""
-    return min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])
-
-
-class FramePath:
+class FramePath(PersonMixin):
     """Relights faces in frames with one bundle (see the module docstring).
 
     mode : 'transfer' or 'paste'. strength : 0-1. fixed_env : keep the environment still relative
@@ -377,7 +373,7 @@ class FramePath:
                 pb = last[1].moved(anchor).box if last is not None else None
                 if pb is not None:
                     g = int(np.ceil(YUV_PERSON_MARGIN * max(fw, fh)))
-                    want = _union_box(box, (pb[0] - g, pb[1] - g, pb[2] + g, pb[3] + g))
+                    want = union_box(box, (pb[0] - g, pb[1] - g, pb[2] + g, pb[3] + g))
                 else:  # no person's box yet: the whole frame
                     want = (0, 0, fw, fh)
             ebox = rgb.even_box(want)  # (clipped to the frame)
@@ -441,7 +437,7 @@ class FramePath:
             t6 = time.perf_counter()
             from .head_light import MATTE_FLOOR
 
-            maps, union = self._person(frame, frame_box, coarse, rotation, tau, anchor, still=info.reused)
+            maps, union = self._person(frame, frame_box, coarse, rotation, tau, anchor, info.reused, PERSON_EVERY)
             ox, oy = int(offset[0]), int(offset[1])
             if frame is not rgb and not (union[0] >= ox and union[1] >= oy and union[2] <= ox + rgb.shape[1]
                                          and union[3] <= oy + rgb.shape[0]):
@@ -461,87 +457,12 @@ class FramePath:
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info
 
-    def _last_person(self):
-        """The person's maps (work size, :class:`PersonMaps`, the back() call that used them) if
-        the last back() call used them - they serve only the call right after (not across a frame
-        the person was left out of: no face, another mode, strength 0) - else None."""
-        last = self._person_last
-        return last if last is not None and last[2] == self._backs - 1 else None
-
-    def _person(self, frame, face_box, coarse, rotation, tau: float, anchor, still: bool):
-        """(:class:`PersonMaps` of this frame, the frame's box the face and the person reach): the
-        maps (smooth, slow to change) made every PERSON_EVERY frames and reused between, kept while
-        the head is ``still`` (the face's own alpha in the kernel is this frame's). With
-        ``live_source`` the making (all but the inputs the device and this thread's state give,
-        :meth:`_person_inputs`) runs on a worker: the frame uses the newest maps made, a frame or
-        two old, and the next are made while it is composited. ``frame``: as given (an array or a
-        YuvFrame); ``face_box``: the face's box in it; ``anchor``: the head's place in it (maps
-        made on another frame are carried with the head: :meth:`PersonMaps.moved`)."""
-        from .person import WORK_ROWS
-
-        h, w = frame.shape[:2]
-        sc = min(1.0, WORK_ROWS / h)
-        work = (max(1, round(w * sc)), max(1, round(h * sc)))
-        last = self._last_person()
-        job = self._person_job  # the maps being made on the worker, or None
-        if last is None or last[0] != work:  # none to go on with: made now, on this thread
-            if job is not None:  # made for maps no longer in use (another environment, a gap,
-                job.result()     # a reset): dropped once done - the model is one, never two at once
-                self._person_job = None
-            maps = self._took_maps(build_person_maps(self._matte(), self._person_inputs(
-                frame, face_box, coarse, rotation, tau, work, anchor)))
-        else:
-            maps = last[1]
-            due = not still and self._person_age + 1 >= PERSON_EVERY
-            if job is not None and job.done():
-                self._person_job = None
-                maps = self._took_maps(job.result())
-            elif due and job is None:
-                inputs = self._person_inputs(frame, face_box, coarse, rotation, tau, work, anchor)
-                if self.live_source:
-                    self._person_job = self._worker().submit(build_person_maps, self._matte(), inputs)
-                    self._person_age += 1
-                else:
-                    maps = self._took_maps(build_person_maps(self._matte(), inputs))
-            else:
-                self._person_age += 1
-        self._person_last = (work, maps, self._backs)
-        maps = maps.moved(anchor)
-        if maps.box is None:
-            return maps, face_box
-        x0, y0, x1, y1 = _union_box(face_box, maps.box)
-        return maps, (max(x0, 0), max(y0, 0), min(x1, w), min(y1, h))
-
-    def _took_maps(self, made) -> PersonMaps:
-        """The maps :func:`build_person_maps` made, taken into use on this thread: the matte's run
-        of trusted remakes counted and the gate set from it."""
-        maps, trusted = made
-        self._trust_run = self._trust_run + 1 if trusted else 0
-        self._person_age = 0
-        return maps._replace(gate=self._trust_run >= head_light.MATTE_TRUST_RUN)
-
-    def _matte(self):
-        from .person import PersonMatte
-
-        if self.person is None:
-            self.person = PersonMatte()
-        return self.person
-
     def _worker(self):
         if self._pool is None:
             from concurrent.futures import ThreadPoolExecutor
 
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="relight-maps")
         return self._pool
-
-    def _person_inputs(self, frame, box, coarse, rotation, tau: float, work, anchor) -> PersonInputs:
-        """What the person's maps are made of (:func:`.person_maps.person_inputs`) from this frame
-        and this path's state."""
-        if self._env_texels is None:  # the environment's low frequencies
-            self._env_texels = environment_texels(self.env)
-        return person_inputs(self.rig, self.compositor, frame, box, coarse, rotation, tau, work, anchor,
-                             strength=self.strength, env_texels=self._env_texels, fixed_env=self.fixed_env,
-                             texel_dirs=self.bundle.texel_dirs, texel_light=self._texel_light())
 
     def _fit_light(self, lin: np.ndarray, valid: np.ndarray, t: float, rotation: np.ndarray):
         """The live light fitted to a frame's sampled face (:meth:`LightEstimator.fit`): (its

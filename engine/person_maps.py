@@ -27,6 +27,11 @@ from .warp import GRID_STEP
 RATIO_REACH = 12
 
 
+def union_box(a, b) -> tuple[int, int, int, int]:
+    """The smallest box (x0, y0, x1, y1) holding boxes ``a`` and ``b``."""
+    return min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])
+
+
 class PersonMaps(NamedTuple):
     """The person's maps of a frame (region person), at the work scale (:data:`.person.WORK_ROWS`
     rows) over the box of it the person reaches: ``grid`` (h, w, 4) float32 read-only, rho - 1
