@@ -27,9 +27,10 @@ from relight.errors import InputError
 from relight.numerics import EPS_VALUE
 
 from . import composite
+from .frame_light import LiveLightMixin
 from .frame_person import PersonMixin
-from .frame_warp import face_warp, regularised_points, sample_live
-from .gains import ExposureLock, ambient_gain, live_gain, paste_gain
+from .frame_warp import face_warp, regularised_points
+from .gains import ExposureLock, ambient_gain, paste_gain
 from .live_light import LightEstimator, LiveLight
 from .person_maps import union_box
 from .pose import OneEuroFilter, PoseEstimator
@@ -37,13 +38,9 @@ from .refind import refind_landmarks
 from .rig import FaceRig
 from .threads import limit_threads
 from .tracking import FaceTracker
-from .tracking_image import lit_reference, tracking_image
+from .tracking_image import tracking_image
 from .warp import GRID_STEP
 
-#: Mode transfer: the live light is fitted every this many frames (it is smoothed over a tenth of a
-#: second anyway; the frames between reuse it). Measured against 2: the same figures on the truth
-#: clips (+-0.02 dB) and the real faces (+-0.03 dB) at two thirds of the fits; 4 cost 0.1-0.16 dB.
-LIGHT_EVERY = 3
 #: Head turns (degrees) below which a frame reuses the last relight instead of relighting (the
 #: environment and exposure unchanged): measured on a 960x540 capture, a turn of 0.1 deg changes
 #: the relit face by at most 0.17 % (relative L2; a point light beside the face, the sharpest
@@ -106,7 +103,7 @@ class Front:
     warp: tuple | None = None
 
 
-class FramePath(PersonMixin):
+class FramePath(PersonMixin, LiveLightMixin):
     """Relights faces in frames with one bundle (see the module docstring).
 
     mode : 'transfer' or 'paste'. strength : 0-1. fixed_env : keep the environment still relative
@@ -382,39 +379,11 @@ class FramePath(PersonMixin):
             box = (box[0] - ebox[0], box[1] - ebox[1], box[2] - ebox[0], box[3] - ebox[1])
             cur = cur - offset
         flat = img.reshape(-1, 3)
-        layer_mode = composite.LAYER_MODE[self.mode]
-        live_median = 0.0
-        tau = 0.0
-        eps = float(self.rig.ratio_eps)
-        waited = 0.0
-        if self.mode == "transfer":
-            # The live light, fitted to this frame's face; the target exposure-matched to it.
-            t5 = time.perf_counter()
-            job = self._light_job
-            if job is not None and job.done():  # a fit made beside the frames, taken into use
-                self._light_job = None
-                waited = self._took_light(job.result(), tm, front.track_gain, defer_reference)
-            if job is None and (self._light_now is None or self._since_light + 1 >= LIGHT_EVERY):
-                lin, valid = sample_live(self.rig, rgb, cur, ref, rotation, self.rigid_warp)
-                self._since_light = 0
-                if self.live_source and self._light_now is not None:
-                    self._light_job = self._worker().submit(self._fit_light, lin, valid, t, rotation)
-                else:
-                    waited += self._took_light(self._fit_light(lin, valid, t, rotation), tm, front.track_gain,
-                                               defer_reference)
-            else:
-                self._since_light += 1
+        layer_mode, live_median, tau, eps = composite.LAYER_MODE[self.mode], 0.0, 0.0, float(self.rig.ratio_eps)
+        if self.mode == "transfer":  # the live light, fitted to this frame's face
+            layer_mode, gain, live_median, tau, eps, waited = self._transfer_light(
+                rgb, cur, ref, rotation, t, flat, tm, front.track_gain, defer_reference)
             info.light = self._last_light
-            waited += self._sync_relight(tm)
-            if self._light_now is not None:
-                live_median, gain = live_gain(self.rig, self.relighter.slot("live")[0], flat)
-                gain = self._exposure_lock(gain)
-                spread = self._light_now[1]
-                tau = composite.DETAIL_SHRINK * spread if np.isfinite(spread) else 0.0
-                eps = composite.RATIO_EPS * max(live_median, composite.TINY)
-            else:  # no light yet (the first frames showed too little): the capture room's ratio
-                layer_mode, gain = "ambient", ambient_gain(self.rig, flat)
-            tm["light"] = (time.perf_counter() - t5) * 1e3 - waited
         elif self.mode == "ambient":
             # The lighting ratio's median is 1: the face keeps its brightness.
             waited = self._sync_relight(tm)
@@ -464,37 +433,6 @@ class FramePath(PersonMixin):
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="relight-maps")
         return self._pool
 
-    def _fit_light(self, lin: np.ndarray, valid: np.ndarray, t: float, rotation: np.ndarray):
-        """The live light fitted to a frame's sampled face (:meth:`LightEstimator.fit`): (its
-        report, (the texel light, its spread) or None before any light). Touches only the
-        estimator (a worker's while a fit runs beside the frames: the frame's thread reads the
-        snapshot :meth:`_took_light` keeps)."""
-        report = self.light_estimator.fit(lin, valid, t, rotation)
-        est = self.light_estimator
-        return report, (est.texel_light().copy(), float(est.spread)) if est.light is not None else None
-
-    def _took_light(self, fitted, tm: dict, track_gain: float, defer_reference: bool) -> float:
-        """A fit (:meth:`_fit_light`) taken into use on the frame's thread: its snapshot kept, the
-        face relit under it for the layer and the tracker's reference; the ms waited for the main
-        relight first (counted in the relight stage)."""
-        self._last_light, now = fitted
-        if now is None:
-            return 0.0
-        self._light_now = now
-        waited = self._sync_relight(tm)  # the main relight first (counted as its stage)
-        # The live light through the low-rank part alone (direct=0): no texel row is made for it
-        # (a recipe bundle's rows cost ~35 ms each at 100k face pixels and the fitted light's
-        # brightest texels change every fit). Measured on the 720p live clip against the exact
-        # maps: 0.74 % relative L2 median, 0.94 % max (0.47 / 0.68 % with 8 exact texels) - within
-        # the default tolerance and far below the fit's own residual (8-15 % on the real faces).
-        lit = self.relighter.relight_texels(now[0], slot="live", direct=0)
-        self._set_lit_reference(lit, track_gain, defer_reference)
-        return waited
-
-    def _texel_light(self) -> np.ndarray:
-        """(T, 3) the live light in use, in the bundle's texels (zeros before the first)."""
-        return self._light_now[0] if self._light_now is not None else self.light_estimator.texel_light()
-
     def _sync_relight(self, tm: dict) -> float:
         """Wait for the queued relight; the ms waited are counted in the relight stage (returned)."""
         t = time.perf_counter()
@@ -508,17 +446,6 @@ class FramePath(PersonMixin):
         the tracker's live-lit reference when there is one): a Track, or None."""
         ref = self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
         return refind_landmarks(self.rig, ref, est, pose, ts, grey, idx)
-
-    def _set_lit_reference(self, lit: np.ndarray, gain: float, defer: bool) -> None:
-        """The tracker's reference with the face as the live light shows it (``lit``: the reference
-        frame relit by the estimate, linear; ``gain``: the tracking gain of the frame the light was
-        fitted to): re-anchoring then matches like with like (:func:`.tracking_image.lit_reference`).
-        ``defer``: kept for :meth:`commit_reference` instead of handed to the tracker now."""
-        ref = lit_reference(self.tracker.reference, lit, self.rig.lit_box, self.rig.track_face, gain)
-        if defer:
-            self._next_reference = ref
-        else:
-            self.tracker.lit_reference = ref
 
     def commit_reference(self) -> None:
         """Hand the tracker the live-lit reference a deferred :meth:`back` made (between frames,
