@@ -1,11 +1,14 @@
 """The per-frame path shared by ``relight filter``, ``relight live`` and the service: track ->
 pose -> relight -> live light -> warp -> composite.
 
-One flow: :class:`FaceRig` - everything the path needs of a bundle, prepared once (frozen) -
+One flow: a :class:`.rig.FaceRig` (everything the path needs of a bundle, prepared once, frozen),
 then, per frame, :meth:`FramePath.front` (track, head pose: a :class:`Front`) and
 :meth:`FramePath.back` (relight, live light, warp, composite). :class:`FramePath` is the one
 stateful object: the rig, the relighter, the tracker, the pose estimators and filters, the live
-light and the environment. ``process(frame, t)`` takes an (H, W, 3) uint8 sRGB frame - or a
+light and the environment; its live light and its person are parts of it kept beside this
+module (:mod:`.frame_light`, :mod:`.frame_person`), the stages it calls are functions of their
+own modules (:mod:`.tracking_image`, :mod:`.refind`, :mod:`.frame_warp`, :mod:`.gains`,
+:mod:`.person_maps`). ``process(frame, t)`` takes an (H, W, 3) uint8 sRGB frame - or a
 :class:`relight.video_yuv.YuvFrame`, a decoded frame kept in its planes (only the face's box -
 and the person's, region person - is converted) - and its time in seconds, and returns the relit
 frame (the same kind, same size; the input unchanged where no face is found) and a
