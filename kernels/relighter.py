@@ -64,44 +64,6 @@ def frozen(env) -> np.ndarray:
     return freeze(np.array(env, dtype=np.float32, order="C"))
 
 
-def relight_compact_numpy(q8: np.ndarray, units: np.ndarray, rank8: int, q4: np.ndarray, units4: np.ndarray,
-                          rank4: int, coef: np.ndarray, direct_rows: np.ndarray, direct_lp: np.ndarray,
-                          n_pix: int) -> np.ndarray:
-    """NumPy twin of ``relight_compact``: (P, 3) float32.
-
-    q8 : (P / 32, Kp, 3, 32) int8 leading basis images in the kernel's blocks, units (P / 32, 3,
-    32) float16 their peak per pixel and channel (:func:`pack_quantised`); q4 : (P / 32, Kp4, 3,
-    16) uint8 the later ones, two pixels a byte, units4 theirs (:func:`pack_nibbles`); coef :
-    (rank8 + rank4, 3) the basis coefficients; direct_rows : (n, 3, P) the maps of the exact
-    texels, texel-major; direct_lp : (n, 3) their light.
-    """
-    c = compact_coefficients(coef, rank8, rank4)
-    out = np.zeros((q8.shape[0], 3, LANES), dtype=np.float32)
-    for b0 in range(0, q8.shape[0], 1024):
-        if rank8:
-            blk = q8[b0:b0 + 1024, :rank8].astype(np.float32)
-            out[b0:b0 + 1024] = np.einsum("bkcs,kc->bcs", blk, c[:rank8]) * read_halves(units[b0:b0 + 1024])
-        if rank4:
-            # (the kernel's nibbles split as the storage's: low four bits the first half of the pixels)
-            steps = transport.unpack_nibbles(q4[b0:b0 + 1024, :rank4]).astype(np.float32)
-            out[b0:b0 + 1024] += (np.einsum("bkcs,kc->bcs", steps, c[rank8:])
-                                  * read_halves(units4[b0:b0 + 1024]))
-    out = out.transpose(0, 2, 1).reshape(-1, 3)[:n_pix].copy()
-    for row, lp in zip(direct_rows, direct_lp, strict=True):
-        out += read_halves(row).T * lp.astype(np.float32)
-    return out
-
-
-def relight_exact_numpy(maps: np.ndarray, lp: np.ndarray) -> np.ndarray:
-    """NumPy twin of ``relight_exact``: (P, 3) float32 = sum over texels of maps (P, 3, Tp) x lp (T, 3)."""
-    t = lp.shape[0]
-    out = np.zeros(maps.shape[:2], dtype=np.float32)
-    for p0 in range(0, maps.shape[0], 8192):
-        blk = read_halves(maps[p0:p0 + 8192, :, :t])
-        out[p0:p0 + 8192] = np.einsum("pct,tc->pc", blk, lp.astype(np.float32))
-    return out
-
-
 def check_rotation(rotation) -> np.ndarray | None:
     """A valid 3x3 rotation as float64, or None; InputError for anything else."""
     if rotation is None:
@@ -868,16 +830,10 @@ class Relighter:
 
     # ------------------------------------------------------------------ references
     def relight_numpy(self, env, rotation=None, *, exposure: float = 1.0, exact: bool | None = None) -> np.ndarray:
-        """The same relight computed by the NumPy twins: (H, W, 3) float32 (for tests and benchmarks)."""
-        lp = self.texel_light(env, rotation, exposure)
-        use_exact = self.exact if exact is None else exact
-        if use_exact:
-            vals = relight_exact_numpy(self.maps, lp)
-        else:
-            direct, rest = transport.split_direct(lp, self.transport.direct)
-            coef = self._ut @ rest if self._ut is not None else np.zeros((0, 3))  # (no ranks: the exact texels only)
-            vals = relight_compact_numpy(self._q8, self._units, self.rank8, self._q4, self._units4, self.rank4,
-                                         coef, self.direct_rows(direct), lp[direct], self.n_pix)
-        out = np.zeros_like(self.frame)
-        out.reshape(-1, 3)[self.frame_index] = vals
-        return out
+        """The same relight computed by the NumPy twin from the bundle's stored arrays, in float64
+        (:func:`relight.kernels.relight_twin.relight_numpy`, at this Relighter's tolerance; exact:
+        None - this Relighter's path): (H, W, 3) float32 (for tests and benchmarks)."""
+        from .relight_twin import relight_numpy
+
+        return relight_numpy(self.bundle, env, check_rotation(rotation), exposure=exposure,
+                             exact=self.exact if exact is None else exact, tolerance=self.tolerance)
