@@ -27,6 +27,7 @@ import numpy as np
 
 from relight.directions import rotation_matrix
 from relight.errors import InputError
+from relight.kernels.relighter import DEFAULT_TOLERANCE
 from relight.numerics import EPS_VALUE
 
 from . import composite
@@ -57,6 +58,8 @@ PERSON_EVERY = 2
 #: grown by this share of the frame's larger side (the person moves between the maps; beyond the
 #: box, the whole frame is converted).
 YUV_PERSON_MARGIN = 0.04
+#: Exposure a caller may add to the relit light, in stops (EV): the light scaled by 2^EV.
+EXPOSURE_RANGE_EV = (-20.0, 20.0)
 #: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
 ANGLE_MIN_CUTOFF = 1.5
 ANGLE_BETA = 0.2
@@ -130,7 +133,7 @@ class FramePath(PersonMixin, LiveLightMixin):
 
     def __init__(self, bundle, env: np.ndarray, *, mode: str = composite.DEFAULT_MODE, strength: float = 1.0,
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
-                 tolerance: float = 0.01, relighter=None, reuse_deg: float = REUSE_DEG,
+                 tolerance: float = DEFAULT_TOLERANCE, relighter=None, reuse_deg: float = REUSE_DEG,
                  region: str = composite.DEFAULT_REGION,
                  rigid_warp: bool = True, live_source: bool = False):
         from relight.kernels.relighter import Relighter
@@ -222,8 +225,9 @@ class FramePath(PersonMixin, LiveLightMixin):
         self.strength = float(strength)
 
     def set_exposure(self, ev: float) -> None:
-        if not (np.isfinite(ev) and abs(ev) <= 20):
-            raise InputError(f"exposure {ev}: use stops (EV) between -20 and 20")
+        lo, hi = EXPOSURE_RANGE_EV
+        if not (np.isfinite(ev) and lo <= ev <= hi):
+            raise InputError(f"exposure {ev}: use stops (EV) between {lo:g} and {hi:g}")
         self.exposure = float(2.0 ** ev)
 
     def _estimator(self, size: tuple[int, int]) -> PoseEstimator:

@@ -24,7 +24,7 @@ from relight.numerics import HALF_TINY
 from . import transport
 
 #: The Relighter's default tolerance (relative L2 against the exact path) choosing the rank.
-DEFAULT_TOLERANCE = 0.01
+DEFAULT_TOLERANCE = transport.STORE_TOLERANCE
 #: Pixels per chunk of the float64 products (bounds the scratch memory to ~40 MB at T = 2000).
 CHUNK = 1024
 

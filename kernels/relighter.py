@@ -29,6 +29,10 @@ from . import transport
 from .bundle import padded_texels
 from .runtime import aligned_zeros, build_program, get_runtime
 
+#: Relative L2 error a relight may have against the exact sum unless told otherwise: the finest the
+#: bundle's compact transport serves (:data:`relight.kernels.transport.STORE_TOLERANCE`).
+DEFAULT_TOLERANCE = transport.STORE_TOLERANCE
+
 #: Largest accepted deviation of a rotation matrix from orthonormal.
 ROTATION_TOL = 1e-3
 #: Work-group sizes (PoCL picks poorly for odd global sizes: measured 2-3x slower with None).
@@ -346,7 +350,7 @@ class Relighter:
     exact path is used). exact : always evaluate the full maps.
     """
 
-    def __init__(self, bundle, tolerance: float = 0.01, exact: bool = False):
+    def __init__(self, bundle, tolerance: float = DEFAULT_TOLERANCE, exact: bool = False):
         import pyopencl as cl
 
         if not (np.isfinite(tolerance) and tolerance > 0):

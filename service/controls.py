@@ -7,12 +7,13 @@ from __future__ import annotations
 import json
 
 from ..engine.composite import MODES
+from ..engine.frame_path import EXPOSURE_RANGE_EV
 from .codec import parse_rotation
 from .errors import ServiceError
 from .settings import PRESETS
 
 #: Ranges of the numeric controls.
-RANGES = {"strength": (0.0, 1.0), "exposure": (-20.0, 20.0)}
+RANGES = {"strength": (0.0, 1.0), "exposure": EXPOSURE_RANGE_EV}
 #: Longest control message read (bytes).
 MAX_CONTROL = 4096
 

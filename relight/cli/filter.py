@@ -57,11 +57,13 @@ def _filter_command(args) -> int:
 
     import relight
 
+    from ..engine.frame_path import EXPOSURE_RANGE_EV
     from ..errors import InputError
     from ..service.filter import run_filter
 
-    if not np.isfinite(args.exposure) or abs(args.exposure) > 20:
-        raise InputError(f"--exposure {args.exposure}: use stops between -20 and 20")
+    lo, hi = EXPOSURE_RANGE_EV
+    if not (np.isfinite(args.exposure) and lo <= args.exposure <= hi):
+        raise InputError(f"--exposure {args.exposure}: use stops between {lo:g} and {hi:g}")
     if not (1.0 <= args.fps <= 240.0):
         raise InputError(f"--fps {args.fps}: use 1 to 240")
     if not (0 <= args.crf <= 51):

@@ -24,6 +24,8 @@ def _vec3(text: str) -> tuple[float, float, float]:
 
 
 def add_parser(sub) -> None:
+    from ..kernels.relighter import DEFAULT_TOLERANCE
+
     p = sub.add_parser(
         "render", help=COMMANDS["render"],
         description="Relight the reference frame of a bundle (from `relight capture`) under an environment map "
@@ -43,7 +45,7 @@ def add_parser(sub) -> None:
                         "other way")
     p.add_argument("--exposure", type=float, default=0.0, help="exposure in stops (EV): the light is scaled by 2^EV")
     acc = p.add_mutually_exclusive_group()
-    acc.add_argument("--tolerance", type=float, default=0.01,
+    acc.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE,
                      help="relative L2 error allowed against the exact sum (picks the compact rank)")
     acc.add_argument("--exact", action="store_true",
                      help="sum over the full reflectance maps (a bundle captured without --keep-maps makes "
