@@ -65,7 +65,8 @@ MIN_CONTRAST = 0.08
 @dataclass
 class Found:
     """A face found: ``sim`` (2, 3) reference -> frame similarity, ``score`` (share of variance
-    explained), ``coef`` the basis coefficients and ``mean`` the patch mean (the fitted light)."""
+    explained), ``coef`` the basis coefficients (the fitted light) and ``offset`` the patch's mean
+    (the constant the live room adds, which the basis is orthogonal to)."""
 
     sim: np.ndarray
     score: float

@@ -33,6 +33,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from relight.colour import LUMINANCE
 from relight.spherical_harmonics import sh9_irradiance
 
 #: The inflated body's radius, as a share of the face's size (sqrt of its area): heads,
@@ -283,7 +284,7 @@ def _ratio_field(frame_lin, composite_lin, face_alpha, matte, target_sh, live_sh
     e_p = e_l[person]
     eps = RATIO_EPS * max(float(np.median((e_p[:, 0] + e_p[:, 1] + e_p[:, 2]) / 3.0)) if e_p.size else 0.0, 1e-12)
     proxy = ((e_t + eps) / (e_l + eps)).astype(np.float32)
-    lum_f = frame_lin @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    lum_f = frame_lin @ LUMINANCE
     core = (face_alpha > FACE_CORE) & (lum_f > DARK_LUM)
     face_ratio = (composite_lin + 1e-4) / (frame_lin + 1e-4)
     log_c = np.log(np.clip(face_ratio, 1.0 / RATIO_MAX, RATIO_MAX) / np.maximum(proxy, 1e-6))

@@ -22,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from relight.colour import LUMINANCE
 from relight.directions import angle_between_deg, rigid_matrix
 from relight.imageio import read_image
 from relight.numerics import EPS_VALUE
@@ -114,7 +115,7 @@ def relit_psnr(bundle, truth_file, env: str, mask_file) -> float:
         truth = cv2.resize(truth, size, interpolation=cv2.INTER_AREA)
         tmask = cv2.resize(tmask.astype(np.float32), size, interpolation=cv2.INTER_AREA) > 0.5
     face = np.asarray(bundle.mask) & tmask
-    lum = np.array([0.2126, 0.7152, 0.0722])
+    lum = LUMINANCE.astype(np.float64)
     window = cv2.createHanningWindow(size, cv2.CV_64F)
     (dx, dy), _ = cv2.phaseCorrelate(np.where(face, truth @ lum, 0.0), np.where(face, pred @ lum, 0.0), window)
     if np.hypot(dx, dy) > ALIGN_MAX_PX:

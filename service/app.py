@@ -1,7 +1,9 @@
 """``relight-serve``: the frame service (FastAPI + uvicorn).
 
-One process keeps a bundle loaded and relights frames with one :class:`FramePath` (frames are
-processed one at a time: the per-frame path already uses both cores). Endpoints so far:
+One process keeps a bundle loaded (its relighter and kernels shared) and relights frames one at a
+time under the engine's lock (:class:`~relight.service.state.Engine`; the per-frame path already
+uses both cores): each websocket or WebRTC stream in a per-frame path of its own (its tracker and
+live light), every ``POST /v1/relight`` as a first frame in a fresh one. Endpoints:
 
 * ``POST /v1/relight`` - body: one encoded frame (``image/png`` or ``image/jpeg``); query:
   ``env`` (a built-in preset name), ``rotation`` (yaw,pitch,roll degrees of the environment),
