@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from relight.errors import InputError
-from relight.faces import face_cascade
+from relight.faces import detect_face_grey
 
 #: Lucas-Kanade window (px, at 540 rows; scaled with the frame), pyramid levels, iterations.
 LK_WINDOW_AT_540 = 15
@@ -70,16 +70,14 @@ class Track:
 
 
 def detect_face_box(grey: np.ndarray) -> tuple[int, int, int, int] | None:
-    """The largest frontal face (x, y, w, h) in a grey frame, or None (detected on a small copy)."""
-    h, w = grey.shape
-    s = min(1.0, DETECT_ROWS / h)
-    small = cv2.resize(grey, (max(int(w * s), 1), max(int(h * s), 1)), interpolation=cv2.INTER_AREA) if s < 1 else grey
-    faces = face_cascade().detectMultiScale(small, scaleFactor=1.1, minNeighbors=5,
-                                        minSize=(max(small.shape[0] // 12, 24),) * 2)
-    if len(faces) == 0:
-        return None
-    x, y, fw, fh = max(faces, key=lambda f: f[2] * f[3])
-    return int(x / s), int(y / s), int(fw / s), int(fh / s)
+    """The largest frontal face (x, y, w, h) in a grey frame, or None (detected on a copy of
+    ``DETECT_ROWS`` rows: :func:`relight.faces.detect_face_grey`)."""
+    return detect_face_grey(grey, DETECT_ROWS)
+
+
+def bounding_xywh(xs: np.ndarray, ys: np.ndarray) -> tuple[int, int, int, int]:
+    """The box (x, y, w, h) of points' coordinates ``xs``, ``ys`` (whole pixels, both ends in)."""
+    return int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1
 
 
 def thin_points(points: np.ndarray, n: int) -> np.ndarray:
@@ -108,7 +106,7 @@ class FaceTracker:
         box = detect_face_box(self.reference)
         if box is None:  # the reference face as the mask's bounding box
             ys, xs = np.nonzero(mask)
-            box = (int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1)
+            box = bounding_xywh(xs, ys)
         self.ref_box = box
         self.prev: np.ndarray | None = None
         self.track: Track | None = None
@@ -196,8 +194,7 @@ class FaceTracker:
         work), its face box's brightness matched; then LK from it, forward-backward checked."""
         idx = np.arange(len(self.landmarks)) if index is None else np.asarray(index)
         if box is None:
-            xs, ys = guess[:, 0], guess[:, 1]
-            box = (int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1)
+            box = bounding_xywh(guess[:, 0], guess[:, 1])
         src = self.landmarks[idx].astype(np.float32)
         sim, _ = cv2.estimateAffinePartial2D(src, guess.astype(np.float32), method=cv2.LMEDS)
         if sim is None or not np.isfinite(sim).all():
