@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from relight.colour import decode_srgb8
-from relight.numerics import EPS
+from relight.numerics import EPS, px_at
 
 from .warp import GRID_STEP, coarse_map, mesh_coarse_map, points_box
 
@@ -28,7 +28,7 @@ def regularised_points(base: np.ndarray, xy: np.ndarray, size) -> np.ndarray:
     (``POINT_NOISE_AT_540`` px, scaled): noise does not bend the warp, a real departure from
     the pose (an expression, the bundle's depth error) does."""
     e = xy - base
-    noise = POINT_NOISE_AT_540 * size[1] / 540.0
+    noise = px_at(POINT_NOISE_AT_540, size[1])
     n2 = (e * e).sum(axis=1, keepdims=True)
     shrink = np.clip(1.0 - noise * noise / np.maximum(n2, EPS), 0.0, 1.0)
     return (base + shrink * e).astype(np.float32)

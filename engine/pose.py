@@ -22,6 +22,7 @@ import numpy as np
 
 from relight.directions import rotation_angles
 from relight.errors import InputError
+from relight.numerics import px_at
 
 #: Default focal length as a multiple of the frame's larger side.
 DEFAULT_FOCAL = 0.85
@@ -120,7 +121,7 @@ class PoseEstimator:
             return None
         obj = self.model[ref_index]
         img = np.asarray(xy, dtype=np.float64).reshape(-1, 1, 2)
-        thr = RANSAC_PX_AT_540 * self.frame_size[1] / 540.0
+        thr = px_at(RANSAC_PX_AT_540, self.frame_size[1])
         pose = self._track(obj, img, thr) if self.last is not None else None
         if pose is None:
             pose = self._ransac(obj, img, thr)
@@ -155,7 +156,7 @@ class PoseEstimator:
             return None
         obj = self.model[ref_index]
         img = np.asarray(xy, dtype=np.float64).reshape(-1, 1, 2)
-        pose = self._track(obj, img, RANSAC_PX_AT_540 * self.frame_size[1] / 540.0)
+        pose = self._track(obj, img, px_at(RANSAC_PX_AT_540, self.frame_size[1]))
         if pose is not None:
             self.last = pose
         return pose

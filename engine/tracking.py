@@ -25,6 +25,7 @@ import numpy as np
 
 from relight.errors import InputError
 from relight.faces import detect_face_grey
+from relight.numerics import px_at
 
 #: Lucas-Kanade window (px, at 540 rows; scaled with the frame), pyramid levels, iterations.
 LK_WINDOW_AT_540 = 15
@@ -120,7 +121,7 @@ class FaceTracker:
         self.search_gap = 0
 
     def _lk_params(self, rows: int) -> tuple[dict, float]:
-        s = rows / 540.0
+        s = px_at(1.0, rows)
         win = int(max(9, round(LK_WINDOW_AT_540 * s)) | 1)
         return (dict(winSize=(win, win), maxLevel=LK_LEVELS,
                      criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, LK_ITERATIONS, 0.02)),
@@ -296,7 +297,7 @@ class FaceTracker:
                 # agree with them, or for new ones with where the pose puts them, within
                 # REANCHOR_AGREE px: matching the flat reference to a turned head can lock a point
                 # onto the wrong corner, and a handful of those would swing the pose.
-                tol = REANCHOR_AGREE_AT_540 * grey.shape[0] / 540.0
+                tol = px_at(REANCHOR_AGREE_AT_540, grey.shape[0])
                 merged = dict(zip(track.ref_index.tolist(), track.xy, strict=True))
                 for k, p in zip(fresh.ref_index.tolist(), fresh.xy, strict=True):
                     near = merged.get(k, guess[k])

@@ -32,6 +32,17 @@ EPS_VALUE = 1e-6
 RANK_REL = 1e-6
 
 
+#: Pixel distances (tracking windows, noise, RANSAC thresholds, a synthetic head's motion) are
+#: stated for a frame of this many rows - the paper's 960x540 - and scaled with a frame's height
+#: (:func:`px_at`).
+REFERENCE_ROWS = 540
+
+
+def px_at(px_at_reference: float, rows: float) -> float:
+    """``px_at_reference`` (pixels at :data:`REFERENCE_ROWS` rows) for a frame of ``rows`` rows."""
+    return float(px_at_reference) * float(rows) / REFERENCE_ROWS
+
+
 def require_finite(name: str, array: np.ndarray, *, user_input: bool = False) -> np.ndarray:
     """Return ``array`` unchanged, or raise if it holds NaN or Inf.
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.directions import rigid_matrix
-from relight.numerics import EPS
+from relight.numerics import EPS, px_at
 
 #: Flash hand-path extent (degrees): azimuth +-AZ, elevation from EL_LOW to EL_HIGH.
 AZIMUTH_MAX = 80.0
@@ -162,7 +162,7 @@ def head_motion(rng: np.random.Generator, n: int, fps: float, height: int, amoun
     tx = raw[:, 0] - (c * tx0 + s * ty0)
     ty = raw[:, 1] - (-s * tx0 + c * ty0)
     rel = np.stack([tx, ty, rot], axis=1)
-    shift_max = MAX_SHIFT_PX_AT_540 * height / 540.0 * amount * rng.uniform(0.7, 1.0)
+    shift_max = px_at(MAX_SHIFT_PX_AT_540, height) * amount * rng.uniform(0.7, 1.0)
     rot_max = MAX_ROT_DEG * amount * rng.uniform(0.7, 1.0)
     tmag = np.hypot(rel[:, 0], rel[:, 1]).max()
     rel[:, :2] *= shift_max / max(tmag, EPS) if amount > 0 else 0.0

@@ -32,7 +32,7 @@ from relight.envmap import Lights, environment_stem, environment_to_lights, load
 from relight.errors import InputError
 from relight.imageio import atomic_path, write_image
 from relight.kernels.shading import LightShader
-from relight.numerics import FLOAT, require_finite
+from relight.numerics import FLOAT, px_at, require_finite
 from relight.video import VideoWriter
 
 from ..geometry import height_field_mesh
@@ -114,7 +114,7 @@ class Studio:
         self.sensor = Sensor().scaled(c.noise)
 
         cx, cy, r = sphere_placement(c.width, c.height)
-        self.sphere = MirrorSphere(cx, cy, r, glare_sigma=max(0.8, 1.2 * c.height / 540))
+        self.sphere = MirrorSphere(cx, cy, r, glare_sigma=max(0.8, px_at(1.2, c.height)))
         self.room = load_environment(AMBIENT_ENV) * np.float32(c.ambient)
         self.wall_albedo = wall(c.width, c.height, np.random.default_rng(rng_scene))
 
@@ -128,7 +128,7 @@ class Studio:
         self._edge_dst = np.flatnonzero(edge)
         self._edge_src = flat_pos[(iy * c.width + ix)[edge]]
         # Frames move the head within this crop (its bounding box plus the largest motion).
-        reach = rig.MAX_SHIFT_PX_AT_540 * c.height / 540 * max(c.head_motion, 1.0)
+        reach = px_at(rig.MAX_SHIFT_PX_AT_540, c.height) * max(c.head_motion, 1.0)
         x0, y0, x1, y1 = self.head.bbox(pad=int(np.ceil(reach + np.radians(rig.MAX_ROT_DEG * max(c.head_motion, 1.0))
                                                         * max(c.width, c.height))) + 4)
         self._crop = (x0, y0, x1, y1)
