@@ -173,7 +173,7 @@ def test_a_light_relit_without_exact_texels_makes_no_texel_rows(relighters, smal
     """relight_texels(direct=0) (the frame path's live light): the low-rank part alone, no
     recipe row made, within the Relighter's tolerance of the exact path; the row cache holds
     as many rows as its byte budget allows."""
-    from relight.kernels.relighter import ROW_SLOTS_RANGE, row_slots
+    from relight.kernels.row_cache import ROW_SLOTS_RANGE, row_slots
 
     _, exact = relighters
     compact = Relighter(small_bundle)  # its own row cache: no row of another test's light in it
