@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from relight.colour import decode_srgb8
+from relight.kernels.work_groups import OUTSIDE
 from relight.numerics import EPS, px_at
 
 from .warp import GRID_STEP, coarse_map, mesh_coarse_map, points_box
@@ -92,7 +93,7 @@ def sample_live(rig, rgb: np.ndarray, cur: np.ndarray, ref: np.ndarray, rotation
     x0, y0 = rig.live_box[:2]
     gx = ((rig.live_ref[:, 0] - x0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
     gy = ((rig.live_ref[:, 1] - y0 + 0.5) / GRID_STEP + 0.5).astype(np.float32)[None]
-    pos = cv2.remap(grid, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e4, -1e4))[0]
+    pos = cv2.remap(grid, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(OUTSIDE, OUTSIDE))[0]
     h, w = rgb.shape[:2]
     valid = (pos[:, 0] >= 0) & (pos[:, 1] >= 0) & (pos[:, 0] <= w - 1) & (pos[:, 1] <= h - 1)
     valid &= rig.live_normal @ np.asarray(rotation, np.float32)[2] > 0.3

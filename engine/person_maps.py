@@ -15,6 +15,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from relight.kernels.work_groups import OUTSIDE
 from relight.video_yuv import downscale_area
 
 from . import head_light
@@ -149,7 +150,7 @@ def face_alpha_work(rig, box, coarse: np.ndarray, rotation: np.ndarray, size, wo
     gx = (((np.arange(wbox[0], wbox[2]) + 0.5) * w / ww - 0.5) - x0 + 0.5) / GRID_STEP + 0.5
     gy = (((np.arange(wbox[1], wbox[3]) + 0.5) * h / wh - 0.5) - y0 + 0.5) / GRID_STEP + 0.5
     mx, my = np.meshgrid(gx.astype(np.float32), gy.astype(np.float32))
-    pos = cv2.remap(coarse, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e4, -1e4))
+    pos = cv2.remap(coarse, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(OUTSIDE, OUTSIDE))
     px = (pos[..., 0] - rig.origin[0]).astype(np.float32)
     py = (pos[..., 1] - rig.origin[1]).astype(np.float32)
     alpha = cv2.remap(rig.alpha_crop, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)

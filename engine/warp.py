@@ -21,12 +21,11 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
+from relight.kernels.work_groups import OUTSIDE, OUTSIDE_HALF
 from relight.numerics import EPS
 
 #: Spacing (px) of the grid at which the piecewise-affine map is evaluated exactly.
 GRID_STEP = 12
-#: Reference position given to frame pixels outside the triangulation (remap reads zeros there).
-OUTSIDE = -1.0e4
 
 
 def face_ring(mask: np.ndarray, count: int = 32, margin: float = 0.06) -> np.ndarray:
@@ -180,7 +179,7 @@ def inverse_map(cur: np.ndarray, ref: np.ndarray, box: tuple[int, int, int, int]
     # Pixels between a grid point inside the triangulation and one outside would interpolate
     # toward OUTSIDE and land anywhere: they are outside too. A pixel is valid when the four
     # grid points around it are; the cells between grid points start half a step in.
-    ok = coarse[..., 0] > OUTSIDE / 2
+    ok = coarse[..., 0] > OUTSIDE_HALF
     cell = ok[:-1, :-1] & ok[1:, :-1] & ok[:-1, 1:] & ok[1:, 1:]
     half = step // 2
     valid = np.repeat(np.repeat(cell, step, axis=0), step, axis=1)[half:half + h, half:half + w]

@@ -7,9 +7,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-#: Reference positions below this mark grid points outside the warp (the coarse map's
-#: ``relight.engine.warp.OUTSIDE``, -1e4, with room for bilinear blends toward it).
-OUTSIDE_HALF = -5.0e3
+#: The reference position the coarse map gives a grid point outside the warp (frame pixels
+#: there read nothing: :mod:`relight.engine.warp` writes it, the composite kernels skip it).
+OUTSIDE = -1.0e4
+#: Reference positions below this mark grid points outside the warp (half of OUTSIDE: room for
+#: bilinear blends toward it).
+OUTSIDE_HALF = OUTSIDE / 2
 #: The composite kernels' work-group (x, y): what nothing changes in is skipped per group (:func:`work_groups`).
 GROUP = (16, 4)
 
