@@ -6,7 +6,7 @@ for a recipe bundle, the maps its recipe makes: :meth:`relight.kernels.bundle.Bu
 (``transport_u``, the 8-bit ``transport_v`` and the 4-bit ``transport_v4`` with their scales),
 ``transport_errors`` to choose the rank - and none of the Relighter's kernel-side forms: not its
 32-pixel blocks, its repacked nibbles, its coefficients divided by the storage's levels
-(:func:`relight.kernels.relighter.compact_coefficients`), its row cache or its frame buffers. A
+(:func:`relight.kernels.relight_packing.compact_coefficients`), its row cache or its frame buffers. A
 bug in that packing shows in the kernel's result and not here.
 
 Shared with the Relighter on purpose: the direction-space stage (the environment's lights turned

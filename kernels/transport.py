@@ -115,7 +115,7 @@ class Transport:
 
     def basis(self) -> np.ndarray:
         """v, dequantised from the storage on first use (a Relighter packs its kernel's layout
-        straight from that storage: :func:`relight.kernels.relighter.pack_quantised`)."""
+        straight from that storage: :func:`relight.kernels.relight_packing.pack_quantised`)."""
         if self.v is None:
             self.v = dequantise_basis(self.q, self.q_scale, self.q4, self.q4_scale)
         return self.v

@@ -330,7 +330,7 @@ def test_kernel_basis_is_the_storage_rearranged(n_pix):
     the rest as nibbles: every pixel's steps times its step size are the stored basis dequantised
     (odd and even storage blocks, ranks cut or padded), and the padding reads as zero."""
     from relight.kernels import transport
-    from relight.kernels.relighter import LANES, pack_nibbles, pack_quantised
+    from relight.kernels.relight_packing import LANES, pack_nibbles, pack_quantised
     from relight.numerics import HALF_TINY
 
     rng = np.random.default_rng(3)
