@@ -82,7 +82,7 @@ def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *
     """(P, h, w) float32 soft visibility of each map texel for each pixel.
 
     horizon : (P, n_az) horizon elevation (radians above the image plane: the arctangent of the
-    largest rise per pixel of image-plane travel, :func:`relight.pipeline.capture.horizon_for`)
+    largest rise per pixel of image-plane travel, :func:`relight.pipeline.reflectance_maps.horizon_for`)
     toward each of ``n_az`` image-plane directions (see
     :func:`relight.kernels.shading.grid_directions`), interpolated linearly between them.
     """

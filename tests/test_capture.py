@@ -11,8 +11,10 @@ from relight import load_bundle
 from relight.cli import main
 from relight.colour import linear_to_srgb
 from relight.errors import InputError
-from relight.pipeline.capture import CaptureOptions, capture, read_lp
+from relight.pipeline.capture import capture
+from relight.pipeline.capture_types import CaptureOptions
 from relight.pipeline.evaluate import evaluate_capture
+from relight.pipeline.image_set import read_lp
 from relight.video import VideoWriter
 
 from .once import synthesized

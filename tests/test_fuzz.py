@@ -67,7 +67,7 @@ def test_crafted_recipe_azimuths_refused(seeds, tmp_path):
 
 def test_lp_huge_and_tiny_directions_stay_unit(tmp_path):
     """'1e308 1e308 1e308' overflowed the norm to inf and came out as a zero direction."""
-    from relight.pipeline.capture import read_lp
+    from relight.pipeline.image_set import read_lp
 
     f = tmp_path / "dirs.lp"
     f.write_text("3\na.jpg 1e308 1e308 1e308\nb.jpg 1e-320 0 0\nc.jpg 0 0 2\n")

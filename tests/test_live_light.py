@@ -239,7 +239,8 @@ def test_a_real_face_lit_from_one_side_is_found_and_relit(shared_data, tmp_path)
     from relight.bench import realface
     from relight.bench.accuracy import FACES_TRANSFER, scaled_rti, split_rti
     from relight.engine.frame_path import FramePath
-    from relight.pipeline.capture import CaptureOptions, capture
+    from relight.pipeline.capture import capture
+    from relight.pipeline.capture_types import CaptureOptions
     from relight.video import read_frames
 
     folder = scaled_rti(shared_data / "faces-yale" / "yaleB08", tmp_path / "set", 2)

@@ -31,7 +31,7 @@ def _circle(text: str) -> tuple[float, float, float]:
 
 def add_parser(sub) -> None:
     from ..kernels.bundle import BUNDLE_MODE
-    from ..pipeline.capture import TRANSFERS, CaptureOptions
+    from ..pipeline.capture_types import TRANSFERS, CaptureOptions
     from ..pipeline.methods import METHODS
     from ..pipeline.samples import SampleOptions  # the defaults: the pipeline's own options
 
@@ -117,7 +117,8 @@ def _octal_mode(text: str) -> int:
 
 def _run_capture(args) -> int:
     from ..errors import InputError
-    from ..pipeline.capture import CaptureOptions, capture
+    from ..pipeline.capture import capture
+    from ..pipeline.capture_types import CaptureOptions
     from ..pipeline.samples import SampleOptions
 
     if (args.video is None) == (args.images is None):
