@@ -3,14 +3,19 @@
 The one stateful object of the relighting engine: it holds the bundle's arrays on the device
 (the texel-major maps memory-mapped from the bundle, not copied; the chosen rank of the basis
 repacked for the kernel; the exact path's maps copied into aligned memory on first use), the
-built kernels and the output frame, and caches the last environment's lights and the last result (nothing is
-recomputed when neither the environment nor the rotation changed).
+built kernels and the output frame, and caches the last environment's lights and the last
+result (nothing is recomputed when neither the environment nor the rotation changed).
 
 Per call: the environment's lights (computed once per environment) are turned by the head
 rotation and splatted into the map's texels (:mod:`relight.kernels.transport`); then one kernel
 launch either evaluates the compact transport (a rank-k basis plus the brightest texels
 exactly) or, with ``exact=True``, the full sum over the maps. Only the head's pixels are
 computed; the output is the full reference frame, linear RGB, zero outside ``bundle.mask``.
+
+Beside it: the kernels' operands (:mod:`relight.kernels.relight_packing`), the recipe bundle's
+texel rows (:mod:`relight.kernels.row_cache`), the checks of a call's inputs
+(:mod:`relight.kernels.relight_inputs`; ``frozen`` and ``rotation_angle_deg`` importable from
+here too) and the NumPy twin (:mod:`relight.kernels.relight_twin`).
 """
 
 from __future__ import annotations
@@ -19,75 +24,39 @@ import hashlib
 
 import numpy as np
 
-from relight.envmap import freeze
 from relight.errors import InputError
 from relight.numerics import EPS_NORM
 
 from . import transport
 from .bundle import padded_texels
+from .relight_inputs import check_light, check_rotation
+from .relight_inputs import frozen as frozen
+from .relight_inputs import rotation_angle_deg as rotation_angle_deg
 from .relight_packing import LANES as LANES
 from .relight_packing import compact_coefficients, exact_maps, pack_basis, read_transport, unpack_basis
 from .relight_packing import exact_light_blocks as exact_light_blocks
-from .row_cache import PREFETCH_PITCH_DEG, PREFETCH_STEP_DEG, PREFETCH_YAW_DEG, RowCache, prefetch_turns, row_slots
+from .row_cache import (
+    PREFETCH_PITCH_DEG,
+    PREFETCH_STEP_DEG,
+    PREFETCH_YAW_DEG,
+    RowCache,
+    prefetch_texels,
+    prefetch_turns,
+    row_slots,
+)
 from .runtime import aligned_zeros, build_program, get_runtime
 
 #: Relative L2 error a relight may have against the exact sum unless told otherwise: the finest the
 #: bundle's compact transport serves (:data:`relight.kernels.transport.STORE_TOLERANCE`).
 DEFAULT_TOLERANCE = transport.STORE_TOLERANCE
 
-#: Largest accepted deviation of a rotation matrix from orthonormal.
-ROTATION_TOL = 1e-3
 #: Work-group sizes (PoCL picks poorly for odd global sizes: measured 2-3x slower with None).
 COMPACT_GROUP = 8
 PIXEL_GROUP = 64
-#: Largest total texel light accepted (radiance x exposure): keeps every result finite in float32
-#: (reflectance halves are at most 65504).
-MAX_LIGHT = 1e30
 
 
 def _round_up(n: int, m: int) -> int:
     return (n + m - 1) // m * m
-
-
-def frozen(env) -> np.ndarray:
-    """A read-only float32 copy of an environment that owns its data: :meth:`Relighter.lights`
-    recognises it by identity, so a per-frame caller passing it again pays no hashing (a copy
-    even of a frozen array: the caller's array stays the caller's; see
-    :func:`relight.envmap.freeze`, which :func:`relight.load_environment` applies)."""
-    return freeze(np.array(env, dtype=np.float32, order="C"))
-
-
-def check_rotation(rotation) -> np.ndarray | None:
-    """A valid 3x3 rotation as float64, or None; InputError for anything else."""
-    if rotation is None:
-        return None
-    r = np.asarray(rotation, dtype=np.float64)
-    if r.shape != (3, 3) or not np.isfinite(r).all():
-        raise InputError(f"rotation must be a finite 3x3 matrix, got shape {r.shape}")
-    # (on the nine numbers in Python: np.linalg.det and the array temporaries took 0.15 ms a call)
-    (a, b, c), (d, e, f), (g, h, i) = r.tolist()
-    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
-    rows = ((a, b, c), (d, e, f), (g, h, i))
-    off = max(abs(sum(x * y for x, y in zip(rows[m], rows[n], strict=True)) - (m == n))
-              for m in range(3) for n in range(m, 3))
-    if not off <= ROTATION_TOL or det < 0:
-        raise InputError("rotation must be a proper rotation matrix (orthonormal, determinant +1); "
-                         "build one with relight.directions.rotation_matrix(yaw, pitch, roll)")
-    return r
-
-
-def rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """The angle (degrees) of the rotation taking ``a`` to ``b`` (both 3x3 rotations)."""
-    tr = float(np.einsum("ij,ij->", a, b))  # trace(a^T b)
-    return float(np.degrees(np.arccos(min(max((tr - 1.0) / 2.0, -1.0), 1.0))))
-
-
-def _check_light(lp: np.ndarray) -> np.ndarray:
-    total = float(np.abs(lp).sum())
-    if not total <= MAX_LIGHT:
-        raise InputError(f"environment radiance x exposure is too large (total {total:.3g}, at most {MAX_LIGHT:g}): "
-                         "lower the exposure or rescale the environment map")
-    return lp
 
 
 class Relighter:
@@ -232,30 +201,20 @@ class Relighter:
         (:meth:`relight.kernels.row_cache.RowCache.prefetch`), the texel rows the exact part of
         relighting ``env`` asks for while the head turns within +-``yaw_deg`` and +-``pitch_deg``
         - the brightest texels at each turn of a grid ``step_deg`` apart, the smaller turns first
-        (:func:`relight.kernels.row_cache.prefetch_turns`). A live video's first turns toward a sun
+        (:func:`relight.kernels.row_cache.prefetch_texels`). A live video's first turns toward a sun
         then find its rows made instead of stopping for them (~30 ms each at 100k pixels, most
         of it per launch: ahead, eight share one). Nothing for a bundle that stores its maps, nor
         again for the environment last asked for (the service's sessions share one Relighter and
         each sets the environment it starts with)."""
         if self.row_cache is None or self.exact:
             return
-        from relight.directions import rotation_matrix
-
         lights, n = self.lights(env), self.transport.direct
         if self._prefetched_generation == self._env_generation:
             return
         self._prefetched_generation = self._env_generation
         turns = prefetch_turns(yaw_deg, pitch_deg, step_deg)
-
-        def wanted():
-            out: list[int] = []
-            for y, p in turns:
-                lp = transport.texel_light(lights, rotation_matrix(float(y), float(p), 0.0), self.map_size,
-                                           self.texels, self.sample_scale, self.cone)
-                out += transport.split_direct(lp, n)[0].tolist()
-            return out
-
-        self.row_cache.prefetch(wanted)
+        self.row_cache.prefetch(lambda: prefetch_texels(lights, turns, n, self.map_size, self.texels,
+                                                        self.sample_scale, self.cone))
 
     def texel_light(self, env, rotation=None, exposure: float = 1.0) -> np.ndarray:
         """(T, 3) ``Lp``: the environment in the map's texels for a head turned by ``rotation``."""
@@ -314,8 +273,8 @@ class Relighter:
             # relight (its rotation within reuse_deg of this one; drift cannot build up).
             self.reused += 1
             return self._result(out)
-        lp = _check_light(transport.texel_light(self._env_lights, r, self.map_size, self.texels,
-                                                exposure * self.sample_scale, self.cone))
+        lp = check_light(transport.texel_light(self._env_lights, r, self.map_size, self.texels,
+                                               exposure * self.sample_scale, self.cone))
         if self.exact:
             self._run_exact(lp, buf, frame)
         else:
@@ -371,7 +330,7 @@ class Relighter:
         d = np.asarray(direction, dtype=np.float64)
         if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) < EPS_NORM:
             raise InputError(f"light direction {direction}: three finite numbers, not all zero")
-        lp = _check_light(transport.point_light(d, self.map_size, self.texels) * (exposure * self.sample_scale))
+        lp = check_light(transport.point_light(d, self.map_size, self.texels) * (exposure * self.sample_scale))
         self._run_rows(lp)
         self._forget_main()
         return self.frame.copy()
@@ -392,7 +351,7 @@ class Relighter:
         lp = np.asarray(lp, dtype=np.float64)
         if lp.shape != (self.texels.size, 3):
             raise InputError(f"texel light of shape {lp.shape}: expected ({self.texels.size}, 3)")
-        lp = _check_light(lp * self.sample_scale)
+        lp = check_light(lp * self.sample_scale)
         frame, buf = self.slot(slot)
         if self.exact:
             self._run_exact(lp, buf, frame)

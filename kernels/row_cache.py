@@ -3,9 +3,9 @@ the maps of single texels (all face pixels) that the compact kernel relights exa
 first use or ahead of it on a thread of their own.
 
 :class:`RowCache` holds them in one (n_slots, 3, P) float16 array the kernel reads in place
-(slots reused least recently used first); :func:`row_slots` sizes it; :func:`prefetch_turns`
-is the grid of head turns whose rows :meth:`relight.kernels.relighter.Relighter.prefetch_rows`
-makes ahead.
+(slots reused least recently used first); :func:`row_slots` sizes it. Which rows
+:meth:`relight.kernels.relighter.Relighter.prefetch_rows` makes ahead: those of the brightest
+texels (:func:`prefetch_texels`) at each head turn of a grid (:func:`prefetch_turns`).
 """
 
 from __future__ import annotations
@@ -15,9 +15,11 @@ import weakref
 
 import numpy as np
 
+from relight.directions import rotation_matrix
 from relight.errors import InputError
 
 from .runtime import aligned_zeros
+from .texel_lights import EnvLights, split_direct, texel_light
 
 #: Texel rows a recipe bundle's Relighter keeps made (each 6 bytes per face pixel): as many as
 #: ROW_CACHE_BYTES hold, within ROW_SLOTS_RANGE. A row costs ~35 ms to make at 100k face pixels;
@@ -39,6 +41,20 @@ def prefetch_turns(yaw_deg: float = PREFETCH_YAW_DEG, pitch_deg: float = PREFETC
     ``step_deg`` apart within +-``yaw_deg`` and +-``pitch_deg``, the smaller turns first."""
     span = lambda lim: np.arange(-lim, lim + step_deg / 2, step_deg)  # noqa: E731
     return sorted(((y, p) for y in span(yaw_deg) for p in span(pitch_deg)), key=lambda a: np.hypot(*a))
+
+
+def prefetch_texels(lights: EnvLights, turns, n_direct: int, map_size, texels: np.ndarray, scale: float,
+                    cone) -> list[int]:
+    """The stored texels (positions in ``map_texels``) relit exactly under ``lights`` at each head
+    turn of ``turns`` ((yaw, pitch) degrees: :func:`prefetch_turns`), turn by turn: the
+    ``n_direct`` brightest of each (:func:`relight.kernels.texel_lights.split_direct`) of the
+    light :func:`relight.kernels.texel_lights.texel_light` makes with ``map_size``, ``texels``,
+    ``scale`` and ``cone`` (the Relighter's), repeats left in."""
+    out: list[int] = []
+    for y, p in turns:
+        lp = texel_light(lights, rotation_matrix(float(y), float(p), 0.0), map_size, texels, scale, cone)
+        out += split_direct(lp, n_direct)[0].tolist()
+    return out
 
 
 def row_slots(n_pixels: int) -> int:

@@ -379,7 +379,7 @@ def test_kernel_basis_is_the_storage_rearranged(n_pix):
 def test_small_head_turns_reuse_the_last_relight(relighters):
     """reuse_deg leaves out a relight the head's small turn does not need - measured from the
     last relight, so drift cannot build up - and never across an environment or exposure change."""
-    from relight.kernels.relighter import rotation_angle_deg
+    from relight.kernels.relight_inputs import rotation_angle_deg
 
     compact, _ = relighters
     assert abs(rotation_angle_deg(rotation_matrix(10, 0, 0), rotation_matrix(10.5, 0, 0)) - 0.5) < 1e-6
@@ -433,7 +433,7 @@ def test_an_environment_edited_in_place_is_relit_anew(relighters, small_bundle):
         second = rl.relight(env)
         assert np.allclose(second[m], 2.0 * first[m], rtol=F32_LOOSE, atol=F32_ZERO)
         # A frozen environment (read-only, owning its data) is recognised without hashing.
-        from relight.kernels.relighter import frozen
+        from relight.kernels.relight_inputs import frozen
 
         env = frozen(env)
         assert not env.flags.writeable
