@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from relight.service.live import LatestFrame, device_input
+from relight.service.live_camera import LatestFrame, device_input
 from relight.service.virtual_camera import backend_hint
 
 from .tolerances import LIVE_CHANGED_CODES, LIVE_CHANGED_SHARE, LIVE_FRAME_SHARE, LIVE_IN_FLIGHT, LIVE_RATE_SHARE

@@ -1,0 +1,188 @@
+"""``relight live``'s camera: the **camera reader** thread - a camera device (FFmpeg's device
+inputs through PyAV: v4l2 on Linux, avfoundation on macOS, dshow on Windows) or a video file
+played at its own rate and looped - and the one-frame slot (:class:`LatestFrame`) each hand-over
+of the live path goes through: the newest frame wins, one nobody took is counted as dropped."""
+
+from __future__ import annotations
+
+import platform
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from relight.errors import InputError
+
+#: Largest camera frame accepted (pixels): 4K.
+MAX_CAMERA_PIXELS = 3840 * 2160
+
+
+def device_input(camera: str | None, system: str | None = None) -> tuple[str, str]:
+    """(FFmpeg input format, device name) of ``camera`` on this OS: an index (``0``) or a device
+    name/path as the OS's FFmpeg input takes it."""
+    system = system or platform.system()
+    camera = "0" if camera in (None, "") else str(camera)
+    if system == "Linux":
+        return "v4l2", f"/dev/video{camera}" if camera.isdigit() else camera
+    if system == "Darwin":
+        return "avfoundation", camera  # an index or a name; "none" audio is implied
+    if system == "Windows":
+        return "dshow", camera if camera.startswith("video=") else f"video={camera}"
+    raise InputError(f"no camera input for {system}: pass a video file as --camera")
+
+
+class LatestFrame:
+    """A one-item slot: :meth:`put` replaces what is there (counting it as dropped when nobody
+    took it), :meth:`take` waits for something newer than the last taken."""
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._item = None
+        self._fresh = False
+        self.put_count = 0
+        self.dropped = 0
+
+    def put(self, item) -> None:
+        with self._cond:
+            if self._fresh:
+                self.dropped += 1
+            self._item, self._fresh = item, True
+            self.put_count += 1
+            self._cond.notify_all()
+
+    def wake(self) -> None:
+        """Wake a waiting :meth:`take` (it returns None unless something fresh came)."""
+        with self._cond:
+            self._cond.notify_all()
+
+    def take(self, timeout: float):
+        """The newest item not taken before, or None after ``timeout`` seconds."""
+        with self._cond:
+            if not self._fresh:
+                self._cond.wait(timeout)
+            if not self._fresh:
+                return None
+            self._fresh = False
+            return self._item
+
+    def peek(self):
+        """The newest item, taken or not (None before the first)."""
+        with self._cond:
+            return self._item
+
+
+@dataclass
+class CameraFrame:
+    rgb: np.ndarray
+    t: float  # perf_counter when read
+    index: int
+
+
+class CameraReader:
+    """Reads a camera device or a video file into a :class:`LatestFrame` on its own thread."""
+
+    def __init__(self, camera: str | None, *, size: tuple[int, int] | None, fps: float | None,
+                 loop: bool = True):
+        self.spec = camera
+        self.size = size
+        self.fps = fps
+        self.loop = loop
+        self.slot = LatestFrame()
+        self.error: BaseException | None = None
+        self.ended = threading.Event()
+        self._stop = threading.Event()
+        self.is_file = camera is not None and Path(camera).is_file()
+        self.rate = None  # frames per second of the source (the file's, or the device's)
+        self._open()
+        self._thread = threading.Thread(target=self._run, name="relight-camera", daemon=True)
+
+    def _open(self) -> None:
+        import av
+
+        if self.is_file:
+            from relight.video import probe_video
+
+            info = probe_video(self.spec)
+            self.rate = float(info.fps) if info.fps else 30.0
+            self.name = str(self.spec)
+            return
+        fmt, name = device_input(self.spec)
+        options = {}
+        if self.size:
+            options["video_size"] = f"{self.size[0]}x{self.size[1]}"
+        if self.fps:
+            options["framerate"] = f"{self.fps:g}"
+        try:
+            self.container = av.open(name, format=fmt, options=options, timeout=5.0)
+        except (av.FFmpegError, OSError) as exc:
+            raise InputError(f"camera {name!r} ({fmt}) does not open: {exc}; name a device (--camera 0, "
+                             f"/dev/video2, 'FaceTime HD Camera') or a video file") from None
+        st = self.container.streams.video[0]
+        self.rate = float(st.average_rate or st.guessed_rate or self.fps or 30)
+        self.name = f"{name} ({fmt})"
+
+    def start(self) -> CameraReader:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        c = getattr(self, "container", None)
+        if c is not None:
+            c.close()
+
+    def _fit(self, rgb):
+        h, w = rgb.shape[:2]
+        if h * w > MAX_CAMERA_PIXELS:
+            raise InputError(f"camera frames of {w}x{h} are over {MAX_CAMERA_PIXELS} pixels: pass a smaller --size")
+        if not isinstance(rgb, np.ndarray):  # a frame kept in its planes (relight.video_yuv)
+            if not self.size or (w, h) == tuple(self.size):
+                return rgb
+            rgb = rgb.to_rgb()
+        if self.size and (w, h) != tuple(self.size):
+            import cv2
+
+            rgb = cv2.resize(rgb, tuple(self.size), interpolation=cv2.INTER_AREA if w > self.size[0]
+                             else cv2.INTER_LINEAR)
+        return np.ascontiguousarray(rgb)
+
+    def _frames(self):
+        from relight.video import frame_to_rgb, read_frames_raw
+        from relight.video_yuv import YuvFrame
+
+        if not self.is_file:
+            for frame in self.container.decode(video=0):
+                yield frame_to_rgb(frame)
+            return
+        while True:
+            n = 0
+            # A file's frames kept in their planes where they can be (only the face's box is
+            # converted: relight.video_yuv), else RGB as displayed.
+            for frame in read_frames_raw(self.spec):
+                n += 1
+                yuv = YuvFrame.from_av(frame)
+                yield yuv if yuv is not None else frame_to_rgb(frame)
+            if not self.loop or n == 0:
+                return
+
+    def _run(self) -> None:
+        period = 1.0 / self.rate if self.is_file else 0.0
+        t0 = time.perf_counter()
+        try:
+            for i, rgb in enumerate(self._frames()):
+                if self._stop.is_set():
+                    return
+                if period:  # a file plays at its own rate, as a camera would deliver it
+                    wait = t0 + i * period - time.perf_counter()
+                    if wait > 0:
+                        self._stop.wait(wait)
+                    if self._stop.is_set():
+                        return
+                self.slot.put(CameraFrame(self._fit(rgb), time.perf_counter(), i))
+        except BaseException as exc:  # handed to the loop
+            self.error = exc
+        finally:
+            self.ended.set()
