@@ -105,7 +105,8 @@ class YuvFrame:
     @classmethod
     def from_av(cls, frame) -> YuvFrame | None:
         """The frame's planes (copied), or None when the frame is not one this path keeps."""
-        from .video import display_orientation, video_colour
+        from .video_colour import video_colour
+        from .video_orient import display_orientation
 
         if frame.format.name != "yuv420p" or frame.width % 2 or frame.height % 2:
             return None
@@ -149,7 +150,7 @@ class YuvFrame:
         import av
         from av.video.reformatter import ColorRange, Colorspace
 
-        from .video import sws_flags
+        from .video_frame import sws_flags
 
         frame = av.VideoFrame.from_ndarray(self._i420(y, u, v), format="yuv420p")
         return frame.reformat(format="rgb24", src_colorspace=Colorspace.ITU709, src_color_range=ColorRange.MPEG,

@@ -170,7 +170,7 @@ def test_decoded_frames_do_not_outlive_their_use(tmp_path, monkeypatch):
 
     import av
 
-    import relight.video as video
+    import relight.video_read as video
 
     frames = _smooth_frames(n=60)
     with VideoWriter(tmp_path / "v.mp4", 30, (160, 96)) as w:
