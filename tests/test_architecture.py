@@ -108,3 +108,16 @@ def test_no_import_cycles(graph):
 def test_no_private_names_across_modules(graph):
     _, private = graph
     assert private == [], "\n".join(private)
+
+
+def test_every_core_module_is_held_to_the_core_contract():
+    """Each module of the core (``relight/*.py``) is listed in import-linter's "the core imports no
+    layer above it" contract: a new core module would otherwise import the layers above unchecked."""
+    import tomllib
+
+    doc = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    contracts = doc["tool"]["importlinter"]["contracts"]
+    core = next(c for c in contracts if c["name"] == "the core imports no layer above it")
+    listed = set(core["source_modules"])
+    files = {f"relight.{f.stem}" for f in (ROOT / "relight").glob("*.py") if not f.stem.startswith("_")}
+    assert files - listed == set(), f"core modules outside the contract: {sorted(files - listed)}"
