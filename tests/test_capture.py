@@ -51,6 +51,7 @@ def synth_capture(tmp_path_factory):
                        SynthConfig(width=480, height=270, duration=8.0, seed=4, truth_envs=("builtin:studio",)))
 
 
+@pytest.mark.slow  # the capture and its truth comparison (~25 s): `make test-slow`, CI
 def test_video_capture_meets_the_accuracy_goals(synth_capture, tmp_path):
     report_dir = tmp_path / "report"
     assert main(["capture", str(synth_capture.video), "-o", str(tmp_path / "f.bundle"), "--report",

@@ -232,6 +232,7 @@ def test_environment_endpoints_choose_upload_validate_and_preview(server, frame,
     httpx.put(f"{server}/v1/environment?builtin=studio&rotation=0,0,0&exposure=0")
 
 
+@pytest.mark.slow  # ~17 s of generated requests: `make test-slow`, CI (bench fuzz covers the readers)
 def test_fuzzing_the_http_api_from_its_openapi_schema_never_gets_a_server_error(server):
     schemathesis = pytest.importorskip("schemathesis", reason="schemathesis (a test extra) is the fuzzer")
     from hypothesis import HealthCheck, given, settings
