@@ -69,3 +69,37 @@ def frame(small_capture):
     for i, f in enumerate(read_frames(res.video)):
         if i == dark[0]:
             return f
+
+
+# The per-frame path's test modules (test_filter, test_tracking, test_composite) share these two:
+# a short clip of the small capture's no-flash frames and a frame path on the small bundle (one
+# of each per module; test_person and test_bench_live_frame have a `clip` of their own).
+@pytest.fixture(scope="module")
+def clip(small_capture, tmp_path_factory):
+    """45 no-flash frames of the small capture (a face under room light that moves a little),
+    re-encoded with a 440 Hz audio track."""
+    import json
+
+    import numpy as np
+
+    from relight.video import VideoWriter, read_frames
+
+    res, cfg = small_capture
+    meta = json.loads((res.truth / "meta.json").read_text())
+    dark = {i for i, f in enumerate(meta["flash_fraction"]) if f == 0.0}
+    frames = [f for i, f in enumerate(read_frames(res.video)) if i in dark][:45]
+    path = tmp_path_factory.mktemp("clip") / "clip.mp4"
+    t = np.arange(int(48000 * len(frames) / cfg.fps)) / 48000.0
+    with VideoWriter(path, cfg.fps, (cfg.width, cfg.height), audio=0.2 * np.sin(2 * np.pi * 440 * t)) as wr:
+        for f in frames:
+            wr.write(f)
+    return path, frames
+
+
+@pytest.fixture(scope="module")
+def frame_path(small_bundle):
+    from relight import load_environment
+    from relight.engine.frame_path import FramePath
+
+    # the face's composite (the tests of the whole person make their own paths)
+    return FramePath(small_bundle, load_environment("builtin:sunset"), region="face")

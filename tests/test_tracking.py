@@ -1,0 +1,209 @@
+"""The per-frame path's tracking, head pose, re-anchoring and warps."""
+
+
+import cv2
+import numpy as np
+import pytest
+
+from relight.directions import rotation_angles, rotation_matrix
+
+from .tolerances import (
+    F32_EXACT,
+    F32_LOOSE,
+    F64_EXACT,
+    NCC_SELF_PEAK,
+    ONE_EURO_LAG_DEG,
+    ONE_EURO_REST_STD,
+    POSE_OUTLIER_DEG,
+    POSE_SYNTHETIC_DEG,
+    REFIND_FOUND_SHARE,
+    REFIND_MEDIAN_PX,
+    REFIND_START_PX,
+    WARP_AFFINE_PX,
+    WARP_HULL_SHARE,
+)
+
+
+def test_one_euro_filter_is_still_at_rest_and_follows_motion():
+    from relight.engine.pose import OneEuroFilter
+
+    f = OneEuroFilter(min_cutoff=1.0, beta=0.05)
+    rng = np.random.default_rng(0)
+    noisy = [f(5.0 + rng.normal(0, 0.5), i / 30) for i in range(120)]
+    assert np.std(noisy[60:]) < ONE_EURO_REST_STD  # jitter of 0.5 smoothed
+    f.reset()
+    ramp = [f(30.0 * i / 30, i / 30)[()] for i in range(60)]  # 30 deg/s
+    assert abs(ramp[-1] - 30.0 * 59 / 30) < ONE_EURO_LAG_DEG  # follows a fast turn with little lag
+    slow = OneEuroFilter(min_cutoff=1.0, beta=0.0)
+    lagged = [slow(30.0 * i / 30, i / 30)[()] for i in range(60)]
+    assert abs(lagged[-1] - 30.0 * 59 / 30) > abs(ramp[-1] - 30.0 * 59 / 30)
+
+
+def _bump_head(seed: int, n: int):
+    """A landmark model on a Gaussian bump 60 px high (640x360 frame, default focal): its pose
+    estimator and ``seen(angles) -> (n, 2)``, the landmarks' image positions with the head turned
+    by (yaw, pitch, roll) degrees about their centroid."""
+    from relight.engine.pose import PoseEstimator, camera_matrix, lift_landmarks
+
+    rng = np.random.default_rng(seed)
+    k_ref = camera_matrix((640, 360))
+    pts = rng.uniform([220, 80], [420, 300], size=(n, 2))
+    depth = 60 * np.exp(-((pts[:, 0] - 320) ** 2 + (pts[:, 1] - 190) ** 2) / 8000.0)
+    model = lift_landmarks(pts, depth, k_ref)
+    flip = np.diag([1.0, -1.0, -1.0])
+    centre = model.mean(axis=0)
+
+    def seen(angles):
+        moved = (model - centre) @ (flip @ rotation_matrix(*angles) @ flip).T + centre
+        proj = moved @ k_ref.T
+        return proj[:, :2] / proj[:, 2:]
+
+    return PoseEstimator(model, (640, 360)), seen
+
+
+def test_pose_recovers_a_known_rotation():
+    est, seen = _bump_head(1, 60)
+    assert np.allclose(est.solve(np.arange(60), seen((0.0, 0.0, 0.0))).rotation, np.eye(3), atol=F32_LOOSE)
+    for angles in [(20, 0, 0), (-15, 10, 5), (0, -12, -8)]:
+        xy = seen(angles)
+        xy[:5] += 40.0  # outliers
+        est.last = None
+        pose = est.solve(np.arange(60), xy)
+        assert pose is not None and pose.inliers.size >= 50
+        assert np.allclose(pose.angles, angles, atol=POSE_SYNTHETIC_DEG)
+        assert np.allclose(rotation_angles(pose.rotation), angles, atol=POSE_SYNTHETIC_DEG)
+
+
+def test_pose_is_not_held_back_by_a_lagging_warm_start():
+    """A warm start from a pose 10 deg behind, with a fifth of the points left where that pose
+    put them (drifted tracks): the pose must follow the rest (the warm start alone settled at
+    13.6 deg, choosing its points by the lagging pose)."""
+    est, seen = _bump_head(4, 80)
+    est.last = est.solve(np.arange(80), seen((10.0, 0.0, 0.0)))
+    xy = seen((20.0, 0.0, 0.0))
+    xy[:16] = seen((10.0, 0.0, 0.0))[:16]
+    pose = est.solve(np.arange(80), xy)
+    assert pose is not None and abs(pose.angles[0] - 20.0) < POSE_OUTLIER_DEG
+
+
+def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, small_bundle):
+    """The reference moved by a known similarity; the pose given to the search is 2 px off: the
+    landmarks are found where they are, not where the pose puts them."""
+    from relight.engine.tracking_image import TRACK_ROWS, track_exposure
+
+    fp = frame_path
+    fp.reset()
+    ref = np.ascontiguousarray(np.asarray(small_bundle.background))
+    h, w = ref.shape[:2]
+    centre = fp.rig.control_ref[:fp.rig.n_landmarks].mean(axis=0)
+    sim = cv2.getRotationMatrix2D((float(centre[0]), float(centre[1])), 3.0, 1.0)
+    sim[:, 2] += (2.4, -1.3)
+    frame = cv2.warpAffine(ref, sim, (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    idx = np.arange(fp.rig.n_landmarks)
+    truth = fp.rig.control_ref[idx] @ sim[:, :2].T + sim[:, 2]
+    est = fp._estimator((w, h))
+    est.last = None
+    pose = est.solve(idx, truth + np.array([2.0, 0.0]))
+    assert pose is not None
+    ts = min(1.0, TRACK_ROWS / h)
+    grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+    if ts < 1:
+        grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
+    grey, _ = track_exposure(grey)
+    found = fp._refind(est, pose, ts, grey, idx)
+    assert found is not None and len(found) >= REFIND_FOUND_SHARE * len(idx)
+    err = np.linalg.norm(found.xy / ts - truth[found.ref_index], axis=1)
+    before = np.linalg.norm(est.project(pose, found.ref_index) - truth[found.ref_index], axis=1)
+    assert np.median(before) > REFIND_START_PX and np.median(err) < REFIND_MEDIAN_PX
+
+
+def test_batched_correlation_matches_opencv_match_template():
+    """Re-anchoring's all-at-once normalised cross-correlation against cv2.matchTemplate
+    (TM_CCOEFF_NORMED) per window, and the parabola peak against its closed form."""
+    from relight.engine.refind import normalised_correlation, parabola_peaks
+
+    rng = np.random.default_rng(3)
+    win = rng.integers(0, 256, (40, 21, 21)).astype(np.uint8)
+    tpl = rng.integers(0, 256, (40, 13, 13)).astype(np.uint8)
+    tpl[5] = win[5, 2:15, 6:19]  # an exact match at offset (y 2, x 6)
+    win[7] = 40  # a flat window: no correlation
+    r, contrast = normalised_correlation(win, tpl)
+    ref = np.stack([cv2.matchTemplate(w, t, cv2.TM_CCOEFF_NORMED) for w, t in zip(win, tpl, strict=True)])
+    assert r.shape == ref.shape == (40, 9, 9)
+    assert np.abs(r - ref).max() < 1e-5
+    assert np.unravel_index(r[5].argmax(), r[5].shape) == (2, 6) and r[5].max() > NCC_SELF_PEAK
+    assert np.all(r[7] == 0.0)
+    np.testing.assert_allclose(contrast, tpl.reshape(40, -1).astype(np.float64).std(axis=1), rtol=F32_EXACT)
+    # a parabola y = -(x - 0.3)^2 sampled at -1, 0, 1 peaks at 0.3; a flat or rising one at 0
+    np.testing.assert_allclose(parabola_peaks(np.array([-1.69, 1.0]), np.array([-0.09, 1.0]),
+                                              np.array([-0.49, 1.0])), [0.3, 0.0], atol=F64_EXACT)
+
+
+@pytest.mark.parametrize("full", [(720, 1280), (540, 960), (360, 640), (1080, 1920), (271, 481)])
+def test_the_lit_reference_box_downscales_to_the_same_pixels(full):
+    """The face box the live-lit tracking reference is remade in: the tracker's downscale of the
+    full box equals the same pixels of the whole frame downscaled (the template matching must not
+    shift)."""
+    from relight.engine.tracking_image import aligned_box
+    from relight.video_yuv import downscale_area
+
+    img = np.random.default_rng(0).random(full).astype(np.float32)
+    small = downscale_area(img, (480, 270))
+    mask = np.zeros((270, 480), bool)
+    mask[90:181, 170:311] = True
+    (a, b, c, d), (e, f, g, h) = aligned_box(mask, full)
+    assert mask[a:b, c:d].sum() == mask.sum()
+    crop = downscale_area(img[e:f, g:h], (d - c, b - a))
+    assert np.abs(crop - small[a:b, c:d]).max() < 1e-6
+
+
+def test_piecewise_affine_warp_reproduces_an_affine_map():
+    from relight.engine.warp import GRID_STEP, OUTSIDE, inverse_map
+
+    rng = np.random.default_rng(2)
+    ref = rng.uniform(50, 250, size=(40, 2))
+    a = np.array([[1.1, 0.2], [-0.15, 0.9]])
+    cur = ref @ a.T + np.array([30.0, -10.0])
+    box = (0, 0, 320, 260)
+    m = inverse_map(cur, ref, box)
+    ys, xs = np.mgrid[0:260, 0:320]
+    want = (np.stack([xs, ys], -1) - np.array([30.0, -10.0])) @ np.linalg.inv(a).T
+    from scipy.spatial import Delaunay
+
+    inside = Delaunay(cur).find_simplex(np.stack([xs, ys], -1).reshape(-1, 2)).reshape(260, 320) >= 0
+    valid = m[..., 0] > OUTSIDE / 2
+    near = cv2.dilate(inside.astype(np.uint8), np.ones((2 * GRID_STEP + 1,) * 2, np.uint8)) > 0
+    # covers the hull, and at most a grid cell beyond it
+    assert valid.sum() > WARP_HULL_SHARE * inside.sum() and not (valid & ~near).any()
+    assert np.abs(m[valid] - want[valid]).max() < WARP_AFFINE_PX
+
+
+def test_the_mesh_warp_is_the_piecewise_affine_warp_drawn_with_depth():
+    """The fixed-topology mesh (the rigid warp's) maps a grid as the per-frame triangulation does
+    where both are defined (an affine motion: the same map whatever the triangles); a triangle
+    turned away is left out, and of two overlapping ones the nearer wins."""
+    from relight.engine.warp import OUTSIDE, coarse_map, mesh_coarse_map, reference_triangles
+
+    rng = np.random.default_rng(5)
+    ref = rng.uniform(50, 250, size=(60, 2))
+    a = np.array([[1.1, 0.2], [-0.15, 0.9]])
+    cur = ref @ a.T + np.array([30.0, -10.0])
+    box = (0, 0, 320, 260)
+    tri = reference_triangles(ref)
+    got = mesh_coarse_map(cur, ref, tri, box, depth=rng.uniform(1, 2, len(ref)))
+    want = coarse_map(cur, ref, box)
+    both = (got[..., 0] > OUTSIDE / 2) & (want[..., 0] > OUTSIDE / 2)
+    assert np.array_equal(got[..., 0] > OUTSIDE / 2, want[..., 0] > OUTSIDE / 2)
+    assert np.abs(got[both] - want[both]).max() < WARP_AFFINE_PX
+    # two triangles over the same frame region, mapped to different reference places: depth decides
+    quad = np.array([[10, 10], [110, 10], [10, 110]], np.float64)
+    cur2 = np.concatenate([quad, quad])
+    ref2 = np.concatenate([quad, quad + 500.0])
+    tris = np.array([[0, 1, 2], [3, 4, 5]], np.int32)  # turning from +x toward +y, as reference_triangles
+    box2 = (0, 0, 120, 120)
+    for near, shift in ((np.array([1.0, 1, 1, 2, 2, 2]), 0.0), (np.array([2.0, 2, 2, 1, 1, 1]), 500.0)):
+        m = mesh_coarse_map(cur2, ref2, tris, box2, depth=near)
+        inside = m[..., 0] > OUTSIDE / 2
+        assert inside.sum() > 10 and (m[inside][:, 0] >= shift).all() and (m[inside][:, 0] < shift + 120).all()
+    # the same triangle with its corners reversed in this frame (turned away): nothing covered
+    assert mesh_coarse_map(cur2[:3], ref2[:3], np.array([[0, 2, 1]], np.int32), box2) is None
