@@ -1,7 +1,7 @@
 """NumPy twins of ``composite.cl``'s kernels (:mod:`relight.kernels.compositor` runs them):
 ``build_layer`` -> :func:`build_layer_numpy`, ``warp_composite`` -> :func:`warp_composite_numpy`,
 ``composite_person`` -> :func:`composite_person_numpy`. The references the kernels are tested
-against (tests/test_filter.py): the same arithmetic in NumPy, pixel by pixel, from the same
+against (tests/test_composite.py): the same arithmetic in NumPy, pixel by pixel, from the same
 arguments, with the thresholds :mod:`relight.kernels.compositor` names.
 
 Arrays as in :mod:`relight.kernels.compositor`: the reference crop's alpha (ch, cw) float32,

@@ -1,6 +1,5 @@
 """The composite kernels against their NumPy twins; the live ratio, the person's maps and pass."""
 
-
 import cv2
 import numpy as np
 import pytest

@@ -1,6 +1,5 @@
 """The per-frame path's tracking, head pose, re-anchoring and warps."""
 
-
 import cv2
 import numpy as np
 import pytest
