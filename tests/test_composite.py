@@ -11,7 +11,6 @@ from .tolerances import (
     COMPOSITE_TWIN_CODES,
     LIVE_RATIO_BOUND_CODES,
     PERSON_ASYNC_MEAN_CODES,
-    SMOOTH_BLUR_SHARE,
     STROKE_DARKER,
     STROKES_KEPT_SHARE,
     TRUST_HIGH_SHARE,
@@ -458,23 +457,6 @@ def test_the_person_region_leaves_the_face_composite_as_it_is(frame_path, clip):
     assert (full & off).sum() > 100 and (full & on).sum() > 100
     np.testing.assert_array_equal(gated[off], rgb[off])
     np.testing.assert_array_equal(gated[on & full], face[on & full])
-
-
-def test_gaussian_smooth_follows_a_direct_gaussian():
-    """The wide blurs of the person's maps, taken on halved grids: within a few percent of the
-    peak of a direct Gaussian blur, and the same shape as the input."""
-    from relight.engine.head_light import gaussian_smooth
-
-    img = np.zeros((270, 480), np.float32)
-    img[100:180, 200:260] = 1.0
-    img[20:40, 30:400] = 0.5
-    for sigma in (2.0, 8.0, 20.0, 54.0):
-        want = cv2.GaussianBlur(img, (0, 0), sigma)
-        got = gaussian_smooth(img, sigma)
-        assert got.shape == img.shape
-        assert np.abs(got - want).max() <= SMOOTH_BLUR_SHARE * want.max()
-    three = np.dstack([img, 2 * img, 3 * img])
-    assert gaussian_smooth(three, 20.0).shape == three.shape
 
 
 def _texel_point(relighter, direction):
