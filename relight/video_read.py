@@ -102,9 +102,11 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
     return VideoInfo(width=w, height=h, fps=float(rate), frame_count=int(n), turns=turns, mirror=mirror)
 
 
-def _decoded(path: str | os.PathLike, max_frames: int, convert: Callable | None) -> Iterator:
-    """The decoded frames of the first video stream (``convert(frame)`` of each when given), one
-    size and at most ``max_frames`` of them; a decoder's error an :class:`InputError`."""
+def _decoded(path: str | os.PathLike, max_frames: int, convert: Callable | None, *,
+             same_size: bool = True) -> Iterator:
+    """The decoded frames of the first video stream (``convert(frame)`` of each when given), at
+    most ``max_frames`` of them, all of the stream's size unless ``same_size`` is False; a
+    decoder's error an :class:`InputError`."""
     import av
 
     info = probe_video(path)
@@ -115,7 +117,7 @@ def _decoded(path: str | os.PathLike, max_frames: int, convert: Callable | None)
             stream.thread_type = "AUTO"
             for frame in container.decode(stream):
                 release_frames(frame)
-                if (frame.width, frame.height) != info.coded_size:
+                if same_size and (frame.width, frame.height) != info.coded_size:
                     raise InputError(f"{path}: frame {count} is {frame.width}x{frame.height}, the stream said "
                                      f"{info.coded_size[0]}x{info.coded_size[1]}; variable-size streams are not "
                                      "supported")
@@ -149,33 +151,25 @@ def read_luma(path: str | os.PathLike, *, max_frames: int = MAX_VIDEO_FRAMES) ->
     Reads the Y plane directly for YUV streams (no colour conversion), so it is several times
     faster than :func:`read_frames`; for brightness traces and tracking.
     """
-    import av
-
-    probe_video(path)
     count = 0
-    try:
-        with av.open(str(path), metadata_errors=METADATA_ERRORS) as container:
-            stream = container.streams.video[0]
-            stream.thread_type = "AUTO"
-            for frame in container.decode(stream):
-                release_frames(frame)
-                count += 1
-                if count > max_frames:
-                    raise InputError(f"{path}: more than {max_frames} frames; trim the video")
-                name = frame.format.name
-                if name in PLANAR_FORMATS and PLANAR_FORMATS[name][0] == 8:
-                    y = np.frombuffer(frame.planes[0], dtype=np.uint8).reshape(
-                        frame.height, frame.planes[0].line_size)[:, :frame.width]
-                    full = name.startswith("yuvj") or int(frame.color_range) == 2
-                    if not full:
-                        y = LIMITED_TO_FULL[y]
-                elif name in PLANAR_FORMATS:  # 10/12-bit: through linear light (HDR tone-mapped)
-                    yield whole_frame(frame).luma()
-                    continue
-                else:
-                    y = frame.to_ndarray(format="gray")
-                yield np.ascontiguousarray(orient(y, *display_orientation(frame)))
-    except av.error.FFmpegError as exc:
-        raise InputError(f"{path}: decoding failed after {count} frame(s) ({exc}); the file is corrupt") from None
+    for y in _decoded(path, max_frames, _luma, same_size=False):
+        count += 1
+        yield y
     if count == 0:
         raise InputError(f"{path}: the video holds no frames")
+
+
+def _luma(frame) -> np.ndarray:
+    """(H, W) uint8 full-range luma of one decoded frame, as displayed (:func:`read_luma`)."""
+    name = frame.format.name
+    if name in PLANAR_FORMATS and PLANAR_FORMATS[name][0] == 8:
+        y = np.frombuffer(frame.planes[0], dtype=np.uint8).reshape(
+            frame.height, frame.planes[0].line_size)[:, :frame.width]
+        full = name.startswith("yuvj") or int(frame.color_range) == 2
+        if not full:
+            y = LIMITED_TO_FULL[y]
+    elif name in PLANAR_FORMATS:  # 10/12-bit: through linear light (HDR tone-mapped)
+        return whole_frame(frame).luma()
+    else:
+        y = frame.to_ndarray(format="gray")
+    return np.ascontiguousarray(orient(y, *display_orientation(frame)))
