@@ -47,7 +47,8 @@ def track_exposure(grey: np.ndarray) -> tuple[np.ndarray, float]:
 
 def tracking_image(frame) -> tuple[np.ndarray, float, float]:
     """(the tracking image, its scale of the frame, the gain on its codes) of ``frame`` - (H, W, 3)
-    uint8 sRGB or a :class:`relight.video_yuv.YuvFrame` (its luma alone is read): grey, scaled to
+    uint8 sRGB or a :class:`relight.video_yuv.YuvFrame` (its planes scaled first, then made grey:
+    :meth:`relight.video_yuv.YuvFrame.tracking_grey`): grey, scaled to
     at most ``TRACK_ROWS`` rows (LK's cost is its pyramids and windows; a third of a pixel at 1080
     rows is still far below the pose's noise), a dark frame brightened (:func:`track_exposure`)."""
     h, w = frame.shape[:2]
