@@ -11,10 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def shared_data() -> Path | None:
-    p = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-    return p if p.is_dir() else None
+from .real_data import shared_data
 
 
 def real_face_frames(n: int, size: tuple[int, int]) -> list[np.ndarray]:

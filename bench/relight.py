@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.kernels.transport import split_direct
+from relight.kernels.texel_lights import split_direct
 
 TOLERANCES = (0.05, 0.02, 0.01, 0.005, 0.002)
 #: Timing: rounds x (pause, warm-up calls, timed calls) per function, functions in turn.
@@ -166,7 +166,7 @@ def run(out: Path, quick: bool = False, progress: bool = True) -> dict:
     import relight
     from relight.directions import rotation_matrix
     from relight.imageio import read_image
-    from relight.kernels import transport
+    from relight.kernels import texel_lights
     from relight.kernels.relighter import Relighter
 
     bundle_path, truth_dir, envs = _scenario(Path(out), quick, progress)
@@ -194,7 +194,7 @@ def run(out: Path, quick: bool = False, progress: bool = True) -> dict:
                                p, probe, quick))
     # A single point light: the maps' own texels, no environment.
     light = np.array([0.5, 0.3, 0.8])
-    lp = transport.point_light(light, bundle.map_size, np.asarray(bundle.map_texels))
+    lp = texel_lights.point_light(light, bundle.map_size, np.asarray(bundle.map_texels))
     pl = _blocked_ms({"light": lambda i: exact.relight_light(light + 0.01 * np.sin(i) * np.array([1, 0, 0])),
                       "exact": lambda i: exact.relight_texels(lp)})
     pl_bytes = 4 * 3 * p * 2 + p * 16

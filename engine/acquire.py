@@ -80,7 +80,7 @@ def _point_lit(relighter, direction) -> np.ndarray:
     basis): the low-rank part alone serves a subspace of the face's images as well."""
     if relighter.row_cache is None or relighter.exact:
         return relighter.relight_light(direction)
-    from relight.kernels.transport import point_light
+    from relight.kernels.texel_lights import point_light
 
     return relighter.relight_texels(point_light(direction, relighter.map_size, relighter.texels), direct=0)
 

@@ -1,6 +1,7 @@
 """The frame path's live light (mode transfer): fitted to the face every few frames - on a
 worker beside a live source's frames - taken into use (the face relit under it for the layer and
-the tracker's live-lit reference), and the target brought to its exposure (:class:`LiveLightMixin`).
+the tracker's live-lit reference), and the target brought to its exposure (:class:`LiveLightStage`,
+the one object holding that state).
 """
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ import numpy as np
 
 from . import composite
 from .frame_warp import sample_live
-from .gains import ambient_gain, live_gain
+from .gains import ExposureLock, ambient_gain, live_gain
+from .live_light import LightEstimator, LiveLight
 from .tracking_image import lit_reference
 
 #: Mode transfer: the live light is fitted every this many frames (it is smoothed over a tenth of a
@@ -19,47 +21,90 @@ from .tracking_image import lit_reference
 LIGHT_EVERY = 3
 
 
-class LiveLightMixin:
-    """:class:`relight.engine.frame_path.FramePath`'s live light part. Reads the path's ``rig``,
-    ``relighter``, ``tracker``, ``live_source``, ``rigid_warp`` and its ``_worker()`` and
-    ``_sync_relight()``; keeps (set by the path, dropped by a reset) ``light_estimator``,
-    ``_last_light`` (the last fit's report), ``_light_now`` ((texel light, spread) of the last fit
-    taken), ``_light_job`` (a fit being made on the worker), ``_since_light`` (frames since the
-    last fit), ``_exposure_lock`` (:class:`.gains.ExposureLock`) and ``_next_reference`` (a live-lit
-    reference kept for ``commit_reference``)."""
+def sync_relight(relighter, tm: dict) -> float:
+    """Wait for ``relighter``'s queued relight; the ms waited are counted in the frame's relight
+    stage (``tm['relight']``) and returned."""
+    t = time.perf_counter()
+    relighter.sync()
+    ms = (time.perf_counter() - t) * 1e3
+    tm["relight"] = tm.get("relight", 0.0) + ms
+    return ms
 
-    def _transfer_light(self, rgb, cur, ref, rotation, t: float, flat, tm: dict, track_gain: float, defer: bool):
+
+class LiveLightStage:
+    """Mode transfer's live light in a :class:`relight.engine.frame_path.FramePath`: the fits, the
+    light in use, the exposure lock and the live-lit reference for the tracker. It reads the
+    path's ``rig``, ``relighter`` and ``tracker`` (given once, with the ``bundle`` its estimator
+    is made from) and the ``worker``
+    (:class:`.threads.Worker`, shared with the person's stage: one job at a time); it owns (and
+    :meth:`reset` drops) ``estimator`` (:class:`.live_light.LightEstimator`), ``last`` (the last
+    fit's :class:`.live_light.LiveLight` report), ``now`` ((texel light, spread) of the last fit
+    taken, None before one), ``job`` (a fit being made on the worker), ``since`` (frames since the
+    last fit), ``exposure_lock`` and ``next_reference`` (a live-lit reference kept for
+    :meth:`commit_reference`). ``live_source``: fits after the first are made on the worker."""
+
+    def __init__(self, bundle, rig, relighter, tracker, worker, *, live_source: bool):
+        self.rig, self.relighter, self.tracker, self.worker = rig, relighter, tracker, worker
+        self.live_source = bool(live_source)
+        maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
+            np.float32(relighter.sample_scale)
+        self.estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
+        self.last: LiveLight | None = None
+        self.now = None
+        self.job = None
+        self.since = 0
+        self.exposure_lock = ExposureLock()
+        self.next_reference = None
+
+    def new_environment(self) -> None:
+        """A new target: its exposure locked anew."""
+        self.exposure_lock = ExposureLock()
+
+    def reset(self) -> None:
+        """Forget every fit (a new, unrelated video follows); waits for a fit on the worker (the
+        estimator is the worker's until it ends)."""
+        if self.job is not None:
+            self.job.result()
+            self.job = None
+        self.estimator.reset()
+        self.last, self.now = None, None
+        self.since = 0
+        self.next_reference = None
+        self.exposure_lock = ExposureLock()
+
+    def transfer(self, rgb, cur, ref, rotation, t: float, flat, tm: dict, track_gain: float, defer: bool,
+                 rigid_warp: bool):
         """Mode transfer's light for a frame: the live light fitted to its face every
         ``LIGHT_EVERY`` frames (beside a live source's frames, on the worker) and taken into use
-        (:meth:`_took_light`), the target exposure-matched to it (:func:`.gains.live_gain`, held by
-        the path's exposure lock). ``rgb``: the frame (the converted box of a YuvFrame), ``cur``,
-        ``ref``: the warp's points in it and in the reference (:func:`.frame_warp.face_warp`),
-        ``rotation`` the head's, ``t`` the frame's time, ``flat`` the relit reference frame
-        ((H x W, 3) linear), ``tm`` the frame's timings; ``track_gain``, ``defer``: for the live-lit
-        reference (:meth:`_set_lit_reference`). Returns (the layer's mode - 'live', 'ambient' before
-        any light -, the gain, the live face's median luminance, the detail threshold tau, the
-        ratio's eps, the ms waited for the relight)."""
+        (:meth:`took`), the target exposure-matched to it (:func:`.gains.live_gain`, held by the
+        exposure lock). ``rgb``: the frame (the converted box of a YuvFrame), ``cur``, ``ref``: the
+        warp's points in it and in the reference (:func:`.frame_warp.face_warp`, ``rigid_warp``
+        its kind), ``rotation`` the head's, ``t`` the frame's time, ``flat`` the relit reference
+        frame ((H x W, 3) linear), ``tm`` the frame's timings; ``track_gain``, ``defer``: for the
+        live-lit reference (:meth:`set_lit_reference`). Returns (the layer's mode - 'live',
+        'ambient' before any light -, the gain, the live face's median luminance, the detail
+        threshold tau, the ratio's eps, the ms waited for the relight)."""
         t5 = time.perf_counter()
         layer_mode, live_median, tau, eps = composite.LAYER_MODE["transfer"], 0.0, 0.0, float(self.rig.ratio_eps)
         waited = 0.0
-        job = self._light_job
+        job = self.job
         if job is not None and job.done():  # a fit made beside the frames, taken into use
-            self._light_job = None
-            waited = self._took_light(job.result(), tm, track_gain, defer)
-        if job is None and (self._light_now is None or self._since_light + 1 >= LIGHT_EVERY):
-            lin, valid = sample_live(self.rig, rgb, cur, ref, rotation, self.rigid_warp)
-            self._since_light = 0
-            if self.live_source and self._light_now is not None:
-                self._light_job = self._worker().submit(self._fit_light, lin, valid, t, rotation)
+            self.job = None
+            waited = self.took(job.result(), tm, track_gain, defer)
+        if job is None and (self.now is None or self.since + 1 >= LIGHT_EVERY):
+            lin, valid = sample_live(self.rig, rgb, cur, ref, rotation, rigid_warp)
+            self.since = 0
+            if self.live_source and self.now is not None:
+                self.job = self.worker.submit(self.fit, lin, valid, t, rotation)
             else:
-                waited += self._took_light(self._fit_light(lin, valid, t, rotation), tm, track_gain, defer)
+                waited += self.took(self.fit(lin, valid, t, rotation), tm, track_gain, defer)
         else:
-            self._since_light += 1
-        waited += self._sync_relight(tm)
-        if self._light_now is not None:
+            self.since += 1
+        waited += sync_relight(self.relighter, tm)
+        if self.now is not None:
             live_median, gain = live_gain(self.rig, self.relighter.slot("live")[0], flat)
-            gain = self._exposure_lock(gain)
-            spread = self._light_now[1]
+            gain = self.exposure_lock(gain)
+            spread = self.now[1]
             tau = composite.DETAIL_SHRINK * spread if np.isfinite(spread) else 0.0
             eps = composite.RATIO_EPS * max(live_median, composite.TINY)
         else:  # no light yet (the first frames showed too little): the capture room's ratio
@@ -67,44 +112,50 @@ class LiveLightMixin:
         tm["light"] = (time.perf_counter() - t5) * 1e3 - waited
         return layer_mode, gain, live_median, tau, eps, waited
 
-    def _fit_light(self, lin: np.ndarray, valid: np.ndarray, t: float, rotation: np.ndarray):
-        """The live light fitted to a frame's sampled face (:meth:`.live_light.LightEstimator.fit`): (its
-        report, (the texel light, its spread) or None before any light). Touches only the
+    def fit(self, lin: np.ndarray, valid: np.ndarray, t: float, rotation: np.ndarray):
+        """The live light fitted to a frame's sampled face (:meth:`.live_light.LightEstimator.fit`):
+        (its report, (the texel light, its spread) or None before any light). Touches only the
         estimator (a worker's while a fit runs beside the frames: the frame's thread reads the
-        snapshot :meth:`_took_light` keeps)."""
-        report = self.light_estimator.fit(lin, valid, t, rotation)
-        est = self.light_estimator
+        snapshot :meth:`took` keeps)."""
+        est = self.estimator
+        report = est.fit(lin, valid, t, rotation)
         return report, (est.texel_light().copy(), float(est.spread)) if est.light is not None else None
 
-    def _took_light(self, fitted, tm: dict, track_gain: float, defer_reference: bool) -> float:
-        """A fit (:meth:`_fit_light`) taken into use on the frame's thread: its snapshot kept, the
-        face relit under it for the layer and the tracker's reference; the ms waited for the main
+    def took(self, fitted, tm: dict, track_gain: float, defer_reference: bool) -> float:
+        """A fit (:meth:`fit`) taken into use on the frame's thread: its snapshot kept, the face
+        relit under it for the layer and the tracker's reference; the ms waited for the main
         relight first (counted in the relight stage)."""
-        self._last_light, now = fitted
+        self.last, now = fitted
         if now is None:
             return 0.0
-        self._light_now = now
-        waited = self._sync_relight(tm)  # the main relight first (counted as its stage)
+        self.now = now
+        waited = sync_relight(self.relighter, tm)  # the main relight first (counted as its stage)
         # The live light through the low-rank part alone (direct=0): no texel row is made for it
         # (a recipe bundle's rows cost ~35 ms each at 100k face pixels and the fitted light's
         # brightest texels change every fit). Measured on the 720p live clip against the exact
         # maps: 0.74 % relative L2 median, 0.94 % max (0.47 / 0.68 % with 8 exact texels) - within
         # the default tolerance and far below the fit's own residual (8-15 % on the real faces).
         lit = self.relighter.relight_texels(now[0], slot="live", direct=0)
-        self._set_lit_reference(lit, track_gain, defer_reference)
+        self.set_lit_reference(lit, track_gain, defer_reference)
         return waited
 
-    def _texel_light(self) -> np.ndarray:
+    def texel_light(self) -> np.ndarray:
         """(T, 3) the live light in use, in the bundle's texels (zeros before the first)."""
-        return self._light_now[0] if self._light_now is not None else self.light_estimator.texel_light()
+        return self.now[0] if self.now is not None else self.estimator.texel_light()
 
-    def _set_lit_reference(self, lit: np.ndarray, gain: float, defer: bool) -> None:
+    def set_lit_reference(self, lit: np.ndarray, gain: float, defer: bool) -> None:
         """The tracker's reference with the face as the live light shows it (``lit``: the reference
         frame relit by the estimate, linear; ``gain``: the tracking gain of the frame the light was
         fitted to): re-anchoring then matches like with like (:func:`.tracking_image.lit_reference`).
         ``defer``: kept for :meth:`commit_reference` instead of handed to the tracker now."""
         ref = lit_reference(self.tracker.reference, lit, self.rig.lit_box, self.rig.track_face, gain)
         if defer:
-            self._next_reference = ref
+            self.next_reference = ref
         else:
             self.tracker.lit_reference = ref
+
+    def commit_reference(self) -> None:
+        """Hand the tracker the live-lit reference a deferred frame made."""
+        if self.next_reference is not None:
+            self.tracker.lit_reference = self.next_reference
+            self.next_reference = None

@@ -5,8 +5,9 @@ One flow: a :class:`.rig.FaceRig` (everything the path needs of a bundle, prepar
 then, per frame, :meth:`FramePath.front` (track, head pose: a :class:`Front`) and
 :meth:`FramePath.back` (relight, live light, warp, composite). :class:`FramePath` is the one
 stateful object: the rig, the relighter, the tracker, the pose estimators and filters, the live
-light and the environment; its live light and its person are parts of it kept beside this
-module (:mod:`.frame_light`, :mod:`.frame_person`), the stages it calls are functions of their
+light and the environment; its live light and its person are stage objects it owns, each
+holding its own state (:class:`.frame_light.LiveLightStage`, :class:`.frame_person.PersonStage`,
+``live_light`` and ``person``), the stages it calls are functions of their
 own modules (:mod:`.tracking_image`, :mod:`.refind`, :mod:`.frame_warp`, :mod:`.gains`,
 :mod:`.person_maps`). ``process(frame, t)`` takes an (H, W, 3) uint8 sRGB frame - or a
 :class:`relight.video_yuv.YuvFrame`, a decoded frame kept in its planes (only the face's box -
@@ -31,16 +32,16 @@ from relight.kernels.relighter import DEFAULT_TOLERANCE
 from relight.numerics import EPS_VALUE
 
 from . import composite
-from .frame_light import LiveLightMixin
-from .frame_person import PersonMixin
+from .frame_light import LiveLightStage, sync_relight
+from .frame_person import PersonStage
 from .frame_warp import face_warp, regularised_points
-from .gains import ExposureLock, ambient_gain, paste_gain
-from .live_light import LightEstimator, LiveLight
+from .gains import ambient_gain, paste_gain
+from .live_light import LiveLight
 from .person_maps import union_box
 from .pose import OneEuroFilter, PoseEstimator
 from .refind import refind_landmarks
 from .rig import FaceRig
-from .threads import limit_threads
+from .threads import Worker, limit_threads
 from .tracking import FaceTracker
 from .tracking_image import tracking_image
 from .warp import GRID_STEP
@@ -109,7 +110,7 @@ class Front:
     warp: tuple | None = None
 
 
-class FramePath(PersonMixin, LiveLightMixin):
+class FramePath:
     """Relights faces in frames with one bundle (see the module docstring).
 
     mode : 'transfer' or 'paste'. strength : 0-1. fixed_env : keep the environment still relative
@@ -152,6 +153,7 @@ class FramePath(PersonMixin, LiveLightMixin):
         self.reuse_deg = float(reuse_deg)
         self.relighter.lights(env)  # a bad environment refused before the rig's seconds of work
         self.env = None
+        self.live_light = self.person = None  # (made below, once the rig is)
         self._relit_key = None  # (env, exposure, rotation) of the relight in relit_frame
         self._track_gain = 1.0  # the last tracking copy's brightening (.tracking_image.track_exposure)
         self.rig = rig = FaceRig.build(bundle, self.relighter, focal)
@@ -170,27 +172,16 @@ class FramePath(PersonMixin, LiveLightMixin):
         self.compositor = Compositor(rig.alpha_crop, rig.fill, rig.inv_ambient, rig.normal_crop, rig.origin,
                                      self.relighter)
         self.rigid_warp = bool(rigid_warp)
-        # The rest of the person (mode transfer): its matte, made on the first frame that needs it.
         if region not in composite.REGIONS:
             raise InputError(f"region {region!r}: use one of {', '.join(composite.REGIONS)}")
         self.region = region
-        self.person = None
-        # (work size, PersonMaps, the back() call that last used them), frames reused since made
-        self._person_last, self._person_age, self._trust_run = None, 0, 0
-        # live_source: the slow maps made on a worker (_person, the light fit); the person's maps
-        # being made there (a future), dropped with the maps in use (a new environment, a reset)
+        # live_source: the slow maps - the person's (region person) and the live light's fits -
+        # made on one worker thread beside the frames
         self.live_source = bool(live_source)
-        self._person_job, self._pool = None, None
-        self._backs = 0  # back() calls: the person's maps serve only the call right after their last use
-        maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
-            np.float32(self.relighter.sample_scale)
-        self.light_estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
-        self._last_light: LiveLight | None = None
-        # the live light in use - (texel light, spread) of the last fit taken - and a fit made
-        # beside the frames (live_source), if one is
-        self._light_now, self._light_job = None, None
-        self._next_reference = None  # a live-lit reference back(defer_reference=True) made
-        self._since_light = 0
+        worker = Worker()
+        self.person = PersonStage(bundle, rig, self.compositor, worker, live_source=self.live_source)
+        self.live_light = LiveLightStage(bundle, rig, self.relighter, self.tracker, worker,
+                                         live_source=self.live_source)
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
         self.gain_filter = OneEuroFilter(GAIN_MIN_CUTOFF, 0.0)
@@ -205,9 +196,9 @@ class FramePath(PersonMixin, LiveLightMixin):
         self.relighter.lights(env)  # validates and converts once
         self.env = env
         self.relighter.prefetch_rows(env)  # the exact texels' rows, ahead of the head's turns
-        self._exposure_lock = ExposureLock()  # mode transfer's exposure, locked anew
-        self._env_texels = None  # its low frequencies, made when the person beyond the face needs them
-        self._person_last = None  # the person's ratio was the last environment's
+        if self.live_light is not None:  # (the first environment comes before the stages)
+            self.live_light.new_environment()  # mode transfer's exposure, locked anew
+            self.person.new_environment()  # the person's ratio was the last environment's
 
     @property
     def whole_head(self) -> bool:
@@ -243,15 +234,8 @@ class FramePath(PersonMixin, LiveLightMixin):
         self.tracker.prev = None
         self.angle_filter.reset()
         self.gain_filter.reset()
-        if self._light_job is not None:  # the estimator is the worker's until its fit ends
-            self._light_job.result()
-            self._light_job = None
-        self.light_estimator.reset()
-        self._last_light, self._light_now = None, None
-        self._since_light = 0
-        self._next_reference = None
-        self._exposure_lock = ExposureLock()
-        self._person_last, self._trust_run = None, 0
+        self.live_light.reset()
+        self.person.reset()
         for est in self._estimators.values():
             est.last = None
 
@@ -333,7 +317,7 @@ class FramePath(PersonMixin, LiveLightMixin):
     def back(self, front: Front, defer_reference: bool = False):
         """The second half of :meth:`process` (relight, warp, live light, composite) for the
         result of :meth:`front`."""
-        self._backs += 1
+        self.person.next_frame()
         if front.pose is None:
             return front.frame, front.info
         rgb, t, t0, info = front.frame, front.t, front.t0, front.info
@@ -372,7 +356,7 @@ class FramePath(PersonMixin, LiveLightMixin):
         if not isinstance(rgb, np.ndarray):
             want = box
             if self.whole_head and self.strength > 0:
-                last = self._last_person()
+                last = self.person.last_maps()
                 fh, fw = rgb.shape[:2]
                 pb = last[1].moved(anchor).box if last is not None else None
                 if pb is not None:
@@ -388,16 +372,16 @@ class FramePath(PersonMixin, LiveLightMixin):
         flat = img.reshape(-1, 3)
         layer_mode, live_median, tau, eps = composite.LAYER_MODE[self.mode], 0.0, 0.0, float(self.rig.ratio_eps)
         if self.mode == "transfer":  # the live light, fitted to this frame's face
-            layer_mode, gain, live_median, tau, eps, waited = self._transfer_light(
-                rgb, cur, ref, rotation, t, flat, tm, front.track_gain, defer_reference)
-            info.light = self._last_light
+            layer_mode, gain, live_median, tau, eps, waited = self.live_light.transfer(
+                rgb, cur, ref, rotation, t, flat, tm, front.track_gain, defer_reference, self.rigid_warp)
+            info.light = self.live_light.last
         elif self.mode == "ambient":
             # The lighting ratio's median is 1: the face keeps its brightness.
-            waited = self._sync_relight(tm)
+            waited = sync_relight(self.relighter, tm)
             gain = ambient_gain(self.rig, flat)
         else:
             # paste: the relit face's median matched to the live face's at the tracked points.
-            waited = self._sync_relight(tm)
+            waited = sync_relight(self.relighter, tm)
             gain = paste_gain(self.rig, rgb, flat, track.xy[keep] - offset, ref_idx)
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
         tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
@@ -413,7 +397,9 @@ class FramePath(PersonMixin, LiveLightMixin):
             t6 = time.perf_counter()
             from .head_light import MATTE_FLOOR
 
-            maps, union = self._person(frame, frame_box, coarse, rotation, tau, anchor, info.reused, PERSON_EVERY)
+            maps, union = self.person.maps(frame, frame_box, coarse, rotation, tau, anchor, info.reused, PERSON_EVERY,
+                                           env=self.env, strength=self.strength, fixed_env=self.fixed_env,
+                                           texel_light=self.live_light.texel_light)
             ox, oy = int(offset[0]), int(offset[1])
             if frame is not rgb and not (union[0] >= ox and union[1] >= oy and union[2] <= ox + rgb.shape[1]
                                          and union[3] <= oy + rgb.shape[0]):
@@ -433,21 +419,6 @@ class FramePath(PersonMixin, LiveLightMixin):
         tm["total"] = (time.perf_counter() - t0) * 1e3
         return out, info
 
-    def _worker(self):
-        if self._pool is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._pool = ThreadPoolExecutor(1, thread_name_prefix="relight-maps")
-        return self._pool
-
-    def _sync_relight(self, tm: dict) -> float:
-        """Wait for the queued relight; the ms waited are counted in the relight stage (returned)."""
-        t = time.perf_counter()
-        self.relighter.sync()
-        ms = (time.perf_counter() - t) * 1e3
-        tm["relight"] = tm.get("relight", 0.0) + ms
-        return ms
-
     def _refind(self, est, pose, ts, grey, idx):
         """The landmarks ``idx`` found again in ``grey`` (:func:`.refind.refind_landmarks`, against
         the tracker's live-lit reference when there is one): a Track, or None."""
@@ -457,6 +428,4 @@ class FramePath(PersonMixin, LiveLightMixin):
     def commit_reference(self) -> None:
         """Hand the tracker the live-lit reference a deferred :meth:`back` made (between frames,
         when no :meth:`front` runs)."""
-        if self._next_reference is not None:
-            self.tracker.lit_reference = self._next_reference
-            self._next_reference = None
+        self.live_light.commit_reference()

@@ -1,6 +1,6 @@
 """The frame path's person (region person, mode transfer): when the person's maps
 (:mod:`.person_maps`) are made - every few frames, on a worker beside a live source's frames -
-reused, and carried with the head (:class:`PersonMixin`).
+reused, and carried with the head (:class:`PersonStage`, the one object holding that state).
 """
 from __future__ import annotations
 
@@ -8,87 +8,116 @@ from . import head_light
 from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs, union_box
 
 
-class PersonMixin:
-    """:class:`relight.engine.frame_path.FramePath`'s person part. Reads the path's ``rig``,
-    ``compositor``, ``bundle``, ``env``, ``strength``, ``fixed_env``, ``live_source`` and its
-    ``_worker()`` and ``_texel_light()``; keeps (set by the path, dropped with a new environment or
-    a reset) ``person`` (the matte model, made on first use), ``_person_last`` (work size,
-    :class:`PersonMaps`, the back() call that last used them), ``_person_age`` (frames they were
-    reused since made), ``_trust_run`` (the matte's trusted remakes in a row), ``_person_job`` (maps
-    being made on the worker) and ``_env_texels`` (the environment's low frequencies); ``_backs``
-    counts the path's back() calls."""
+class PersonStage:
+    """The person's maps in a :class:`relight.engine.frame_path.FramePath`. It reads the path's
+    ``rig``, ``compositor`` and the ``bundle``'s texel directions (given once) and the ``worker``
+    (:class:`.threads.Worker`, shared with the live light's stage); it owns ``matte`` (the
+    :class:`.person.PersonMatte` model, made on first use), ``last`` (work size,
+    :class:`PersonMaps`, the frame that last used them), ``age`` (frames they were reused since
+    made), ``trust_run`` (the matte's trusted remakes in a row), ``job`` (maps being made on the
+    worker), ``env_texels`` (the environment's low frequencies) and ``frames`` (the path's frames
+    counted by :meth:`next_frame`). ``live_source``: maps after the first are made on the worker."""
 
-    def _last_person(self):
-        """The person's maps (work size, :class:`PersonMaps`, the back() call that used them) if
-        the last back() call used them - they serve only the call right after (not across a frame
-        the person was left out of: no face, another mode, strength 0) - else None."""
-        last = self._person_last
-        return last if last is not None and last[2] == self._backs - 1 else None
+    def __init__(self, bundle, rig, compositor, worker, *, live_source: bool):
+        self.rig, self.compositor, self.worker = rig, compositor, worker
+        self.texel_dirs = bundle.texel_dirs
+        self.live_source = bool(live_source)
+        self.matte = None
+        self.last = None
+        self.age, self.trust_run = 0, 0
+        self.job = None
+        self.env_texels = None
+        self.frames = 0
 
-    def _person(self, frame, face_box, coarse, rotation, tau: float, anchor, still: bool, every: int):
+    def next_frame(self) -> None:
+        """Count a frame of the path (every back() call, with or without the person)."""
+        self.frames += 1
+
+    def new_environment(self) -> None:
+        """A new target: the maps made for the last one are not used again (their ratio was its)."""
+        self.env_texels = None
+        self.last = None
+
+    def reset(self) -> None:
+        """Forget the maps and the matte's trust (a new, unrelated video follows)."""
+        self.last, self.trust_run = None, 0
+
+    def last_maps(self):
+        """The person's maps (work size, :class:`PersonMaps`, the frame that used them) if the last
+        frame used them - they serve only the frame right after (not across a frame the person was
+        left out of: no face, another mode, strength 0) - else None."""
+        last = self.last
+        return last if last is not None and last[2] == self.frames - 1 else None
+
+    def maps(self, frame, face_box, coarse, rotation, tau: float, anchor, still: bool, every: int, *,
+             env, strength: float, fixed_env: bool, texel_light):
         """(:class:`PersonMaps` of this frame, the frame's box the face and the person reach): the
         maps (smooth, slow to change) made every ``every`` frames (:data:`.frame_path.PERSON_EVERY`)
         and reused between, kept while the head is ``still`` (the face's own alpha in the kernel is
-        this frame's). With ``live_source`` the making (all but the inputs the device and this thread's state give,
-        :meth:`_person_inputs`) runs on a worker: the frame uses the newest maps made, a frame or
-        two old, and the next are made while it is composited. ``frame``: as given (an array or a
-        YuvFrame); ``face_box``: the face's box in it; ``anchor``: the head's place in it (maps
-        made on another frame are carried with the head: :meth:`PersonMaps.moved`)."""
+        this frame's). With ``live_source`` the making (all but the inputs the device and this
+        thread's state give, :meth:`inputs`) runs on the worker: the frame uses the newest maps
+        made, a frame or two old, and the next are made while it is composited. ``frame``: as given
+        (an array or a YuvFrame); ``face_box``: the face's box in it; ``anchor``: the head's place in
+        it (maps made on another frame are carried with the head: :meth:`PersonMaps.moved`);
+        ``env``, ``strength``, ``fixed_env``: the path's target; ``texel_light``: a callable giving
+        the live light in use ((T, 3) in the bundle's texels)."""
         from .person import WORK_ROWS
 
         h, w = frame.shape[:2]
         sc = min(1.0, WORK_ROWS / h)
         work = (max(1, round(w * sc)), max(1, round(h * sc)))
-        last = self._last_person()
-        job = self._person_job  # the maps being made on the worker, or None
+        target = dict(env=env, strength=strength, fixed_env=fixed_env, texel_light=texel_light)
+        last = self.last_maps()
+        job = self.job  # the maps being made on the worker, or None
         if last is None or last[0] != work:  # none to go on with: made now, on this thread
             if job is not None:  # made for maps no longer in use (another environment, a gap,
                 job.result()     # a reset): dropped once done - the model is one, never two at once
-                self._person_job = None
-            maps = self._took_maps(build_person_maps(self._matte(), self._person_inputs(
-                frame, face_box, coarse, rotation, tau, work, anchor)))
+                self.job = None
+            maps = self.took(build_person_maps(self._matte(), self.inputs(
+                frame, face_box, coarse, rotation, tau, work, anchor, **target)))
         else:
             maps = last[1]
-            due = not still and self._person_age + 1 >= every
+            due = not still and self.age + 1 >= every
             if job is not None and job.done():
-                self._person_job = None
-                maps = self._took_maps(job.result())
+                self.job = None
+                maps = self.took(job.result())
             elif due and job is None:
-                inputs = self._person_inputs(frame, face_box, coarse, rotation, tau, work, anchor)
+                inputs = self.inputs(frame, face_box, coarse, rotation, tau, work, anchor, **target)
                 if self.live_source:
-                    self._person_job = self._worker().submit(build_person_maps, self._matte(), inputs)
-                    self._person_age += 1
+                    self.job = self.worker.submit(build_person_maps, self._matte(), inputs)
+                    self.age += 1
                 else:
-                    maps = self._took_maps(build_person_maps(self._matte(), inputs))
+                    maps = self.took(build_person_maps(self._matte(), inputs))
             else:
-                self._person_age += 1
-        self._person_last = (work, maps, self._backs)
+                self.age += 1
+        self.last = (work, maps, self.frames)
         maps = maps.moved(anchor)
         if maps.box is None:
             return maps, face_box
         x0, y0, x1, y1 = union_box(face_box, maps.box)
         return maps, (max(x0, 0), max(y0, 0), min(x1, w), min(y1, h))
 
-    def _took_maps(self, made) -> PersonMaps:
-        """The maps :func:`build_person_maps` made, taken into use on this thread: the matte's run
-        of trusted remakes counted and the gate set from it."""
+    def took(self, made) -> PersonMaps:
+        """The maps :func:`build_person_maps` made, taken into use on the frame's thread: the
+        matte's run of trusted remakes counted and the gate set from it."""
         maps, trusted = made
-        self._trust_run = self._trust_run + 1 if trusted else 0
-        self._person_age = 0
-        return maps._replace(gate=self._trust_run >= head_light.MATTE_TRUST_RUN)
+        self.trust_run = self.trust_run + 1 if trusted else 0
+        self.age = 0
+        return maps._replace(gate=self.trust_run >= head_light.MATTE_TRUST_RUN)
 
     def _matte(self):
         from .person import PersonMatte
 
-        if self.person is None:
-            self.person = PersonMatte()
-        return self.person
+        if self.matte is None:
+            self.matte = PersonMatte()
+        return self.matte
 
-    def _person_inputs(self, frame, box, coarse, rotation, tau: float, work, anchor) -> PersonInputs:
-        """What the person's maps are made of (:func:`.person_maps.person_inputs`) from this frame
-        and this path's state."""
-        if self._env_texels is None:  # the environment's low frequencies
-            self._env_texels = environment_texels(self.env)
+    def inputs(self, frame, box, coarse, rotation, tau: float, work, anchor, *, env, strength: float,
+               fixed_env: bool, texel_light) -> PersonInputs:
+        """What the person's maps are made of (:func:`.person_maps.person_inputs`) from this frame,
+        the target and this stage's state."""
+        if self.env_texels is None:  # the environment's low frequencies
+            self.env_texels = environment_texels(env)
         return person_inputs(self.rig, self.compositor, frame, box, coarse, rotation, tau, work, anchor,
-                             strength=self.strength, env_texels=self._env_texels, fixed_env=self.fixed_env,
-                             texel_dirs=self.bundle.texel_dirs, texel_light=self._texel_light())
+                             strength=strength, env_texels=self.env_texels, fixed_env=fixed_env,
+                             texel_dirs=self.texel_dirs, texel_light=texel_light())

@@ -1,4 +1,5 @@
-"""The process's thread pools for the per-frame path (:func:`limit_threads`)."""
+"""The per-frame path's threads: the process's thread pools (:func:`limit_threads`) and the worker
+for the slow maps (:class:`Worker`)."""
 from __future__ import annotations
 
 import cv2
@@ -22,3 +23,21 @@ def limit_threads() -> None:
     except ImportError:  # pragma: no cover - a dependency; without it the path is only slower
         return
     threadpool_limits(limits=max(blas, 1), user_api="blas")
+
+
+class Worker:
+    """One worker thread, made on first use, for the per-frame path's slow maps (the person's
+    maps, the live light's fits): one job at a time, in the order given (the person's matte model
+    is one and never runs twice at once). ``submit(fn, *args)`` returns a
+    :class:`concurrent.futures.Future`."""
+
+    def __init__(self, name: str = "relight-maps"):
+        self.name = name
+        self._pool = None
+
+    def submit(self, fn, *args):
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix=self.name)
+        return self._pool.submit(fn, *args)

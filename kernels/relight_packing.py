@@ -18,7 +18,7 @@ import numpy as np
 from relight.errors import InputError
 from relight.numerics import flush_subnormal_halves, read_halves
 
-from . import transport
+from . import texel_lights, transport
 from .runtime import aligned_zeros
 
 #: Pixels per compact work item and texels per exact block (the kernels' 64-byte loads of 32 halves).
@@ -48,7 +48,7 @@ def read_transport(bundle) -> transport.Transport:
         return transport.Transport(u=np.asarray(arrays["transport_u"]), v=v,
                                    rank_errors=np.asarray(arrays["transport_errors"]),
                                    sigma=np.asarray(arrays.get("transport_sigma", np.zeros(1))),
-                                   direct=int(bundle.meta.get("transport_direct", transport.DIRECT_TEXELS)),
+                                   direct=int(bundle.meta.get("transport_direct", texel_lights.DIRECT_TEXELS)),
                                    q=q, q_scale=q_scale, q4=q4, q4_scale=q4_scale)
     return transport.factorize(bundle.pixel_maps(), bundle.map_size, np.asarray(bundle.map_texels))
 

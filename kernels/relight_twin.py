@@ -10,7 +10,7 @@ for a recipe bundle, the maps its recipe makes: :meth:`relight.kernels.bundle.Bu
 bug in that packing shows in the kernel's result and not here.
 
 Shared with the Relighter on purpose: the direction-space stage (the environment's lights turned
-and splatted into the map's texels, :func:`relight.kernels.transport.texel_light` - the light both
+and splatted into the map's texels, :func:`relight.kernels.texel_lights.texel_light` - the light both
 are given, with the same rotation and exposure conventions) and the storage's own definitions
 (the levels V_LEVELS / V4_LEVELS, a half below ``HALF_TINY`` read as zero).
 """
@@ -21,7 +21,7 @@ import numpy as np
 
 from relight.numerics import HALF_TINY
 
-from . import transport
+from . import texel_lights, transport
 
 #: The Relighter's default tolerance (relative L2 against the exact path) choosing the rank.
 DEFAULT_TOLERANCE = transport.STORE_TOLERANCE
@@ -39,10 +39,10 @@ def _halves(a) -> np.ndarray:
 def texel_light(bundle, env, rotation=None, exposure: float = 1.0) -> np.ndarray:
     """(T, 3) float64: the environment's power in the bundle's stored texels, over pi, for a head
     turned by ``rotation`` (camera from head), times ``exposure`` and the bundle's sample_scale."""
-    lights = transport.environment_lights(np.asarray(env))
+    lights = texel_lights.environment_lights(np.asarray(env))
     r = None if rotation is None else np.asarray(rotation, dtype=np.float64)
     scale = float(bundle.meta.get("sample_scale", 1.0))
-    return transport.texel_light(lights, r, bundle.map_size, np.asarray(bundle.map_texels, dtype=np.int64),
+    return texel_lights.texel_light(lights, r, bundle.map_size, np.asarray(bundle.map_texels, dtype=np.int64),
                                  exposure * scale)
 
 
@@ -121,7 +121,7 @@ def compact_parts(bundle, lp: np.ndarray, rank: int) -> tuple[np.ndarray, np.nda
     ``texel_rows``, for a recipe bundle made from the recipe in NumPy)."""
     p = bundle.n_pixels
     _, u, q, q_scale, q4, q4_scale = _stored_transport(bundle, rank)
-    direct = brightest_texels(lp, int(bundle.meta.get("transport_direct", transport.DIRECT_TEXELS)))
+    direct = brightest_texels(lp, int(bundle.meta.get("transport_direct", texel_lights.DIRECT_TEXELS)))
     rest = lp.copy()
     rest[direct] = 0.0
     coef = np.asarray(u, dtype=np.float64)[:, :rank].T @ rest  # (rank, 3)

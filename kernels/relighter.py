@@ -27,7 +27,7 @@ import numpy as np
 from relight.errors import InputError
 from relight.numerics import EPS_NORM
 
-from . import transport
+from . import texel_lights, transport
 from .bundle import padded_texels
 from .relight_inputs import check_light, check_rotation
 from .relight_inputs import frozen as frozen
@@ -94,7 +94,7 @@ class Relighter:
         w, h = bundle.frame_size
         self.frame_index = bundle.frame_index
         self.transport = read_transport(bundle)
-        self.cone = transport.hull_cone(self.map_size, self.texels)
+        self.cone = texel_lights.hull_cone(self.map_size, self.texels)
         self.tolerance = float(tolerance)
         self.rank = None if exact else self.transport.rank_for(self.tolerance)
         self.exact = self.rank is None
@@ -177,7 +177,7 @@ class Relighter:
         return self._maps
 
     # ------------------------------------------------------------------ direction space
-    def lights(self, env: np.ndarray) -> transport.EnvLights:
+    def lights(self, env: np.ndarray) -> texel_lights.EnvLights:
         """The environment's lights, cached by the array's contents: an environment edited in
         place is seen as new. A read-only array that owns its data (``env.flags.writeable =
         False``: :class:`relight.engine.frame_path.FramePath` freezes its environment) is
@@ -189,7 +189,7 @@ class Relighter:
             digest = hashlib.blake2b(memoryview(np.ascontiguousarray(arr)).cast("B"), digest_size=16)
             key = (arr.shape, arr.dtype.str, digest.digest())
             if key != self._env_key:
-                self._env_lights = transport.environment_lights(arr)
+                self._env_lights = texel_lights.environment_lights(arr)
                 self._env_key = key
                 self._env_generation += 1
             self._env_array = arr
@@ -218,7 +218,7 @@ class Relighter:
 
     def texel_light(self, env, rotation=None, exposure: float = 1.0) -> np.ndarray:
         """(T, 3) ``Lp``: the environment in the map's texels for a head turned by ``rotation``."""
-        return transport.texel_light(self.lights(env), check_rotation(rotation), self.map_size, self.texels,
+        return texel_lights.texel_light(self.lights(env), check_rotation(rotation), self.map_size, self.texels,
                                      exposure * self.sample_scale, self.cone)
 
     # ------------------------------------------------------------------ relighting
@@ -273,7 +273,7 @@ class Relighter:
             # relight (its rotation within reuse_deg of this one; drift cannot build up).
             self.reused += 1
             return self._result(out)
-        lp = check_light(transport.texel_light(self._env_lights, r, self.map_size, self.texels,
+        lp = check_light(texel_lights.texel_light(self._env_lights, r, self.map_size, self.texels,
                                                exposure * self.sample_scale, self.cone))
         if self.exact:
             self._run_exact(lp, buf, frame)
@@ -330,7 +330,7 @@ class Relighter:
         d = np.asarray(direction, dtype=np.float64)
         if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) < EPS_NORM:
             raise InputError(f"light direction {direction}: three finite numbers, not all zero")
-        lp = check_light(transport.point_light(d, self.map_size, self.texels) * (exposure * self.sample_scale))
+        lp = check_light(texel_lights.point_light(d, self.map_size, self.texels) * (exposure * self.sample_scale))
         self._run_rows(lp)
         self._forget_main()
         return self.frame.copy()
@@ -442,7 +442,7 @@ class Relighter:
 
     def _run_compact(self, lp: np.ndarray, buf=None, frame=None, wait: bool = True, direct: int | None = None) -> None:
         """``direct``: how many brightest texels go exact (None: the transport's)."""
-        tex, rest = transport.split_direct(lp, self.transport.direct if direct is None else direct)
+        tex, rest = texel_lights.split_direct(lp, self.transport.direct if direct is None else direct)
         self._launch_compact(self.rank, self._ut @ rest, tex, lp[tex], buf, frame, wait)
 
     def _run_exact(self, lp: np.ndarray, buf=None, frame=None) -> None:

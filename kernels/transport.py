@@ -19,7 +19,8 @@ import numpy as np
 from relight.errors import InputError, NumericalError
 from relight.numerics import flush_subnormal_halves, half_ceil, read_halves
 
-# The environment's side, re-exported: the relighter and the capture read it from here.
+# The environment's side, re-exported for scripts that imported it from here before it moved
+# (issue 33); relight's own modules import it from texel_lights, its owner.
 from .texel_lights import DIRECT_TEXELS as DIRECT_TEXELS
 from .texel_lights import LIGHT_GRID as LIGHT_GRID
 from .texel_lights import EnvLights as EnvLights

@@ -149,12 +149,13 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
     switch makes its own)."""
     import threading
 
+    from relight.engine import frame_light, frame_person
     from relight.engine import frame_path as fpm
 
     _, frames = clip
     env, new = load_environment("builtin:sunset"), load_environment("builtin:window")
     taken, fitted = [], []
-    real, real_fit = fpm.FramePath._took_maps, fpm.FramePath._fit_light
+    real, real_fit = frame_person.PersonStage.took, frame_light.LiveLightStage.fit
 
     def took(self, made):
         taken.append(self.live_source)
@@ -164,8 +165,8 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
         fitted.append(threading.current_thread().name)
         return real_fit(self, *a)
 
-    monkeypatch.setattr(fpm.FramePath, "_took_maps", took)
-    monkeypatch.setattr(fpm.FramePath, "_fit_light", fit)
+    monkeypatch.setattr(frame_person.PersonStage, "took", took)
+    monkeypatch.setattr(frame_light.LiveLightStage, "fit", fit)
     outs = []
     for live in (False, True):
         fp = fpm.FramePath(small_bundle, env, region="person", live_source=live)
@@ -173,14 +174,14 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
         for i, f in enumerate(frames[:12]):
             run.append(fp.process(f, i / 30))
             if live:  # the worker's maps are ready by the next frame here (a slow machine's may not)
-                for job in (fp._person_job, fp._light_job):
+                for job in (fp.person.job, fp.live_light.job):
                     if job is not None:
                         job.result()
         assert all(info.face for _, info in run)
         fp.set_environment(new)
         before = len(taken)
         run.append(fp.process(frames[12], 12 / 30))
-        assert len(taken) == before + 1 and fp._person_age == 0  # the maps made for it, in it
+        assert len(taken) == before + 1 and fp.person.age == 0  # the maps made for it, in it
         outs.append([o for o, _ in run])
     sync, live = outs
     assert taken.count(True) >= 3  # maps made on the worker were used (beyond the first, made in the frame)
@@ -461,7 +462,7 @@ def test_the_person_region_leaves_the_face_composite_as_it_is(frame_path, clip):
 
 def _texel_point(relighter, direction):
     """(T, 3) texel light of one flash-strength light toward ``direction``."""
-    from relight.kernels.transport import point_light
+    from relight.kernels.texel_lights import point_light
 
     lp = point_light(np.asarray(direction, float) / np.linalg.norm(direction), relighter.map_size, relighter.texels)
     return np.repeat(lp[:, None], 3, axis=1) if lp.ndim == 1 else lp

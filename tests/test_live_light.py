@@ -44,7 +44,7 @@ def estimator(small_bundle):
 
 def _light(estimator, lights):
     """(T, 3) texel light of some directional lights [(direction, rgb power)] (flash units)."""
-    from relight.kernels.transport import point_light
+    from relight.kernels.texel_lights import point_light
 
     est, r, _ = estimator
     lp = np.zeros((r.texels.size, 3))

@@ -55,7 +55,7 @@ def test_live_light_fit_scales_with_exposure_until_black_or_clipped(path):
     exposure (exactly while every pixel is in range, within LIVE_LIGHT_PARTIAL_* when some are
     black or clipped and it is fitted on the rest); with fewer than MIN_PIXELS usable pixels the
     last light is kept, unchanged, under the status that says why."""
-    est = path.light_estimator
+    est = path.live_light.estimator
     # A live face lit by a light from upper left: the sampled pixels' maps (est.maps_t, texel-major)
     # under it, at mid exposure (the brightest ~0.4 of full scale), with 1 % noise.
     rng = np.random.default_rng(0)

@@ -291,23 +291,23 @@ def test_bundles_store_no_subnormal_halves(small_bundle):
 
 
 def test_splat_keeps_power_and_the_hull_cone_skips_only_dark_texels(small_bundle):
-    from relight.kernels import transport
+    from relight.kernels import texel_lights
 
     rng = np.random.default_rng(3)
     dirs = rng.normal(size=(4000, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     power = rng.random((4000, 3))
-    splatted = transport.splat(dirs, power, small_bundle.map_size)
+    splatted = texel_lights.splat(dirs, power, small_bundle.map_size)
     np.testing.assert_allclose(splatted.sum(axis=0), power.sum(axis=0), rtol=F64_EXACT)
-    lights = transport.EnvLights(dirs=dirs, power=power)
+    lights = texel_lights.EnvLights(dirs=dirs, power=power)
     texels = np.asarray(small_bundle.map_texels)
-    cone = transport.hull_cone(small_bundle.map_size, texels)
+    cone = texel_lights.hull_cone(small_bundle.map_size, texels)
     assert -1.0 < cone[1] < 1.0  # a frontal capture's hull: some lights are skipped
     everything = (np.array([0.0, 0.0, 1.0]), -1.0)
     for angles in [(0, 0, 0), (35, -10, 5), (-60, 20, -15), (170, 0, 0)]:
         r = rotation_matrix(*angles)
-        np.testing.assert_allclose(transport.texel_light(lights, r, small_bundle.map_size, texels, cone=cone),
-                                   transport.texel_light(lights, r, small_bundle.map_size, texels, cone=everything),
+        np.testing.assert_allclose(texel_lights.texel_light(lights, r, small_bundle.map_size, texels, cone=cone),
+                                   texel_lights.texel_light(lights, r, small_bundle.map_size, texels, cone=everything),
                                    rtol=F64_EXACT, atol=F64_ZERO)
 
 

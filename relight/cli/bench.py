@@ -174,23 +174,15 @@ def add_parser(sub) -> None:
     a.set_defaults(func=_run_bench_accuracy)
 
 
-def _shared_data(name: str, probe: str) -> Path | None:
-    """A real data set next to the project (../shared/data/NAME, holding PROBE), if present."""
-    for base in (Path.cwd(), Path(__file__).resolve().parents[2]):
-        cand = base.parent / "shared" / "data" / name
-        if list(cand.glob(probe)):
-            return cand
-    return None
-
-
 def _run_bench_accuracy(args) -> int:
     from ..bench import accuracy
+    from ..bench.real_data import shared_data
     from ..errors import InputError
 
-    rti = args.rti if args.rti is not None else _shared_data("rti-dome", "Dome/dirs.lp")
+    rti = args.rti if args.rti is not None else shared_data("rti-dome", "Dome/dirs.lp")
     if args.rti is not None and not (args.rti / "Dome" / "dirs.lp").exists():
         raise InputError(f"--rti {args.rti}: expected Dome/dirs.lp and Test/dirs.lp inside")
-    faces = args.faces if args.faces is not None else _shared_data("faces-yale", "*/dirs.lp")
+    faces = args.faces if args.faces is not None else shared_data("faces-yale", "*/dirs.lp")
     if args.faces is not None and not accuracy.face_subjects(args.faces):
         raise InputError(f"--faces {args.faces}: expected one folder per subject, each with dirs.lp")
     doc = accuracy.run(args.out, quick=args.quick, progress=not args.quiet, rti=rti, faces=faces)
@@ -221,9 +213,10 @@ def _run_bench_relight(args) -> int:
 def _run_bench_video(args) -> int:
     from ..bench import video as benchmark
     from ..bench.accuracy import face_subjects
+    from ..bench.real_data import shared_data
     from ..errors import InputError
 
-    faces = args.faces if args.faces is not None else _shared_data("faces-yale", "*/dirs.lp")
+    faces = args.faces if args.faces is not None else shared_data("faces-yale", "*/dirs.lp")
     if args.faces is not None and not face_subjects(args.faces):
         raise InputError(f"--faces {args.faces}: expected one folder per subject, each with dirs.lp")
     doc = benchmark.run(args.out, quick=args.quick, progress=not args.quiet, env=args.env, mode=args.mode,
