@@ -7,7 +7,8 @@ and a light whose radiance integrates to pi over its solid angle (the ``point:``
 is as strong as one capture flash.
 
 ``load_environment`` accepts a file (``.exr``, ``.hdr``; ``.png``/``.jpg`` are decoded from
-sRGB) or ``builtin:NAME`` with NAME one of :data:`BUILTINS` or ``point:x,y,z``.
+sRGB) or ``builtin:NAME`` with NAME one of :data:`BUILTINS`, ``point:x,y,z`` or a key light
+``key:az=30,el=25,...`` (:mod:`relight.key_light`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from .directions import (
     equirect_solid_angles,
     equirect_uv_to_direction,
 )
+from .env_draw import add_light, disc, grid, unit
 from .errors import InputError
 from .imageio import read_image
 from .numerics import ACCUM, EPS, EPS_NORM, FLOAT, TINY_SCALE, require_finite
@@ -37,56 +39,22 @@ BUILTIN_WIDTH = 512
 MAX_ENV_WIDTH = 16384
 
 
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, dtype=ACCUM)
-    return v / np.linalg.norm(v)
-
-
-def _disc(dirs: np.ndarray, domega: np.ndarray, centre, radius_deg: float, soft_deg: float = 0.0) -> np.ndarray:
-    """Coverage (H, W) of a disc of angular radius ``radius_deg`` around ``centre``.
-
-    The edge is a linear ramp one texel wide (anti-aliasing) widened by ``soft_deg``.
-    """
-    cosang = np.clip(dirs @ _unit(centre), -1.0, 1.0)
-    ang = np.degrees(np.arccos(cosang))
-    texel = np.degrees(np.sqrt(domega))[:, None]
-    width = texel + soft_deg
-    return np.clip((radius_deg - ang) / width + 0.5, 0.0, 1.0)
-
-
-def _light(env: np.ndarray, cover: np.ndarray, domega: np.ndarray, colour, strength: float) -> None:
-    """Add a light of given coverage, ``strength`` flashes strong (times colour).
-
-    Its radiance integrates to ``strength * pi``: a white Lambertian surface facing it reads
-    ``strength``, exactly, on this grid.
-    """
-    solid = float(np.sum(cover * domega[:, None]))
-    env += (strength * np.pi / solid) * cover[..., None] * np.asarray(colour, dtype=ACCUM)
-
-
-def _grid(width: int):
-    height = width // 2
-    dirs = equirect_directions(width, height)
-    domega = equirect_solid_angles(width, height)
-    return dirs, domega, np.zeros((height, width, 3), dtype=ACCUM)
-
-
 def builtin_studio(width: int = BUILTIN_WIDTH) -> np.ndarray:
     """Three-point studio: warm key (camera left, above), cool fill (right), rim (behind)."""
-    dirs, dw, env = _grid(width)
+    dirs, dw, env = grid(width)
     env += 0.04 * np.where(dirs[..., 1:2] > 0, 1.0, 0.6)
-    _light(env, _disc(dirs, dw, (-0.55, 0.45, 0.70), 14.0, 2.0), dw, (1.0, 0.94, 0.86), 0.9)
-    _light(env, _disc(dirs, dw, (0.75, 0.10, 0.65), 24.0, 4.0), dw, (0.86, 0.92, 1.0), 0.3)
-    _light(env, _disc(dirs, dw, (0.45, 0.50, -0.75), 8.0, 1.0), dw, (1.0, 1.0, 1.0), 0.5)
+    add_light(env, disc(dirs, dw, (-0.55, 0.45, 0.70), 14.0, 2.0), dw, (1.0, 0.94, 0.86), 0.9)
+    add_light(env, disc(dirs, dw, (0.75, 0.10, 0.65), 24.0, 4.0), dw, (0.86, 0.92, 1.0), 0.3)
+    add_light(env, disc(dirs, dw, (0.45, 0.50, -0.75), 8.0, 1.0), dw, (1.0, 1.0, 1.0), 0.5)
     return env.astype(FLOAT)
 
 
-SUN_DIRECTION = _unit((0.75, np.sin(np.radians(6.0)), 0.65))
+SUN_DIRECTION = unit((0.75, np.sin(np.radians(6.0)), 0.65))
 
 
 def builtin_sunset(width: int = BUILTIN_WIDTH) -> np.ndarray:
     """Sky gradient + ground + a 2-degree sun low on the horizon (dynamic range > 1e4)."""
-    dirs, dw, env = _grid(width)
+    dirs, dw, env = grid(width)
     y = dirs[..., 1:2]
     t = np.sqrt(np.clip(y, 0.0, 1.0))
     horizon = np.array([1.0, 0.55, 0.25]) * 0.35
@@ -97,13 +65,13 @@ def builtin_sunset(width: int = BUILTIN_WIDTH) -> np.ndarray:
     ground = np.array([0.05, 0.04, 0.03]) * 0.5
     blend = np.clip(y / np.sin(np.radians(1.0)) + 0.5, 0.0, 1.0)
     env += ground * (1 - blend) + sky * blend
-    _light(env, _disc(dirs, dw, SUN_DIRECTION, 1.0), dw, (1.0, 0.75, 0.45), 0.9)
+    add_light(env, disc(dirs, dw, SUN_DIRECTION, 1.0), dw, (1.0, 0.75, 0.45), 0.9)
     return env.astype(FLOAT)
 
 
 def builtin_window(width: int = BUILTIN_WIDTH) -> np.ndarray:
     """A dim room with one large window (soft area light) to the camera's right, with muntins."""
-    dirs, dw, env = _grid(width)
+    dirs, dw, env = grid(width)
     env += np.where(dirs[..., 1:2] > 0, 0.06, 0.04) * np.array([1.0, 0.97, 0.92])
     h = width // 2
     u = (np.arange(width) + 0.5) / width
@@ -130,11 +98,11 @@ def builtin_room(width: int = BUILTIN_WIDTH) -> np.ndarray:
 
     The synthetic studio's room light (the no-flash frames are lit by it).
     """
-    dirs, dw, env = _grid(width)
+    dirs, dw, env = grid(width)
     y = dirs[..., 1:2]
     env += np.where(y > 0, 0.07, 0.04) * np.array([1.0, 0.96, 0.9])
-    _light(env, _disc(dirs, dw, (0.0, 0.85, 0.5), 20.0, 6.0), dw, (1.0, 0.97, 0.92), 0.14)
-    _light(env, _disc(dirs, dw, (-0.9, 0.2, 0.3), 18.0, 8.0), dw, (0.9, 0.95, 1.0), 0.06)
+    add_light(env, disc(dirs, dw, (0.0, 0.85, 0.5), 20.0, 6.0), dw, (1.0, 0.97, 0.92), 0.14)
+    add_light(env, disc(dirs, dw, (-0.9, 0.2, 0.3), 18.0, 8.0), dw, (0.9, 0.95, 1.0), 0.06)
     return env.astype(FLOAT)
 
 
@@ -150,8 +118,8 @@ def builtin_point(direction, width: int = BUILTIN_WIDTH) -> np.ndarray:
     d = np.asarray(direction, dtype=ACCUM)
     if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) < EPS_NORM:
         raise InputError(f"point:{direction}: expected three finite numbers x,y,z not all zero")
-    dirs, dw, env = _grid(width)
-    _light(env, _disc(dirs, dw, d, POINT_RADIUS_DEG), dw, (1.0, 1.0, 1.0), 1.0)
+    dirs, dw, env = grid(width)
+    add_light(env, disc(dirs, dw, d, POINT_RADIUS_DEG), dw, (1.0, 1.0, 1.0), 1.0)
     return env.astype(FLOAT)
 
 
@@ -178,8 +146,9 @@ def parse_point(name: str) -> np.ndarray:
 
 
 def builtin_names() -> list[str]:
-    """Names accepted after ``builtin:`` (``point:x,y,z`` is parametrised)."""
-    return [*BUILTINS, "point:x,y,z"]
+    """Names accepted after ``builtin:`` (``point:x,y,z`` and ``key:...`` are parametrised: the
+    key light's fields are :data:`relight.key_light.DEFAULTS`)."""
+    return [*BUILTINS, "point:x,y,z", "key:az=A,el=E,size=S,kelvin=K,fill=F,power=P"]
 
 
 def environment_stem(source: str | os.PathLike) -> str:
@@ -212,6 +181,10 @@ def load_environment(source: str | os.PathLike, *, width: int | None = None) -> 
             raise InputError(f"built-in width {w}: use an even number between 8 and {MAX_ENV_WIDTH}")
         if name.startswith("point:"):
             return freeze(builtin_point(parse_point(name), w))
+        if name == "key" or name.startswith("key:"):
+            from .key_light import KeyLight
+
+            return freeze(KeyLight.parse(name[len("key:"):]).environment(w))
         if name not in BUILTINS:
             raise InputError(f"unknown built-in environment {name!r}; choose one of: {', '.join(builtin_names())}")
         return freeze(BUILTINS[name](w))

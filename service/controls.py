@@ -1,6 +1,7 @@
 """The JSON controls a live client sends (the websocket's text messages, the WebRTC data
-channel's): ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8, "mode":
-"paste", "exposure": 0}``, any subset. One parser for both transports."""
+channel's): ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8, "mode": "paste",
+"exposure": 0}``, any subset; ``env`` a preset or a key light (``"key:az=60,el=20"``). One parser
+for both transports."""
 
 from __future__ import annotations
 
@@ -16,6 +17,28 @@ from .settings import PRESETS
 RANGES = {"strength": (0.0, 1.0), "exposure": EXPOSURE_RANGE_EV}
 #: Longest control message read (bytes).
 MAX_CONTROL = 4096
+#: Longest environment name a client may send (a key light with every field is ~60 characters).
+MAX_ENV_NAME = 200
+
+
+def environment_source(name, what: str = "env", kind: str = "bad_control") -> str:
+    """A client's environment name - a preset (:data:`.settings.PRESETS`, e.g. ``sunset``) or a key
+    light (``key:az=60,el=20,...``, :mod:`relight.key_light`) - as the ``builtin:`` source the
+    engine loads (a key light in its canonical spelling: one cache entry per light); ServiceError
+    (422, ``kind``) naming the field ``what`` and what to send otherwise."""
+    if isinstance(name, str) and name in PRESETS:
+        return f"builtin:{name}"
+    if isinstance(name, str) and (name == "key" or name.startswith("key:")) and len(name) <= MAX_ENV_NAME:
+        from relight.errors import InputError
+        from relight.key_light import KeyLight
+
+        try:
+            return "builtin:" + KeyLight.parse(name[len("key:"):]).spec()
+        except InputError as exc:
+            raise ServiceError(422, kind, f"{what}: {exc}") from None
+    raise ServiceError(422, kind,
+                       f"{what} {name!r}: use one of {', '.join(PRESETS)} or a key light key:az=30,el=25,size=30,"
+                       "kelvin=5000,fill=0.3,power=1 (every field optional)")
 
 
 def new_settings() -> dict:
@@ -42,9 +65,7 @@ def apply_control(settings: dict, doc) -> None:
         raise ServiceError(422, "bad_control", "control messages are JSON objects")
     new = {}
     if "env" in doc:
-        if doc["env"] not in PRESETS:
-            raise ServiceError(422, "bad_control", f"env {doc['env']!r}: use one of {', '.join(PRESETS)}")
-        new["env"] = f"builtin:{doc['env']}"
+        new["env"] = environment_source(doc["env"])
     if "rotation" in doc:
         rot = doc["rotation"]
         if not isinstance(rot, list) or len(rot) != 3:

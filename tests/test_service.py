@@ -56,6 +56,40 @@ def test_relight_a_png_and_a_jpeg_frame(server, frame):
     assert "relight_frames_total" in m and "relight_frame_latency_seconds_bucket" in m
 
 
+def test_a_key_light_is_an_environment_in_every_request(server, frame):
+    """env=key:... (POST /v1/relight), builtin=key:... (PUT /v1/environment) and the stream's
+    {"env": "key:..."} take a key light placed by hand: from the image's right it brightens the
+    face's right half against a key from the left; a bad field is a 422 naming it."""
+    from websockets.sync.client import connect
+
+    from relight.colour import LUMINANCE, decode_srgb8
+
+    halves = {}
+    for az in (60, -60):
+        r = httpx.post(f"{server}/v1/relight?env=key:az={az},el=10,fill=0", content=_png(frame),
+                       headers={"content-type": "image/png"}, timeout=30)
+        assert r.status_code == 200 and r.headers["x-relight-face"] == "found", r.text
+        out = cv2.cvtColor(cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        changed = (out != frame).any(axis=2)
+        cols = np.nonzero(changed.any(axis=0))[0]
+        right = np.arange(frame.shape[1])[None, :] > (cols.min() + cols.max()) / 2
+        lum = decode_srgb8(out) @ LUMINANCE
+        halves[az] = lum[changed & right].mean() / lum[changed & ~right].mean()
+    assert halves[60] > 1.2 * halves[-60], halves
+    r = httpx.post(f"{server}/v1/relight?env=key:az=500", content=_png(frame), headers={"content-type": "image/png"},
+                   timeout=30)
+    assert r.status_code == 422 and r.json()["kind"] == "bad_query" and "az" in r.json()["error"]
+    r = httpx.put(f"{server}/v1/environment?builtin=key:kelvin=3000,az=-40")
+    assert r.status_code == 200 and r.json()["current"].startswith("builtin:key:az=-40,el=25,")
+    assert httpx.put(f"{server}/v1/environment?builtin=key:kelvin=99").status_code == 422
+    httpx.put(f"{server}/v1/environment?builtin=studio")
+    with connect(server.replace("http://", "ws://") + "/v1/stream", open_timeout=10) as ws:
+        ws.send(json.dumps({"env": "key:az=30,power=2"}))
+        ws.send(json.dumps({"env": "key:power=-1"}))
+        doc = json.loads(ws.recv(timeout=30))
+        assert doc["kind"] == "bad_control" and "power" in doc["error"], doc
+
+
 def test_each_request_is_relit_as_a_first_frame(server, frame):
     """POST /v1/relight keeps nothing of one caller's frames for the next (a track, filters and
     a live light of its own each time): the same frame after another caller's moved frame comes

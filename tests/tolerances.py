@@ -402,3 +402,12 @@ EDGE_MIN_FOUND_OCCLUDED = 0.8
 #: there (the bundle's prediction replaces what the live light does not predict; measured 22 %).
 SHADOW_CODES_GAIN = 0.55
 SHADOW_KEPT_SHARE = 0.25
+
+# The key light (test_key_light.py).
+#: Chromaticity (r, g over r+g+b) of a colour temperature against colour-science's: Kang 2002's
+#: cubic fits and the CIE daylight formulas are the same equations there, so only the blend
+#: between the loci (4000-5000 K) and float rounding differ.
+KELVIN_XY_TOL = 4e-3
+#: A white surface facing a key reads its power: the disc's own cosine falloff (a 3-degree radius:
+#: 0.1 %) and the texels at its anti-aliased edge (~1 %).
+KEY_POWER_REL = 0.02

@@ -71,6 +71,11 @@ class DefaultsUnlessNone(argparse.ArgumentDefaultsHelpFormatter):
 
 
 #: --region's help (relight filter, relight live, relight-serve).
+#: What every --env accepts, after each command's own first words.
+ENV_KINDS = ("a lat-long map (.exr/.hdr/.png/.jpg), a built-in (builtin:studio, sunset, window, uniform, room, "
+             "point:x,y,z) or a key light placed by hand: builtin:key:az=30,el=25,size=30,kelvin=5000,fill=0.3,"
+             "power=1 (azimuth and elevation in degrees toward the image's right and up, disc diameter in degrees, "
+             "colour temperature, fill share, flashes; every field optional)")
 REGION_HELP = ("what mode transfer relights: the whole person (the face from the bundle; hair, ears, neck and "
                "shoulders by the face's change of light carried over them - nothing off the person changes) or "
                "the face alone (the bundle's face mask)")

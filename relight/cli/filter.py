@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from .common import COMMANDS, REGION_HELP, focal_default, parse_focal, parse_strength
+from .common import COMMANDS, ENV_KINDS, REGION_HELP, focal_default, parse_focal, parse_strength
 
 
 def add_parser(sub) -> None:
@@ -25,7 +25,7 @@ def add_parser(sub) -> None:
                    help="video to write (.mp4/.mov/.mkv/.avi: H.264, .webm: VP9), or a folder for PNG frames")
     p.add_argument("--bundle", type=Path, required=True, help="reflectance bundle of this face (relight capture)")
     p.add_argument("--env", required=True, metavar="FILE|builtin:NAME",
-                   help="environment to light the face with (lat-long .exr/.hdr/.png or a built-in)")
+                   help="environment to light the face with: " + ENV_KINDS)
     p.add_argument("--mode", choices=MODES, default=DEFAULT_MODE,
                    help="transfer: the live face relit for real - its own light measured from it and swapped for "
                         "the target (eyes, mouth, expression kept where lit; the bundle's prediction where the live "

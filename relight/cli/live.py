@@ -7,6 +7,7 @@ from pathlib import Path
 
 from .common import (
     COMMANDS,
+    ENV_KINDS,
     REGION_HELP,
     DefaultsUnlessNone,
     focal_default,
@@ -33,7 +34,7 @@ def add_parser(sub) -> None:
     p.add_argument("--bundle", type=Path, required=True, help="reflectance bundle of this face (relight capture)")
     p.add_argument("--env", required=True, action="append", metavar="FILE|builtin:NAME",
                    help="environment to light the face with; give it again for more (the e key and SIGUSR1 "
-                        "switch between them)")
+                        "switch between them): " + ENV_KINDS)
     p.add_argument("--camera", default=None, metavar="DEVICE|FILE",
                    help="camera index or device name (0, /dev/video2, 'FaceTime HD Camera'), or a video file "
                         "(played at its own rate, looped); default: the first camera")

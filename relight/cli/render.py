@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from .common import COMMANDS
+from .common import COMMANDS, ENV_KINDS
 
 #: --exposure's bound, stops either way: a still image takes a wider range than the frame path's
 #: +-20 EV (the light is scaled by 2^EV here, then checked by the relighter).
@@ -34,8 +34,7 @@ def add_parser(sub) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("bundle", type=Path, help="reflectance bundle")
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--env", metavar="FILE|builtin:NAME", help="environment map (lat-long .exr/.hdr/.png/.jpg) "
-                     "or a built-in (builtin:studio, sunset, window, uniform, room, point:x,y,z)")
+    src.add_argument("--env", metavar="FILE|builtin:NAME", help="environment to relight with: " + ENV_KINDS)
     src.add_argument("--light", type=_vec3, metavar="x,y,z",
                      help="one directional light toward x,y,z (camera space), as strong as the capture flash: "
                           "rendering a captured direction reproduces that capture")

@@ -7,7 +7,7 @@ import os
 import re
 from pathlib import Path
 
-from .common import COMMANDS, REGION_HELP, focal_default, parse_focal
+from .common import COMMANDS, ENV_KINDS, REGION_HELP, focal_default, parse_focal
 
 
 def add_arguments(p) -> None:
@@ -15,7 +15,8 @@ def add_arguments(p) -> None:
     from ..service.settings import DEFAULT_PORT, ServeConfig  # the defaults: the service's own settings
 
     p.add_argument("bundle", type=Path, help="reflectance bundle to serve (relight capture)")
-    p.add_argument("--env", default=ServeConfig.env, metavar="FILE|builtin:NAME", help="starting environment")
+    p.add_argument("--env", default=ServeConfig.env, metavar="FILE|builtin:NAME",
+                   help="starting environment: " + ENV_KINDS)
     p.add_argument("--host", default=ServeConfig.host,
                    help="address to listen on (beyond loopback - e.g. 0.0.0.0 - a --token is required)")
     p.add_argument("--token", default=None,

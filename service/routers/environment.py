@@ -16,7 +16,7 @@ from ..codec import (
     preview_png,
     read_body,
 )
-from ..controls import RANGES
+from ..controls import RANGES, environment_source
 from ..dependencies import EngineDep
 from ..errors import ServiceError
 from ..settings import PRESETS
@@ -32,7 +32,9 @@ async def get_environment(engine: EngineDep):
 @router.put("/v1/environment", summary="Choose a built-in or upload an environment (.hdr/.exr/.png)",
          openapi_extra=binary_body(*ENV_TYPES, required=False), responses={400: {}, 413: {}, 415: {}, 422: {}})
 async def put_environment(request: Request, engine: EngineDep,
-                          builtin: str | None = Query(None, description="a built-in: " + ", ".join(PRESETS)),
+                          builtin: str | None = Query(None, description="a built-in (" + ", ".join(PRESETS)
+                                                      + ") or a key light, key:az=30,el=25,size=30,kelvin=5000,"
+                                                        "fill=0.3,power=1 (every field optional)"),
                           rotation: str | None = Query(None, description="yaw,pitch,roll (degrees)"),
                           exposure: float | None = Query(None, ge=RANGES["exposure"][0], le=RANGES["exposure"][1],
                                                          description="stops (EV)")):
@@ -40,9 +42,7 @@ async def put_environment(request: Request, engine: EngineDep,
     ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
     body = await read_body(request, ENV_MAX_BODY)
     if builtin is not None:
-        if builtin not in PRESETS:
-            raise ServiceError(422, "bad_query", f"builtin={builtin!r}: use one of {', '.join(PRESETS)}")
-        await engine.choose(f"builtin:{builtin}")
+        await engine.choose(environment_source(builtin, "builtin=", "bad_query"))
     elif body:
         suffix = ENV_TYPES.get(ctype)
         if suffix is None:

@@ -11,7 +11,7 @@ from relight.errors import RelightError
 
 from ...engine.composite import MODES
 from ..codec import CONTENT_TYPES, binary_body, decode_frame, encode_frame, parse_rotation, read_body
-from ..controls import RANGES
+from ..controls import RANGES, environment_source
 from ..dependencies import EngineDep, MetricsDep, SettingsDep
 from ..errors import ServiceError
 from ..settings import PRESETS
@@ -22,7 +22,9 @@ router = APIRouter()
 @router.post("/v1/relight", summary="Relight one frame", openapi_extra=binary_body("image/png", "image/jpeg"),
           responses={200: {"content": {"image/png": {}, "image/jpeg": {}}}, 400: {}, 413: {}, 415: {}, 422: {}})
 async def relight_frame(request: Request, engine: EngineDep, metrics: MetricsDep, config: SettingsDep,
-                        env: str | None = Query(None, description="built-in preset: " + ", ".join(PRESETS)),
+                        env: str | None = Query(None, description="a built-in preset (" + ", ".join(PRESETS)
+                                                + ") or a key light, key:az=30,el=25,size=30,kelvin=5000,fill=0.3,"
+                                                  "power=1 (every field optional)"),
                         rotation: str | None = Query(None, description="environment yaw,pitch,roll (degrees)"),
                         exposure: float | None = Query(None, ge=RANGES["exposure"][0], le=RANGES["exposure"][1],
                                                        description="stops (EV)"),
@@ -31,8 +33,7 @@ async def relight_frame(request: Request, engine: EngineDep, metrics: MetricsDep
                         mode: str | None = Query(None, pattern=f"^({'|'.join(MODES)})$",
                                                  description="transfer (the live light measured and swapped), "
                                                              "ambient (ratio to the capture room), paste")):
-    if env is not None and env not in PRESETS:
-        raise ServiceError(422, "bad_query", f"env={env!r}: use one of {', '.join(PRESETS)}")
+    source = environment_source(env, "env=", "bad_query") if env is not None else None
     rot = parse_rotation(rotation)
     ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
     if ctype not in CONTENT_TYPES:
@@ -43,7 +44,7 @@ async def relight_frame(request: Request, engine: EngineDep, metrics: MetricsDep
         raise ServiceError(503, "busy", f"{state.pending} frames are being relit or wait; retry shortly")
     state.pending += 1
     try:
-        return await _relight(request, engine, metrics, config, ctype, env, rot, exposure, strength, mode)
+        return await _relight(request, engine, metrics, config, ctype, source, rot, exposure, strength, mode)
     finally:
         state.pending -= 1
 
@@ -55,7 +56,7 @@ async def _relight(request, engine, metrics, config, ctype, env, rot, exposure, 
         "image/png" if "image/png" in accept and "image/jpeg" not in accept else ctype
     t0 = time.perf_counter()
     try:
-        out, info = await engine.relight_frame(rgb, env=f"builtin:{env}" if env else None, rotation=rot,
+        out, info = await engine.relight_frame(rgb, env=env, rotation=rot,
                                                exposure=exposure, strength=strength, mode=mode)
     except RelightError as exc:
         raise ServiceError(400, "bad_request", str(exc)) from None
