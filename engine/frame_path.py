@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from relight.directions import rotation_matrix
+from relight.envmap import ENV_SPIN_RANGE_DEG_S, ENV_TURN_RANGE_DEG
 from relight.errors import InputError
 from relight.kernels.relighter import DEFAULT_TOLERANCE
 from relight.numerics import EPS_VALUE
@@ -61,6 +62,7 @@ PERSON_EVERY = 2
 YUV_PERSON_MARGIN = 0.04
 #: Exposure a caller may add to the relit light, in stops (EV): the light scaled by 2^EV.
 EXPOSURE_RANGE_EV = (-20.0, 20.0)
+
 #: One Euro filter settings for the head angles (degrees) and the exposure gain (log).
 ANGLE_MIN_CUTOFF = 1.5
 ANGLE_BETA = 0.2
@@ -114,8 +116,11 @@ class FramePath:
     """Relights faces in frames with one bundle (see the module docstring).
 
     mode : 'transfer' or 'paste'. strength : 0-1. fixed_env : keep the environment still relative
-    to the face (no head-rotation compensation). focal : the frames' focal length in pixels, or "ortho"
-    (None: from the frame size, see :mod:`relight.engine.pose`). exposure : stops (EV).
+    to the face (no head-rotation compensation). env_turn, env_spin : the environment turned about
+    the vertical by degrees, and spun by degrees per second of the frames' time from the first
+    frame (:data:`relight.envmap.ENV_TURN_RANGE_DEG`: the convention). focal : the frames' focal
+    length in pixels, or "ortho" (None: from the frame size, see :mod:`relight.engine.pose`).
+    exposure : stops (EV).
     reuse_deg : head turns below which the last relight is reused (:data:`REUSE_DEG`; 0: never).
     region : 'person' - mode transfer also relights the rest of the person (hair, ears, neck,
     shoulders) from the face's ratio (:mod:`.head_light`, the person's matte from :mod:`.person`) -
@@ -136,7 +141,7 @@ class FramePath:
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
                  tolerance: float = DEFAULT_TOLERANCE, relighter=None, reuse_deg: float = REUSE_DEG,
                  region: str = composite.DEFAULT_REGION,
-                 rigid_warp: bool = True, live_source: bool = False):
+                 rigid_warp: bool = True, live_source: bool = False, env_turn: float = 0.0, env_spin: float = 0.0):
         from relight.kernels.relighter import Relighter
 
         limit_threads()
@@ -147,6 +152,8 @@ class FramePath:
         self.set_mode(mode)
         self.set_strength(strength)
         self.set_exposure(exposure)
+        self.set_env_turn(env_turn)
+        self.set_env_spin(env_spin)
         self.fixed_env = bool(fixed_env)
         if not (np.isfinite(reuse_deg) and 0 <= reuse_deg <= 5):
             raise InputError(f"reuse_deg {reuse_deg}: use 0 (always relight) to 5 degrees")
@@ -220,6 +227,34 @@ class FramePath:
         if not (np.isfinite(ev) and lo <= ev <= hi):
             raise InputError(f"exposure {ev}: use stops (EV) between {lo:g} and {hi:g}")
         self.exposure = float(2.0 ** ev)
+
+    def set_env_turn(self, deg: float) -> None:
+        """Turn the environment about the vertical by ``deg`` (:data:`relight.envmap.ENV_TURN_RANGE_DEG`)."""
+        lo, hi = ENV_TURN_RANGE_DEG
+        if not (np.isfinite(deg) and lo <= deg <= hi):
+            raise InputError(f"environment turn {deg}: use degrees between {lo:g} and {hi:g}")
+        self.env_turn = float(deg)
+
+    def set_env_spin(self, deg_per_s: float) -> None:
+        """Spin the environment about the vertical by ``deg_per_s`` degrees per second of the
+        frames' time, from the next frame on (where the turn has it)."""
+        lo, hi = ENV_SPIN_RANGE_DEG_S
+        if not (np.isfinite(deg_per_s) and lo <= deg_per_s <= hi):
+            raise InputError(f"environment spin {deg_per_s}: use degrees per second between {lo:g} and {hi:g}")
+        self.env_spin = float(deg_per_s)
+        self._spin_t0 = None  # the spin counts from the next frame's time
+
+    def env_rotation(self, t: float) -> np.ndarray | None:
+        """The environment's rotation (3x3, lights moved by it) at frame time ``t``, or None when
+        it is not turned (then nothing is composed: the path's numbers are as without it)."""
+        if self.env_spin != 0.0:
+            if self._spin_t0 is None:
+                self._spin_t0 = t
+            deg = self.env_turn + self.env_spin * (t - self._spin_t0)
+        else:
+            deg = self.env_turn
+        deg = float(np.remainder(deg + 180.0, 360.0) - 180.0)
+        return rotation_matrix(deg, 0.0, 0.0) if deg != 0.0 else None
 
     def _estimator(self, size: tuple[int, int]) -> PoseEstimator:
         est = self._estimators.get(size)
@@ -330,7 +365,13 @@ class FramePath:
         # compositor's kernels queue after it).
         from relight.kernels.relighter import rotation_angle_deg
 
-        turn = None if self.fixed_env else rotation
+        # The relighter's rotation: the head's (a head turned by R sees the light from d at R^T d),
+        # with the environment's own turn E composed (its lights at E d: seen at R^T E d).
+        env_rot = self.env_rotation(t)
+        if env_rot is None:
+            turn = None if self.fixed_env else rotation
+        else:
+            turn = env_rot.T if self.fixed_env else env_rot.T @ rotation
         last = self._relit_key
         info.reused = bool(last is not None and last[0] is self.env and last[1] == self.exposure and turn is not None
                            and last[2] is not None and self.reuse_deg > 0
@@ -399,7 +440,7 @@ class FramePath:
 
             maps, union = self.person.maps(frame, frame_box, coarse, rotation, tau, anchor, info.reused, PERSON_EVERY,
                                            env=self.env, strength=self.strength, fixed_env=self.fixed_env,
-                                           texel_light=self.live_light.texel_light)
+                                           texel_light=self.live_light.texel_light, env_rotation=env_rot)
             ox, oy = int(offset[0]), int(offset[1])
             if frame is not rgb and not (union[0] >= ox and union[1] >= oy and union[2] <= ox + rgb.shape[1]
                                          and union[3] <= oy + rgb.shape[0]):

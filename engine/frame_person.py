@@ -4,6 +4,8 @@ reused, and carried with the head (:class:`PersonStage`, the one object holding 
 """
 from __future__ import annotations
 
+import numpy as np
+
 from . import head_light
 from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs, union_box
 
@@ -50,7 +52,7 @@ class PersonStage:
         return last if last is not None and last[2] == self.frames - 1 else None
 
     def maps(self, frame, face_box, coarse, rotation, tau: float, anchor, still: bool, every: int, *,
-             env, strength: float, fixed_env: bool, texel_light):
+             env, strength: float, fixed_env: bool, texel_light, env_rotation=None):
         """(:class:`PersonMaps` of this frame, the frame's box the face and the person reach): the
         maps (smooth, slow to change) made every ``every`` frames (:data:`.frame_path.PERSON_EVERY`)
         and reused between, kept while the head is ``still`` (the face's own alpha in the kernel is
@@ -59,14 +61,15 @@ class PersonStage:
         made, a frame or two old, and the next are made while it is composited. ``frame``: as given
         (an array or a YuvFrame); ``face_box``: the face's box in it; ``anchor``: the head's place in
         it (maps made on another frame are carried with the head: :meth:`PersonMaps.moved`);
-        ``env``, ``strength``, ``fixed_env``: the path's target; ``texel_light``: a callable giving
-        the live light in use ((T, 3) in the bundle's texels)."""
+        ``env``, ``strength``, ``fixed_env``, ``env_rotation`` (3x3 or None): the path's target;
+        ``texel_light``: a callable giving the live light in use ((T, 3) in the bundle's texels)."""
         from .person import WORK_ROWS
 
         h, w = frame.shape[:2]
         sc = min(1.0, WORK_ROWS / h)
         work = (max(1, round(w * sc)), max(1, round(h * sc)))
-        target = dict(env=env, strength=strength, fixed_env=fixed_env, texel_light=texel_light)
+        target = dict(env=env, strength=strength, fixed_env=fixed_env, texel_light=texel_light,
+                      env_rotation=env_rotation)
         last = self.last_maps()
         job = self.job  # the maps being made on the worker, or None
         if last is None or last[0] != work:  # none to go on with: made now, on this thread
@@ -113,11 +116,14 @@ class PersonStage:
         return self.matte
 
     def inputs(self, frame, box, coarse, rotation, tau: float, work, anchor, *, env, strength: float,
-               fixed_env: bool, texel_light) -> PersonInputs:
+               fixed_env: bool, texel_light, env_rotation=None) -> PersonInputs:
         """What the person's maps are made of (:func:`.person_maps.person_inputs`) from this frame,
         the target and this stage's state."""
         if self.env_texels is None:  # the environment's low frequencies
             self.env_texels = environment_texels(env)
+        env_texels = self.env_texels
+        if env_rotation is not None:  # the environment turned: its lights at E d
+            env_texels = (env_texels[0] @ np.asarray(env_rotation, np.float64).T, env_texels[1])
         return person_inputs(self.rig, self.compositor, frame, box, coarse, rotation, tau, work, anchor,
-                             strength=strength, env_texels=self.env_texels, fixed_env=fixed_env,
+                             strength=strength, env_texels=env_texels, fixed_env=fixed_env,
                              texel_dirs=self.texel_dirs, texel_light=texel_light())

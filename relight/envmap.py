@@ -37,6 +37,16 @@ from .numerics import ACCUM, EPS, EPS_NORM, FLOAT, TINY_SCALE, require_finite
 BUILTIN_WIDTH = 512
 #: Limits for environment files (a 16K x 8K HDR probe still loads).
 MAX_ENV_WIDTH = 16384
+#: The environment's turn about the vertical (degrees) and its spin (degrees per second): one
+#: convention everywhere - a turn of +D moves every light D degrees in azimuth toward +X (the
+#: image's right): the environment rotated by ``rotation_matrix(D, 0, 0)`` (``rotate_environment``;
+#: what the HTTP API's rotation=D,0,0 does). Turning the environment by +D lights the face as
+#: turning the head by -D (``render --rotate -D,0,0``) does.
+ENV_TURN_RANGE_DEG = (-360.0, 360.0)
+ENV_SPIN_RANGE_DEG_S = (-180.0, 180.0)
+#: A source named ``photo:PATH`` is any picture made into an environment (:mod:`relight.photo_env`);
+#: a plain path must be a 2:1 lat-long map (a square mirror-ball probe is not taken for a photo).
+PHOTO_PREFIX = "photo:"
 
 
 def builtin_studio(width: int = BUILTIN_WIDTH) -> np.ndarray:
@@ -148,7 +158,9 @@ def parse_point(name: str) -> np.ndarray:
 def builtin_names() -> list[str]:
     """Names accepted after ``builtin:`` (``point:x,y,z`` and ``key:...`` are parametrised: the
     key light's fields are :data:`relight.key_light.DEFAULTS`)."""
-    return [*BUILTINS, "point:x,y,z", "key:az=A,el=E,size=S,kelvin=K,fill=F,power=P"]
+    from .presets import PRESETS
+
+    return [*BUILTINS, *PRESETS, "point:x,y,z", "key:az=A,el=E,size=S,kelvin=K,fill=F,power=P"]
 
 
 def environment_stem(source: str | os.PathLike) -> str:
@@ -157,14 +169,17 @@ def environment_stem(source: str | os.PathLike) -> str:
     if s.startswith("builtin:"):
         name = s[len("builtin:"):]
         return re.sub(r"[^A-Za-z0-9.+-]+", "_", name).strip("_")
+    if s.startswith(PHOTO_PREFIX):
+        return "photo_" + re.sub(r"[^A-Za-z0-9.+-]+", "_", Path(s[len(PHOTO_PREFIX):]).stem).strip("_")
     return Path(s).stem
 
 
 def load_environment(source: str | os.PathLike, *, width: int | None = None) -> np.ndarray:
     """Load an environment map as linear float32 radiance, (H, W, 3) with W == 2 H, read-only.
 
-    source : a path (.exr, .hdr, or an sRGB .png/.jpg) or ``builtin:NAME`` (see
-        :func:`builtin_names`). width : resolution of a built-in (default 512); ignored for files.
+    source : a path (.exr, .hdr, or an sRGB .png/.jpg: a 2:1 lat-long map), ``builtin:NAME`` (see
+        :func:`builtin_names`) or ``photo:PATH`` (any picture as the light: :mod:`relight.photo_env`).
+        width : resolution of a built-in or a photo's map (default 512); ignored for map files.
 
     The map is returned read-only (:func:`freeze`): a :class:`relight.Relighter` given it again
     knows it by identity, so a loop relighting it under a new head rotation per call does not
@@ -181,6 +196,10 @@ def load_environment(source: str | os.PathLike, *, width: int | None = None) -> 
             raise InputError(f"built-in width {w}: use an even number between 8 and {MAX_ENV_WIDTH}")
         if name.startswith("point:"):
             return freeze(builtin_point(parse_point(name), w))
+        from .presets import PRESETS
+
+        if name in PRESETS:
+            return freeze(PRESETS[name](w))
         if name == "key" or name.startswith("key:"):
             from .key_light import KeyLight
 
@@ -188,6 +207,14 @@ def load_environment(source: str | os.PathLike, *, width: int | None = None) -> 
         if name not in BUILTINS:
             raise InputError(f"unknown built-in environment {name!r}; choose one of: {', '.join(builtin_names())}")
         return freeze(BUILTINS[name](w))
+    if s.startswith(PHOTO_PREFIX):
+        from .photo_env import load_photo_environment
+
+        w = BUILTIN_WIDTH if width is None else int(width)
+        path = s[len(PHOTO_PREFIX):]
+        if not path:
+            raise InputError("photo: name a picture after it, e.g. photo:beach.jpg")
+        return freeze(validate_environment(load_photo_environment(path, width=w), name=s))
     env = read_image(s, max_dim=MAX_ENV_WIDTH, max_pixels=MAX_ENV_WIDTH * MAX_ENV_WIDTH // 2)
     return freeze(validate_environment(env, name=s))
 

@@ -97,13 +97,24 @@ def probe_image(path: str | os.PathLike, *, max_dim: int = MAX_IMAGE_DIM,
     return ImageInfo(width=w, height=h, channels=c, format=fmt, linear=linear)
 
 
-def read_image(path: str | os.PathLike, *, linearize: bool = True, **limits) -> np.ndarray:
+def orient_exif(pixels: np.ndarray, orientation: int) -> np.ndarray:
+    """``pixels`` (H, W, ...) as stored, turned upright by the EXIF ``orientation`` tag (1-8: the
+    way a camera says how it was held; 1 or an unknown value: as stored)."""
+    ops = {2: lambda a: a[:, ::-1], 3: lambda a: a[::-1, ::-1], 4: lambda a: a[::-1],
+           5: lambda a: a.swapaxes(0, 1), 6: lambda a: np.rot90(a, -1), 7: lambda a: np.rot90(a, -1)[::-1],
+           8: lambda a: np.rot90(a, 1)}
+    op = ops.get(int(orientation))
+    return np.ascontiguousarray(op(pixels)) if op is not None else pixels
+
+
+def read_image(path: str | os.PathLike, *, linearize: bool = True, orient: bool = False, **limits) -> np.ndarray:
     """Read an image as float32 RGB (H, W, 3).
 
     Grey images are replicated to three channels, alpha is dropped. With ``linearize``
     (default) integer-format images are decoded from sRGB to linear; float formats are
-    returned as stored (linear). Raises :class:`InputError` for missing, oversized, truncated,
-    corrupt or non-finite files.
+    returned as stored (linear). With ``orient`` a photo's EXIF orientation is honoured
+    (:func:`orient_exif`; environment maps and frames are read as stored). Raises
+    :class:`InputError` for missing, oversized, truncated, corrupt or non-finite files.
     """
     oiio = _oiio()
     info = probe_image(path, **limits)
@@ -111,6 +122,7 @@ def read_image(path: str | os.PathLike, *, linearize: bool = True, **limits) -> 
     if inp is None:  # pragma: no cover - probe_image opened it a moment ago
         raise InputError(f"{path}: could not be reopened ({_error_text(oiio)})")
     try:
+        orientation = inp.spec().get_int_attribute("Orientation", 1) if orient else 1
         pixels = inp.read_image(0, 0, 0, info.channels, "float")
         err = _error_text(inp)
     finally:
@@ -126,7 +138,7 @@ def read_image(path: str | os.PathLike, *, linearize: bool = True, **limits) -> 
     require_finite(str(path), pixels, user_input=True)
     if linearize and not info.linear:
         pixels = srgb_to_linear(pixels)
-    return np.ascontiguousarray(pixels, dtype=FLOAT)
+    return np.ascontiguousarray(orient_exif(pixels, orientation), dtype=FLOAT)
 
 
 def temp_prefix(name: str) -> str:

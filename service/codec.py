@@ -19,7 +19,8 @@ MAX_BODY = 3840 * 2160 * 3
 MAX_PIXELS = 3840 * 2160
 CONTENT_TYPES = {"image/png": ".png", "image/jpeg": ".jpg"}
 #: Environment uploads: content types and the largest body (bytes).
-ENV_TYPES = {"image/vnd.radiance": ".hdr", "image/x-exr": ".exr", "image/aces": ".exr", "image/png": ".png"}
+ENV_TYPES = {"image/vnd.radiance": ".hdr", "image/x-exr": ".exr", "image/aces": ".exr", "image/png": ".png",
+             "image/jpeg": ".jpg"}
 ENV_MAX_BODY = 64 << 20
 #: JPEG quality of relit frames sent back.
 JPEG_QUALITY = 92
@@ -102,8 +103,10 @@ def clean_stale_uploads() -> list[Path]:
     return clean_stale_temps(tempfile.gettempdir(), "", prefix=UPLOAD_PREFIX)
 
 
-def load_uploaded_environment(body: bytes, suffix: str) -> np.ndarray:
-    """Validate an uploaded environment exactly as a file would be (written to a temporary file)."""
+def load_uploaded_environment(body: bytes, suffix: str, photo: bool = False) -> np.ndarray:
+    """Validate an uploaded environment exactly as a file would be (written to a temporary file);
+    ``photo``: the picture made into an environment (``photo:``, :mod:`relight.photo_env`) instead
+    of read as a 2:1 lat-long map."""
     import tempfile
 
     import relight
@@ -113,7 +116,7 @@ def load_uploaded_environment(body: bytes, suffix: str) -> np.ndarray:
         path = Path(tmp) / f"upload{suffix}"
         path.write_bytes(body)
         try:
-            return relight.load_environment(path)
+            return relight.load_environment(f"photo:{path}" if photo else path)
         except RelightError as exc:
             raise ServiceError(400, "bad_environment", str(exc).replace(str(path), "the uploaded environment")) \
                 from None

@@ -1,7 +1,8 @@
 """The JSON controls a live client sends (the websocket's text messages, the WebRTC data
 channel's): ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8, "mode": "paste",
-"exposure": 0}``, any subset; ``env`` a preset or a key light (``"key:az=60,el=20"``). One parser
-for both transports."""
+"exposure": 0, "spin": 10}``, any subset; ``env`` a preset or a key light (``"key:az=60,el=20"``),
+``rotation`` the environment's (its yaw is the turn: :data:`relight.envmap.ENV_TURN_RANGE_DEG`),
+``spin`` its turn per second. One parser for both transports."""
 
 from __future__ import annotations
 
@@ -9,12 +10,13 @@ import json
 
 from ..engine.composite import MODES
 from ..engine.frame_path import EXPOSURE_RANGE_EV
+from ..envmap import ENV_SPIN_RANGE_DEG_S
 from .codec import parse_rotation
 from .errors import ServiceError
 from .settings import PRESETS
 
 #: Ranges of the numeric controls.
-RANGES = {"strength": (0.0, 1.0), "exposure": EXPOSURE_RANGE_EV}
+RANGES = {"strength": (0.0, 1.0), "exposure": EXPOSURE_RANGE_EV, "spin": ENV_SPIN_RANGE_DEG_S}
 #: Longest control message read (bytes).
 MAX_CONTROL = 4096
 #: Longest environment name a client may send (a key light with every field is ~60 characters).
@@ -43,7 +45,7 @@ def environment_source(name, what: str = "env", kind: str = "bad_control") -> st
 
 def new_settings() -> dict:
     """A client's settings before any control (None: the service's own)."""
-    return {"env": None, "rotation": None, "strength": None, "mode": None, "exposure": None}
+    return {"env": None, "rotation": None, "strength": None, "mode": None, "exposure": None, "spin": None}
 
 
 def parse_control(text) -> object:

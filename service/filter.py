@@ -44,7 +44,7 @@ from .frame_pipeline import FramePipeline as FramePipeline
 
 def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bool = False, strength: float = 1.0,
                exposure: float = 0.0, focal: float | None = None, fps: float = 30.0, crf: int = DEFAULT_CRF,
-               region: str = DEFAULT_REGION,
+               region: str = DEFAULT_REGION, env_turn: float = 0.0, env_spin: float = 0.0,
                report_dir=None, virtual_camera: bool = False, progress: bool = True, frame_path=None,
                start_time: float | None = None) -> FilterResult:
     """Relight the faces of ``inp`` (a video file or a folder of images) into ``out``."""
@@ -57,7 +57,7 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
     if inp.resolve() == out.resolve():
         raise InputError(f"{out}: the output would overwrite the input; choose another name")
     fp = frame_path or FramePath(bundle, env, mode=mode, strength=strength, fixed_env=fixed_env, focal=focal,
-                                 exposure=exposure, region=region)
+                                 exposure=exposure, region=region, env_turn=env_turn, env_spin=env_spin)
     res = FilterResult(out=out)
     res.start_s = time.perf_counter() - t_start
     stages: dict[str, list] = {k: [] for k in ("track", "pose", "relight", "light", "warp", "composite", "total")}

@@ -72,7 +72,8 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
              fps: float | None = None, duration: float | None = None, mode: str = DEFAULT_MODE,
              region: str = DEFAULT_REGION, strength: float = 1.0, focal=None, virtual_camera: bool = False,
              preview: bool = False, preview_port: int = 0, record: str | os.PathLike | None = None,
-             crf: int = DEFAULT_CRF, status=None, on_ready=None) -> LiveResult:
+             crf: int = DEFAULT_CRF, status=None, on_ready=None, exposure: float = 0.0, env_turn: float = 0.0,
+             env_spin: float = 0.0) -> LiveResult:
     """Relight a live camera (or a looped file) until ``duration`` seconds pass, ``q``, or a stop
     signal. ``bundle``: a loaded :class:`relight.kernels.bundle.Bundle`; ``envs``: environments
     (paths or ``builtin:NAME``) switched in turn. ``on_ready(result)`` is called once the sinks
@@ -103,7 +104,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     out_fps = float(fps or reader.rate or 30.0)
     # a live source: the person's maps made beside the frames, not in one of them
     fp = FramePath(bundle, env_array(0), mode=mode, strength=strength, focal=focal, region=region,
-                   live_source=True)
+                   live_source=True, exposure=exposure, env_turn=env_turn, env_spin=env_spin)
     relit_slot = LatestFrame()
     status = status if status is not None else StatusLine()
     restore_keys = key_reader(controls)

@@ -141,7 +141,8 @@ class Engine:
         return env
 
     def _relight(self, rgb: np.ndarray, *, env: str | None = None, rotation=None, exposure: float | None = None,
-                 strength: float | None = None, mode: str | None = None, session: Session | None = None):
+                 strength: float | None = None, mode: str | None = None, spin: float | None = None,
+                 session: Session | None = None):
         """The relit frame and its FrameInfo, through ``session``'s path (None: the shared one,
         reset first). Under the lock (the sessions share the relighter)."""
         if session is None:
@@ -157,6 +158,8 @@ class Engine:
         fp.set_mode(mode or self.config.mode)
         fp.set_strength(1.0 if strength is None else strength)
         fp.set_exposure(self.default_exposure if exposure is None else exposure)
+        if (spin or 0.0) != fp.env_spin:  # (set only on a change: a spin counts from when it was set)
+            fp.set_env_spin(spin or 0.0)
         return fp.process(rgb, time.perf_counter())
 
 

@@ -88,6 +88,13 @@ def test_a_key_light_is_an_environment_in_every_request(server, frame):
         ws.send(json.dumps({"env": "key:power=-1"}))
         doc = json.loads(ws.recv(timeout=30))
         assert doc["kind"] == "bad_control" and "power" in doc["error"], doc
+        ws.send(json.dumps({"spin": 30}))  # the environment spun, degrees per second: accepted
+        ws.send(json.dumps({"spin": 1e4}))
+        doc = json.loads(ws.recv(timeout=30))
+        assert doc["kind"] == "bad_control" and "spin" in doc["error"], doc
+        ws.send(_png(frame))
+        while not isinstance(msg := ws.recv(timeout=30), bytes):  # a spinning stream relights
+            assert "error" not in json.loads(msg), msg
 
 
 def test_each_request_is_relit_as_a_first_frame(server, frame):
@@ -227,6 +234,7 @@ def test_stream_limits_clients_and_message_size(server, frame):
 
 def test_environment_endpoints_choose_upload_validate_and_preview(server, frame, tmp_path):
     from relight import load_environment
+    from relight.colour import encode_srgb8
     from relight.imageio import write_image
 
     doc = httpx.get(f"{server}/v1/environment").json()
@@ -263,6 +271,26 @@ def test_environment_endpoints_choose_upload_validate_and_preview(server, frame,
     r = httpx.put(f"{server}/v1/environment", content=b"\x00" * 1000, headers={"content-type": "image/x-exr"})
     assert r.status_code == 400
     assert httpx.get(f"{server}/v1/environment").json()["current"] == "uploaded.exr"  # the bad ones changed nothing
+    # JPEG: a 2:1 lat-long map as it is; any picture with ?photo=true (a square one too)
+    jpg = cv2.imencode(".jpg", cv2.cvtColor(encode_srgb8(np.clip(env, 0, 1)), cv2.COLOR_RGB2BGR))[1].tobytes()
+    r = httpx.put(f"{server}/v1/environment", content=jpg, headers={"content-type": "image/jpeg"}, timeout=30)
+    assert r.status_code == 200 and r.json()["current"] == "uploaded.jpg", r.text
+    photo = np.full((90, 120, 3), 40, np.uint8)
+    photo[:, :60] = 230  # bright on its left
+    square = cv2.imencode(".jpg", photo[:, :90])[1].tobytes()
+    r = httpx.put(f"{server}/v1/environment", content=square, headers={"content-type": "image/jpeg"}, timeout=30)
+    assert r.status_code == 400 and r.json()["kind"] == "bad_environment"  # not a map
+    r = httpx.put(f"{server}/v1/environment?photo=true", content=cv2.imencode(".jpg", photo)[1].tobytes(),
+                  headers={"content-type": "image/jpeg"}, timeout=30)
+    assert r.status_code == 200 and r.json()["current"] == "photo.jpg", r.text
+    prev = cv2.imdecode(np.frombuffer(httpx.get(f"{server}/v1/environment/preview.png").content, np.uint8),
+                        cv2.IMREAD_GRAYSCALE).astype(float)
+    h, w = prev.shape
+    # lit from the image's left, -X: the map's third quarter (its quarter width is +X)
+    assert prev[:, 5 * w // 8: 7 * w // 8].mean() > prev[:, w // 8: 3 * w // 8].mean() + 20
+    r = httpx.put(f"{server}/v1/environment?photo=true", content=square[: len(square) // 3],
+                  headers={"content-type": "image/jpeg"}, timeout=30)
+    assert r.status_code == 400 and r.json()["kind"] == "bad_environment"
     httpx.put(f"{server}/v1/environment?builtin=studio&rotation=0,0,0&exposure=0")
 
 

@@ -411,3 +411,9 @@ KELVIN_XY_TOL = 4e-3
 #: A white surface facing a key reads its power: the disc's own cosine falloff (a 3-degree radius:
 #: 0.1 %) and the texels at its anti-aliased edge (~1 %).
 KEY_POWER_REL = 0.02
+
+# The environment's turn (test_env_turn.py).
+#: A frame path given env_turn=90 against one given the map turned by 90 (an exact column shift):
+#: the texel light is splatted from rotated directions instead of shifted texels, and the person's
+#: low frequencies from rotated 64x32 texels - codes at the 99.9th percentile of the frame.
+ENV_TURN_FRAME_CODES = 3

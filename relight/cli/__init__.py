@@ -6,6 +6,7 @@ Commands, in the order ``relight --help`` lists them (``relight COMMAND --help``
   with ``--live``, a live video of the head instead
 - ``capture`` (:mod:`.capture`): turn a capture video (or an RTI image set) into a reflectance bundle
 - ``render`` (:mod:`.render`): relight a bundle's face under an environment or one light, to an image
+- ``presets`` (:mod:`.presets`): one face under every built-in light and preset, as a contact sheet
 - ``bench`` (:mod:`.bench`): benchmarks that print measured figures - ``relight bench`` capture,
   relight, video, serve, live, fuzz, crash, soak, accuracy
 - ``demo`` (:mod:`.demo`): what ``make demo`` runs - synthesise a capture, turn it into a bundle, show
@@ -25,7 +26,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import bench, capture, demo, filter, live, render, serve, synth
+from . import bench, capture, demo, filter, live, presets, render, serve, synth
 from .common import (
     COMMANDS,
     VERBOSE_HELP,
@@ -41,6 +42,7 @@ __all__ = ["COMMANDS", "DEMO_CLIP_S", "DEMO_ENVS", "VERBOSE_HELP", "build_parser
 
 #: Each command's parser builder (``add_parser(subparsers)``), by command name.
 _ADDERS = {"synth": synth.add_parser, "capture": capture.add_parser, "render": render.add_parser,
+           "presets": presets.add_parser,
            "bench": bench.add_parser, "demo": demo.add_parser, "filter": filter.add_parser,
            "live": live.add_parser, "serve": serve.add_parser}
 

@@ -18,6 +18,7 @@ COMMANDS = {
     "synth": "simulate a two-phone capture of a synthetic head, with its ground truth",
     "capture": "turn a capture video (or an RTI image set) into a reflectance bundle",
     "render": "relight a bundle's face under an environment or one light, to an image",
+    "presets": "one face under every built-in light and preset, as a contact sheet",
     "bench": "benchmarks that print measured figures",
     "demo": "synthesise a capture, turn it into a bundle, show both (what `make demo` runs)",
     "filter": "relight the face in a video (a virtual-camera-style batch filter)",
@@ -72,10 +73,17 @@ class DefaultsUnlessNone(argparse.ArgumentDefaultsHelpFormatter):
 
 #: --region's help (relight filter, relight live, relight-serve).
 #: What every --env accepts, after each command's own first words.
-ENV_KINDS = ("a lat-long map (.exr/.hdr/.png/.jpg), a built-in (builtin:studio, sunset, window, uniform, room, "
+ENV_KINDS = ("a 2:1 lat-long map (.exr/.hdr/.png/.jpg), a built-in (builtin:studio, sunset, window, uniform, room, "
              "point:x,y,z) or a key light placed by hand: builtin:key:az=30,el=25,size=30,kelvin=5000,fill=0.3,"
              "power=1 (azimuth and elevation in degrees toward the image's right and up, disc diameter in degrees, "
-             "colour temperature, fill share, flashes; every field optional)")
+             "colour temperature, fill share, flashes; every field optional), or any picture as the light: "
+             "photo:PATH (a photo of a place, a virtual background)")
+#: --env-turn and --env-spin (render, filter, live): one convention with the HTTP API's rotation.
+ENV_TURN_HELP = ("turn the environment about the vertical by DEG degrees: every light moves DEG degrees in azimuth "
+                 "toward the image's right (as the HTTP API's rotation=DEG,0,0; turning the environment by +DEG "
+                 "lights the face as turning the head by -DEG does)")
+ENV_SPIN_HELP = ("spin the environment about the vertical, DEG_PER_S degrees per second of the video's time "
+                 "(positive: toward the image's right), starting from --env-turn")
 REGION_HELP = ("what mode transfer relights: the whole person (the face from the bundle; hair, ears, neck and "
                "shoulders by the face's change of light carried over them - nothing off the person changes) or "
                "the face alone (the bundle's face mask)")

@@ -6,7 +6,16 @@ import argparse
 import time
 from pathlib import Path
 
-from .common import COMMANDS, ENV_KINDS, REGION_HELP, focal_default, parse_focal, parse_strength
+from .common import (
+    COMMANDS,
+    ENV_KINDS,
+    ENV_SPIN_HELP,
+    ENV_TURN_HELP,
+    REGION_HELP,
+    focal_default,
+    parse_focal,
+    parse_strength,
+)
 
 
 def add_parser(sub) -> None:
@@ -38,6 +47,8 @@ def add_parser(sub) -> None:
     p.add_argument("--strength", type=parse_strength, default=1.0, help="blend with the original frame, 0 to 1")
     p.add_argument("--exposure", type=float, default=0.0,
                    help="stops (EV) on top of the automatic exposure matching")
+    p.add_argument("--env-turn", type=float, default=0.0, metavar="DEG", help=ENV_TURN_HELP)
+    p.add_argument("--env-spin", type=float, default=0.0, metavar="DEG_PER_S", help=ENV_SPIN_HELP)
     p.add_argument("--focal", type=parse_focal, default=None, metavar="PIXELS|ortho",
                    help=f"the video's focal length in pixels (default: {focal_default()}, a phone or "
                         "webcam); 'ortho' for an orthographic camera such as relight synth's")
@@ -73,7 +84,7 @@ def _filter_command(args) -> int:
     bundle = relight.load_bundle(args.bundle)
     env = relight.load_environment(args.env)
     res = run_filter(args.input, args.output, bundle, env, mode=args.mode, region=args.region,
-                     fixed_env=args.fixed_env,
+                     fixed_env=args.fixed_env, env_turn=args.env_turn, env_spin=args.env_spin,
                      strength=args.strength, exposure=args.exposure, focal=args.focal, fps=args.fps, crf=args.crf,
                      report_dir=args.report, virtual_camera=args.virtual_camera, progress=not args.quiet,
                      start_time=t0)

@@ -8,6 +8,8 @@ from pathlib import Path
 from .common import (
     COMMANDS,
     ENV_KINDS,
+    ENV_SPIN_HELP,
+    ENV_TURN_HELP,
     REGION_HELP,
     DefaultsUnlessNone,
     focal_default,
@@ -50,6 +52,10 @@ def add_parser(sub) -> None:
     p.add_argument("--region", choices=REGIONS, default=DEFAULT_REGION,
                    help=REGION_HELP)
     p.add_argument("--strength", type=parse_strength, default=1.0, help="blend with the camera's frame, 0 to 1")
+    p.add_argument("--exposure", type=float, default=0.0,
+                   help="stops (EV) on top of the automatic exposure matching")
+    p.add_argument("--env-turn", type=float, default=0.0, metavar="DEG", help=ENV_TURN_HELP)
+    p.add_argument("--env-spin", type=float, default=0.0, metavar="DEG_PER_S", help=ENV_SPIN_HELP)
     p.add_argument("--focal", type=parse_focal, default=None, metavar="PIXELS|ortho",
                    help=f"the camera's focal length in pixels, or 'ortho' (default: {focal_default()})")
     p.add_argument("--virtual-camera", action="store_true",
@@ -109,6 +115,7 @@ def _live_command(args) -> int:
     try:
         res = run_live(bundle, args.env, camera=args.camera, size=args.size, fps=args.fps, duration=args.duration,
                        mode=args.mode, region=args.region, strength=args.strength, focal=args.focal,
+                       exposure=args.exposure, env_turn=args.env_turn, env_spin=args.env_spin,
                        virtual_camera=args.virtual_camera,
                        preview=args.preview, preview_port=args.preview_port, record=args.record, crf=args.crf,
                        on_ready=ready)

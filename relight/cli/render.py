@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from .common import COMMANDS, ENV_KINDS
+from .common import COMMANDS, ENV_KINDS, ENV_TURN_HELP
 
 #: --exposure's bound, stops either way: a still image takes a wider range than the frame path's
 #: +-20 EV (the light is scaled by 2^EV here, then checked by the relighter).
@@ -42,6 +42,7 @@ def add_parser(sub) -> None:
     p.add_argument("--rotate", type=_vec3, metavar="yaw,pitch,roll",
                    help="head rotation in degrees (R = Ry(yaw) Rx(pitch) Rz(roll)); the environment turns the "
                         "other way")
+    p.add_argument("--env-turn", type=float, default=0.0, metavar="DEG", help=ENV_TURN_HELP)
     p.add_argument("--exposure", type=float, default=0.0, help="exposure in stops (EV): the light is scaled by 2^EV")
     acc = p.add_mutually_exclusive_group()
     acc.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE,
@@ -63,6 +64,7 @@ def _run_render(args) -> int:
     from .. import load_bundle, load_environment
     from ..colour import decode_srgb8
     from ..directions import rotation_matrix
+    from ..envmap import ENV_TURN_RANGE_DEG
     from ..errors import InputError
     from ..imageio import write_image
     from ..kernels.relighter import Relighter
@@ -70,6 +72,11 @@ def _run_render(args) -> int:
     if not np.isfinite(args.exposure) or abs(args.exposure) > MAX_EXPOSURE_EV:
         raise InputError(f"--exposure {args.exposure}: use a number of stops between {-MAX_EXPOSURE_EV:g} and "
                          f"{MAX_EXPOSURE_EV:g}")
+    lo, hi = ENV_TURN_RANGE_DEG
+    if not (np.isfinite(args.env_turn) and lo <= args.env_turn <= hi):
+        raise InputError(f"--env-turn {args.env_turn}: use degrees between {lo:g} and {hi:g}")
+    if args.env_turn and args.light is not None:
+        raise InputError("--env-turn turns an environment (--env); move --light's x,y,z instead")
     if args.out.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg", ".hdr"):
         raise InputError(f"{args.out}: write .exr (linear), .png or .jpg (sRGB)")
     t0 = time.perf_counter()
@@ -82,6 +89,9 @@ def _run_render(args) -> int:
     else:
         env = load_environment(args.env)
         rot = rotation_matrix(*args.rotate) if args.rotate else None
+        if args.env_turn:  # the environment's lights at E d: a head turned by R sees them at R^T E d
+            turn = rotation_matrix(args.env_turn, 0.0, 0.0).T
+            rot = turn if rot is None else turn @ rot
         img = np.array(r.relight(env, rot, exposure=scale))
         what = args.env
     if args.ambient:

@@ -1,5 +1,6 @@
-"""``/v1/environment``: the current environment - a built-in or an upload (.hdr/.exr/.png) -
-its rotation and exposure, and a tone-mapped preview."""
+"""``/v1/environment``: the current environment - a built-in, a key light, an upload
+(.hdr/.exr/.png/.jpg lat-long map) or a photo made into one - its rotation and exposure, and a
+tone-mapped preview."""
 
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ async def get_environment(engine: EngineDep):
     return {"current": engine.env_name, "rotation": engine.default_rotation, "exposure": engine.default_exposure,
             "builtins": list(PRESETS)}
 
-@router.put("/v1/environment", summary="Choose a built-in or upload an environment (.hdr/.exr/.png)",
+@router.put("/v1/environment", summary="Choose a built-in or a key light, or upload an environment or a photo",
          openapi_extra=binary_body(*ENV_TYPES, required=False), responses={400: {}, 413: {}, 415: {}, 422: {}})
 async def put_environment(request: Request, engine: EngineDep,
                           builtin: str | None = Query(None, description="a built-in (" + ", ".join(PRESETS)
@@ -37,7 +38,10 @@ async def put_environment(request: Request, engine: EngineDep,
                                                         "fill=0.3,power=1 (every field optional)"),
                           rotation: str | None = Query(None, description="yaw,pitch,roll (degrees)"),
                           exposure: float | None = Query(None, ge=RANGES["exposure"][0], le=RANGES["exposure"][1],
-                                                         description="stops (EV)")):
+                                                         description="stops (EV)"),
+                          photo: bool = Query(False, description="the body is a photo (any picture: a place, a "
+                                              "virtual background) to be made into an environment, not a 2:1 "
+                                              "lat-long map")):
     rot = parse_rotation(rotation)
     ctype = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
     body = await read_body(request, ENV_MAX_BODY)
@@ -47,9 +51,10 @@ async def put_environment(request: Request, engine: EngineDep,
         suffix = ENV_TYPES.get(ctype)
         if suffix is None:
             raise ServiceError(415, "content_type", f"content type {ctype or 'none'!r}: send "
-                               + ", ".join(ENV_TYPES) + " (an .hdr, .exr or .png lat-long map)")
-        env = await asyncio.to_thread(load_uploaded_environment, body, suffix)
-        await engine.upload("uploaded" + suffix, env)
+                               + ", ".join(ENV_TYPES) + " (an .hdr, .exr, .png or .jpg lat-long map, or any "
+                               "picture with ?photo=true)")
+        env = await asyncio.to_thread(load_uploaded_environment, body, suffix, photo)
+        await engine.upload(("photo" if photo else "uploaded") + suffix, env)
     if rot is not None:
         engine.default_rotation = rot
     if exposure is not None:
