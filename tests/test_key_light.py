@@ -171,3 +171,52 @@ def test_a_wider_key_softens_the_shadow_edge_of_the_nose(face):
         g = np.hypot(cv2.Sobel(lum, cv2.CV_32F, 1, 0), cv2.Sobel(lum, cv2.CV_32F, 0, 1)) / 8
         steep[size] = float(np.quantile(g[inner & box], 0.99))
     assert steep[60] < 0.85 * steep[5], steep
+
+
+@pytest.mark.slow  # a capture of a real face set (~15 s): `make test-slow`, CI
+def test_the_key_and_a_photo_light_a_real_face_as_they_say(shared_data, tmp_path):
+    """On a real face (Extended Yale B, captured from its photos): a key from the image's right
+    lights its right half more, a wider key softens the shading's steepest edges in the middle of
+    the face, and a photo bright on its left lights it from the left."""
+    from PIL import Image
+
+    from relight import load_bundle
+    from relight.cli import main
+    from relight.colour import linear_to_srgb
+    from relight.kernels.relighter import Relighter
+
+    out = tmp_path / "face.bundle"
+    assert main(["capture", "--images", str(shared_data / "faces-yale" / "yaleB03"), "--transfer", "linear",
+                 "-o", str(out), "--quiet"]) == 0
+    bundle = load_bundle(out)
+    r, mask = Relighter(bundle), np.asarray(bundle.mask, bool)
+
+    def relight(source):
+        return np.asarray(r.relight(load_environment(source)), dtype=np.float64)
+
+    cols = np.nonzero(mask.any(axis=0))[0]
+    right = np.arange(mask.shape[1])[None, :] > (cols.min() + cols.max()) / 2
+
+    def right_over_left(img):
+        lum = img @ LUMINANCE
+        return lum[mask & right].mean() / lum[mask & ~right].mean()
+
+    assert right_over_left(relight("builtin:key:az=60")) > 1.5
+    assert right_over_left(relight("builtin:key:az=-60")) < 1 / 1.5
+    photo = np.full((300, 400, 3), 0.04, np.float32)
+    photo[:, :200] = 0.5
+    Image.fromarray((linear_to_srgb(photo) * 255 + 0.5).astype(np.uint8)).save(tmp_path / "left.jpg", quality=95)
+    assert right_over_left(relight(f"photo:{tmp_path / 'left.jpg'}")) < 1 / 1.5
+    rows = np.nonzero(mask.any(axis=1))[0]
+    inner = cv2.erode(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    h, w = rows.max() - rows.min(), cols.max() - cols.min()
+    box = np.zeros_like(mask)
+    box[rows.min() + h // 3: rows.max() - h // 3, cols.min() + w // 3: cols.max() - w // 3] = True
+    flat = np.maximum(relight("builtin:uniform") @ LUMINANCE, 1e-4)
+    steep = {}
+    for size in (5, 60):
+        lum = np.log(np.maximum(relight(f"builtin:key:az=70,el=10,fill=0,size={size}") @ LUMINANCE, 1e-4) / flat)
+        g = np.hypot(cv2.Sobel(lum.astype(np.float32), cv2.CV_32F, 1, 0),
+                     cv2.Sobel(lum.astype(np.float32), cv2.CV_32F, 0, 1)) / 8
+        steep[size] = float(np.quantile(g[inner & box], 0.99))
+    assert steep[60] < 0.85 * steep[5], steep
