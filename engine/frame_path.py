@@ -26,8 +26,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from relight.directions import rotation_matrix
-from relight.envmap import ENV_SPIN_RANGE_DEG_S, ENV_TURN_RANGE_DEG
+from relight.directions import ENV_SPIN_RANGE_DEG_S, ENV_TURN_RANGE_DEG, rotation_matrix
 from relight.errors import InputError
 from relight.kernels.relighter import DEFAULT_TOLERANCE
 from relight.numerics import EPS_VALUE
@@ -118,7 +117,7 @@ class FramePath:
     mode : 'transfer' or 'paste'. strength : 0-1. fixed_env : keep the environment still relative
     to the face (no head-rotation compensation). env_turn, env_spin : the environment turned about
     the vertical by degrees, and spun by degrees per second of the frames' time from the first
-    frame (:data:`relight.envmap.ENV_TURN_RANGE_DEG`: the convention). focal : the frames' focal
+    frame (:data:`relight.directions.ENV_TURN_RANGE_DEG`: the convention). focal : the frames' focal
     length in pixels, or "ortho" (None: from the frame size, see :mod:`relight.engine.pose`).
     exposure : stops (EV).
     reuse_deg : head turns below which the last relight is reused (:data:`REUSE_DEG`; 0: never).
@@ -229,7 +228,7 @@ class FramePath:
         self.exposure = float(2.0 ** ev)
 
     def set_env_turn(self, deg: float) -> None:
-        """Turn the environment about the vertical by ``deg`` (:data:`relight.envmap.ENV_TURN_RANGE_DEG`)."""
+        """Turn the environment about the vertical by ``deg`` (:data:`relight.directions.ENV_TURN_RANGE_DEG`)."""
         lo, hi = ENV_TURN_RANGE_DEG
         if not (np.isfinite(deg) and lo <= deg <= hi):
             raise InputError(f"environment turn {deg}: use degrees between {lo:g} and {hi:g}")

@@ -101,6 +101,7 @@ class RowCache:
         self._lock = threading.Condition()
         self._flight: dict[int, int] = {}  # texel -> slot of rows the prefetch thread is making
         self._prefetch = None  # (thread, stop event)
+        self._stopping: list = []  # prefetch threads told to stop, finishing their launch
 
     def _free_slots(self, n: int, keep: set, spare_recent: bool = True) -> list[int]:
         """``n`` slots to fill, least recently used first, none in ``keep`` or in flight, nor
@@ -148,11 +149,13 @@ class RowCache:
         on the thread) on a thread of their own, on a
         command queue of their own, ``batch`` a launch (a launch costs ~20 ms plus ~10 ms a texel
         at 100k pixels: one at a time, as frames ask, costs 2-3x more), at most half the slots;
-        a prefetch already running is stopped first. Frames that ask for a row the thread is
-        making wait for it; the others go on."""
+        a prefetch already running is told to stop after its current launch, not waited for (a
+        new environment every frame - a key light dragged on the page - would wait ~60 ms each;
+        the rows it makes are the bundle's, good for any light). Frames that ask for a row a
+        thread is making wait for it; the others go on."""
         import threading
 
-        self.stop_prefetch()
+        self.stop_prefetch(wait=False)
         stop = threading.Event()
 
         def run():
@@ -194,10 +197,16 @@ class RowCache:
         _PREFETCHING.add(self)
         thread.start()
 
-    def stop_prefetch(self) -> None:
-        """Stop a running prefetch after its current launch (and wait for it)."""
+    def stop_prefetch(self, wait: bool = True) -> None:
+        """Stop a running prefetch after its current launch; ``wait``: for it and for every one
+        stopped before (at exit, and before the device goes)."""
         if self._prefetch is not None:
             thread, stop = self._prefetch
             stop.set()
-            thread.join()
             self._prefetch = None
+            self._stopping.append(thread)
+        self._stopping = [t for t in self._stopping if t.is_alive()]
+        if wait:
+            for t in self._stopping:
+                t.join()
+            self._stopping = []

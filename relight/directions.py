@@ -62,6 +62,14 @@ def equirect_solid_angles(width: int, height: int) -> np.ndarray:
     return (2.0 * np.pi / width) * (edges[:-1] - edges[1:])
 
 
+#: The environment's turn about the vertical (degrees) and its spin (degrees per second): one
+#: convention everywhere - a turn of +D moves every light D degrees in azimuth toward +X (the
+#: image's right): the environment rotated by ``rotation_matrix(D, 0, 0)`` (``relight.envmap.rotate_environment``;
+#: what the HTTP API's rotation=D,0,0 does). Turning the environment by +D lights the face as
+#: turning the head by -D (``render --rotate -D,0,0``) does.
+ENV_TURN_RANGE_DEG = (-360.0, 360.0)
+ENV_SPIN_RANGE_DEG_S = (-180.0, 180.0)
+
 def rotation_matrix(yaw: float = 0.0, pitch: float = 0.0, roll: float = 0.0) -> np.ndarray:
     """``Ry(yaw) @ Rx(pitch) @ Rz(roll)`` from angles in degrees, (3, 3) float64."""
     a, b, c = np.radians([yaw, pitch, roll])

@@ -13,6 +13,7 @@ sRGB) or ``builtin:NAME`` with NAME one of :data:`BUILTINS`, ``point:x,y,z`` or 
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 from collections.abc import Callable
@@ -37,13 +38,6 @@ from .numerics import ACCUM, EPS, EPS_NORM, FLOAT, TINY_SCALE, require_finite
 BUILTIN_WIDTH = 512
 #: Limits for environment files (a 16K x 8K HDR probe still loads).
 MAX_ENV_WIDTH = 16384
-#: The environment's turn about the vertical (degrees) and its spin (degrees per second): one
-#: convention everywhere - a turn of +D moves every light D degrees in azimuth toward +X (the
-#: image's right): the environment rotated by ``rotation_matrix(D, 0, 0)`` (``rotate_environment``;
-#: what the HTTP API's rotation=D,0,0 does). Turning the environment by +D lights the face as
-#: turning the head by -D (``render --rotate -D,0,0``) does.
-ENV_TURN_RANGE_DEG = (-360.0, 360.0)
-ENV_SPIN_RANGE_DEG_S = (-180.0, 180.0)
 #: A source named ``photo:PATH`` is any picture made into an environment (:mod:`relight.photo_env`);
 #: a plain path must be a 2:1 lat-long map (a square mirror-ball probe is not taken for a photo).
 PHOTO_PREFIX = "photo:"
@@ -178,7 +172,8 @@ def load_environment(source: str | os.PathLike, *, width: int | None = None) -> 
     """Load an environment map as linear float32 radiance, (H, W, 3) with W == 2 H, read-only.
 
     source : a path (.exr, .hdr, or an sRGB .png/.jpg: a 2:1 lat-long map), ``builtin:NAME`` (see
-        :func:`builtin_names`) or ``photo:PATH`` (any picture as the light: :mod:`relight.photo_env`).
+        :func:`builtin_names`), ``photo:PATH`` (any picture as the light: :mod:`relight.photo_env`)
+        or a light saved by name, ``NAME.json`` (:mod:`relight.saved_light`).
         width : resolution of a built-in or a photo's map (default 512); ignored for map files.
 
     The map is returned read-only (:func:`freeze`): a :class:`relight.Relighter` given it again
@@ -215,8 +210,27 @@ def load_environment(source: str | os.PathLike, *, width: int | None = None) -> 
         if not path:
             raise InputError("photo: name a picture after it, e.g. photo:beach.jpg")
         return freeze(validate_environment(load_photo_environment(path, width=w), name=s))
+    if s.lower().endswith(".json"):  # a light saved by name (relight live's page)
+        return freeze(validate_environment(load_saved_light(s, width=width), name=s))
     env = read_image(s, max_dim=MAX_ENV_WIDTH, max_pixels=MAX_ENV_WIDTH * MAX_ENV_WIDTH // 2)
     return freeze(validate_environment(env, name=s))
+
+
+def load_saved_light(path: str | os.PathLike, *, width: int | None = None) -> np.ndarray:
+    """The map a light saved by name gives (:mod:`relight.saved_light`): its environment loaded,
+    turned by its ``turn`` (the convention of :data:`relight.directions.ENV_TURN_RANGE_DEG`) and
+    scaled by 2^``exposure``."""
+    from .directions import rotation_matrix
+    from .saved_light import environment_source, read_light
+
+    doc = read_light(path)
+    env = load_environment(environment_source(doc, Path(path).resolve().parent), width=width)
+    turn, ev = float(doc.get("turn", 0.0)), float(doc.get("exposure", 0.0))
+    if turn:
+        env = rotate_environment(env, rotation_matrix(turn, 0.0, 0.0))
+    if ev:
+        env = env * np.float32(2.0 ** ev)
+    return env
 
 
 def freeze(env) -> np.ndarray:
@@ -351,6 +365,18 @@ def _grid_cells(dirs: np.ndarray, columns: int, rows: int, pole: str) -> tuple[n
     return row, col
 
 
+@functools.lru_cache(maxsize=8)
+def _texel_cells(w: int, h: int, columns: int, rows: int, pole: str) -> tuple[np.ndarray, np.ndarray]:
+    """(texel directions (h, w, 3), each texel's grid cell (h * w,)) of a w x h map, read-only and
+    kept: an environment changed every frame (a key light dragged) re-uses them."""
+    texel_dirs = equirect_directions(w, h)
+    row, col = _grid_cells(texel_dirs, columns, rows, pole)
+    cell = (row * columns + col).ravel()
+    texel_dirs.flags.writeable = False
+    cell.flags.writeable = False
+    return texel_dirs, cell
+
+
 def environment_to_lights(env: np.ndarray, *, grid: tuple[int, int] = (128, 64), pole: str = "y",
                           peak_factor: float = 30.0, max_peaks: int = 4096, keep_grid: bool = False) -> Lights:
     """Represent an environment map as directional lights, conserving its power exactly.
@@ -375,9 +401,7 @@ def environment_to_lights(env: np.ndarray, *, grid: tuple[int, int] = (128, 64),
     if peak.sum() > max_peaks:
         thresh = np.partition(lum.ravel(), -max_peaks)[-max_peaks]
         peak &= lum >= thresh
-    texel_dirs = equirect_directions(w, h)
-    row, col = _grid_cells(texel_dirs, columns, rows, pole)
-    cell = (row * columns + col).ravel()
+    texel_dirs, cell = _texel_cells(w, h, columns, rows, pole)
     rest = np.where(peak[..., None], 0.0, power).reshape(-1, 3)
     n_grid = rows * columns
     grid_power = np.stack([np.bincount(cell, rest[:, c], minlength=n_grid) for c in range(3)], axis=1)

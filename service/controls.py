@@ -1,16 +1,16 @@
 """The JSON controls a live client sends (the websocket's text messages, the WebRTC data
 channel's): ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8, "mode": "paste",
 "exposure": 0, "spin": 10}``, any subset; ``env`` a preset or a key light (``"key:az=60,el=20"``),
-``rotation`` the environment's (its yaw is the turn: :data:`relight.envmap.ENV_TURN_RANGE_DEG`),
+``rotation`` the environment's (its yaw is the turn: :data:`relight.directions.ENV_TURN_RANGE_DEG`),
 ``spin`` its turn per second. One parser for both transports."""
 
 from __future__ import annotations
 
 import json
 
+from ..directions import ENV_SPIN_RANGE_DEG_S
 from ..engine.composite import MODES
 from ..engine.frame_path import EXPOSURE_RANGE_EV
-from ..envmap import ENV_SPIN_RANGE_DEG_S
 from .codec import parse_rotation
 from .errors import ServiceError
 from .settings import PRESETS

@@ -57,6 +57,7 @@ class RelitFrame:
     t_camera: float  # when the camera frame was read
     t_ready: float  # when its relit frame was ready
     index: int
+    src: object = None  # the camera frame it was relit from (the page's before/after split)
     _rgb: np.ndarray | None = None
 
     def as_rgb(self) -> np.ndarray:
@@ -73,12 +74,11 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
              region: str = DEFAULT_REGION, strength: float = 1.0, focal=None, virtual_camera: bool = False,
              preview: bool = False, preview_port: int = 0, record: str | os.PathLike | None = None,
              crf: int = DEFAULT_CRF, status=None, on_ready=None, exposure: float = 0.0, env_turn: float = 0.0,
-             env_spin: float = 0.0) -> LiveResult:
+             env_spin: float = 0.0, lights_dir: str | os.PathLike | None = None) -> LiveResult:
     """Relight a live camera (or a looped file) until ``duration`` seconds pass, ``q``, or a stop
     signal. ``bundle``: a loaded :class:`relight.kernels.bundle.Bundle`; ``envs``: environments
     (paths or ``builtin:NAME``) switched in turn. ``on_ready(result)`` is called once the sinks
     are open (the preview's URL is known)."""
-    import relight
     from relight.video import VideoWriter
 
     from ..engine.frame_path import FramePath
@@ -90,20 +90,13 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
         raise InputError(f"--duration {duration}: use a positive number of seconds")
     if virtual_camera:
         check_virtual_camera_backend()  # before the camera or the bundle's kernels are touched
-    controls = Controls(envs, mode, strength)
-    env_arrays = {}
-
-    def env_array(i):
-        if i not in env_arrays:
-            env_arrays[i] = relight.load_environment(controls.envs[i])
-        return env_arrays[i]
-
-    env_array(0)
+    controls = Controls(envs, mode, strength, exposure=exposure, turn=env_turn, spin=env_spin)
+    controls.environment()  # the first environment, checked before the camera is opened
     reader = CameraReader(camera, size=size, fps=fps)
     res = LiveResult(camera=reader.name)
     out_fps = float(fps or reader.rate or 30.0)
     # a live source: the person's maps made beside the frames, not in one of them
-    fp = FramePath(bundle, env_array(0), mode=mode, strength=strength, focal=focal, region=region,
+    fp = FramePath(bundle, controls.environment(), mode=mode, strength=strength, focal=focal, region=region,
                    live_source=True, exposure=exposure, env_turn=env_turn, env_spin=env_spin)
     relit_slot = LatestFrame()
     status = status if status is not None else StatusLine()
@@ -115,13 +108,17 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     t_start = time.perf_counter()
     cpu_start = time.process_time()
 
+    light_mark: list = []  # (first camera frame index under a change, when it was asked for)
+
     def record_frame(rgb, frame_out, info, index):
-        return frame_out, info
+        return frame_out, info, index, rgb
 
     def done(item, t_cam):  # the pipeline's pts: the camera frame's read time
-        frame_out, info = item
+        frame_out, info, index, src = item
         now = time.perf_counter()
-        relit_slot.put(RelitFrame(frame_out, t_cam, now, stage["relit"]))
+        if light_mark and index >= light_mark[0][0]:  # the first frame relit with the page's change
+            res.light_ms.append(round((now - light_mark.pop()[1]) * 1e3, 1))
+        relit_slot.put(RelitFrame(frame_out, t_cam, now, stage["relit"], src))
         stage["relit"] += 1
         stage["faces"] += int(info.face)
         lat = (now - t_cam) * 1e3
@@ -182,13 +179,15 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     clock = threading.Thread(target=clock_run, name="relight-output", daemon=True)
     try:
         if preview:
-            pv = PreviewServer(relit_slot, preview_port)
+            pv = PreviewServer(relit_slot, preview_port, controls=controls, status=status, result=res,
+                               lights_dir=lights_dir)
             res.preview = pv.url
         reader.start()
         clock.start()
         if on_ready is not None:
             on_ready(res)
-        applied = (0, controls.mode, controls.strength)
+        applied = controls.wanted()
+        next_index = 0  # the next camera frame's index
         with FramePipeline(fp, record_frame) as pipe:
             pipe.done = done
             pipe.wake = reader.slot.wake  # a finished frame ends the wait for the next camera frame
@@ -198,15 +197,22 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                     break
                 if controls.changed.is_set():
                     controls.changed.clear()
-                    want = (controls.env_i, controls.mode, controls.strength)
+                    want = controls.wanted()
                     if want != applied:
                         pipe.drain()
-                        fp.set_environment(env_array(controls.env_i))
-                        fp.set_mode(controls.mode)
-                        fp.set_strength(controls.strength)
-                        res.switches.append({"t": round(time.perf_counter() - t_start, 3),
-                                             "env": controls.envs[controls.env_i], "mode": controls.mode,
-                                             "strength": controls.strength})
+                        src, mode_now, strength_now, ev, turn, spin = want
+                        if src != applied[0]:
+                            fp.set_environment(controls.environment(src))
+                        fp.set_mode(mode_now)
+                        fp.set_strength(strength_now)
+                        fp.set_exposure(ev)
+                        fp.set_env_turn(turn)
+                        if spin != applied[5]:  # (a spin counts from when it is set)
+                            fp.set_env_spin(spin)
+                        light_mark[:] = [(next_index, controls.changed_at)]
+                        res.switches.append({"t": round(time.perf_counter() - t_start, 3), "env": src,
+                                             "mode": mode_now, "strength": strength_now, "exposure": ev,
+                                             "turn": turn, "spin": spin})
                         applied = want
                 item = reader.slot.take(timeout=0.1)
                 pipe.poll()
@@ -217,6 +223,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                         controls.quit("camera ended")
                 else:
                     res.size = (item.rgb.shape[1], item.rgb.shape[0])
+                    next_index = item.index + 1
                     pipe.put(item.rgb, item.t, item.index, item.t)
                 if status.due():
                     res.cpu_percent = status.show(reader.slot.put_count, stage["relit"],

@@ -39,6 +39,8 @@ class LiveResult:
     preview: str | None = None
     stopped_by: str = ""
     switches: list = field(default_factory=list)
+    #: ms from each change the page (or a key) asked for to the first frame relit with it
+    light_ms: list = field(default_factory=list)
 
     def as_json(self) -> dict:
         from dataclasses import asdict
@@ -58,6 +60,8 @@ class StatusLine:
         self.counts_last = (0, 0)
         self.latencies: list[float] = []
         self.light = ""
+        #: the last period's figures, for the page: fps in and relit, dropped, latency, CPU share
+        self.figures: dict = {}
 
     def due(self) -> bool:
         return time.perf_counter() - self.t_last >= self.period
@@ -68,8 +72,12 @@ class StatusLine:
         cpu_share = 100.0 * (cpu - self.cpu_last) / dt
         a, b = self.counts_last
         lat = f"{np.median(self.latencies):.0f} ms" if self.latencies else "-"
-        env = Path(controls.envs[controls.env_i]).name if not controls.envs[controls.env_i].startswith("builtin:") \
-            else controls.envs[controls.env_i]
+        self.figures = {"fps_in": round((frames_in - a) / dt, 1), "fps_relit": round((relit - b) / dt, 1),
+                        "dropped": dropped, "cpu_percent": round(cpu_share),
+                        "latency_ms": {"median": round(float(np.median(self.latencies)), 1),
+                                       "p95": round(float(np.percentile(self.latencies, 95)), 1)}
+                        if self.latencies else None, "light": self.light}
+        env = Path(controls.env).name if not controls.env.startswith("builtin:") else controls.env
         line = (f"in {(frames_in - a) / dt:5.1f} fps  out {(relit - b) / dt:5.1f} fps  dropped {dropped}  "
                 f"latency {lat}  CPU {cpu_share:3.0f}%  {env} x{controls.strength:.2f} {controls.mode}"
                 f"{'  light ' + self.light if self.light else ''}")

@@ -37,7 +37,7 @@ def is_loopback(host: str) -> bool:
     return host in LOOPBACK_NAMES or host.startswith("127.")
 
 
-def _split_host(value: str) -> tuple[str, int | None]:
+def split_host(value: str) -> tuple[str, int | None]:
     """("host", port) of a Host header or an origin's netloc (IPv6 in brackets)."""
     try:
         u = urlsplit("//" + value)
@@ -64,7 +64,7 @@ class AccessGuard:
         self.loopback_bind = is_loopback(bind_host)
         self.token = token.encode() if token else None
         self.allowed = {o.rstrip("/").lower() for o in allowed_origins}
-        self.allowed_hosts = {_split_host(urlsplit(o).netloc)[0] for o in self.allowed if o != "*"}
+        self.allowed_hosts = {split_host(urlsplit(o).netloc)[0] for o in self.allowed if o != "*"}
         self.on_refuse = on_refuse  # called with the refusal's kind (metrics)
 
     def origin_ok(self, origin: str, host_header: str, server_port: int | None) -> bool:
@@ -88,7 +88,7 @@ class AccessGuard:
         host_header = headers.get("host", "")
         server_port = (scope.get("server") or (None, None))[1]
         if self.loopback_bind and host_header:
-            name, _ = _split_host(host_header)
+            name, _ = split_host(host_header)
             if not is_loopback(name) and name not in self.allowed_hosts:
                 return 403, "bad_host", (f"Host {host_header!r} is not this machine: a loopback-bound relight "
                                          "server answers localhost/127.0.0.1 only (add --allow-origin for others)")

@@ -417,3 +417,8 @@ KEY_POWER_REL = 0.02
 #: the texel light is splatted from rotated directions instead of shifted texels, and the person's
 #: low frequencies from rotated 64x32 texels - codes at the 99.9th percentile of the frame.
 ENV_TURN_FRAME_CODES = 3
+
+# relight live's page (test_live_page.py).
+#: A key dragged from the image's left to its right: the relit face's log luminance change on its
+#: right half minus its left half (measured 0.3-0.6 on the small synthetic head).
+PAGE_KEY_SIDE_LOG = 0.1

@@ -62,8 +62,13 @@ def add_parser(sub) -> None:
                    help="send the relit frames to a virtual camera (needs the pyvirtualcam extra and a driver; "
                         "without one the command says what to install and exits 2)")
     p.add_argument("--preview", action="store_true",
-                   help="show the relit frames on a page on loopback (its URL is printed)")
+                   help="a page on loopback (its URL is printed): the relit frames with a before/after split, "
+                        "and the light's controls - drag the key light on a lit ball, environments, uploads and "
+                        "photos, strength, mode, exposure, turn, spin, a snapshot, lights saved by name")
     p.add_argument("--preview-port", type=int, default=0, help="the preview page's port (0: a free one)")
+    p.add_argument("--lights-dir", type=Path, default=None, metavar="DIR",
+                   help="where the page keeps uploads and saves lights by name (NAME.json, given back with "
+                        "--env NAME.json); default: $XDG_CONFIG_HOME/relight/lights (~/.config/relight/lights)")
     p.add_argument("--record", type=Path, default=None, metavar="OUT.mp4",
                    help="record the relit frames (H.264, at the output rate; appears only when complete)")
     p.add_argument("--crf", type=int, default=DEFAULT_CRF, help="the recording's quality (lower = better, bigger)")
@@ -116,6 +121,7 @@ def _live_command(args) -> int:
         res = run_live(bundle, args.env, camera=args.camera, size=args.size, fps=args.fps, duration=args.duration,
                        mode=args.mode, region=args.region, strength=args.strength, focal=args.focal,
                        exposure=args.exposure, env_turn=args.env_turn, env_spin=args.env_spin,
+                       lights_dir=args.lights_dir,
                        virtual_camera=args.virtual_camera,
                        preview=args.preview, preview_port=args.preview_port, record=args.record, crf=args.crf,
                        on_ready=ready)

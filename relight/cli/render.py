@@ -63,8 +63,7 @@ def _run_render(args) -> int:
 
     from .. import load_bundle, load_environment
     from ..colour import decode_srgb8
-    from ..directions import rotation_matrix
-    from ..envmap import ENV_TURN_RANGE_DEG
+    from ..directions import ENV_TURN_RANGE_DEG, rotation_matrix
     from ..errors import InputError
     from ..imageio import write_image
     from ..kernels.relighter import Relighter
