@@ -7,7 +7,8 @@ Endpoints (``http://127.0.0.1:PORT/``; loopback only, the Host header must name 
 browser's Origin must be this page's, so no other site can drive it):
 
 * ``GET /`` the page; ``GET /stream.mjpg`` the relit frames (the split, when set, shows the camera
-  frame left of it); ``GET /snapshot.png`` the newest relit frame;
+  frame left of it); ``GET /snapshot.png`` the newest relit frame (``?with=camera``: the camera
+  frame it was relit from beside it, on its left);
 * ``GET /state`` JSON: the choices of environment, the one in use (and its key light's fields),
   strength, mode, exposure, turn, spin, split, the last period's figures, the last light's
   latency (ms from a change asked to the first frame relit with it), the saved lights;
@@ -337,7 +338,12 @@ def _handler(preview: PreviewServer):
                     item = preview.slot.peek()
                     if item is None:
                         return self._json(503, {"error": "no relit frame yet", "kind": "not_ready"})
-                    return self._send(200, preview.encode(item.as_rgb(), ".png"), "image/png")
+                    rgb = item.as_rgb()
+                    if query.get("with") == "camera" and item.src is not None:  # [camera | relit], one frame's
+                        from relight.video_yuv import as_rgb
+
+                        rgb = np.hstack([as_rgb(item.src), rgb])
+                    return self._send(200, preview.encode(rgb, ".png"), "image/png")
                 if preview.controls is None:
                     return self._json(404, {"error": "not found", "kind": "not_found"})
                 if url.path == "/state":

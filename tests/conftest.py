@@ -22,6 +22,19 @@ def shared_data() -> Path:
 
 
 @pytest.fixture(scope="session")
+def chromium() -> str:
+    """A headless Chromium's executable (the browser page's and relight live's page's tests); skips
+    when it is absent."""
+    from relight.bench.browser import find_chromium
+
+    exe = find_chromium()
+    if exe is None:
+        pytest.skip("Chromium is not installed: `make install-system` installs it (Debian's apt, as root), "
+                    "or install the 'chromium' package yourself")
+    return exe
+
+
+@pytest.fixture(scope="session")
 def small_capture(tmp_path_factory):
     """A 6-second 320x180 synthetic capture with a point environment among the truth envs."""
     from relight.pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig

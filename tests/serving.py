@@ -1,4 +1,5 @@
-"""A real relight-serve app on loopback for the service and browser tests."""
+"""What the service, browser and live tests share: a real relight-serve app on loopback, and
+reading a running command's status lines."""
 
 from contextlib import contextmanager
 
@@ -19,3 +20,17 @@ def running_server(config, overrides: dict | None = None):
         yield base
     finally:
         cm.__exit__(None, None, None)
+
+
+def wait_line(proc, word: str, deadline: float) -> str:
+    """The first line of ``proc``'s stderr holding ``word``, read until ``deadline`` (time.time());
+    AssertionError when it never comes."""
+    import time
+
+    while time.time() < deadline:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        if word in line:
+            return line
+    raise AssertionError(f"the command never printed {word!r}")

@@ -11,7 +11,7 @@ import httpx
 import numpy as np
 import pytest
 
-from relight.bench.browser import barcoded_y4m, chromium_page, find_chromium, measure_page
+from relight.bench.browser import barcoded_y4m, chromium_page, measure_page
 
 from .serving import running_server
 from .tolerances import LIVE_CHANGED_CODES
@@ -19,15 +19,6 @@ from .tolerances import LIVE_CHANGED_CODES
 #: Relit frames the page must show before measuring, and the seconds measured per transport.
 PAGE_FRAMES = 3
 MEASURE_S = 4.0
-
-
-@pytest.fixture(scope="module")
-def chromium():
-    exe = find_chromium()
-    if exe is None:
-        pytest.skip("Chromium is not installed: `make install-system` installs it (Debian's apt, as root), "
-                    "or install the 'chromium' package yourself")
-    return exe
 
 
 @pytest.fixture(scope="module")

@@ -18,21 +18,12 @@ import pytest
 from relight.service.live_camera import LatestFrame, device_input
 from relight.service.virtual_camera import backend_hint
 
+from .serving import wait_line
 from .tolerances import LIVE_CHANGED_CODES, LIVE_CHANGED_SHARE, LIVE_FRAME_SHARE, LIVE_IN_FLIGHT, LIVE_RATE_SHARE
 
 RELIGHT = [sys.executable, "-m", "relight"]
 #: Longest a run may take before the test gives up on it (s): the bundle's kernels build first.
 RUN_TIMEOUT = 120
-
-
-def _wait_line(proc, word: str, deadline: float) -> str:
-    while time.time() < deadline:
-        line = proc.stderr.readline()
-        if not line:
-            break
-        if word in line:
-            return line
-    pytest.fail(f"`relight live` did not print {word!r}")
 
 
 def test_a_file_as_camera_is_relit_recorded_previewed_switched_and_stopped(small_bundle, live_clip, tmp_path):
@@ -48,7 +39,7 @@ def test_a_file_as_camera_is_relit_recorded_previewed_switched_and_stopped(small
                             stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         deadline = time.time() + RUN_TIMEOUT
-        ready = _wait_line(proc, "preview http://", deadline)
+        ready = wait_line(proc, "preview http://", deadline)
         url = ready.split("preview ")[1].split(",")[0].strip()
         # The preview page streams JPEGs (multipart); two whole ones must come.
         with httpx.stream("GET", url + "stream.mjpg", timeout=30) as r:
@@ -59,7 +50,7 @@ def test_a_file_as_camera_is_relit_recorded_previewed_switched_and_stopped(small
                 if got.count(b"\xff\xd9") >= 2:
                     break
         assert got.count(b"--frame") >= 2 and b"\xff\xd8" in got
-        _wait_line(proc, "fps", deadline)  # a status line (the run is past its first second)
+        wait_line(proc, "fps", deadline)  # a status line (the run is past its first second)
         proc.send_signal(signal.SIGUSR1)  # next environment
         time.sleep(2.5)  # the 2 s clip loops at least once
         proc.send_signal(signal.SIGINT)  # Ctrl-C: a clean stop
