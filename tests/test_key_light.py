@@ -220,3 +220,21 @@ def test_the_key_and_a_photo_light_a_real_face_as_they_say(shared_data, tmp_path
                      cv2.Sobel(lum.astype(np.float32), cv2.CV_32F, 0, 1)) / 8
         steep[size] = float(np.quantile(g[inner & box], 0.99))
     assert steep[60] < 0.85 * steep[5], steep
+
+
+@pytest.mark.parametrize("az, el", [(0, 0), (45, 20), (-60, -10), (20, 60)])
+def test_the_lit_balls_bright_spot_is_where_the_key_is(az, el):
+    """relight live's light preview: the grey ball's brightest point under a key light with no fill
+    is toward the key, and ball_direction reads the key's direction back from that point (what a
+    drag on the page does)."""
+    from relight.light_preview import ball_direction, balls
+
+    size = 96
+    img = balls(load_environment(f"builtin:key:az={az},el={el},fill=0,size=10", width=256), size)
+    assert img.shape == (size, 2 * size, 3) and img.dtype == np.uint8
+    grey = img[:, :size].astype(float).mean(axis=2)
+    v, u = np.unravel_index(np.argmax(grey), grey.shape)
+    got = direction(*ball_direction((u + 0.5) / size, (v + 0.5) / size))
+    assert np.degrees(np.arccos(np.clip(got @ direction(az, el), -1, 1))) < 8.0
+    skin = img[:, size:].reshape(-1, 3).astype(float)
+    assert skin[:, 0].mean() > skin[:, 2].mean()  # the skin ball is skin-toned
