@@ -85,3 +85,21 @@ def balls(env: np.ndarray, size: int = 96, exposure: float | None = None) -> np.
         img[~inside] = BACKGROUND
         out.append(img)
     return np.hstack(out)
+
+
+def shrunk(env: np.ndarray, width: int = 64) -> np.ndarray:
+    """``env`` (H, 2H, 3) area-averaged to ``width`` x ``width / 2`` (what a preview needs)."""
+    return cv2.resize(np.asarray(env, np.float32), (width, width // 2), interpolation=cv2.INTER_AREA)
+
+
+def balls_png(env: np.ndarray, size: int = 96, turn_deg: float = 0.0) -> bytes:
+    """:func:`balls` as PNG bytes, the environment turned by ``turn_deg`` first (the convention
+    of :data:`relight.directions.ENV_TURN_RANGE_DEG`)."""
+    small = shrunk(env)
+    if turn_deg:
+        from .directions import rotation_matrix
+        from .envmap import rotate_environment
+
+        small = rotate_environment(small, rotation_matrix(turn_deg, 0.0, 0.0))
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(balls(small, size), cv2.COLOR_RGB2BGR))
+    return buf.tobytes()

@@ -247,21 +247,17 @@ class PreviewServer:
         return {"saved": str(out), "use": f"--env {out}"}
 
     def light_png(self, source: str | None = None) -> bytes:
-        from relight.directions import rotation_matrix
-        from relight.envmap import rotate_environment
-        from relight.light_preview import balls
+        from relight.light_preview import balls_png
 
         c = self.controls
         env = c.environment(source) if source is not None else c.environment()
-        small = _shrunk(env)
-        if c.turn and source is None:
-            small = rotate_environment(small, rotation_matrix(c.turn, 0.0, 0.0))
-        return self.encode(balls(small, BALL_SIZE), ".png")
+        return balls_png(env, BALL_SIZE, c.turn if source is None else 0.0)
 
     def thumb_png(self, source: str) -> bytes:
         from relight.colour import encode_srgb8, luminance
+        from relight.light_preview import shrunk
 
-        small = _shrunk(self.controls.environment(source), THUMB_WIDTH)
+        small = shrunk(self.controls.environment(source), THUMB_WIDTH)
         mapped = small / (1.0 + luminance(small)[..., None] / max(float(np.percentile(luminance(small), 90)), 1e-6))
         return self.encode(encode_srgb8(np.clip(mapped, 0.0, 1.0)), ".png")
 
@@ -269,12 +265,6 @@ class PreviewServer:
         self.closed.set()
         self.httpd.shutdown()
         self.httpd.server_close()
-
-
-def _shrunk(env: np.ndarray, width: int = 64) -> np.ndarray:
-    import cv2
-
-    return cv2.resize(np.asarray(env, np.float32), (width, width // 2), interpolation=cv2.INTER_AREA)
 
 
 def _key_fields(source: str) -> dict | None:

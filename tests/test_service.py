@@ -79,6 +79,18 @@ def test_a_key_light_is_an_environment_in_every_request(server, frame):
     r = httpx.post(f"{server}/v1/relight?env=key:az=500", content=_png(frame), headers={"content-type": "image/png"},
                    timeout=30)
     assert r.status_code == 422 and r.json()["kind"] == "bad_query" and "az" in r.json()["error"]
+    for az in (60, -60):  # the page's lit balls: the grey ball's bright side is the key's
+        r = httpx.get(f"{server}/v1/environment/light.png?env=key:az={az},fill=0", timeout=30)
+        assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+        balls = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_GRAYSCALE).astype(float)
+        h, w = balls.shape
+        assert w == 2 * h
+        grey = balls[:, : w // 2]
+        brighter_right = grey[:, h // 2:].mean() > grey[:, : h // 2].mean() + 20
+        assert brighter_right == (az > 0), az
+    assert httpx.get(f"{server}/v1/environment/light.png?env=key:az=999").status_code == 422
+    assert httpx.get(f"{server}/v1/environment/light.png").status_code == 200  # the current one
+    assert "/v1/environment/light.png" in httpx.get(f"{server}/").text  # the page shows and drags it
     r = httpx.put(f"{server}/v1/environment?builtin=key:kelvin=3000,az=-40")
     assert r.status_code == 200 and r.json()["current"].startswith("builtin:key:az=-40,el=25,")
     assert httpx.put(f"{server}/v1/environment?builtin=key:kelvin=99").status_code == 422

@@ -61,6 +61,24 @@ async def put_environment(request: Request, engine: EngineDep,
         engine.default_exposure = float(exposure)
     return await get_environment(engine)
 
+@router.get("/v1/environment/light.png", summary="A grey and a skin-toned ball lit by an environment",
+            response_class=Response, responses={200: {"content": {"image/png": {}}}, 422: {}})
+async def light_balls(engine: EngineDep,
+                      env: str | None = Query(None, description="a preset (" + ", ".join(PRESETS) + ") or a key "
+                                              "light key:az=..,el=..; default: the current environment")):
+    """What the page shows of a light, and where dragging places the key light (the bright spot's
+    direction: relight.light_preview.ball_direction)."""
+    import relight
+    from relight.light_preview import balls_png
+
+    if env is not None:
+        source = environment_source(env, "env=", "bad_query")
+        arr = await asyncio.to_thread(relight.load_environment, source, width=256)
+    else:
+        arr = await engine.current_environment()  # turned by the current rotation
+    return Response(await asyncio.to_thread(balls_png, arr), media_type="image/png")
+
+
 @router.get("/v1/environment/preview.png", summary="The current environment, tone-mapped",
          response_class=Response, responses={200: {"content": {"image/png": {}}}})
 async def preview_environment(engine: EngineDep):
