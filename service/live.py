@@ -93,6 +93,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     controls = Controls(envs, mode, strength, exposure=exposure, turn=env_turn, spin=env_spin)
     controls.environment()  # the first environment, checked before the camera is opened
     reader = CameraReader(camera, size=size, fps=fps)
+    controls.wake = reader.slot.wake  # a change from the page is applied at once, not at the next frame
     res = LiveResult(camera=reader.name)
     out_fps = float(fps or reader.rate or 30.0)
     # a live source: the person's maps made beside the frames, not in one of them

@@ -50,6 +50,7 @@ class Controls:
         self._arrays: dict[str, object] = {}  # source -> loaded map (ENV_CACHE of them)
         self.changed_at = 0.0  # perf_counter of the last change (the page's light latency counts from it)
         self.fixed = len(self.envs)  # the first `fixed` of envs came from the command line (kept loaded)
+        self.wake = lambda: None  # called on a page's change: the loop stops waiting for the next frame
 
     @property
     def env(self) -> str:
@@ -92,6 +93,7 @@ class Controls:
             self.env_i = self.envs.index(source)
             self.changed_at = time.perf_counter()
         self.changed.set()
+        self.wake()
 
     def set_values(self, **values) -> None:
         """Set ``strength``, ``mode``, ``exposure``, ``turn``, ``spin`` or ``split`` (checked by
@@ -105,6 +107,7 @@ class Controls:
                 setattr(self, k, v)
             self.changed_at = time.perf_counter()
         self.changed.set()
+        self.wake()
 
     def wanted(self) -> tuple:
         """What the loop applies: (environment source, mode, strength, exposure, turn, spin)."""
