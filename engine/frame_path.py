@@ -193,12 +193,13 @@ class FramePath:
         self.gain_filter = OneEuroFilter(GAIN_MIN_CUTOFF, 0.0)
 
     # ------------------------------------------------------------------ settings
-    def set_environment(self, env: np.ndarray, keep_exposure: bool = False) -> None:
+    def set_environment(self, env: np.ndarray, moved: bool = False) -> None:
         """Relight under ``env`` from the next frame: a frozen copy is kept (the Relighter then
         recognises it without hashing it every frame, and the caller's array stays theirs).
-        ``keep_exposure``: mode transfer's locked exposure is kept (the same light moved - a key
-        dragged on a page: the face darkens as the key goes to its side, as it would) instead of
-        matched anew."""
+        ``moved``: the same light moved (a key dragged on a page) - mode transfer's locked
+        exposure is kept (the face darkens as the key goes to its side, as it would) instead of
+        matched anew, and the person's maps are remade as when they are due (beside a live
+        source's frames; the last ones serve a frame or two) instead of in the next frame."""
         from relight.kernels.relighter import frozen
 
         env = frozen(env)
@@ -206,9 +207,11 @@ class FramePath:
         self.env = env
         self.relighter.prefetch_rows(env)  # the exact texels' rows, ahead of the head's turns
         if self.live_light is not None:  # (the first environment comes before the stages)
-            if not keep_exposure:
+            if moved:
+                self.person.light_moved()  # its ratio remade when due, soon
+            else:
                 self.live_light.new_environment()  # mode transfer's exposure, locked anew
-            self.person.new_environment()  # the person's ratio was the last environment's
+                self.person.new_environment()  # the person's ratio was the last environment's
 
     @property
     def whole_head(self) -> bool:

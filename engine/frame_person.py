@@ -40,6 +40,12 @@ class PersonStage:
         self.env_texels = None
         self.last = None
 
+    def light_moved(self) -> None:
+        """The same light moved: the maps are remade at the next frame that may (on the worker
+        beside a live source's frames), the last ones serving until then."""
+        self.env_texels = None
+        self.age = 1 << 30  # due
+
     def reset(self) -> None:
         """Forget the maps and the matte's trust (a new, unrelated video follows)."""
         self.last, self.trust_run = None, 0

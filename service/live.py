@@ -204,7 +204,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                         src, mode_now, strength_now, ev, turn, spin = want
                         if src != applied[0]:  # a key light moved keeps its exposure (the same light)
                             moved = src.startswith("builtin:key") and applied[0].startswith("builtin:key")
-                            fp.set_environment(controls.environment(src), keep_exposure=moved)
+                            fp.set_environment(controls.environment(src), moved=moved)
                         fp.set_mode(mode_now)
                         fp.set_strength(strength_now)
                         fp.set_exposure(ev)

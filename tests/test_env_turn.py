@@ -86,16 +86,21 @@ def test_render_env_turn_is_the_head_turned_the_other_way(small_bundle, tmp_path
 
 def test_a_moved_key_keeps_the_locked_exposure_and_a_new_light_matches_anew(small_bundle, clip):
     """relight live's page moving a key light keeps mode transfer's locked exposure (the face
-    darkens as the key goes to its side, as it would); another environment is matched anew."""
+    darkens as the key goes to its side, as it would) and has the person's maps remade when
+    next due; another environment is matched anew."""
     from relight.engine.frame_path import FramePath
 
     _, frames = clip
-    fp = FramePath(small_bundle, load_environment("builtin:key:az=0"), region="face")
+    fp = FramePath(small_bundle, load_environment("builtin:key:az=0"), region="person")
     for i, f in enumerate(frames[:30]):
         fp.process(f, i / 30)
     lock = fp.live_light.exposure_lock
-    assert lock.lock is not None  # locked by now
-    fp.set_environment(load_environment("builtin:key:az=60"), keep_exposure=True)
+    assert lock.lock is not None and fp.person.last is not None  # locked by now, the maps made
+    fp.set_environment(load_environment("builtin:key:az=60"), moved=True)
     assert fp.live_light.exposure_lock is lock and lock.lock is not None
+    assert fp.person.last is not None  # kept to serve until remade
+    out, info = fp.process(frames[30], 1.0)
+    assert info.face and fp.person.age == 0  # remade in the next frame (not a live source: in it)
     fp.set_environment(load_environment("builtin:sunset"))
     assert fp.live_light.exposure_lock is not lock and fp.live_light.exposure_lock.lock is None
+    assert fp.person.last is None
