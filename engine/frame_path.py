@@ -159,6 +159,7 @@ class FramePath:
         self.reuse_deg = float(reuse_deg)
         self.relighter.lights(env)  # a bad environment refused before the rig's seconds of work
         self.env = None
+        self.draft = False  # relit as a draft while a light is moved (set_environment(moved=True))
         self.live_light = self.person = None  # (made below, once the rig is)
         self._relit_key = None  # (env, exposure, rotation) of the relight in relit_frame
         self._track_gain = 1.0  # the last tracking copy's brightening (.tracking_image.track_exposure)
@@ -198,20 +199,32 @@ class FramePath:
         recognises it without hashing it every frame, and the caller's array stays theirs).
         ``moved``: the same light moved (a key dragged on a page) - mode transfer's locked
         exposure is kept (the face darkens as the key goes to its side, as it would) instead of
-        matched anew, and the person's maps are remade as when they are due (beside a live
-        source's frames; the last ones serve a frame or two) instead of in the next frame."""
+        matched anew, the person's maps are remade as when they are due (beside a live source's
+        frames; the last ones serve a frame or two) instead of in the next frame, and the face
+        is relit as a draft (the low-rank part alone: no texel row made while the light moves)
+        until :meth:`settle`."""
         from relight.kernels.relighter import frozen
 
         env = frozen(env)
         self.relighter.lights(env)  # validates and converts once
         self.env = env
-        self.relighter.prefetch_rows(env)  # the exact texels' rows, ahead of the head's turns
+        self.draft = bool(moved)
+        if not moved:
+            self.relighter.prefetch_rows(env)  # the exact texels' rows, ahead of the head's turns
         if self.live_light is not None:  # (the first environment comes before the stages)
             if moved:
                 self.person.light_moved()  # its ratio remade when due, soon
             else:
                 self.live_light.new_environment()  # mode transfer's exposure, locked anew
                 self.person.new_environment()  # the person's ratio was the last environment's
+
+    def settle(self) -> None:
+        """The moved light came to rest: relit in full from the next frame (its exact texels'
+        rows made - ahead of the head's turns, on their own thread)."""
+        if self.draft:
+            self.draft = False
+            self._relit_key = None
+            self.relighter.prefetch_rows(self.env)
 
     @property
     def whole_head(self) -> bool:
@@ -383,7 +396,8 @@ class FramePath:
                            and last[2] is not None and self.reuse_deg > 0
                            and rotation_angle_deg(last[2], turn) < self.reuse_deg)
         if not info.reused:
-            self.relighter.relight(self.env, turn, exposure=self.exposure, out=self.relit_frame, wait=False)
+            self.relighter.relight(self.env, turn, exposure=self.exposure, out=self.relit_frame, wait=False,
+                                   direct=0 if self.draft else None)
             self._relit_key = (self.env, self.exposure, turn)
         img = self.relit_frame
         tm["relight"] = (time.perf_counter() - t2) * 1e3

@@ -21,7 +21,16 @@ class FramePipeline:
         self.done = None
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="relight-back")
         self._pending = None
+        self._applied: list = []  # changes queued on the worker (apply), checked as frames end
         self.wake = None  # called (on the worker) when a frame's second stage ends: see poll()
+
+    def apply(self, change) -> None:
+        """Run ``change()`` (a new environment, mode, strength...: what the second stage reads) on
+        the worker after the frame in flight and before the next one's second stage - without
+        waiting for the frame in flight (a light dragged on relight live's page reaches the next
+        frame a frame sooner). The first stage of the next frame may run meanwhile: it reads
+        none of it (the tracker, the pose)."""
+        self._applied.append(self._pool.submit(change))
 
     def put(self, rgb, t: float, index: int, pts) -> None:
         front = self.fp.front(rgb, t)
@@ -46,6 +55,9 @@ class FramePipeline:
         fut, rgb, index, pts = self._pending
         self._pending = None
         frame_out, info = fut.result()
+        for done in [f for f in self._applied if f.done()]:
+            self._applied.remove(done)
+            done.result()  # a change that failed fails the run here, not silently
         self.fp.commit_reference()
         self.done(self.record(rgb, frame_out, info, index), pts)
 

@@ -49,6 +49,10 @@ from .virtual_camera import VirtualCamera, check_virtual_camera_backend
 
 #: x264 preset of a recording: the fastest (the relight needs the cores; ~2x the bytes of veryfast).
 RECORD_PRESET = "ultrafast"
+#: A light moved on the page (a key dragged) is relit as a draft until it rests this long (s).
+SETTLE_S = 0.25
+#: The run's result keeps at most this many of its switches and light latencies (the last ones).
+MAX_RECORDS = 1000
 
 
 @dataclass
@@ -119,6 +123,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
         now = time.perf_counter()
         if light_mark and index >= light_mark[0][0]:  # the first frame relit with the page's change
             res.light_ms.append(round((now - light_mark.pop()[1]) * 1e3, 1))
+            del res.light_ms[:-MAX_RECORDS]
         relit_slot.put(RelitFrame(frame_out, t_cam, now, stage["relit"], src))
         stage["relit"] += 1
         stage["faces"] += int(info.face)
@@ -189,6 +194,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
             on_ready(res)
         applied = controls.wanted()
         next_index = 0  # the next camera frame's index
+        drafting = False  # a moved light relit as a draft, until it rests (SETTLE_S)
         with FramePipeline(fp, record_frame) as pipe:
             pipe.done = done
             pipe.wake = reader.slot.wake  # a finished frame ends the wait for the next camera frame
@@ -200,22 +206,35 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                     controls.changed.clear()
                     want = controls.wanted()
                     if want != applied:
-                        pipe.drain()
                         src, mode_now, strength_now, ev, turn, spin = want
-                        if src != applied[0]:  # a key light moved keeps its exposure (the same light)
-                            moved = src.startswith("builtin:key") and applied[0].startswith("builtin:key")
-                            fp.set_environment(controls.environment(src), moved=moved)
-                        fp.set_mode(mode_now)
-                        fp.set_strength(strength_now)
-                        fp.set_exposure(ev)
-                        fp.set_env_turn(turn)
-                        if spin != applied[5]:  # (a spin counts from when it is set)
-                            fp.set_env_spin(spin)
+                        new_env = controls.environment(src) if src != applied[0] else None
+                        # a key light moved keeps its exposure (the same light)
+                        moved = src.startswith("builtin:key") and applied[0].startswith("builtin:key")
+                        spun = spin != applied[5]  # (a spin counts from when it is set)
+
+                        def change(new_env=new_env, moved=moved, mode_now=mode_now, strength_now=strength_now,
+                                   ev=ev, turn=turn, spin=spin, spun=spun):
+                            if new_env is not None:
+                                fp.set_environment(new_env, moved=moved)
+                            fp.set_mode(mode_now)
+                            fp.set_strength(strength_now)
+                            fp.set_exposure(ev)
+                            fp.set_env_turn(turn)
+                            if spun:
+                                fp.set_env_spin(spin)
+
+                        pipe.apply(change)  # on the second stage's thread, before the next frame's
+                        drafting = drafting or (new_env is not None and moved)
                         light_mark[:] = [(next_index, controls.changed_at)]
                         res.switches.append({"t": round(time.perf_counter() - t_start, 3), "env": src,
                                              "mode": mode_now, "strength": strength_now, "exposure": ev,
                                              "turn": turn, "spin": spin})
+                        del res.switches[:-MAX_RECORDS]
                         applied = want
+                if drafting and not controls.changed.is_set() and \
+                        time.perf_counter() - controls.changed_at > SETTLE_S:
+                    pipe.apply(fp.settle)  # the light rests: relit in full from the next frame
+                    drafting = False
                 item = reader.slot.take(timeout=0.1)
                 pipe.poll()
                 if item is None:

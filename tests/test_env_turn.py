@@ -104,3 +104,33 @@ def test_a_moved_key_keeps_the_locked_exposure_and_a_new_light_matches_anew(smal
     fp.set_environment(load_environment("builtin:sunset"))
     assert fp.live_light.exposure_lock is not lock and fp.live_light.exposure_lock.lock is None
     assert fp.person.last is None
+
+
+def test_a_moved_light_is_a_draft_until_it_settles(small_bundle, clip):
+    """While a light is moved (a key dragged) the face is relit from the low-rank part alone - no
+    exact texel row is made - within DRAFT_REL of the full relight; settle() relights in full."""
+    from relight.engine.frame_path import FramePath
+
+    from .tolerances import DRAFT_REL
+
+    _, frames = clip
+    fp = FramePath(small_bundle, load_environment("builtin:key:az=-30,size=10"), region="face")
+    for i, f in enumerate(frames[:5]):
+        fp.process(f, i / 30)
+    cache = fp.relighter.row_cache
+    assert cache is not None  # a recipe bundle: rows are made on demand
+    cache.stop_prefetch()
+    made = cache.made
+    fp.set_environment(load_environment("builtin:key:az=40,size=10"), moved=True)
+    assert fp.draft
+    fp.process(frames[5], 5 / 30)
+    fp.relighter.sync()
+    draft = fp.relit_frame.copy()
+    assert cache.made == made  # no row made for the moved light
+    fp.settle()
+    assert not fp.draft
+    fp.process(frames[5], 5 / 30)
+    fp.relighter.sync()
+    full = fp.relit_frame.copy()
+    assert cache.made > made  # its brightest texels' rows, now
+    assert 0 < np.linalg.norm(draft - full) / np.linalg.norm(full) < DRAFT_REL
