@@ -1,8 +1,9 @@
 """The JSON controls a live client sends (the websocket's text messages, the WebRTC data
 channel's): ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8, "mode": "paste",
-"exposure": 0, "spin": 10}``, any subset; ``env`` a preset or a key light (``"key:az=60,el=20"``),
-``rotation`` the environment's (its yaw is the turn: :data:`relight.directions.ENV_TURN_RANGE_DEG`),
-``spin`` its turn per second. One parser for both transports."""
+"exposure": 0, "spin": 10}``, any subset; ``env`` a preset, a key light (``"key:az=60,el=20"``)
+or ``"current"`` (the service's own again: an upload), ``rotation`` the environment's (its yaw is
+the turn: :data:`relight.directions.ENV_TURN_RANGE_DEG`), ``spin`` its turn per second. One
+parser for both transports."""
 
 from __future__ import annotations
 
@@ -66,8 +67,8 @@ def apply_control(settings: dict, doc) -> None:
     if not isinstance(doc, dict):
         raise ServiceError(422, "bad_control", "control messages are JSON objects")
     new = {}
-    if "env" in doc:
-        new["env"] = environment_source(doc["env"])
+    if "env" in doc:  # "current": the service's own (an upload, PUT /v1/environment)
+        new["env"] = None if doc["env"] == "current" else environment_source(doc["env"])
     if "rotation" in doc:
         rot = doc["rotation"]
         if not isinstance(rot, list) or len(rot) != 3:

@@ -5,6 +5,7 @@ from Debian's `chromium` package, which `make install-system` installs (CI calls
 the test skips and says so."""
 
 import json
+import time
 
 import cv2
 import httpx
@@ -45,6 +46,18 @@ def test_browser_page_streams_the_camera_and_shows_relit_frames(chromium, y4m_cl
         visible = "relit-video" if transport == "webrtc" else "relit-img"
         rects = json.loads(dev.js(f"JSON.stringify(['camera', '{visible}'].map(i => "
                                   "document.getElementById(i).getBoundingClientRect()))"))
+        if transport == "websocket":  # a photo uploaded through the page becomes the light
+            photo = np.full((90, 120, 3), 40, np.uint8)
+            photo[:, :60] = 230
+            cv2.imwrite(str(tmp_path / "beach.jpg"), photo)
+            root = dev("DOM.getDocument")["root"]["nodeId"]
+            node = dev("DOM.querySelector", nodeId=root, selector="#upload")["nodeId"]
+            dev("DOM.setFileInputFiles", files=[str(tmp_path / "beach.jpg")], nodeId=node)
+            deadline = time.time() + 30
+            while httpx.get(f"{server}/v1/environment").json()["current"] != "photo.jpg":
+                assert time.time() < deadline, "the page's upload did not reach the service"
+                time.sleep(0.2)
+            httpx.put(f"{server}/v1/environment?builtin=studio")
     assert res["ok"], f"the page showed {res['frames']} relit frames; status: {res['status']}"
     assert res["transport"] == transport  # WebRTC did not fall back to the websocket
     assert res["frames"] >= PAGE_FRAMES and "fps" in res["status"] and "latency" in res["status"]

@@ -245,6 +245,8 @@ def test_stream_limits_clients_and_message_size(server, frame):
 
 
 def test_environment_endpoints_choose_upload_validate_and_preview(server, frame, tmp_path):
+    from websockets.sync.client import connect
+
     from relight import load_environment
     from relight.colour import encode_srgb8
     from relight.imageio import write_image
@@ -300,6 +302,13 @@ def test_environment_endpoints_choose_upload_validate_and_preview(server, frame,
     h, w = prev.shape
     # lit from the image's left, -X: the map's third quarter (its quarter width is +X)
     assert prev[:, 5 * w // 8: 7 * w // 8].mean() > prev[:, w // 8: 3 * w // 8].mean() + 20
+    with connect(server.replace("http://", "ws://") + "/v1/stream", open_timeout=10) as ws:
+        ws.send(json.dumps({"env": "sunset"}))
+        ws.send(json.dumps({"env": "current"}))  # back to the service's own: the photo
+        ws.send(_png(frame))
+        while not isinstance(msg := ws.recv(timeout=30), bytes):
+            assert "error" not in json.loads(msg), msg
+    assert "/v1/environment?photo=" in httpx.get(f"{server}/").text  # the page uploads photos
     r = httpx.put(f"{server}/v1/environment?photo=true", content=square[: len(square) // 3],
                   headers={"content-type": "image/jpeg"}, timeout=30)
     assert r.status_code == 400 and r.json()["kind"] == "bad_environment"
