@@ -113,6 +113,22 @@ def direction(az_deg: float, el_deg: float) -> np.ndarray:
     return np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)], dtype=ACCUM)
 
 
+def add_disc_light(env: np.ndarray, dirs: np.ndarray, domega: np.ndarray, az: float, el: float, size: float,
+                   colour, power: float, *, softness: float = EDGE_SOFTNESS, hole: float = 0.0) -> None:
+    """Add to ``env`` (on the grid ``dirs``, ``domega``: :func:`relight.env_draw.grid`) a disc light
+    of angular diameter ``size`` degrees toward (``az``, ``el``), its edge soft over ``softness``
+    x its radius, a dark centre ``hole`` degrees across (a ring light; 0: none), of ``colour``
+    (linear RGB) and ``power`` flashes (:func:`relight.env_draw.add_light`). The key light, its
+    fill and the presets' lights are all drawn by this."""
+    r = size / 2.0
+    centre = direction(az, el)
+    cover = disc(dirs, domega, centre, r, softness * r)
+    if hole > 0:
+        rh = hole / 2.0
+        cover = np.clip(cover - disc(dirs, domega, centre, rh, softness * rh), 0.0, 1.0)
+    add_light(env, cover, domega, colour, power)
+
+
 @dataclass(frozen=True)
 class KeyLight:
     """A key light's fields (see the module docstring); made by :meth:`parse` or directly, and
@@ -165,11 +181,9 @@ class KeyLight:
         """The light as a (width / 2, width, 3) float32 lat-long map of linear radiance."""
         dirs, dw, env = grid(width)
         colour = kelvin_rgb(self.kelvin)
-        r = self.size / 2.0
-        add_light(env, disc(dirs, dw, direction(self.az, self.el), r, EDGE_SOFTNESS * r), dw, colour, self.power)
-        if self.fill > 0:
-            rf = max(self.size, FILL_MIN_SIZE / 2.0)  # twice the key's radius, at least FILL_MIN_SIZE wide
-            add_light(env, disc(dirs, dw, direction(-self.az, self.el / 2.0), rf, 2 * EDGE_SOFTNESS * rf), dw,
-                      colour, self.fill * self.power)
+        add_disc_light(env, dirs, dw, self.az, self.el, self.size, colour, self.power)
+        if self.fill > 0:  # twice the key's width, at least FILL_MIN_SIZE, softer
+            add_disc_light(env, dirs, dw, -self.az, self.el / 2.0, max(2.0 * self.size, FILL_MIN_SIZE), colour,
+                           self.fill * self.power, softness=2 * EDGE_SOFTNESS)
         env += (AMBIENT * self.power) * colour
         return env.astype(FLOAT)

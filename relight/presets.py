@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .env_draw import add_light, disc, grid
-from .key_light import EDGE_SOFTNESS, direction, kelvin_rgb
+from .env_draw import grid
+from .key_light import add_disc_light, kelvin_rgb
 from .numerics import FLOAT
 
 
@@ -64,43 +64,32 @@ def render_preset(lights: tuple[Disc, ...], sky: Sky, width: int) -> np.ndarray:
     if sky.ambient:
         env += sky.ambient * kelvin_rgb(sky.ambient_k)
     for lt in lights:
-        r = lt.size / 2.0
-        centre = direction(lt.az, lt.el)
-        cover = disc(dirs, dw, centre, r, EDGE_SOFTNESS * r)
-        if lt.hole > 0:
-            rh = lt.hole / 2.0
-            cover = np.clip(cover - disc(dirs, dw, centre, rh, EDGE_SOFTNESS * rh), 0.0, 1.0)
-        add_light(env, cover, dw, kelvin_rgb(lt.kelvin), lt.power)
+        add_disc_light(env, dirs, dw, lt.az, lt.el, lt.size, kelvin_rgb(lt.kelvin), lt.power, hole=lt.hole)
     return env.astype(FLOAT)
 
 
-# The presets: what each is meant to look like, and its parts.
-PRESET_PARTS: dict[str, tuple[str, tuple[Disc, ...], Sky]] = {
-    "overcast": ("a bright, even, cool sky from above; soft shadows under the brows and chin",
-                 (Disc(az=0, el=70, size=120, kelvin=6800, power=0.35),),
+# The presets: their lights and sky, each with what it is meant to look like.
+PRESET_PARTS: dict[str, tuple[tuple[Disc, ...], Sky]] = {
+    # a bright, even, cool sky from above; soft shadows under the brows and chin
+    "overcast": ((Disc(az=0, el=70, size=120, kelvin=6800, power=0.35),),
                  Sky(zenith=0.55, horizon=0.25, zenith_k=7000, horizon_k=6500, ground=0.08)),
-    "golden-hour": ("a low warm sun to the image's right, a deep blue sky behind, long soft shadows",
-                    (Disc(az=65, el=8, size=4, kelvin=2900, power=1.1),),
+    # a low warm sun to the image's right, a deep blue sky behind, long soft shadows
+    "golden-hour": ((Disc(az=65, el=8, size=4, kelvin=2900, power=1.1),),
                     Sky(zenith=0.10, horizon=0.16, zenith_k=12000, horizon_k=4200, ground=0.04)),
-    "office": ("ceiling panels overhead, a window to the image's left, white walls",
-               (Disc(az=0, el=65, size=45, kelvin=4000, power=0.6),
+    # ceiling panels overhead, a window to the image's left, white walls
+    "office": ((Disc(az=0, el=65, size=45, kelvin=4000, power=0.6),
                 Disc(az=-70, el=10, size=50, kelvin=6500, power=0.35)),
                Sky(ambient=0.12, ambient_k=4500)),
-    "stage": ("a hard warm spot from above the camera, a cool rim from behind, a dark house",
-              (Disc(az=0, el=40, size=6, kelvin=3200, power=1.4),
+    # a hard warm spot from above the camera, a cool rim from behind, a dark house
+    "stage": ((Disc(az=0, el=40, size=6, kelvin=3200, power=1.4),
                Disc(az=160, el=35, size=10, kelvin=9000, power=0.7)),
               Sky(ambient=0.01, ambient_k=3200)),
-    "ring-light": ("a ring around the lens: flat, shadowless, a ring in each eye",
-                   (Disc(az=0, el=0, size=30, kelvin=5600, power=1.0, hole=18),),
+    # a ring around the lens: flat, shadowless, a ring in each eye
+    "ring-light": ((Disc(az=0, el=0, size=30, kelvin=5600, power=1.0, hole=18),),
                    Sky(ambient=0.04, ambient_k=5600)),
 }
 
 #: The presets' makers, by name (``builtin:NAME``), each ``f(width) -> map``.
 PRESETS: dict[str, Callable[[int], np.ndarray]] = {
-    name: (lambda width, parts=parts: render_preset(parts[1], parts[2], width)) for name, parts in PRESET_PARTS.items()
+    name: (lambda width, parts=parts: render_preset(*parts, width)) for name, parts in PRESET_PARTS.items()
 }
-
-
-def describe(name: str) -> str:
-    """What a preset is meant to look like (for the contact sheet and ``--help``)."""
-    return PRESET_PARTS[name][0]
