@@ -34,7 +34,7 @@ import os
 import cv2
 import numpy as np
 
-from .colour import LUMINANCE
+from .colour import LUMINANCE, linear_to_srgb
 from .directions import equirect_directions, equirect_solid_angles
 from .errors import InputError
 from .numerics import ACCUM, EPS, FLOAT
@@ -67,15 +67,10 @@ MAX_PHOTO_SIDE = 8192
 MAX_PHOTO_PIXELS = 8192 * 6144
 
 
-def _srgb(linear: np.ndarray) -> np.ndarray:
-    c = np.clip(linear, 0.0, 1.0)
-    return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1.0 / 2.4) - 0.055)
-
-
 def expand_highlights(photo: np.ndarray, px_per_deg: float) -> np.ndarray:
     """(h, w, 3) linear photo -> the same with its clipped pixels expanded (see the module
     docstring; ``px_per_deg``: the photo's pixels per degree, for the density's spread)."""
-    top = _srgb(photo.max(axis=2))
+    top = linear_to_srgb(photo.max(axis=2))
     clipped = np.clip((top - HDR_KNEE) / (1.0 - HDR_KNEE), 0.0, 1.0).astype(np.float32)
     if not clipped.any():
         return photo
