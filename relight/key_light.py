@@ -106,6 +106,15 @@ def kelvin_rgb(kelvin: float) -> np.ndarray:
     return rgb / float(LUMINANCE.astype(ACCUM) @ rgb)
 
 
+def key_source(name: str) -> str | None:
+    """A key light as a page or a request names it - ``key`` or ``key:az=60,el=20,...`` - as the
+    ``builtin:`` source in its canonical spelling (every field: one cache entry per light); None
+    for any other name; InputError naming a bad field."""
+    if name != "key" and not name.startswith("key:"):
+        return None
+    return "builtin:" + KeyLight.parse(name[len("key:"):]).spec()
+
+
 def direction(az_deg: float, el_deg: float) -> np.ndarray:
     """(3,) unit vector toward azimuth ``az_deg`` (from +Z toward +X) and elevation ``el_deg``
     (toward +Y), in camera space (+X right in the image, +Y up, +Z toward the camera)."""

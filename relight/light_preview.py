@@ -20,6 +20,8 @@ from .directions import equirect_directions, equirect_solid_angles
 #: The balls' albedos (linear Rec.709): a mid grey and a light skin tone.
 GREY_ALBEDO = (0.45, 0.45, 0.45)
 SKIN_ALBEDO = (0.62, 0.40, 0.30)
+#: A light loaded only to be shown on the balls is drawn at this width (they read it at 32 x 16).
+LOAD_WIDTH = 256
 #: The background behind the balls (sRGB codes).
 BACKGROUND = 28
 #: The environment is summed over this many texels (columns x rows): 11-degree texels, finer than

@@ -31,14 +31,16 @@ def environment_source(name, what: str = "env", kind: str = "bad_control") -> st
     (422, ``kind``) naming the field ``what`` and what to send otherwise."""
     if isinstance(name, str) and name in PRESETS:
         return f"builtin:{name}"
-    if isinstance(name, str) and (name == "key" or name.startswith("key:")) and len(name) <= MAX_ENV_NAME:
+    if isinstance(name, str) and len(name) <= MAX_ENV_NAME:
         from relight.errors import InputError
-        from relight.key_light import KeyLight
+        from relight.key_light import key_source
 
         try:
-            return "builtin:" + KeyLight.parse(name[len("key:"):]).spec()
+            source = key_source(name)
         except InputError as exc:
             raise ServiceError(422, kind, f"{what}: {exc}") from None
+        if source is not None:
+            return source
     raise ServiceError(422, kind,
                        f"{what} {name!r}: use one of {', '.join(PRESETS)} or a key light key:az=30,el=25,size=30,"
                        "kelvin=5000,fill=0.3,power=1 (every field optional)")

@@ -181,17 +181,18 @@ class PreviewServer:
     def _source(self, name) -> str:
         """A page's environment name as a source the run may load: a listed one, a preset, a key."""
         from relight.errors import InputError
-        from relight.key_light import KeyLight
+        from relight.key_light import key_source
 
         if not isinstance(name, str) or len(name) > 4096:
             raise ValueError("env: name a listed environment, a preset or a key light key:az=..,el=..")
         if name in self.choices():
             return name
-        if name.startswith("key") and (name == "key" or name.startswith("key:")):
-            try:
-                return "builtin:" + KeyLight.parse(name[len("key:"):]).spec()
-            except InputError as exc:
-                raise ValueError(str(exc)) from None
+        try:
+            source = key_source(name)
+        except InputError as exc:
+            raise ValueError(str(exc)) from None
+        if source is not None:
+            return source
         raise ValueError(f"env {name!r}: choose a listed environment, a preset or a key light key:az=..,el=..")
 
     def upload(self, body: bytes, ctype: str, photo: bool, name: str = "") -> dict:

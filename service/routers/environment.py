@@ -69,11 +69,11 @@ async def light_balls(engine: EngineDep,
     """What the page shows of a light, and where dragging places the key light (the bright spot's
     direction: relight.light_preview.ball_direction)."""
     import relight
-    from relight.light_preview import balls_png
+    from relight.light_preview import LOAD_WIDTH, balls_png
 
     if env is not None:
         source = environment_source(env, "env=", "bad_query")
-        arr = await asyncio.to_thread(relight.load_environment, source, width=256)
+        arr = await asyncio.to_thread(relight.load_environment, source, width=LOAD_WIDTH)
     else:
         arr = await engine.current_environment()  # turned by the current rotation
     return Response(await asyncio.to_thread(balls_png, arr), media_type="image/png")
