@@ -12,6 +12,7 @@ from relight.colour import LUMINANCE
 from relight.errors import InputError
 from relight.key_light import DEFAULTS, RANGES, KeyLight, direction, kelvin_rgb
 
+from .lights import white_reading
 from .tolerances import KELVIN_XY_TOL, KEY_POWER_REL
 
 
@@ -61,21 +62,13 @@ def test_directions_follow_the_camera_convention():
 def test_a_key_is_as_strong_as_its_power_in_flashes(power):
     """A white Lambertian surface facing the key reads ``power`` (as a capture flash reads 1) plus
     the ambient; the fill adds ``fill`` x the key's power where it faces the fill."""
-    from relight.directions import equirect_directions, equirect_solid_angles
-
-    def reading(env, normal):
-        h, w = env.shape[:2]
-        cos = np.clip(equirect_directions(w, h) @ normal, 0, None)
-        e = np.einsum("hw,hwc->c", cos * equirect_solid_angles(w, h)[:, None], env.astype(np.float64))
-        return float(LUMINANCE @ e) / np.pi
-
     key = KeyLight(az=30, el=25, size=6, kelvin=6500, fill=0.0, power=power)
     env = key.environment(512)
     ambient = 0.05 * power  # AMBIENT: the half of the sphere facing the surface, radiance 0.05 power
-    got = reading(env, direction(30, 25))
+    got = white_reading(env, direction(30, 25))
     assert got == pytest.approx(power + ambient, rel=KEY_POWER_REL)
     with_fill = KeyLight(az=30, el=25, size=6, kelvin=6500, fill=0.5, power=power).environment(512)
-    extra = reading(with_fill, direction(-30, 12.5)) - reading(env, direction(-30, 12.5))
+    extra = white_reading(with_fill, direction(-30, 12.5)) - white_reading(env, direction(-30, 12.5))
     assert extra == pytest.approx(0.5 * power, rel=0.05)  # the fill is wide: its cosine falls off inside it
 
 

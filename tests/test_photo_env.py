@@ -11,6 +11,8 @@ from relight.colour import LUMINANCE, linear_to_srgb
 from relight.errors import InputError
 from relight.photo_env import MID_READING, photo_environment
 
+from .lights import white_reading
+
 
 def _save(path, linear: np.ndarray, orientation: int | None = None, quality: int = 95):
     """A photo (linear RGB) written as an sRGB JPEG or PNG by Pillow (another writer than ours),
@@ -33,31 +35,21 @@ def _left_bright(h=300, w=400) -> np.ndarray:
     return photo
 
 
-def _reading(env: np.ndarray, normal) -> float:
-    """What a white Lambertian surface facing ``normal`` reads under ``env`` (luminance, flashes)."""
-    from relight.directions import equirect_directions, equirect_solid_angles
-
-    h, w = env.shape[:2]
-    n = np.asarray(normal, float) / np.linalg.norm(normal)
-    cos = np.clip(equirect_directions(w, h) @ n, 0, None) * equirect_solid_angles(w, h)[:, None]
-    return float(np.einsum("hw,hwc->c", cos, env.astype(np.float64)) @ LUMINANCE) / np.pi
-
-
 def test_the_bright_side_of_a_photo_lights_from_that_side():
     env = photo_environment(_left_bright())
     assert env.shape == (256, 512, 3) and env.dtype == np.float32 and np.isfinite(env).all() and env.min() >= 0
-    left, right = _reading(env, [-1, 0, 0.5]), _reading(env, [1, 0, 0.5])
+    left, right = white_reading(env, [-1, 0, 0.5]), white_reading(env, [1, 0, 0.5])
     assert left > 3 * right, (left, right)
     up = np.full((300, 400, 3), 0.04, np.float32)
     up[:150] = 0.5  # a bright sky: light from above
     env = photo_environment(up)
-    assert _reading(env, [0, 1, 0.5]) > 3 * _reading(env, [0, -1, 0.5])
+    assert white_reading(env, [0, 1, 0.5]) > 3 * white_reading(env, [0, -1, 0.5])
 
 
 def test_exposure_follows_the_photos_brightness_within_its_range():
     """A mid-grey photo makes a white surface facing the camera read MID_READING flashes; a
     brighter photo reads more, a darker one less (by the square root), a black one still lights."""
-    grey = {v: _reading(photo_environment(np.full((40, 60, 3), v, np.float32)), [0, 0, 1])
+    grey = {v: white_reading(photo_environment(np.full((40, 60, 3), v, np.float32)), [0, 0, 1])
             for v in (0.0, 0.02, 0.18, 0.5)}
     assert grey[0.18] == pytest.approx(MID_READING, rel=1e-3)
     assert grey[0.02] < grey[0.18] < grey[0.5]

@@ -11,15 +11,7 @@ from relight.colour import LUMINANCE
 from relight.envmap import builtin_names
 from relight.presets import PRESETS
 
-
-def _reading(env: np.ndarray, normal) -> float:
-    """A white Lambertian surface facing ``normal``: what it reads (luminance, flashes)."""
-    from relight.directions import equirect_directions, equirect_solid_angles
-
-    h, w = env.shape[:2]
-    n = np.asarray(normal, float) / np.linalg.norm(normal)
-    cos = np.clip(equirect_directions(w, h) @ n, 0, None) * equirect_solid_angles(w, h)[:, None]
-    return float(np.einsum("hw,hwc->c", cos, env.astype(np.float64)) @ LUMINANCE) / np.pi
+from .lights import white_reading
 
 
 @pytest.mark.parametrize("name", list(PRESETS))
@@ -27,23 +19,24 @@ def test_presets_are_valid_maps_and_named_builtins(name):
     env = load_environment(f"builtin:{name}")
     assert env.shape == (256, 512, 3) and env.dtype == np.float32 and np.isfinite(env).all() and env.min() >= 0
     assert name in builtin_names()
-    front = _reading(env, [0, 0, 1])
+    front = white_reading(env, [0, 0, 1])
     assert 0.2 < front < 3.0, front  # a face toward the camera is lit, in flash units
 
 
 def test_presets_light_from_where_they_say():
     right, left, up, down, front, back = [1, 0, 0.3], [-1, 0, 0.3], [0, 1, 0.3], [0, -1, 0.3], [0, 0, 1], [0, 0, -1]
     gold = load_environment("builtin:golden-hour")
-    assert _reading(gold, right) > 3 * _reading(gold, left)  # the sun to the image's right
+    assert white_reading(gold, right) > 3 * white_reading(gold, left)  # the sun to the image's right
     sky = load_environment("builtin:overcast")
-    assert _reading(sky, up) > 3 * _reading(sky, down)
+    assert white_reading(sky, up) > 3 * white_reading(sky, down)
     office = load_environment("builtin:office")
-    assert _reading(office, up) > _reading(office, down) and _reading(office, left) > _reading(office, right)
+    assert white_reading(office, up) > white_reading(office, down)
+    assert white_reading(office, left) > white_reading(office, right)
     stage = load_environment("builtin:stage")
-    assert _reading(stage, up) > 10 * _reading(stage, down) and _reading(stage, back) > 0.3
+    assert white_reading(stage, up) > 10 * white_reading(stage, down) and white_reading(stage, back) > 0.3
     ring = load_environment("builtin:ring-light")
-    assert _reading(ring, front) > 5 * _reading(ring, back)
-    assert _reading(ring, right) == pytest.approx(_reading(ring, left), rel=0.02)  # around the lens
+    assert white_reading(ring, front) > 5 * white_reading(ring, back)
+    assert white_reading(ring, right) == pytest.approx(white_reading(ring, left), rel=0.02)  # around the lens
     # the ring's centre is dark: the light comes from a ring, not a disc
     from relight.directions import equirect_directions
 
