@@ -118,6 +118,13 @@ class DevTools:
     def js(self, expression):
         return self("Runtime.evaluate", expression=expression, returnByValue=True)["result"].get("value")
 
+    def set_files(self, selector: str, *paths) -> None:
+        """Choose ``paths`` in the page's file input ``selector``, as a user picking files does
+        (its change event fires)."""
+        root = self("DOM.getDocument")["root"]["nodeId"]
+        node = self("DOM.querySelector", nodeId=root, selector=selector)["nodeId"]
+        self("DOM.setFileInputFiles", files=[str(p) for p in paths], nodeId=node)
+
 
 @contextmanager
 def chromium_page(chromium: str, y4m: Path, *, timeout: float = 60.0):

@@ -50,9 +50,7 @@ def test_browser_page_streams_the_camera_and_shows_relit_frames(chromium, y4m_cl
             photo = np.full((90, 120, 3), 40, np.uint8)
             photo[:, :60] = 230
             cv2.imwrite(str(tmp_path / "beach.jpg"), photo)
-            root = dev("DOM.getDocument")["root"]["nodeId"]
-            node = dev("DOM.querySelector", nodeId=root, selector="#upload")["nodeId"]
-            dev("DOM.setFileInputFiles", files=[str(tmp_path / "beach.jpg")], nodeId=node)
+            dev.set_files("#upload", tmp_path / "beach.jpg")
             deadline = time.time() + 30
             while httpx.get(f"{server}/v1/environment").json()["current"] != "photo.jpg":
                 assert time.time() < deadline, "the page's upload did not reach the service"

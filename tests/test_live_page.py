@@ -129,9 +129,7 @@ def test_the_live_page_steers_the_light(chromium, small_bundle, live_clip, tmp_p
             photo = np.full((120, 160, 3), 40, np.uint8)
             photo[:, :80] = 235
             cv2.imwrite(str(tmp_path / "beach.jpg"), photo)
-            root = dev("DOM.getDocument")["root"]["nodeId"]
-            node = dev("DOM.querySelector", nodeId=root, selector="#file")["nodeId"]
-            dev("DOM.setFileInputFiles", files=[str(tmp_path / "beach.jpg")], nodeId=node)
+            dev.set_files("#file", tmp_path / "beach.jpg")
             _state_until(url, lambda st: st["env"].startswith("photo:"))
             time.sleep(1.5)
             frames["photo"] = _snapshot(url)
