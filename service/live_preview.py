@@ -31,6 +31,9 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
+from relight.directions import ENV_TURN_RANGE_DEG
+
+from .controls import RANGES
 from .live_camera import LatestFrame
 
 #: The MJPEG preview's JPEG quality.
@@ -124,33 +127,27 @@ class PreviewServer:
         return listed + [s for s in more if s not in listed]
 
     def state(self) -> dict:
-        from relight.directions import ENV_SPIN_RANGE_DEG_S, ENV_TURN_RANGE_DEG
-
         from ..engine.composite import MODES
-        from ..engine.frame_path import EXPOSURE_RANGE_EV
 
         c = self.controls
         env, mode, strength, ev, turn, spin = c.wanted()
         saved = sorted(p.stem for p in self.lights_dir.glob("*.json")) if self.lights_dir.is_dir() else []
         return {"envs": self.choices(), "env": env, "key": _key_fields(env), "mode": mode, "modes": list(MODES),
                 "strength": strength, "exposure": ev, "turn": turn, "spin": spin, "split": c.split,
-                "ranges": {"exposure": EXPOSURE_RANGE_EV, "turn": ENV_TURN_RANGE_DEG, "spin": ENV_SPIN_RANGE_DEG_S},
+                "ranges": {k: _RANGES[k] for k in ("exposure", "turn", "spin")},
                 "figures": self.status.figures if self.status is not None else {},
                 "light_ms": self.result.light_ms[-1] if self.result is not None and self.result.light_ms else None,
                 "saved": saved, "lights_dir": str(self.lights_dir), "webcam": WEBCAM_HINT}
 
     def control(self, doc) -> dict:
         """Apply a control object (see the module docstring); ValueError saying what to change."""
-        from relight.directions import ENV_SPIN_RANGE_DEG_S, ENV_TURN_RANGE_DEG
         from relight.errors import InputError
 
         from ..engine.composite import MODES
-        from ..engine.frame_path import EXPOSURE_RANGE_EV
 
         if not isinstance(doc, dict):
             raise ValueError("controls are a JSON object")
-        ranges = {"strength": (0.0, 1.0), "exposure": EXPOSURE_RANGE_EV, "turn": ENV_TURN_RANGE_DEG,
-                  "spin": ENV_SPIN_RANGE_DEG_S, "split": (0.0, 1.0)}
+        ranges = _RANGES
         values = {}
         for key, (lo, hi) in ranges.items():
             if key in doc:
@@ -266,6 +263,11 @@ class PreviewServer:
         self.closed.set()
         self.httpd.shutdown()
         self.httpd.server_close()
+
+
+#: The page's numeric controls and their ranges: the stream's (service.controls.RANGES: strength,
+#: exposure, spin), the environment's turn, and the before/after split (0-1 of the width).
+_RANGES = {**RANGES, "turn": ENV_TURN_RANGE_DEG, "split": (0.0, 1.0)}
 
 
 def _key_fields(source: str) -> dict | None:
