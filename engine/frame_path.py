@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from relight.directions import ENV_SPIN_RANGE_DEG_S, ENV_TURN_RANGE_DEG, rotation_matrix
+from relight.directions import ENV_SPIN_RANGE_DEG_S, ENV_TURN_RANGE_DEG, rotation_matrix, with_env_turn
 from relight.errors import InputError
 from relight.kernels.relighter import DEFAULT_TOLERANCE
 from relight.numerics import EPS_VALUE
@@ -387,10 +387,7 @@ class FramePath:
         # The relighter's rotation: the head's (a head turned by R sees the light from d at R^T d),
         # with the environment's own turn E composed (its lights at E d: seen at R^T E d).
         env_rot = self.env_rotation(t)
-        if env_rot is None:
-            turn = None if self.fixed_env else rotation
-        else:
-            turn = env_rot.T if self.fixed_env else env_rot.T @ rotation
+        turn = with_env_turn(None if self.fixed_env else rotation, env_rot)
         last = self._relit_key
         info.reused = bool(last is not None and last[0] is self.env and last[1] == self.exposure and turn is not None
                            and last[2] is not None and self.reuse_deg > 0

@@ -70,6 +70,15 @@ def equirect_solid_angles(width: int, height: int) -> np.ndarray:
 ENV_TURN_RANGE_DEG = (-360.0, 360.0)
 ENV_SPIN_RANGE_DEG_S = (-180.0, 180.0)
 
+def with_env_turn(rotation: np.ndarray | None, env_rotation: np.ndarray | None) -> np.ndarray | None:
+    """The rotation to relight with (a head turned by R sees the light from d at R^T d; None: not
+    turned) when the environment itself is turned by ``env_rotation`` E (its lights at E d, seen
+    at R^T E d): E^T R, E^T alone for no head rotation, ``rotation`` as it is for no turn."""
+    if env_rotation is None:
+        return rotation
+    return env_rotation.T if rotation is None else env_rotation.T @ rotation
+
+
 def rotation_matrix(yaw: float = 0.0, pitch: float = 0.0, roll: float = 0.0) -> np.ndarray:
     """``Ry(yaw) @ Rx(pitch) @ Rz(roll)`` from angles in degrees, (3, 3) float64."""
     a, b, c = np.radians([yaw, pitch, roll])

@@ -63,7 +63,7 @@ def _run_render(args) -> int:
 
     from .. import load_bundle, load_environment
     from ..colour import decode_srgb8
-    from ..directions import ENV_TURN_RANGE_DEG, rotation_matrix
+    from ..directions import ENV_TURN_RANGE_DEG, rotation_matrix, with_env_turn
     from ..errors import InputError
     from ..imageio import write_image
     from ..kernels.relighter import Relighter
@@ -88,9 +88,7 @@ def _run_render(args) -> int:
     else:
         env = load_environment(args.env)
         rot = rotation_matrix(*args.rotate) if args.rotate else None
-        if args.env_turn:  # the environment's lights at E d: a head turned by R sees them at R^T E d
-            turn = rotation_matrix(args.env_turn, 0.0, 0.0).T
-            rot = turn if rot is None else turn @ rot
+        rot = with_env_turn(rot, rotation_matrix(args.env_turn, 0.0, 0.0) if args.env_turn else None)
         img = np.array(r.relight(env, rot, exposure=scale))
         what = args.env
     if args.ambient:
