@@ -186,9 +186,7 @@ def load_environment(source: str | os.PathLike, *, width: int | None = None) -> 
     s = str(source)
     if s.startswith("builtin:"):
         name = s[len("builtin:"):]
-        w = BUILTIN_WIDTH if width is None else int(width)
-        if w < 8 or w % 2 or w > MAX_ENV_WIDTH:
-            raise InputError(f"built-in width {w}: use an even number between 8 and {MAX_ENV_WIDTH}")
+        w = _drawn_width(width)
         if name.startswith("point:"):
             return freeze(builtin_point(parse_point(name), w))
         from .presets import PRESETS
@@ -205,15 +203,22 @@ def load_environment(source: str | os.PathLike, *, width: int | None = None) -> 
     if s.startswith(PHOTO_PREFIX):
         from .photo_env import load_photo_environment
 
-        w = BUILTIN_WIDTH if width is None else int(width)
         path = s[len(PHOTO_PREFIX):]
         if not path:
             raise InputError("photo: name a picture after it, e.g. photo:beach.jpg")
-        return freeze(validate_environment(load_photo_environment(path, width=w), name=s))
+        return freeze(validate_environment(load_photo_environment(path, width=_drawn_width(width)), name=s))
     if s.lower().endswith(".json"):  # a light saved by name (relight live's page)
         return freeze(validate_environment(load_saved_light(s, width=width), name=s))
     env = read_image(s, max_dim=MAX_ENV_WIDTH, max_pixels=MAX_ENV_WIDTH * MAX_ENV_WIDTH // 2)
     return freeze(validate_environment(env, name=s))
+
+
+def _drawn_width(width: int | None) -> int:
+    """The width a built-in or a photo's map is drawn at (None: BUILTIN_WIDTH), checked."""
+    w = BUILTIN_WIDTH if width is None else int(width)
+    if w < 8 or w % 2 or w > MAX_ENV_WIDTH:
+        raise InputError(f"built-in width {w}: use an even number between 8 and {MAX_ENV_WIDTH}")
+    return w
 
 
 def load_saved_light(path: str | os.PathLike, *, width: int | None = None) -> np.ndarray:
