@@ -168,8 +168,9 @@ def environment_texels(env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     directions, (2048, 3) float64 power - radiance x solid angle), for its irradiance's low
     frequencies (:func:`person_inputs`)."""
     from relight.directions import equirect_directions, equirect_solid_angles
+    from relight.light_preview import shrunk
 
-    texels = cv2.resize(np.asarray(env, dtype=np.float32), (64, 32), interpolation=cv2.INTER_AREA)
+    texels = shrunk(env, 64)
     omega = np.repeat(equirect_solid_angles(64, 32), 64)[:, None]
     return (equirect_directions(64, 32).reshape(-1, 3).astype(np.float64),
             (texels.reshape(-1, 3) * omega).astype(np.float64))

@@ -66,8 +66,7 @@ def _cosines(size: int) -> np.ndarray:
 def irradiance(env: np.ndarray, size: int) -> np.ndarray:
     """(size, size, 3) irradiance / pi (what a white Lambertian surface reads) over a ball of
     ``size`` x ``size`` pixels (:func:`ball_normals`) under ``env`` ((H, 2H, 3) linear radiance)."""
-    cols, rows = TEXELS
-    small = cv2.resize(np.asarray(env, np.float32), (cols, rows), interpolation=cv2.INTER_AREA).reshape(-1, 3)
+    small = shrunk(env, TEXELS[0]).reshape(-1, 3)  # (TEXELS is 2:1)
     return (_cosines(size) @ small).reshape(size, size, 3)
 
 
