@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -155,33 +156,65 @@ def face_regions(scene, bundle_mask: np.ndarray) -> list[np.ndarray]:
     return out
 
 
-def evaluate(bundle: Path, live: Path, env_stem: str, frames_dir: Path, *, bundle_mask: np.ndarray | None = None
-             ) -> dict:
-    """The figures of the module docstring for one filtered clip (``frames_dir``: its PNGs)."""
-    from relight.bench.realface import clip_psnr, clip_psnr_gain
+class TruthClip(NamedTuple):
+    """What a clip's figures are measured against, loaded once (:func:`load_truth`): its input
+    frames, truth frames (sRGB and linear) and the person's silhouette in each, the bundle's face
+    region in each (or None), and the figures of the input itself."""
+
+    inputs: list
+    truths: list
+    truth_lin: np.ndarray
+    sils: list
+    faces: list | None
+    base: dict
+
+
+def load_truth(live: Path, env_stem: str, *, bundle_mask: np.ndarray | None = None) -> TruthClip:
+    """The :class:`TruthClip` of ``live`` under the truth light ``env_stem``."""
+    from relight.bench.realface import clip_psnr
     from relight.colour import decode_srgb8
     from relight.video import read_frames
-
-    from .clips import flicker_step
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
     pattern = meta["files"]["live_truth"][env_stem]
     inputs = list(read_frames(live / "live.mp4"))
     n = len(inputs)
-    outputs = [_rgb(frames_dir / f"{i:06d}.png") for i in range(n)]
     truths = [_rgb(live / (pattern % i)) for i in range(n)]
     sils = [cv2.imread(str(live / (meta["files"]["silhouette"] % i)), cv2.IMREAD_GRAYSCALE) > 0 for i in range(n)]
     truth_lin = np.stack([decode_srgb8(t) for t in truths])
-    doc: dict = {"frames": n}
-    doc["silhouette_psnr"], gain = clip_psnr_gain(outputs, truth_lin, sils)
-    doc["input_psnr"] = clip_psnr(inputs, truth_lin, sils)
+    base: dict = {"frames": n, "input_psnr": clip_psnr(inputs, truth_lin, sils)}
     scene = live_scene(live)
     clean = np.stack([decode_srgb8(scene.camera_frame(i, noisy=False)) for i in range(n)])
-    doc["noise_floor_psnr"] = clip_psnr(inputs, clean, sils)
+    base["noise_floor_psnr"] = clip_psnr(inputs, clean, sils)
+    faces = None
     if bundle_mask is not None:
         faces = face_regions(scene, bundle_mask)
-        doc["face_psnr"] = clip_psnr(outputs, truth_lin, faces)
-        doc["face_input_psnr"] = clip_psnr(inputs, truth_lin, faces)
+        base["face_input_psnr"] = clip_psnr(inputs, truth_lin, faces)
+    return TruthClip(inputs, truths, truth_lin, sils, faces, base)
+
+
+def evaluate(bundle: Path, live: Path, env_stem: str, frames_dir: Path, *, bundle_mask: np.ndarray | None = None
+             ) -> dict:
+    """The figures of the module docstring for one filtered clip (``frames_dir``: its PNGs)."""
+    truth = load_truth(live, env_stem, bundle_mask=bundle_mask)
+    outputs = [_rgb(frames_dir / f"{i:06d}.png") for i in range(len(truth.inputs))]
+    return figures(truth, outputs)
+
+
+def figures(truth: TruthClip, outputs: list) -> dict:
+    """The figures of the module docstring of ``outputs`` ((H, W, 3) uint8 sRGB, one per frame)
+    against ``truth``."""
+    from relight.bench.realface import clip_psnr, clip_psnr_gain
+    from relight.colour import decode_srgb8
+
+    from .clips import flicker_step
+
+    inputs, truths, truth_lin, sils = truth.inputs, truth.truths, truth.truth_lin, truth.sils
+    n = len(inputs)
+    doc: dict = dict(truth.base)
+    doc["silhouette_psnr"], gain = clip_psnr_gain(outputs, truth_lin, sils)
+    if truth.faces is not None:
+        doc["face_psnr"] = clip_psnr(outputs, truth_lin, truth.faces)
     # off the person: the change against the input
     kernel = np.ones((2 * OUTSIDE_PAD_PX + 1, 2 * OUTSIDE_PAD_PX + 1), np.uint8)
     moved = []
@@ -194,14 +227,14 @@ def evaluate(bundle: Path, live: Path, env_stem: str, frames_dir: Path, *, bundl
     # the seam: error in a band each side of the composite's boundary against inside it
     doc["gain"] = gain
     band_err, inner_err = [], []
-    for inp, out, truth, sil in zip(inputs, outputs, truths, sils, strict=True):
+    for inp, out, tr, sil in zip(inputs, outputs, truths, sils, strict=True):
         region = composite_region(inp, out)
         if region.sum() < 100:
             continue
         band, inner = _band(region, SEAM_BAND_PX)
         # the clip's gain on the person; off it the output is compared as it is (it must not move)
         gained = np.where(sil[..., None], _codes(gain * decode_srgb8(out)), out.astype(np.float64))
-        err = np.abs(gained - truth.astype(np.float64)).mean(axis=2)
+        err = np.abs(gained - tr.astype(np.float64)).mean(axis=2)
         band_err.append(err[band])
         inner_err.append(err[inner])
     if band_err:

@@ -1,7 +1,7 @@
-"""The frame path's live light (mode transfer): fitted to the face every few frames - on a
-worker beside a live source's frames - taken into use (the face relit under it for the layer and
-the tracker's live-lit reference), and the target brought to its exposure (:class:`LiveLightStage`,
-the one object holding that state).
+"""The frame path's live light (mode transfer): fitted to the face when the scheduler says so
+(:mod:`.schedule`) - on a worker beside a live source's frames - taken into use (the face relit
+under it for the layer and the tracker's live-lit reference), and the target brought to its
+exposure (:class:`LiveLightStage`, the one object holding that state).
 """
 from __future__ import annotations
 
@@ -14,11 +14,6 @@ from .frame_warp import sample_live
 from .gains import ExposureLock, ambient_gain, live_gain
 from .live_light import LightEstimator, LiveLight
 from .tracking_image import lit_reference
-
-#: Mode transfer: the live light is fitted every this many frames (it is smoothed over a tenth of a
-#: second anyway; the frames between reuse it). Measured against 2: the same figures on the truth
-#: clips (+-0.02 dB) and the real faces (+-0.03 dB) at two thirds of the fits; 4 cost 0.1-0.16 dB.
-LIGHT_EVERY = 3
 
 
 def sync_relight(relighter, tm: dict) -> float:
@@ -39,9 +34,9 @@ class LiveLightStage:
     (:class:`.threads.Worker`, shared with the person's stage: one job at a time); it owns (and
     :meth:`reset` drops) ``estimator`` (:class:`.live_light.LightEstimator`), ``last`` (the last
     fit's :class:`.live_light.LiveLight` report), ``now`` ((texel light, spread) of the last fit
-    taken, None before one), ``job`` (a fit being made on the worker), ``since`` (frames since the
-    last fit), ``exposure_lock`` and ``next_reference`` (a live-lit reference kept for
-    :meth:`commit_reference`). ``live_source``: fits after the first are made on the worker."""
+    taken, None before one), ``job`` (a fit being made on the worker), ``exposure_lock`` and
+    ``next_reference`` (a live-lit reference kept for :meth:`commit_reference`). ``live_source``:
+    fits after the first are made on the worker."""
 
     def __init__(self, bundle, rig, relighter, tracker, worker, *, live_source: bool):
         self.rig, self.relighter, self.tracker, self.worker = rig, relighter, tracker, worker
@@ -52,9 +47,13 @@ class LiveLightStage:
         self.last: LiveLight | None = None
         self.now = None
         self.job = None
-        self.since = 0
         self.exposure_lock = ExposureLock()
         self.next_reference = None
+        self.fits = 0  # fits taken into use since the last reset (the scheduler's settling)
+
+    def ready(self) -> bool:
+        """Whether a fit made beside the frames waits to be taken (the field is remade with it)."""
+        return self.job is not None and self.job.done()
 
     def new_environment(self) -> None:
         """A new target: its exposure locked anew."""
@@ -68,38 +67,34 @@ class LiveLightStage:
             self.job = None
         self.estimator.reset()
         self.last, self.now = None, None
-        self.since = 0
         self.next_reference = None
         self.exposure_lock = ExposureLock()
+        self.fits = 0
 
     def transfer(self, rgb, cur, ref, rotation, t: float, flat, tm: dict, track_gain: float, defer: bool,
-                 rigid_warp: bool):
-        """Mode transfer's light for a frame: the live light fitted to its face every
-        ``LIGHT_EVERY`` frames (beside a live source's frames, on the worker) and taken into use
-        (:meth:`took`), the target exposure-matched to it (:func:`.gains.live_gain`, held by the
-        exposure lock). ``rgb``: the frame (the converted box of a YuvFrame), ``cur``, ``ref``: the
-        warp's points in it and in the reference (:func:`.frame_warp.face_warp`, ``rigid_warp``
-        its kind), ``rotation`` the head's, ``t`` the frame's time, ``flat`` the relit reference
-        frame ((H x W, 3) linear), ``tm`` the frame's timings; ``track_gain``, ``defer``: for the
-        live-lit reference (:meth:`set_lit_reference`). Returns (the layer's mode - 'live',
-        'ambient' before any light -, the gain, the live face's median luminance, the detail
-        threshold tau, the ratio's eps, the ms waited for the relight)."""
+                 rigid_warp: bool, fit: bool):
+        """Mode transfer's light for a frame: the live light fitted to its face when ``fit`` (the
+        scheduler's say: :mod:`.schedule`; beside a live source's frames, on the worker) and taken
+        into use (:meth:`took`), the target exposure-matched to it (:func:`.gains.live_gain`, held
+        by the exposure lock). ``rgb``: the frame ((H, W, 3) uint8 sRGB or a YuvFrame), ``cur``,
+        ``ref``: the warp's points in it and in the reference (:func:`.frame_warp.face_warp`,
+        ``rigid_warp`` its kind), ``rotation`` the head's, ``t`` the frame's time, ``flat`` the
+        relit reference frame ((H x W, 3) linear), ``tm`` the frame's timings; ``track_gain``,
+        ``defer``: for the live-lit reference (:meth:`set_lit_reference`). Returns (the layer's
+        mode - 'live', 'ambient' before any light -, the gain, the live face's median luminance,
+        the detail threshold tau, the ratio's eps, the ms waited for the relight)."""
         t5 = time.perf_counter()
         layer_mode, live_median, tau, eps = composite.LAYER_MODE["transfer"], 0.0, 0.0, float(self.rig.ratio_eps)
         waited = 0.0
-        job = self.job
-        if job is not None and job.done():  # a fit made beside the frames, taken into use
-            self.job = None
+        if self.ready():  # a fit made beside the frames, taken into use
+            job, self.job = self.job, None
             waited = self.took(job.result(), tm, track_gain, defer)
-        if job is None and (self.now is None or self.since + 1 >= LIGHT_EVERY):
+        if fit and self.job is None:
             lin, valid = sample_live(self.rig, rgb, cur, ref, rotation, rigid_warp)
-            self.since = 0
             if self.live_source and self.now is not None:
                 self.job = self.worker.submit(self.fit, lin, valid, t, rotation)
             else:
                 waited += self.took(self.fit(lin, valid, t, rotation), tm, track_gain, defer)
-        else:
-            self.since += 1
         waited += sync_relight(self.relighter, tm)
         if self.now is not None:
             live_median, gain = live_gain(self.rig, self.relighter.slot("live")[0], flat)
@@ -129,6 +124,7 @@ class LiveLightStage:
         if now is None:
             return 0.0
         self.now = now
+        self.fits += 1
         waited = sync_relight(self.relighter, tm)  # the main relight first (counted as its stage)
         # The live light through the low-rank part alone (direct=0): no texel row is made for it
         # (a recipe bundle's rows cost ~35 ms each at 100k face pixels and the fitted light's

@@ -1,22 +1,23 @@
 """The per-frame path shared by ``relight filter``, ``relight live`` and the service: track ->
-pose -> relight -> live light -> warp -> composite.
+pose -> (relight, live light, person, light field: each at its own rate) -> the field applied.
 
 One flow: a :class:`.rig.FaceRig` (everything the path needs of a bundle, prepared once, frozen),
-then, per frame, :meth:`FramePath.front` (track, head pose: a :class:`Front`) and
-:meth:`FramePath.back` (relight, live light, warp, composite). :class:`FramePath` is the one
-stateful object: the rig, the relighter, the tracker, the pose estimators and filters, the live
-light and the environment; its live light and its person are stage objects it owns, each
-holding its own state (:class:`.frame_light.LiveLightStage`, :class:`.frame_person.PersonStage`,
-``live_light`` and ``person``), the stages it calls are functions of their
-own modules (:mod:`.tracking_image`, :mod:`.refind`, :mod:`.frame_warp`, :mod:`.gains`,
-:mod:`.person_maps`). ``process(frame, t)`` takes an (H, W, 3) uint8 sRGB frame - or a
-:class:`relight.video_yuv.YuvFrame`, a decoded frame kept in its planes (only the face's box -
-and the person's, region person - is converted) - and its time in seconds, and returns the relit
-frame (the same kind, same size; the input unchanged where no face is found) and a
-:class:`FrameInfo`.
+then, per frame, :meth:`FramePath.front` (track, head pose, warp: a :class:`Front`) and
+:meth:`FramePath.back`: the scheduler (:mod:`.schedule`) says which slow stages run on this frame
+and why - the relight of the bundle, the live light's fit, the person's maps, the light field
+(:mod:`.field`: the face's and the person's change of light as a coarse grid of affine changes of
+linear light, made on a copy of the frame scaled down by :data:`.field.FIELD_FACTOR`) - and the
+field, made now or carried with the head, is applied to the frame at its full resolution in one
+pass (:class:`relight.kernels.field_apply.FieldApplier`), in the decoder's planes for a
+:class:`relight.video_yuv.YuvFrame`. :class:`FramePath` is the one stateful object: the rig, the
+relighter, the tracker, the pose estimators and filters, the scheduler, the environment and the
+stage objects it owns (:class:`.frame_light.LiveLightStage`, :class:`.frame_person.PersonStage`).
+``process(frame, t)`` takes an (H, W, 3) uint8 sRGB frame - or a YuvFrame - and its time in
+seconds, and returns the relit frame (the same kind, same size; the input unchanged where no
+face is found) and a :class:`FrameInfo`.
 
 Frames of any size work: tracking finds the face wherever it is; the warp maps the bundle's
-reference into the frame. Only the face's box is converted to linear light and back.
+reference into the frame.
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ from relight.kernels.relighter import DEFAULT_TOLERANCE
 from relight.numerics import EPS_VALUE
 
 from . import composite
+from .field import FIELD_ROWS, GAIN_MAX, LightField, aligned_box, cover_box, field_factor, small_copy
 from .frame_light import LiveLightStage, sync_relight
 from .frame_person import PersonStage
 from .frame_warp import face_warp, regularised_points
@@ -41,24 +43,14 @@ from .person_maps import union_box
 from .pose import OneEuroFilter, PoseEstimator
 from .refind import refind_landmarks
 from .rig import FaceRig
+from .schedule import RELIGHT_DEG, Head, Plan, Scheduler
 from .threads import Worker, limit_threads
 from .tracking import FaceTracker
 from .tracking_image import tracking_image
 from .warp import GRID_STEP
 
-#: Head turns (degrees) below which a frame reuses the last relight instead of relighting (the
-#: environment and exposure unchanged): measured on a 960x540 capture, a turn of 0.1 deg changes
-#: the relit face by at most 0.17 % (relative L2; a point light beside the face, the sharpest
-#: case; 0.07-0.13 % under the built-in environments) - a sixth of the default tolerance. The
-#: map's texels are 5.6 deg wide: the error grows linearly, ~1.7 % per degree at worst.
-REUSE_DEG = 0.1
-#: Region person: the person's matte and the light's ratio over it are made every this many
-#: frames and reused between (the face's own alpha is every frame's).
-PERSON_EVERY = 2
-#: A YuvFrame relit with the person: its box converted to RGB is the face's and the last person's
-#: grown by this share of the frame's larger side (the person moves between the maps; beyond the
-#: box, the whole frame is converted).
-YUV_PERSON_MARGIN = 0.04
+#: Head turns (degrees) below which the last relight serves (:data:`.schedule.RELIGHT_DEG`).
+REUSE_DEG = RELIGHT_DEG
 #: Exposure a caller may add to the relit light, in stops (EV): the light scaled by 2^EV.
 EXPOSURE_RANGE_EV = (-20.0, 20.0)
 
@@ -71,7 +63,8 @@ GAIN_MIN_CUTOFF = 0.5
 @dataclass
 class FrameInfo:
     """What happened to one frame: ``face`` found, ``angles`` (yaw, pitch, roll) in degrees of
-    the smoothed head rotation (None without a face), ``points`` tracked, ``timings`` ms."""
+    the smoothed head rotation (None without a face), ``points`` tracked, ``timings`` ms,
+    ``ran`` {stage: reason} of the slow stages that ran on it (:class:`.schedule.Plan`)."""
 
     face: bool = False
     angles: tuple[float, float, float] | None = None
@@ -81,6 +74,7 @@ class FrameInfo:
     timings: dict = field(default_factory=dict)
     light: LiveLight | None = None
     reused: bool = False  # the last relight served this frame (the head turned < reuse_deg)
+    ran: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -94,7 +88,9 @@ class Front:
     landmark indices, ``xy`` ((M, 2) float32) where the warp puts those landmarks, ``pose`` and
     ``rotation`` (3x3, smoothed) the head's, ``size`` (w, h), ``track_gain`` the tracking copy's
     brightening gain, ``warp`` (cur, ref, box, coarse) the warp the pose gives
-    (:func:`.frame_warp.face_warp`)."""
+    (:func:`.frame_warp.face_warp`), ``brightness`` the face's mean grey code in the tracking
+    copy (the scheduler's test of the room's light), ``thumb`` a grey thumbnail of the frame and
+    ``thumb_scale`` its px per frame px (the scheduler's test of the scene: :mod:`.schedule`)."""
 
     frame: object
     t: float
@@ -109,6 +105,9 @@ class Front:
     size: tuple[int, int] = (0, 0)
     track_gain: float = 1.0
     warp: tuple | None = None
+    brightness: float = 0.0
+    thumb: np.ndarray | None = None
+    thumb_scale: float = 1.0
 
 
 class FramePath:
@@ -126,21 +125,20 @@ class FramePath:
     or 'face' (the bundle's face alone). Default :data:`relight.engine.composite.DEFAULT_REGION`.
     rigid_warp : the warp's control points are a grid over the face moved rigidly by the head pose
     (the bundle's depth) plus the tracked landmarks (the default), instead of the landmarks and an
-    affine ring around them (False: the path before issue 32). Measured against the live frame's
-    truth: the warp's displacement halved on both synthetic heads (the still prediction warped
-    with it +2-4 dB), the smear the ring's extrapolation left beside the cheek gone, real faces
-    +0.3/+0.5 dB (yaleB04, yaleB07).
+    affine ring around them (False: the path before issue 32).
     live_source : the slow maps - the person's matte and ratio (region person) and the live
     light's fit (mode transfer) - made on a worker thread while frames go on with the newest made
     (a frame or two older: a live source's next frame should not wait for them); False (files,
     the service's single requests) makes them in the frame that needs them: runs are repeatable.
+    field_rows : the light field's rows (:data:`.field.FIELD_ROWS`): a frame is scaled down by the
+    even factor that leaves about this many (:func:`.field.field_factor`).
     """
 
     def __init__(self, bundle, env: np.ndarray, *, mode: str = composite.DEFAULT_MODE, strength: float = 1.0,
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
                  tolerance: float = DEFAULT_TOLERANCE, relighter=None, reuse_deg: float = REUSE_DEG,
-                 region: str = composite.DEFAULT_REGION,
-                 rigid_warp: bool = True, live_source: bool = False, env_turn: float = 0.0, env_spin: float = 0.0):
+                 region: str = composite.DEFAULT_REGION, rigid_warp: bool = True, live_source: bool = False,
+                 env_turn: float = 0.0, env_spin: float = 0.0, field_rows: int = FIELD_ROWS):
         from relight.kernels.relighter import Relighter
 
         limit_threads()
@@ -157,11 +155,14 @@ class FramePath:
         if not (np.isfinite(reuse_deg) and 0 <= reuse_deg <= 5):
             raise InputError(f"reuse_deg {reuse_deg}: use 0 (always relight) to 5 degrees")
         self.reuse_deg = float(reuse_deg)
+        if not (isinstance(field_rows, (int, np.integer)) and 16 <= field_rows <= 4320):
+            raise InputError(f"field_rows {field_rows}: use a number of rows from 16 to 4320")
+        self.field_rows = int(field_rows)
         self.relighter.lights(env)  # a bad environment refused before the rig's seconds of work
         self.env = None
         self.draft = False  # relit as a draft while a light is moved (set_environment(moved=True))
         self.live_light = self.person = None  # (made below, once the rig is)
-        self._relit_key = None  # (env, exposure, rotation) of the relight in relit_frame
+        self._relit_key = None  # (env, exposure, turn) of the relight in relit_frame
         self._track_gain = 1.0  # the last tracking copy's brightening (.tracking_image.track_exposure)
         self.rig = rig = FaceRig.build(bundle, self.relighter, focal)
         self.focal = rig.focal
@@ -175,9 +176,11 @@ class FramePath:
         # would hold its two dozen renders back - 1.5 s of a 720p bundle's start)
         self.set_environment(env)
         from relight.kernels.compositor import Compositor
+        from relight.kernels.field_apply import FieldApplier
 
         self.compositor = Compositor(rig.alpha_crop, rig.fill, rig.inv_ambient, rig.normal_crop, rig.origin,
                                      self.relighter)
+        self.applier = FieldApplier()
         self.rigid_warp = bool(rigid_warp)
         if region not in composite.REGIONS:
             raise InputError(f"region {region!r}: use one of {', '.join(composite.REGIONS)}")
@@ -189,6 +192,10 @@ class FramePath:
         self.person = PersonStage(bundle, rig, self.compositor, worker, live_source=self.live_source)
         self.live_light = LiveLightStage(bundle, rig, self.relighter, self.tracker, worker,
                                          live_source=self.live_source)
+        self.schedule = Scheduler()
+        self.field: LightField | None = None
+        self._field_key = None  # (mode, strength, draft, env) the field was made with
+        self._new_target = True  # a new environment since the person's maps were made
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
         self.gain_filter = OneEuroFilter(GAIN_MIN_CUTOFF, 0.0)
@@ -212,6 +219,7 @@ class FramePath:
         if not moved:
             self.relighter.prefetch_rows(env)  # the exact texels' rows, ahead of the head's turns
         if self.live_light is not None:  # (the first environment comes before the stages)
+            self._new_target = True  # the person's maps remade for it (on the worker for a live source)
             if moved:
                 self.person.light_moved()  # its ratio remade when due, soon
             else:
@@ -290,6 +298,8 @@ class FramePath:
         self.gain_filter.reset()
         self.live_light.reset()
         self.person.reset()
+        self.schedule.reset()
+        self.field = None
         for est in self._estimators.values():
             est.last = None
 
@@ -365,117 +375,177 @@ class FramePath:
         t2 = time.perf_counter()
         warp = face_warp(self.rig, est, pose, size, ref_idx, xy, self.rigid_warp)  # the pose alone decides it
         tm["warp"] = (time.perf_counter() - t2) * 1e3
+        thumb = _thumbnail(grey)
         return Front(rgb, t, t0, info, track=track, keep=keep, ref_idx=ref_idx, xy=xy, pose=pose, rotation=rotation,
-                     size=size, track_gain=track_gain, warp=warp)
+                     size=size, track_gain=track_gain, warp=warp, brightness=_face_brightness(grey, track.xy * ts),
+                     thumb=thumb, thumb_scale=thumb.shape[0] / h)
 
     def back(self, front: Front, defer_reference: bool = False):
-        """The second half of :meth:`process` (relight, warp, live light, composite) for the
-        result of :meth:`front`."""
+        """The second half of :meth:`process` for the result of :meth:`front`: the scheduler's
+        plan (:mod:`.schedule`), the slow stages it names, and the light field - made on this
+        frame or carried with the head - applied to the frame."""
         self.person.next_frame()
+        self.schedule.next_frame()
         if front.pose is None:
             return front.frame, front.info
-        rgb, t, t0, info = front.frame, front.t, front.t0, front.info
-        track, keep, ref_idx, rotation = front.track, front.keep, front.ref_idx, front.rotation
-        tm = info.timings
-        t2 = time.perf_counter()
-        # Leave out a relight the head's small turn does not need (REUSE_DEG): this path's own
-        # last relight, kept in its own frame. Else queued, not waited for: the warp and the live
-        # light's fit run on the host meanwhile; synced before the host reads the relit frame (the
-        # compositor's kernels queue after it).
-        from relight.kernels.relighter import rotation_angle_deg
-
-        # The relighter's rotation: the head's (a head turned by R sees the light from d at R^T d),
-        # with the environment's own turn E composed (its lights at E d: seen at R^T E d).
-        env_rot = self.env_rotation(t)
-        turn = with_env_turn(None if self.fixed_env else rotation, env_rot)
-        last = self._relit_key
-        info.reused = bool(last is not None and last[0] is self.env and last[1] == self.exposure and turn is not None
-                           and last[2] is not None and self.reuse_deg > 0
-                           and rotation_angle_deg(last[2], turn) < self.reuse_deg)
-        if not info.reused:
-            self.relighter.relight(self.env, turn, exposure=self.exposure, out=self.relit_frame, wait=False,
-                                   direct=0 if self.draft else None)
-            self._relit_key = (self.env, self.exposure, turn)
-        img = self.relit_frame
-        tm["relight"] = (time.perf_counter() - t2) * 1e3
-        t3 = time.perf_counter()
-        cur, ref, box, coarse = front.warp
-        anchor = tuple(float(v) for v in cur.mean(axis=0))  # the head's place (frame px): the person's maps follow it
+        info, tm = front.info, front.info.timings
+        cur, _, box, coarse = front.warp
         if coarse is None:
             info.face = False
             info.note = "face outside the frame"
-            tm["total"] = (time.perf_counter() - t0) * 1e3
-            return rgb, info
-        # A YuvFrame: its box alone in RGB (offset: the box's corner in the frame) - with the
-        # person's box (the last one, grown) when the person is relit too.
-        frame = rgb
-        offset = np.zeros(2, np.float32)
-        frame_box = box
-        if not isinstance(rgb, np.ndarray):
-            want = box
-            if self.whole_head and self.strength > 0:
-                last = self.person.last_maps()
-                fh, fw = rgb.shape[:2]
-                pb = last[1].moved(anchor).box if last is not None else None
-                if pb is not None:
-                    g = int(np.ceil(YUV_PERSON_MARGIN * max(fw, fh)))
-                    want = union_box(box, (pb[0] - g, pb[1] - g, pb[2] + g, pb[3] + g))
-                else:  # no person's box yet: the whole frame
-                    want = (0, 0, fw, fh)
-            ebox = rgb.even_box(want)  # (clipped to the frame)
-            offset = np.array(ebox[:2], np.float32)
-            rgb = rgb.rgb_box(ebox)
-            box = (box[0] - ebox[0], box[1] - ebox[1], box[2] - ebox[0], box[3] - ebox[1])
-            cur = cur - offset
-        flat = img.reshape(-1, 3)
-        layer_mode, live_median, tau, eps = composite.LAYER_MODE[self.mode], 0.0, 0.0, float(self.rig.ratio_eps)
-        if self.mode == "transfer":  # the live light, fitted to this frame's face
-            layer_mode, gain, live_median, tau, eps, waited = self.live_light.transfer(
-                rgb, cur, ref, rotation, t, flat, tm, front.track_gain, defer_reference, self.rigid_warp)
+            tm["total"] = (time.perf_counter() - front.t0) * 1e3
+            return front.frame, info
+        t2 = time.perf_counter()
+        anchor = tuple(float(v) for v in cur.mean(axis=0))  # the head's place (frame px): what the field follows
+        head = Head(anchor, front.rotation, float(np.hypot(box[2] - box[0], box[3] - box[1])), front.brightness,
+                    front.thumb, front.thumb_scale)
+        env_rot = self.env_rotation(front.t)
+        # The relighter's rotation: the head's (a head turned by R sees the light from d at R^T d),
+        # with the environment's own turn E composed (its lights at E d: seen at R^T E d).
+        turn = with_env_turn(None if self.fixed_env else front.rotation, env_rot)
+        if self.field is not None and self.field.space != _space(front.frame):
+            self.field = None  # (frames of another kind: their codes differ)
+        plan = self._plan(head, turn)
+        info.ran = plan.ran()
+        info.reused = plan.relight is None
+        if plan.relight is not None:  # queued, not waited for: synced before the host reads it
+            self.relighter.relight(self.env, turn, exposure=self.exposure, out=self.relit_frame, wait=False,
+                                   direct=0 if self.draft else None)
+            self._relit_key = (self.env, self.exposure, turn)
+            self.schedule.ran("relight", head)
+        tm["relight"] = (time.perf_counter() - t2) * 1e3
+        if self.whole_head and self.strength > 0:
+            self.person.touch()
+        if self.mode == "transfer":
             info.light = self.live_light.last
-        elif self.mode == "ambient":
-            # The lighting ratio's median is 1: the face keeps its brightness.
-            waited = sync_relight(self.relighter, tm)
-            gain = ambient_gain(self.rig, flat)
-        else:
-            # paste: the relit face's median matched to the live face's at the tracked points.
-            waited = sync_relight(self.relighter, tm)
-            gain = paste_gain(self.rig, rgb, flat, track.xy[keep] - offset, ref_idx)
+        if plan.field is not None:
+            self.field = self._make_field(front, head, plan, env_rot, defer_reference)
+            self.schedule.ran("field", head)
+        elif self.field is not None:
+            self.field = self.field.moved(anchor, front.size)
+        t4 = time.perf_counter()
+        out = self._apply(front.frame, self.field)
+        tm["composite"] = (time.perf_counter() - t4) * 1e3
+        tm["total"] = (time.perf_counter() - front.t0) * 1e3
+        return out, info
+
+    def _plan(self, head: Head, turn) -> Plan:
+        """The scheduler's plan for this frame (:meth:`.schedule.Scheduler.plan`) from what the path
+        holds: the last relight's key, the live light and the person's maps in use (and those made
+        beside the frames, waiting), the settings the field was made with."""
+        from relight.kernels.relighter import rotation_angle_deg
+
+        last = self._relit_key
+        key_changed = last is None or last[0] is not self.env or last[1] != self.exposure or \
+            (turn is None) != (last[2] is None)
+        if not key_changed and turn is not None and self.reuse_deg == 0:
+            key_changed = rotation_angle_deg(last[2], turn) > 0  # (reuse_deg 0: every turn relights)
+        delivered = self.live_light.ready() or self.person.ready()
+        settings = (self.mode, self.strength, self.draft, self.exposure, self.region, self.fixed_env, id(self.env))
+        plan = self.schedule.plan(head, relight_key_changed=key_changed, light_wanted=self.mode == "transfer",
+                                  has_light=self.live_light.now is not None,
+                                  person_wanted=self.whole_head and self.strength > 0,
+                                  has_person=self.person.last_maps() is not None,
+                                  new_environment=self._new_target,
+                                  settings_changed=settings != self._field_key or delivered,
+                                  relight_deg=self.reuse_deg, has_field=self.field is not None,
+                                  light_fits=self.live_light.fits, person_box=self._person_box(),
+                                  field_box=self.field.box if self.field is not None else None)
+        self._field_key = settings
+        self._field_env = self.env  # (kept alive: the id above stays its)
+        return plan
+
+    def _person_box(self):
+        """The frame's box the person's maps in use reach (None: none in use)."""
+        last = self.person.last_maps()
+        return last[1].box if last is not None else None
+
+    def _make_field(self, front: Front, head: Head, plan: Plan, env_rot, defer: bool) -> LightField | None:
+        """The light field of this frame (:mod:`.field`): the face's layer built for it (the live
+        light fitted when the plan says), the person's maps (region person: made when the plan
+        says, else the last ones carried), then the ``person_gain`` kernel over a copy of the box
+        they reach scaled down by the field's factor. None when nothing changes."""
+        rgb, t, tm = front.frame, front.t, front.info.timings
+        _, _, box, coarse = front.warp
+        t3 = time.perf_counter()
+        layer_mode, gain, live_median, tau, eps, waited = self._light(front, head, plan, defer)
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
         tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
-        t4 = time.perf_counter()
         live_buf = self.relighter.slot("live")[1] if layer_mode == "live" else None
         self.compositor.layer(relit=self.relighter.buffer(self.relit_frame), live=live_buf, mode=layer_mode,
                               gain=gain * self.exposure, strength=self.strength, eps=eps,
-                              ratio_max=composite.RATIO_MAX, rotation=rotation, live_median=live_median)
+                              ratio_max=composite.RATIO_MAX, rotation=front.rotation, live_median=live_median)
+        maps = None
         if self.whole_head and layer_mode == "live" and self.strength > 0:
-            # The light's change carried from the face over the rest of the person (.head_light):
-            # hair, ears, neck, shoulders; nothing off the person changes - the face's composite
-            # and the person's in one kernel pass over the face's box and the person's.
             t6 = time.perf_counter()
-            from .head_light import MATTE_FLOOR
-
-            maps, union = self.person.maps(frame, frame_box, coarse, rotation, tau, anchor, info.reused, PERSON_EVERY,
-                                           env=self.env, strength=self.strength, fixed_env=self.fixed_env,
-                                           texel_light=self.live_light.texel_light, env_rotation=env_rot)
-            ox, oy = int(offset[0]), int(offset[1])
-            if frame is not rgb and not (union[0] >= ox and union[1] >= oy and union[2] <= ox + rgb.shape[1]
-                                         and union[3] <= oy + rgb.shape[0]):
-                # the person reached beyond the frame's converted box: all of it in RGB
-                rgb, ox, oy, box = frame.to_rgb(), 0, 0, frame_box
-                ebox = (0, 0, rgb.shape[1], rgb.shape[0])
-            out = self.compositor.composite_person(rgb, (union[0] - ox, union[1] - oy, union[2] - ox, union[3] - oy),
-                                                   box, coarse, GRID_STEP, mode="live", tau=tau, person=maps.grid,
-                                                   person_origin=maps.origin, person_scale=maps.scale,
-                                                   floor=MATTE_FLOOR, offset=(ox, oy), gate=maps.gate)
+            maps = self.person.maps(rgb, box, coarse, front.rotation, tau, head.anchor, plan.person is not None,
+                                    env=self.env, strength=self.strength, fixed_env=self.fixed_env,
+                                    texel_light=self.live_light.texel_light, env_rotation=env_rot)
+            if plan.person is not None:
+                self.schedule.ran("person", head)
+                self._new_target = False
             tm["person"] = (time.perf_counter() - t6) * 1e3
-        else:
-            out = self.compositor.composite(rgb, box, coarse, GRID_STEP, mode=layer_mode, tau=tau)
-        if frame is not rgb:
-            out = frame.with_rgb_box(ebox, rgb, out)
-        tm["composite"] = (time.perf_counter() - t4) * 1e3 - tm.get("person", 0.0)
-        tm["total"] = (time.perf_counter() - t0) * 1e3
-        return out, info
+        t7 = time.perf_counter()
+        made = self._field_grid(rgb, box, coarse, layer_mode, tau, maps, head.anchor)
+        tm["field"] = (time.perf_counter() - t7) * 1e3
+        return made
+
+    def _light(self, front: Front, head: Head, plan: Plan, defer: bool):
+        """The layer's light for this frame, by mode: (layer mode, exposure gain, the live face's
+        median, tau, eps, ms waited for the relight) - mode transfer's live light fitted when the
+        plan says (:meth:`.frame_light.LiveLightStage.transfer`)."""
+        rgb, info, tm = front.frame, front.info, front.info.timings
+        cur, ref, _, _ = front.warp
+        flat = self.relit_frame.reshape(-1, 3)
+        if self.mode == "transfer":
+            out = self.live_light.transfer(rgb, cur, ref, front.rotation, front.t, flat, tm, front.track_gain, defer,
+                                           self.rigid_warp, plan.light is not None)
+            if plan.light is not None:
+                self.schedule.ran("light", head)
+            info.light = self.live_light.last
+            return out
+        waited = sync_relight(self.relighter, tm)
+        if self.mode == "ambient":  # the lighting ratio's median is 1: the face keeps its brightness
+            gain = ambient_gain(self.rig, flat)
+        else:  # paste: the relit face's median matched to the live face's at the tracked points
+            gain = paste_gain(self.rig, rgb, flat, front.track.xy[front.keep], front.ref_idx)
+        return composite.LAYER_MODE[self.mode], gain, 0.0, 0.0, float(self.rig.ratio_eps), waited
+
+    def _field_grid(self, rgb, box, coarse, layer_mode: str, tau: float, maps, anchor) -> LightField | None:
+        """The ``person_gain`` kernel over the box the face (``box``, ``coarse``: the warp) and the
+        person's ``maps`` (or None: the face alone) reach, on a copy scaled down by the field's
+        factor: a :class:`.field.LightField` (None when nothing changes)."""
+        from relight.kernels.field_apply import COVER
+
+        from .head_light import MATTE_FLOOR
+
+        h, w = rgb.shape[:2]
+        f = field_factor((w, h), self.field_rows)
+        reach = box if maps is None or maps.box is None else union_box(box, maps.box)
+        # (a decoded frame's copy at a cell a pixel is still made of whole chroma samples)
+        ax0, ay0, ax1, ay1 = abox = aligned_box(reach, (w, h), f if f > 1 or isinstance(rgb, np.ndarray) else 2)
+        small = small_copy(rgb, abox, f)
+        face_box = (box[0] - ax0, box[1] - ay0, box[2] - ax0, box[3] - ay0)
+        person = {} if maps is None else dict(person=maps.grid, person_origin=maps.origin, person_scale=maps.scale,
+                                              floor=MATTE_FLOOR, offset=(ax0, ay0), gate=maps.gate)
+        codes = rgb.code_maps() if not isinstance(rgb, np.ndarray) else (None, None)
+        grid = self.compositor.person_gain(small, (0, 0, small.shape[1], small.shape[0]), face_box, coarse,
+                                           GRID_STEP, mode=layer_mode, tau=tau, scale=(f, f), gain_max=GAIN_MAX,
+                                           code_maps=codes, **person)
+        reach_box = cover_box(grid[..., COVER], (ax0, ay0), f, (w, h))
+        if reach_box is None:
+            return None
+        grid.flags.writeable = False
+        return LightField(grid, _space(rgb), f, (float(ax0), float(ay0)), reach_box, anchor, self.schedule.frame)
+
+    def _apply(self, frame, fld: LightField | None):
+        """``frame`` with the light field applied (a new frame of the same kind: the field's
+        kernel over its box, in the planes of a YuvFrame); the frame as it is without one."""
+        if fld is None:
+            return frame
+        if isinstance(frame, np.ndarray):
+            return self.applier.rgb(frame, fld.box, fld.grid, fld.sampling())
+        return frame.with_field(self.applier, fld.box, fld.grid, fld.sampling())
 
     def _refind(self, est, pose, ts, grey, idx):
         """The landmarks ``idx`` found again in ``grey`` (:func:`.refind.refind_landmarks`, against
@@ -487,3 +557,29 @@ class FramePath:
         """Hand the tracker the live-lit reference a deferred :meth:`back` made (between frames,
         when no :meth:`front` runs)."""
         self.live_light.commit_reference()
+
+
+def _thumbnail(grey: np.ndarray) -> np.ndarray:
+    """The scheduler's grey thumbnail of a frame (:data:`.schedule.THUMB_ROWS` rows) from its
+    tracking copy ``grey``."""
+    from relight.video_yuv import downscale_area
+
+    from .schedule import THUMB_ROWS
+
+    h, w = grey.shape
+    th = min(THUMB_ROWS, h)
+    return downscale_area(grey, (max(1, round(w * th / h)), th))
+
+
+def _space(frame):
+    """What a frame's codes are: "rgb" (sRGB) or a decoded frame's planes' (:attr:`YuvFrame.space`)."""
+    return "rgb" if isinstance(frame, np.ndarray) else frame.space
+
+
+def _face_brightness(grey: np.ndarray, xy: np.ndarray) -> float:
+    """The mean grey code of the tracking copy ``grey`` over the box of the tracked points ``xy``
+    (the face): the scheduler's cheap test of the room's light and the camera's exposure."""
+    h, w = grey.shape
+    x0, y0 = (int(np.clip(v, 0, m - 1)) for v, m in zip(xy.min(axis=0), (w, h), strict=True))
+    x1, y1 = (int(np.clip(v, 0, m - 1)) + 1 for v, m in zip(xy.max(axis=0), (w, h), strict=True))
+    return float(cv2.mean(grey[y0:y1, x0:x1])[0]) if x1 > x0 and y1 > y0 else 0.0

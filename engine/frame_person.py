@@ -1,24 +1,26 @@
-"""The frame path's person (region person, mode transfer): when the person's maps
-(:mod:`.person_maps`) are made - every few frames, on a worker beside a live source's frames -
-reused, and carried with the head (:class:`PersonStage`, the one object holding that state).
+"""The frame path's person (region person, mode transfer): the person's maps
+(:mod:`.person_maps`) made when the scheduler says so (:mod:`.schedule`) - on a worker beside a
+live source's frames - reused between, and carried with the head (:class:`PersonStage`, the one
+object holding that state).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from . import head_light
-from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs, union_box
+from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs
 
 
 class PersonStage:
     """The person's maps in a :class:`relight.engine.frame_path.FramePath`. It reads the path's
     ``rig``, ``compositor`` and the ``bundle``'s texel directions (given once) and the ``worker``
     (:class:`.threads.Worker`, shared with the live light's stage); it owns ``matte`` (the
-    :class:`.person.PersonMatte` model, made on first use), ``last`` (work size,
-    :class:`PersonMaps`, the frame that last used them), ``age`` (frames they were reused since
-    made), ``trust_run`` (the matte's trusted remakes in a row), ``job`` (maps being made on the
-    worker), ``env_texels`` (the environment's low frequencies) and ``frames`` (the path's frames
-    counted by :meth:`next_frame`). ``live_source``: maps after the first are made on the worker."""
+    :class:`.person.PersonMatte` model, made on first use), ``last`` (work size and
+    :class:`PersonMaps` last made), ``seen`` (the last frame the person was relit on: the maps
+    serve only while no frame in between left the person out), ``trust_run`` (the matte's trusted
+    remakes in a row), ``job`` (maps being made on the worker), ``env_texels`` (the environment's
+    low frequencies) and ``frames`` (the path's frames counted by :meth:`next_frame`).
+    ``live_source``: maps after the first are made on the worker."""
 
     def __init__(self, bundle, rig, compositor, worker, *, live_source: bool):
         self.rig, self.compositor, self.worker = rig, compositor, worker
@@ -26,7 +28,8 @@ class PersonStage:
         self.live_source = bool(live_source)
         self.matte = None
         self.last = None
-        self.age, self.trust_run = 0, 0
+        self.seen = -2
+        self.trust_run = 0
         self.job = None
         self.env_texels = None
         self.frames = 0
@@ -35,40 +38,44 @@ class PersonStage:
         """Count a frame of the path (every back() call, with or without the person)."""
         self.frames += 1
 
+    def touch(self) -> None:
+        """This frame relights the person (with new maps or the last ones, carried)."""
+        self.seen = self.frames
+
     def new_environment(self) -> None:
         """A new target: the maps made for the last one are not used again (their ratio was its)."""
         self.env_texels = None
         self.last = None
 
     def light_moved(self) -> None:
-        """The same light moved: the maps are remade at the next frame that may (on the worker
-        beside a live source's frames), the last ones serving until then."""
+        """The same light moved: the maps are remade when next due (on the worker beside a live
+        source's frames), the last ones serving until then."""
         self.env_texels = None
-        self.age = 1 << 30  # due
 
     def reset(self) -> None:
         """Forget the maps and the matte's trust (a new, unrelated video follows)."""
         self.last, self.trust_run = None, 0
 
-    def last_maps(self):
-        """The person's maps (work size, :class:`PersonMaps`, the frame that used them) if the last
-        frame used them - they serve only the frame right after (not across a frame the person was
-        left out of: no face, another mode, strength 0) - else None."""
-        last = self.last
-        return last if last is not None and last[2] == self.frames - 1 else None
+    def ready(self) -> bool:
+        """Whether maps made beside the frames wait to be taken (the field is remade with them)."""
+        return self.job is not None and self.job.done()
 
-    def maps(self, frame, face_box, coarse, rotation, tau: float, anchor, still: bool, every: int, *,
-             env, strength: float, fixed_env: bool, texel_light, env_rotation=None):
-        """(:class:`PersonMaps` of this frame, the frame's box the face and the person reach): the
-        maps (smooth, slow to change) made every ``every`` frames (:data:`.frame_path.PERSON_EVERY`)
-        and reused between, kept while the head is ``still`` (the face's own alpha in the kernel is
-        this frame's). With ``live_source`` the making (all but the inputs the device and this
-        thread's state give, :meth:`inputs`) runs on the worker: the frame uses the newest maps
-        made, a frame or two old, and the next are made while it is composited. ``frame``: as given
-        (an array or a YuvFrame); ``face_box``: the face's box in it; ``anchor``: the head's place in
-        it (maps made on another frame are carried with the head: :meth:`PersonMaps.moved`);
-        ``env``, ``strength``, ``fixed_env``, ``env_rotation`` (3x3 or None): the path's target;
-        ``texel_light``: a callable giving the live light in use ((T, 3) in the bundle's texels)."""
+    def last_maps(self):
+        """(work size, :class:`PersonMaps`) last made if they still serve - the person was relit on
+        the frame before this one (not across a frame it was left out of: no face, another mode,
+        strength 0) - else None."""
+        return self.last if self.last is not None and self.seen >= self.frames - 1 else None
+
+    def maps(self, frame, face_box, coarse, rotation, tau: float, anchor, due: bool, *, env, strength: float,
+             fixed_env: bool, texel_light, env_rotation=None) -> PersonMaps:
+        """The person's :class:`PersonMaps` for this frame, carried to the head at ``anchor``
+        (:meth:`PersonMaps.moved`): made when none serve, or when ``due`` (the scheduler's say) -
+        with ``live_source`` on the worker (all but the inputs the device and this thread's state
+        give, :meth:`inputs`; the frame goes on with the last ones and the next frame takes the
+        new) - else the last ones. ``frame``: as given (an array or a YuvFrame); ``face_box``:
+        the face's box in it; ``env``, ``strength``, ``fixed_env``, ``env_rotation`` (3x3 or None):
+        the path's target; ``texel_light``: a callable giving the live light in use ((T, 3) in
+        the bundle's texels)."""
         from .person import WORK_ROWS
 
         h, w = frame.shape[:2]
@@ -77,41 +84,35 @@ class PersonStage:
         target = dict(env=env, strength=strength, fixed_env=fixed_env, texel_light=texel_light,
                       env_rotation=env_rotation)
         last = self.last_maps()
-        job = self.job  # the maps being made on the worker, or None
+        self.touch()
+
+        def make():
+            return self.inputs(frame, face_box, coarse, rotation, tau, work, anchor, **target)
+
         if last is None or last[0] != work:  # none to go on with: made now, on this thread
-            if job is not None:  # made for maps no longer in use (another environment, a gap,
-                job.result()     # a reset): dropped once done - the model is one, never two at once
+            if self.job is not None:  # made for maps no longer in use (another environment, a gap,
+                self.job.result()     # a reset): dropped once done - the model is one, never two at once
                 self.job = None
-            maps = self.took(build_person_maps(self._matte(), self.inputs(
-                frame, face_box, coarse, rotation, tau, work, anchor, **target)))
+            maps = self.took(build_person_maps(self._matte(), make()))
+        elif self.ready():
+            job, self.job = self.job, None
+            maps = self.took(job.result())
+        elif due and self.job is None:
+            if self.live_source:
+                self.job = self.worker.submit(build_person_maps, self._matte(), make())
+                maps = last[1]
+            else:
+                maps = self.took(build_person_maps(self._matte(), make()))
         else:
             maps = last[1]
-            due = not still and self.age + 1 >= every
-            if job is not None and job.done():
-                self.job = None
-                maps = self.took(job.result())
-            elif due and job is None:
-                inputs = self.inputs(frame, face_box, coarse, rotation, tau, work, anchor, **target)
-                if self.live_source:
-                    self.job = self.worker.submit(build_person_maps, self._matte(), inputs)
-                    self.age += 1
-                else:
-                    maps = self.took(build_person_maps(self._matte(), inputs))
-            else:
-                self.age += 1
-        self.last = (work, maps, self.frames)
-        maps = maps.moved(anchor)
-        if maps.box is None:
-            return maps, face_box
-        x0, y0, x1, y1 = union_box(face_box, maps.box)
-        return maps, (max(x0, 0), max(y0, 0), min(x1, w), min(y1, h))
+        self.last = (work, maps)
+        return maps.moved(anchor)
 
     def took(self, made) -> PersonMaps:
         """The maps :func:`build_person_maps` made, taken into use on the frame's thread: the
         matte's run of trusted remakes counted and the gate set from it."""
         maps, trusted = made
         self.trust_run = self.trust_run + 1 if trusted else 0
-        self.age = 0
         return maps._replace(gate=self.trust_run >= head_light.MATTE_TRUST_RUN)
 
     def _matte(self):

@@ -78,11 +78,14 @@ def face_warp(rig, est, pose, size, ref_idx: np.ndarray, xy: np.ndarray, rigid: 
     return cur, ref, box, coarse
 
 
-def sample_live(rig, rgb: np.ndarray, cur: np.ndarray, ref: np.ndarray, rotation: np.ndarray, rigid: bool):
+def sample_live(rig, rgb, cur: np.ndarray, ref: np.ndarray, rotation: np.ndarray, rigid: bool):
     """The live frame at the light estimator's sample pixels: ((S, 3) float32 linear, (S,) bool
     where the frame shows them - inside it, the warp and facing the camera). ``rgb``: (H, W, 3)
-    uint8 sRGB; ``cur``, ``ref``, ``rigid``: the warp's points in the frame and the reference
-    (:func:`face_warp`); ``rotation``: the head's (3x3)."""
+    uint8 sRGB or a :class:`relight.video_yuv.YuvFrame` (read in its planes); ``cur``, ``ref``,
+    ``rigid``: the warp's points in the frame and the reference (:func:`face_warp`);
+    ``rotation``: the head's (3x3)."""
+    from relight.video_yuv import sample_codes
+
     n = rig.live_ref.shape[0]
     if rigid:  # frame positions of a grid over the reference
         grid = mesh_coarse_map(ref, cur, rig.mesh_triangles, rig.live_box)
@@ -97,6 +100,4 @@ def sample_live(rig, rgb: np.ndarray, cur: np.ndarray, ref: np.ndarray, rotation
     h, w = rgb.shape[:2]
     valid = (pos[:, 0] >= 0) & (pos[:, 1] >= 0) & (pos[:, 0] <= w - 1) & (pos[:, 1] <= h - 1)
     valid &= rig.live_normal @ np.asarray(rotation, np.float32)[2] > 0.3
-    px = cv2.remap(rgb, pos[:, 0:1].copy(), pos[:, 1:2].copy(), cv2.INTER_LINEAR,
-                   borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
-    return decode_srgb8(px).reshape(-1, 3), valid
+    return decode_srgb8(sample_codes(rgb, pos)).reshape(-1, 3), valid

@@ -16,16 +16,19 @@ from relight.colour import LUMINANCE, decode_srgb8
 from . import composite
 
 #: Mode transfer: light fits whose exposure gains (their running median) set the exposure, then
-#: held (:class:`ExposureLock`): 0.8 s of fits at :data:`.frame_light.LIGHT_EVERY`.
+#: held (:class:`ExposureLock`): 0.8 s of fits at :data:`.schedule.LIGHT_EVERY`.
 EXPOSURE_LOCK_FITS = 8
 
 
-def _sample_rgb(rgb: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(N, 3) uint8 pixels of ``rgb`` nearest to points ``xy`` (clipped to the frame)."""
+def _sample_rgb(rgb, xy: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 pixels of ``rgb`` ((H, W, 3) uint8 sRGB or a YuvFrame) nearest to points
+    ``xy`` (clipped to the frame)."""
+    from relight.video_yuv import sample_codes
+
     h, w = rgb.shape[:2]
-    xi = np.clip(np.round(xy[:, 0]).astype(np.int64), 0, w - 1)
-    yi = np.clip(np.round(xy[:, 1]).astype(np.int64), 0, h - 1)
-    return rgb[yi, xi]
+    xi = np.clip(np.round(xy[:, 0]), 0, w - 1)
+    yi = np.clip(np.round(xy[:, 1]), 0, h - 1)
+    return sample_codes(rgb, np.stack([xi, yi], axis=1))
 
 
 def _crop_index(xy: np.ndarray, origin, shape) -> np.ndarray:

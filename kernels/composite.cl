@@ -189,7 +189,7 @@ __attribute__((always_inline)) inline int face_at(
     float x, float y, float3 f, __global const float2 *coarse, int gw, int step, float ox, float oy,
     __global const float8 *layer, int cw, int ch, __global const float *expect,
     __global const float4 *expect_rgb, int mode, float tau,
-    float lift, float3 *res, float *a_out)
+    float lift, float3 *res, float *a_out, float3 *gain_out, float3 *off_out)
 {
     float cx = (x + (float)step + 0.5f) / (float)step - 0.5f;
     float cy = (y + (float)step + 0.5f) / (float)step - 0.5f;
@@ -235,6 +235,9 @@ __attribute__((always_inline)) inline int face_at(
     float3 face = (s * (f + lift) + kf * f) * l.s012 + (1.0f - s - kf) * l.s456;
     *res = f + a * (face - f);
     *a_out = a;
+    /* the same as res = gain f + offset (the light field's affine form) */
+    *gain_out = 1.0f - a + a * (s + kf) * l.s012;
+    *off_out = a * (s * lift * l.s012 + (1.0f - s - kf) * l.s456);
     return 1;
 }
 
@@ -264,10 +267,10 @@ __kernel void warp_composite(
     if (x >= bw || y >= bh || !groups[get_group_id(1) * get_num_groups(0) + get_group_id(0)])
         return;
     size_t o = 3 * ((size_t)(by0 + y) * frame_w + (bx0 + x));
-    float3 f = decode3(decode_lut, frame + o), res;
+    float3 f = decode3(decode_lut, frame + o), res, gn, of;
     float a;
     if (face_at((float)x, (float)y, f, coarse, gw, step, ox, oy, layer, cw, ch, expect, expect_rgb, mode, tau, lift,
-                &res, &a))
+                &res, &a, &gn, &of))
         encode3(encode_lut, lut_n, frame + o, res);
 }
 
@@ -284,6 +287,51 @@ __kernel void warp_composite(
  * face) the face's composite is held to the person too: its share a, and its change, scaled by
  * k = m from floor up to GATE_HI (a face's warp reaching past the jaw onto the wall leaves the wall
  * as it was); without, the face's composite is never scaled by the person's share. */
+/* composite_person's pixel: the linear value *res of the pixel at (i, j) of the image (frame
+   position (X, Y), its value f) and whether it changed (see composite_person). */
+__attribute__((always_inline)) inline int person_at(
+    int x, int y, int here, float X, float Y, float3 f, float3 *res,
+    int fx0, int fy0, int fw, int fh,
+    __global const float2 *coarse, int cgw, int step, float ox, float oy,
+    __global const float8 *layer, int cw, int ch, __global const float *expect, __global const float4 *expect_rgb,
+    __global const float4 *person, int gw, int gh, float sx, float sy, float gox, float goy, float floor_w,
+    int gate, int mode, float tau, float lift, float3 *gain, float3 *off)
+{
+    float a = 0.0f;
+    int changed = 0;
+    *res = f;
+    *gain = (float3)(1.0f);
+    *off = (float3)(0.0f);
+    float fx = X - (float)fx0, fy = Y - (float)fy0;
+    if ((here & 1) && fx >= 0.0f && fy >= 0.0f && fx <= (float)(fw - 1) && fy <= (float)(fh - 1))
+        changed = face_at(fx, fy, f, coarse, cgw, step, ox, oy, layer, cw, ch, expect, expect_rgb, mode, tau, lift,
+                          res, &a, gain, off);
+    if (gw > 0) {
+        float gx = (X + gox + 0.5f) * sx - 0.5f, gy = (Y + goy + 0.5f) * sy - 0.5f;
+        int x0 = ifloor(gx), y0 = ifloor(gy);
+        float ax = gx - (float)x0, ay = gy - (float)y0;
+        int xa = x0 < 0 ? 0 : (x0 > gw - 1 ? gw - 1 : x0), xb = x0 + 1 < 0 ? 0 : (x0 + 1 > gw - 1 ? gw - 1 : x0 + 1);
+        int ya = y0 < 0 ? 0 : (y0 > gh - 1 ? gh - 1 : y0), yb = y0 + 1 < 0 ? 0 : (y0 + 1 > gh - 1 ? gh - 1 : y0 + 1);
+        float4 g = (person[ya * gw + xa] * (1.0f - ax) + person[ya * gw + xb] * ax) * (1.0f - ay)
+                 + (person[yb * gw + xa] * (1.0f - ax) + person[yb * gw + xb] * ax) * ay;
+        if (gate && a > 0.0f) {
+            /* the face's composite held to the person where the matte is trusted */
+            float k = fclamp((g.w - floor_w) / (GATE_HI - floor_w), 0.0f, 1.0f);
+            *res = f + k * (*res - f);
+            *gain = 1.0f + k * (*gain - 1.0f);
+            *off *= k;
+            a *= k;
+        }
+        float w = fmx(g.w, a) * (1.0f - a);
+        if (w > floor_w) {
+            *res += f * w * g.xyz;
+            *gain += w * g.xyz;
+            changed = 1;
+        }
+    }
+    return changed;
+}
+
 __kernel void composite_person(
     __global uchar *img, int img_w, int bx0, int by0, int bw, int bh, float scx, float scy,
     int fx0, int fy0, int fw, int fh,
@@ -304,34 +352,139 @@ __kernel void composite_person(
     int i = bx0 + x, j = by0 + y;
     float X = ((float)i + 0.5f) * scx - 0.5f, Y = ((float)j + 0.5f) * scy - 0.5f;
     size_t o = 3 * ((size_t)j * img_w + i);
-    float3 f = decode3(decode_lut, img + o), res = f;
-    float a = 0.0f;
-    int changed = 0;
-    float fx = X - (float)fx0, fy = Y - (float)fy0;
-    if ((here & 1) && fx >= 0.0f && fy >= 0.0f && fx <= (float)(fw - 1) && fy <= (float)(fh - 1))
-        changed = face_at(fx, fy, f, coarse, cgw, step, ox, oy, layer, cw, ch, expect, expect_rgb, mode, tau, lift,
-                          &res, &a);
-    if (gw > 0) {
-        float gx = (X + gox + 0.5f) * sx - 0.5f, gy = (Y + goy + 0.5f) * sy - 0.5f;
-        int x0 = ifloor(gx), y0 = ifloor(gy);
-        float ax = gx - (float)x0, ay = gy - (float)y0;
-        int xa = x0 < 0 ? 0 : (x0 > gw - 1 ? gw - 1 : x0), xb = x0 + 1 < 0 ? 0 : (x0 + 1 > gw - 1 ? gw - 1 : x0 + 1);
-        int ya = y0 < 0 ? 0 : (y0 > gh - 1 ? gh - 1 : y0), yb = y0 + 1 < 0 ? 0 : (y0 + 1 > gh - 1 ? gh - 1 : y0 + 1);
-        float4 g = (person[ya * gw + xa] * (1.0f - ax) + person[ya * gw + xb] * ax) * (1.0f - ay)
-                 + (person[yb * gw + xa] * (1.0f - ax) + person[yb * gw + xb] * ax) * ay;
-        if (gate && a > 0.0f) {
-            /* the face's composite held to the person where the matte is trusted */
-            float k = fclamp((g.w - floor_w) / (GATE_HI - floor_w), 0.0f, 1.0f);
-            res = f + k * (res - f);
-            a *= k;
-        }
-        float w = fmx(g.w, a) * (1.0f - a);
-        if (w > floor_w) {
-            res += f * w * g.xyz;
-            changed = 1;
-        }
-    }
-    if (changed)
+    float3 f = decode3(decode_lut, img + o), res, gn, of;
+    if (person_at(x, y, here, X, Y, f, &res, fx0, fy0, fw, fh, coarse, cgw, step, ox, oy, layer, cw, ch, expect,
+                  expect_rgb, person, gw, gh, sx, sy, gox, goy, floor_w, gate, mode, tau, lift, &gn, &of))
         encode3(encode_lut, lut_n, img + o, res);
 }
 
+/* The light's change of composite_person as a light field (relight.engine.field): over the box
+   of a small copy of the frame, per pixel (the small copy's uchar sRGB decoded) where it changes:
+   affine = 0: ((res + GAIN_EPS) / (f + GAIN_EPS), 1, 0, 0) - a gain per channel, clamped to
+   gain_max; affine = 1: (G, 1, B, 0) with res = G f + B (the composite's own split: the share of
+   the live pixel kept, times its ratio, and what the bundle's prediction adds); where it does
+   not: (1, 1, 1, 0, 0, 0, 0, 0). */
+__kernel void person_gain(
+    __global const uchar *img, int img_w, int bx0, int by0, int bw, int bh, float scx, float scy,
+    int fx0, int fy0, int fw, int fh,
+    __global const float2 *coarse, int cgw, int step, float ox, float oy,
+    __global const float8 *layer, int cw, int ch, __global const float *expect, __global const float4 *expect_rgb,
+    __global const float4 *person, int gw, int gh, float sx, float sy, float gox, float goy, float floor_w,
+    int gate, __global const uchar *groups,
+    __constant float *decode_lut, int mode, float tau, float lift, float gain_max, int affine,
+    __global float8 *gain)
+{
+    int x = get_global_id(0), y = get_global_id(1);
+    if (x >= bw || y >= bh)
+        return;
+    int here = groups[get_group_id(1) * get_num_groups(0) + get_group_id(0)];
+    float8 g = (float8)(1.0f, 1.0f, 1.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f);
+    if (here) {
+        int i = bx0 + x, j = by0 + y;
+        float X = ((float)i + 0.5f) * scx - 0.5f, Y = ((float)j + 0.5f) * scy - 0.5f;
+        size_t o = 3 * ((size_t)j * img_w + i);
+        float3 f = decode3(decode_lut, img + o), res, gn, of;
+        if (person_at(x, y, here, X, Y, f, &res, fx0, fy0, fw, fh, coarse, cgw, step, ox, oy, layer, cw, ch,
+                      expect, expect_rgb, person, gw, gh, sx, sy, gox, goy, floor_w, gate, mode, tau, lift, &gn,
+                      &of)) {
+            if (affine) {
+                g = (float8)(gn, 1.0f, of, 0.0f);
+            } else {
+                float3 q = (res + GAIN_EPS) / (f + GAIN_EPS);
+                g = (float8)(fclamp(q.x, 0.0f, gain_max), fclamp(q.y, 0.0f, gain_max), fclamp(q.z, 0.0f, gain_max),
+                             1.0f, 0.0f, 0.0f, 0.0f, 0.0f);
+            }
+        }
+    }
+    gain[(size_t)y * bw + x] = g;
+}
+
+/* One channel's change G f + B (linear) as a map of its sRGB code x (0-255): out = k x + n, the
+   change linearised at x - k = G dec'(x) / dec'(e) (the encode curve's slope is the inverse of the
+   decode curve's at e = enc(G dec(x) + B)), bounded by SLOPE_MAX; n makes it exact at x. Tables:
+   ``dslope`` the decode curve's slope at each code (interpolated between), ``encf`` the encode
+   curve as float codes at enc_n + 1 steps of linear light (interpolated). */
+__attribute__((always_inline)) inline float2 code_line(uchar code, float g, float b, __constant float *decode_lut,
+                                                       __global const float *dslope, __global const float *encf,
+                                                       int enc_n)
+{
+    float v = fclamp(g * decode_lut[code] + b, 0.0f, 1.0f) * (float)enc_n;
+    int k0 = (int)v;
+    k0 = k0 > enc_n - 1 ? enc_n - 1 : k0;
+    float e = encf[k0] + (v - (float)k0) * (encf[k0 + 1] - encf[k0]);
+    int c0 = (int)e;
+    c0 = c0 > 254 ? 254 : c0;
+    float se = dslope[c0] + (e - (float)c0) * (dslope[c0 + 1] - dslope[c0]);
+    float k = fclamp(g * dslope[code] / fmx(se, 1e-12f), 0.0f, SLOPE_MAX);
+    return (float2)(k, e - k * (float)code);
+}
+
+/* person_gain's (G, cover, B) of each cell of the small copy (affine = 1), in place in ``cells``
+   (bh * bw float8), as the light field's maps of the frame's codes (``out``, bh * bw * 32 floats:
+   the tangent map - three rows of 4 -, the chord map - three rows of 4 -, the cover, the knee in
+   the frame's codes, four zeros):
+   per channel code_line at the small copy's own code x_c (its pixel at (bx0 + x, by0 + y) of
+   ``img``): the tangent k x + n, and the chord through black and the tangent at the knee
+   q = x_c - KNEE_GAP, x (k q + n) / q (what a pixel darker than the knee takes: field.cl), each
+   composed with the frame's matrices - ``to_rgb`` its
+   codes -> R'G'B' codes, ``to_ycc`` back (rows of 4; identities for an RGB frame). A cell that
+   changes nothing maps to itself both ways. */
+__attribute__((always_inline)) inline void compose(__global float *m, const float *kk, const float *nn,
+                                                   const float *r, const float *qq)
+{
+    for (int row = 0; row < 3; ++row) {
+        float t = qq[4 * row + 3];
+        for (int col = 0; col < 3; ++col) {
+            float acc = 0.0f;
+            for (int j = 0; j < 3; ++j)
+                acc += qq[4 * row + j] * kk[j] * r[4 * j + col];
+            m[4 * row + col] = acc;
+        }
+        for (int j = 0; j < 3; ++j)
+            t += qq[4 * row + j] * (kk[j] * r[4 * j + 3] + nn[j]);
+        m[4 * row + 3] = t;
+    }
+}
+
+__kernel void field_cells(
+    __global const uchar *img, int img_w, int bx0, int by0, int bw, int bh, __global const float8 *cells,
+    __constant float *decode_lut, __global const float *dslope, __global const float *encf, int enc_n,
+    float16 to_rgb, float16 to_ycc, __global float *out)
+{
+    int x = get_global_id(0), y = get_global_id(1);
+    if (x >= bw || y >= bh)
+        return;
+    size_t q = (size_t)y * bw + x;
+    float8 c = cells[q];
+    __global float *m = out + 32 * q;
+    __global const uchar *px = img + 3 * ((size_t)(by0 + y) * img_w + bx0 + x);
+    for (int k = 0; k < 32; ++k)
+        m[k] = (k == 0 || k == 5 || k == 10 || k == 12 || k == 17 || k == 22) ? 1.0f : 0.0f;
+    m[24] = c.s3;
+    if (!(c.s3 > 0.0f))
+        return;
+    float2 l0 = code_line(px[0], c.s0, c.s4, decode_lut, dslope, encf, enc_n);
+    float2 l1 = code_line(px[1], c.s1, c.s5, decode_lut, dslope, encf, enc_n);
+    float2 l2 = code_line(px[2], c.s2, c.s6, decode_lut, dslope, encf, enc_n);
+    float kk[3] = {l0.x, l1.x, l2.x}, nn[3] = {l0.y, l1.y, l2.y};
+    /* the knee: KNEE_GAP codes below the cell's colour (no chord for a cell darker than that: its
+       chord is its tangent and no pixel is below its knee) */
+    float kn[3], ch[3];
+    float2 ln[3] = {l0, l1, l2};
+    for (int j = 0; j < 3; ++j) {
+        float q = (float)px[j] - KNEE_GAP;
+        kn[j] = q > 0.0f ? q : -1.0f;
+        ch[j] = q > 0.0f ? fclamp((ln[j].x * q + ln[j].y) / q, 0.0f, SLOPE_MAX) : ln[j].x;
+    }
+    float cn[3] = {0.0f, 0.0f, 0.0f};
+    for (int j = 0; j < 3; ++j)
+        cn[j] = kn[j] > 0.0f ? 0.0f : ln[j].y;  /* (a chord that is the tangent keeps its offset) */
+    float r[12] = {to_rgb.s0, to_rgb.s1, to_rgb.s2, to_rgb.s3, to_rgb.s4, to_rgb.s5, to_rgb.s6, to_rgb.s7,
+                   to_rgb.s8, to_rgb.s9, to_rgb.sa, to_rgb.sb};
+    float qq[12] = {to_ycc.s0, to_ycc.s1, to_ycc.s2, to_ycc.s3, to_ycc.s4, to_ycc.s5, to_ycc.s6, to_ycc.s7,
+                    to_ycc.s8, to_ycc.s9, to_ycc.sa, to_ycc.sb};
+    compose(m, kk, nn, r, qq);
+    compose(m + 12, ch, cn, r, qq);
+    for (int row = 0; row < 3; ++row)  /* the knee in the frame's codes */
+        m[25 + row] = qq[4 * row] * kn[0] + qq[4 * row + 1] * kn[1] + qq[4 * row + 2] * kn[2] + qq[4 * row + 3];
+}

@@ -139,20 +139,65 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
     ``floor``: the person's share below which nothing is added; ``gate``: the face's composite
     held to the person's share too (its share and change scaled by the person's from ``floor`` up
     to :data:`GATE_HI`; the frame path's choice where the matte is trusted)."""
+    out = np.array(img)
+    bx0, by0, bx1, by1 = box
+    region = out[by0:by1, bx0:bx1].reshape(-1, 3)
+    _, res_all, _, _, changed = _person_terms(
+        img, box, face_box, coarse, step, origin, layer, mode=mode, tau=tau, scale=scale, person=person,
+        frame_size=frame_size, floor=floor, offset=offset, person_origin=person_origin, person_scale=person_scale,
+        gate=gate)
+    lut, n = encode_lut()
+    idx = np.clip(res_all[changed] * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
+    region[changed] = lut[idx]
+    out[by0:by1, bx0:bx1] = region.reshape(by1 - by0, bx1 - bx0, 3)
+    return out
+
+
+def person_gain_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, origin, layer: LayerPair,
+                      *, mode: str, tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None,
+                      frame_size=None, floor: float = 0.0, offset=(0.0, 0.0), person_origin=(0, 0),
+                      person_scale=None, gate: bool = False, gain_max: float = 6.0,
+                      affine: bool = False) -> np.ndarray:
+    """NumPy twin of ``person_gain``: (bh, bw, 8) float32 over ``box`` - where a pixel changes,
+    ``affine``: (G, 1, B, 0) with composite_person's value = G f + B, else ((res + GAIN_EPS) /
+    (f + GAIN_EPS) clamped to ``gain_max``, 1, 0, 0, 0, 0); (1, 1, 1, 0, 0, 0, 0, 0) elsewhere.
+    Arguments as :func:`composite_person_numpy`'s."""
+    from .compositor import GAIN_EPS
+
+    bx0, by0, bx1, by1 = box
+    f_all, res_all, gain, off, changed = _person_terms(
+        img, box, face_box, coarse, step, origin, layer, mode=mode, tau=tau, scale=scale, person=person,
+        frame_size=frame_size, floor=floor, offset=offset, person_origin=person_origin, person_scale=person_scale,
+        gate=gate)
+    out = np.zeros((f_all.shape[0], 8), np.float32)
+    out[:, :3] = 1.0
+    if affine:
+        out[changed, :3], out[changed, 4:7] = gain[changed], off[changed]
+    else:
+        e = np.float32(GAIN_EPS)
+        out[changed, :3] = np.clip((res_all[changed] + e) / (f_all[changed] + e), 0.0, np.float32(gain_max))
+    out[changed, 3] = 1.0
+    return out.reshape(by1 - by0, bx1 - bx0, 8)
+
+
+def _person_terms(img, box, face_box, coarse, step, origin, layer, *, mode, tau, scale, person, frame_size, floor,
+                  offset, person_origin, person_scale, gate):
+    """composite_person's arithmetic over ``box``: (f, res, G, B, changed) per pixel - the pixels
+    (N, 3) linear, their composited value, res = G f + B, and where it changes (N,) bool."""
     from relight.colour import LUMINANCE
 
     layer, expect, lift = layer
-    out = np.array(img)
     bx0, by0, bx1, by1 = box
-    bw, bh = bx1 - bx0, by1 - by0
     fx0, fy0, fx1, fy1 = face_box
     scx, scy = (np.float32(v) for v in np.broadcast_to(np.asarray(scale, np.float64), (2,)))
     ys, xs = np.mgrid[by0:by1, bx0:bx1]
     fx = ((xs.astype(np.float32) + np.float32(0.5)) * scx - np.float32(0.5)).ravel()
     fy = ((ys.astype(np.float32) + np.float32(0.5)) * scy - np.float32(0.5)).ravel()
-    region = out[by0:by1, bx0:bx1].reshape(-1, 3)
+    region = np.asarray(img)[by0:by1, bx0:bx1].reshape(-1, 3)
     f_all = decode_lut8()[region]
     res_all = f_all.copy()
+    gain_all = np.ones_like(f_all)
+    off_all = np.zeros_like(f_all)
     a_all = np.zeros(region.shape[0], np.float32)
     rx, ry = fx - np.float32(fx0), fy - np.float32(fy0)
     in_box = (rx >= 0) & (ry >= 0) & (rx <= np.float32(fx1 - fx0 - 1)) & (ry <= np.float32(fy1 - fy0 - 1))
@@ -190,6 +235,8 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
             kf = np.maximum(ramp(spread, FOREIGN_RAMP) * (1.0 - dark) - s, 0.0)
         face = (s * (f + np.float32(lift)) + kf * f) * lay[:, 0:3] + (1.0 - s - kf) * lay[:, 4:7]
         res_all[k] = f + a * (face - f)
+        gain_all[k] = 1.0 - a + a * (s + kf) * lay[:, 0:3]
+        off_all[k] = a * (s * np.float32(lift) * lay[:, 0:3] + (1.0 - s - kf) * lay[:, 4:7])
         a_all[k] = a[:, 0]
         changed[k] = True
     if person is not None:
@@ -198,20 +245,18 @@ def composite_person_numpy(img: np.ndarray, box, face_box, coarse: np.ndarray, s
                                 (fy + goy + np.float32(0.5)) * sy - np.float32(0.5))
         if gate:
             fl = np.float32(floor)
-            k = np.clip((g[:, 3] - fl) / (np.float32(GATE_HI) - fl), 0.0, 1.0).astype(np.float32)
-            k = np.where(a_all > 0, k, np.float32(1.0))
-            res_all = f_all + k[:, None] * (res_all - f_all)
-            a_all = a_all * k
+            kk = np.clip((g[:, 3] - fl) / (np.float32(GATE_HI) - fl), 0.0, 1.0).astype(np.float32)
+            kk = np.where(a_all > 0, kk, np.float32(1.0))
+            res_all = f_all + kk[:, None] * (res_all - f_all)
+            gain_all = 1.0 + kk[:, None] * (gain_all - 1.0)
+            off_all = off_all * kk[:, None]
+            a_all = a_all * kk
         wgt = np.maximum(g[:, 3], a_all) * (1.0 - a_all)
         on = wgt > np.float32(floor)
         res_all[on] += f_all[on] * wgt[on, None] * g[on, :3]
+        gain_all[on] += wgt[on, None] * g[on, :3]
         changed |= on
-    lut, n = encode_lut()
-    idx = np.clip(res_all[changed] * np.float32(n) + np.float32(0.5), 0, n).astype(np.int32)
-    region[changed] = lut[idx]
-    out[by0:by1, bx0:bx1] = region.reshape(bh, bw, 3)
-    return out
-
+    return f_all, res_all, gain_all.astype(np.float32), off_all.astype(np.float32), changed
 
 
 def _bilinear_replicate(grid: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:

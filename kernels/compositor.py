@@ -72,6 +72,39 @@ FOREIGN_NOISE = 9.1e-4
 GATE_HI = 0.8
 #: Work-group size of ``build_layer`` (one work item per face pixel).
 LAYER_GROUP = 64
+#: ``person_gain``: the gain a changed pixel of the small copy gives is (res + GAIN_EPS) / (f +
+#: GAIN_EPS) per channel (linear; GAIN_EPS ~ a third of the darkest 8-bit code's step: a black
+#: pixel's gain stays defined, and nothing black is multiplied into noise).
+GAIN_EPS = 1e-4
+#: ``field_cells``: the code maps' slope is bounded by this (a cell's colour near black under a
+#: large gain: its codes' noise would be multiplied without end).
+SLOPE_MAX = 16.0
+#: ``field_cells``' chord: a pixel more than KNEE_GAP codes darker than its cell's colour takes
+#: the line through black and the tangent there, not the tangent - what is much darker than its
+#: cell (glasses' rims, pupils) keeps its darkness in proportion instead of being lifted with the
+#: cell, while a shadowed cell's own noise and texture (within the gap of its colour) stay on the
+#: tangent, where the change fills the shadow; a cell darker than the gap has no chord.
+KNEE_GAP = 24.0
+#: ... blended from the tangent to the chord over this many codes about the knee (a hard switch
+#: flips pixel by pixel with the sensor's noise: a rim drawn in dots).
+KNEE_RAMP = 8.0
+#: Steps of the float encode table (linear 0-1 -> sRGB code, 0-255, unrounded) the code maps are
+#: read from: interpolated, within 0.003 code of the curve (its steepest bend, at 0.004 linear).
+ENCODE_STEPS = 4096
+
+
+def decode_slope_table() -> np.ndarray:
+    """(256,) float32: the sRGB decode curve's slope at each 8-bit code (linear light per code)."""
+    x = np.arange(256, dtype=np.float64) / 255.0
+    slope = np.where(x <= 0.04045, 1.0 / 12.92, (2.4 / 1.055) * ((x + 0.055) / 1.055) ** 1.4) / 255.0
+    return slope.astype(np.float32)
+
+
+def encode_table() -> np.ndarray:
+    """(ENCODE_STEPS + 1,) float32: the sRGB code (0-255, unrounded) of linear i / ENCODE_STEPS."""
+    from relight.colour import linear_to_srgb
+
+    return (255.0 * linear_to_srgb(np.arange(ENCODE_STEPS + 1, dtype=np.float64) / ENCODE_STEPS)).astype(np.float32)
 
 
 def ramp(v, lo_hi) -> np.ndarray:
@@ -121,7 +154,8 @@ def kernel_defines() -> tuple[str, ...]:
               "D_LO": TRUST_DARK[0], "D_HI": TRUST_DARK[1], "CLIP_LO": CLIP_RAMP[0], "CLIP_HI": CLIP_RAMP[1],
               "AGREE_LO": AGREE_RAMP[0], "AGREE_HI": AGREE_RAMP[1], "FOREIGN_LO": FOREIGN_RAMP[0],
               "FOREIGN_HI": FOREIGN_RAMP[1], "CHROMA_FLOOR": CHROMA_FLOOR, "FOREIGN_NOISE": FOREIGN_NOISE,
-              "GATE_HI": GATE_HI, "OUTSIDE_HALF": OUTSIDE_HALF}
+              "GATE_HI": GATE_HI, "OUTSIDE_HALF": OUTSIDE_HALF, "GAIN_EPS": GAIN_EPS, "SLOPE_MAX": SLOPE_MAX,
+              "KNEE_GAP": KNEE_GAP}
     floats = tuple(f"-D{k}={float(np.float32(v)):.9e}f" for k, v in values.items())  # (always a C float literal)
     return floats + tuple(f"-DMODE_{name.upper()}={code:d}" for name, code in LAYER_MODES.items())
 
@@ -159,6 +193,14 @@ class Compositor:
         prg = build_program("composite", program_options())
         self._kernel = cl.Kernel(prg, "warp_composite")
         self._k_person = cl.Kernel(prg, "composite_person")
+        self._k_gain = cl.Kernel(prg, "person_gain")
+        self._k_cells = cl.Kernel(prg, "field_cells")
+        self._gain, self._gain_cap = None, 0
+        self._maps, self._maps_cap = None, 0
+        self._dslope = cl.Buffer(rt.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                                 hostbuf=decode_slope_table())
+        self._encf = cl.Buffer(rt.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                               hostbuf=encode_table())
         self._person = None  # (the person grid last sent, its buffer)
         self._k_layer = cl.Kernel(prg, "build_layer")
         self.alpha = np.ascontiguousarray(alpha, dtype=np.float32)
@@ -312,14 +354,89 @@ class Compositor:
         composited over ``box`` (a new array): the ``composite_person`` kernel (its twin and the
         arguments: :func:`composite_person_numpy`). A read-only ``person`` grid handed again (the
         same array) is not sent to the device again."""
-        import pyopencl as cl
-
         img = np.ascontiguousarray(img, dtype=np.uint8)
-        coarse = self._coarse(coarse)
         bx0, by0, bx1, by1 = (int(v) for v in box)
         bw, bh = bx1 - bx0, by1 - by0
         if bw <= 0 or bh <= 0:
             return img.copy()
+        args, groups, size = self._person_args(img, (bx0, by0, bx1, by1), face_box, coarse, step, scale, person,
+                                               frame_size, floor, offset, person_origin, person_scale, gate)
+
+        def launch(buf):
+            self._k_person(self.rt.queue, size, GROUP, buf, *args, groups, self._dec, self._enc,
+                           np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau),
+                           np.float32(self._lift))
+
+        return self._rows_through(img, (bx0, by0, bx1, by1), launch)
+
+    def person_gain(self, img: np.ndarray, box, face_box, coarse: np.ndarray, step: int, *, mode: str,
+                    tau: float = 0.0, scale: float = 1.0, person: np.ndarray | None = None, frame_size=None,
+                    floor: float = 0.0, offset=(0.0, 0.0), person_origin=(0, 0), person_scale=None,
+                    gate: bool = False, gain_max: float = 6.0, affine: bool = False,
+                    code_maps=None) -> np.ndarray:
+        """(bh, bw, 8) float32 over ``box`` of ``img``: :meth:`composite_person`'s change of each
+        pixel (the ``person_gain`` kernel) - ``affine``: (G, 1, B, 0) with its value G f + B (linear,
+        per channel), else ((res + GAIN_EPS) / (f + GAIN_EPS) clamped to ``gain_max``, 1, 0, 0, 0, 0);
+        (1, 1, 1, 0, 0, 0, 0, 0) where it does not change. ``code_maps`` ((3, 4) to_rgb, (3, 4)
+        to_ycc: a decoded frame's code maps; (None, None): an RGB frame's): instead (bh, bw, 32), the
+        affine split as maps of the frame's codes (the ``field_cells`` kernel; its twin
+        :func:`relight.engine.field.code_grid`). Other arguments as :meth:`composite_person`'s."""
+        import pyopencl as cl
+
+        img = np.ascontiguousarray(img, dtype=np.uint8)
+        bx0, by0, bx1, by1 = (int(v) for v in box)
+        bw, bh = bx1 - bx0, by1 - by0
+        out = np.empty((max(bh, 0), max(bw, 0), 8 if code_maps is None else 32), np.float32)
+        if bw <= 0 or bh <= 0:
+            return out
+        affine = affine or code_maps is not None
+        args, groups, size = self._person_args(img, (bx0, by0, bx1, by1), face_box, coarse, step, scale, person,
+                                               frame_size, floor, offset, person_origin, person_scale, gate)
+        q = self.rt.queue
+        buf = self._image_buf(img.shape)
+        row = img.shape[1] * img.shape[2]
+        cl.enqueue_copy(q, buf, img[by0:by1], dst_offset=by0 * row, is_blocking=False)
+        gbuf = self._gain_buf(out.nbytes)
+        self._k_gain(q, size, GROUP, buf, *args, groups, self._dec, np.int32(LAYER_MODES[mode]), np.float32(tau),
+                     np.float32(self._lift), np.float32(gain_max), np.int32(bool(affine)), gbuf)
+        if code_maps is not None:
+            to_rgb, to_ycc = (np.hstack([np.eye(3), np.zeros((3, 1))]) if m is None else np.asarray(m)
+                              for m in code_maps)
+            mbuf = self._maps_buf(out.nbytes)
+            m_rgb, m_ycc = np.zeros(16, np.float32), np.zeros(16, np.float32)
+            m_rgb[:12], m_ycc[:12] = np.asarray(to_rgb, np.float32).ravel(), np.asarray(to_ycc, np.float32).ravel()
+            self._k_cells(q, size, GROUP, buf, np.int32(img.shape[1]), np.int32(bx0), np.int32(by0), np.int32(bw),
+                          np.int32(bh), gbuf, self._dec, self._dslope, self._encf, np.int32(ENCODE_STEPS),
+                          m_rgb.view(cl.cltypes.float16)[0], m_ycc.view(cl.cltypes.float16)[0], mbuf)
+            gbuf = mbuf
+        cl.enqueue_copy(q, out, gbuf, is_blocking=True)
+        return out
+
+    def _maps_buf(self, nbytes: int):
+        import pyopencl as cl
+
+        if nbytes > self._maps_cap:
+            self._maps_cap = max(nbytes, 2 * self._maps_cap)
+            self._maps = cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE, self._maps_cap)
+        return self._maps
+
+    def _gain_buf(self, nbytes: int):
+        import pyopencl as cl
+
+        if nbytes > self._gain_cap:
+            self._gain_cap = max(nbytes, 2 * self._gain_cap)
+            self._gain = cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE, self._gain_cap)
+        return self._gain
+
+    def _person_args(self, img, box, face_box, coarse, step, scale, person, frame_size, floor, offset,
+                     person_origin, person_scale, gate):
+        """The arguments composite_person and person_gain share (image width to the gate), their
+        work-groups' buffer and the launch size."""
+        import pyopencl as cl
+
+        coarse = self._coarse(coarse)
+        bx0, by0, bx1, by1 = box
+        bw, bh = bx1 - bx0, by1 - by0
         fx0, fy0, fx1, fy1 = (int(v) for v in face_box)
         scx, scy = (float(v) for v in np.broadcast_to(np.asarray(scale, np.float64), (2,)))
         gw = gh = 0
@@ -335,20 +452,13 @@ class Compositor:
             gh, gw = person.shape[:2]
             grid_buf = self._person[1]
             (sx, sy), (gox, goy) = person_sampling(person, frame_size, offset, person_origin, person_scale)
-        groups = self._groups((bx0, by0, bx1, by1), (scx, scy), (fx0, fy0, fx1, fy1), coarse, step, person,
+        groups = self._groups(box, (scx, scy), (fx0, fy0, fx1, fy1), coarse, step, person,
                               ((sx, sy), (gox, goy)), floor, bool(gate) and gw > 0)
         gx, gy = GROUP
-
-        def launch(buf):
-            self._k_person(self.rt.queue, (-(-bw // gx) * gx, -(-bh // gy) * gy), GROUP, buf, np.int32(img.shape[1]),
-                           np.int32(bx0), np.int32(by0), np.int32(bw), np.int32(bh), np.float32(scx), np.float32(scy),
-                           np.int32(fx0), np.int32(fy0), np.int32(fx1 - fx0), np.int32(fy1 - fy0), self._coarse_buf,
-                           np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
-                           np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch),
-                           self._expect, self._expect_rgb, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx),
-                           np.float32(sy), np.float32(gox), np.float32(goy), np.float32(floor),
-                           np.int32(bool(gate) and gw > 0), groups, self._dec, self._enc,
-                           np.int32(self.lut_n), np.int32(LAYER_MODES[mode]), np.float32(tau),
-                           np.float32(self._lift))
-
-        return self._rows_through(img, (bx0, by0, bx1, by1), launch)
+        args = (np.int32(img.shape[1]), np.int32(bx0), np.int32(by0), np.int32(bw), np.int32(bh), np.float32(scx),
+                np.float32(scy), np.int32(fx0), np.int32(fy0), np.int32(fx1 - fx0), np.int32(fy1 - fy0),
+                self._coarse_buf, np.int32(coarse.shape[1]), np.int32(step), np.float32(self.origin[0]),
+                np.float32(self.origin[1]), self._layer, np.int32(self.cw), np.int32(self.ch), self._expect,
+                self._expect_rgb, grid_buf, np.int32(gw), np.int32(gh), np.float32(sx), np.float32(sy),
+                np.float32(gox), np.float32(goy), np.float32(floor), np.int32(bool(gate) and gw > 0))
+        return args, groups, (-(-bw // gx) * gx, -(-bh // gy) * gy)

@@ -2,11 +2,11 @@
 
 Converting a whole 1280x720 frame to RGB costs 11.7 ms of CPU here and back to Y'CbCr for the
 encoder 8.7 ms (swscale with :func:`relight.video.sws_flags`, as :func:`relight.video.frame_to_rgb`
-and :func:`relight.video.to_yuv` do) - more than the per-frame path's own work. A relit frame
-changes only the face's box: :class:`YuvFrame` keeps the decoder's planes, gives the tracker a
-small grey image made from them, converts the box to RGB and back, and writes back only the
-pixels the composite changed (luma per pixel, chroma per 2x2 block) - the rest of the frame
-leaves bit for bit as it came.
+and :func:`relight.video.to_yuv` do) - more than the per-frame path's own work. :class:`YuvFrame`
+keeps the decoder's planes: the tracker gets a small grey image made from them, the light field a
+small copy of a box (:meth:`YuvFrame.small_box`), the live light a few samples
+(:func:`sample_codes`), and the light field is applied in the planes themselves
+(:meth:`YuvFrame.with_field`) - the rest of the frame leaves bit for bit as it came.
 
 Which frames: 8-bit 4:2:0 (``yuv420p``), Rec.709 primaries, SDR, no display rotation or mirror,
 and - because the output is tagged so - the BT.709 matrix (or untagged at 720 lines and more,
@@ -184,36 +184,61 @@ class YuvFrame:
         return planes_to_rgb(downscale_area(self.y, (w, h)), downscale_area(self.u, (w // 2, h // 2)),
                              downscale_area(self.v, (w // 2, h // 2)))
 
-    def even_box(self, box: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
-        """``box`` grown to even edges (whole chroma samples), clipped to the frame."""
+    def small_box(self, box: tuple[int, int, int, int], factor: int) -> np.ndarray:
+        """(h, w, 3) uint8 sRGB of the frame's ``box`` - its corner a multiple of the ``factor``
+        (even, or 1: then of 2), its size too (its far edges may pass the frame's: the last pixels
+        are replicated) - scaled down by ``factor``: each plane's blocks averaged, then converted
+        (the conversion is linear); at factor 1 the box itself (:func:`planes_to_rgb`)."""
         x0, y0, x1, y1 = box
-        h, w = self.y.shape
-        return (max(x0 - x0 % 2, 0), max(y0 - y0 % 2, 0), min(x1 + x1 % 2, w), min(y1 + y1 % 2, h))
 
-    def rgb_box(self, box: tuple[int, int, int, int]) -> np.ndarray:
-        """(y1 - y0, x1 - x0, 3) uint8 sRGB of an even ``box`` (:meth:`even_box`)."""
-        x0, y0, x1, y1 = box
-        return planes_to_rgb(self.y[y0:y1, x0:x1], self.u[y0 // 2:y1 // 2, x0 // 2:x1 // 2],
-                             self.v[y0 // 2:y1 // 2, x0 // 2:x1 // 2])
+        def shrink(plane, b, f):
+            bx0, by0, bx1, by1 = b
+            ph, pw = plane.shape
+            crop = plane[by0:min(by1, ph), bx0:min(bx1, pw)]
+            if bx1 > pw or by1 > ph:
+                crop = cv2.copyMakeBorder(crop, 0, max(by1 - ph, 0), 0, max(bx1 - pw, 0), cv2.BORDER_REPLICATE)
+            if f == 1:
+                return np.ascontiguousarray(crop)
+            return cv2.resize(crop, ((bx1 - bx0) // f, (by1 - by0) // f), interpolation=cv2.INTER_AREA)
 
-    def with_rgb_box(self, box: tuple[int, int, int, int], before: np.ndarray, after: np.ndarray) -> YuvFrame:
-        """A new frame: this one with the RGB of an even ``box`` changed from ``before`` (what
-        :meth:`rgb_box` gave) to ``after`` - converted back (:func:`rgb_to_planes`) only where a
-        pixel changed (luma) or a 2x2 block holds one (chroma)."""
-        x0, y0, x1, y1 = box
-        d = cv2.absdiff(np.ascontiguousarray(before), np.ascontiguousarray(after))
-        changed = (d[..., 0] | d[..., 1] | d[..., 2]) != 0  # (numpy's any over an axis of 3: 10x slower)
-        y, u, v = self.y.copy(), self.u.copy(), self.v.copy()
-        if not changed.any():
-            return YuvFrame(y, u, v, self.colorspace, self.color_range)
-        ny, nu, nv = rgb_to_planes(after)
-        bh, bw = changed.shape
-        block = changed[0::2, 0::2] | changed[1::2, 0::2] | changed[0::2, 1::2] | changed[1::2, 1::2]
-        np.copyto(y[y0:y1, x0:x1], ny, where=changed)
-        cy0, cx0 = y0 // 2, x0 // 2
-        np.copyto(u[cy0:cy0 + bh // 2, cx0:cx0 + bw // 2], nu, where=block)
-        np.copyto(v[cy0:cy0 + bh // 2, cx0:cx0 + bw // 2], nv, where=block)
+        ys = shrink(self.y, box, factor)
+        half = (x0 // 2, y0 // 2, -(-x1 // 2), -(-y1 // 2))
+        if factor == 1:  # (the box's corner and size even: whole chroma samples)
+            return planes_to_rgb(ys, shrink(self.u, half, 1), shrink(self.v, half, 1))
+        return cv2.transform(cv2.merge([ys, shrink(self.u, half, factor // 2), shrink(self.v, half, factor // 2)]),
+                             _TO_RGB)
+
+    @property
+    def space(self) -> tuple:
+        """What its codes are: the planes' matrix and range (a light field made for them maps them)."""
+        return ("ycbcr", self.colorspace, self.color_range)
+
+    def code_maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """((3, 4), (3, 4)) float32 affine maps of its codes (Y', Cb, Cr, 1) -> R'G'B' codes and back."""
+        return _TO_RGB, _TO_YCBCR
+
+    def with_field(self, applier, box, grid: np.ndarray, sampling) -> YuvFrame:
+        """A new frame: this one with a light field (maps of its codes: :meth:`code_maps`) applied
+        over ``box`` in its planes (:meth:`relight.kernels.field_apply.FieldApplier.planes`)."""
+        y, u, v = applier.planes(self.y, self.u, self.v, box, grid, sampling)
         return YuvFrame(y, u, v, self.colorspace, self.color_range)
+
+
+def sample_codes(frame, xy: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 sRGB codes of ``frame`` ((H, W, 3) uint8 sRGB or a :class:`YuvFrame`) read
+    bilinearly at frame positions ``xy`` (N, 2) float (edges replicated) - for a YuvFrame its
+    planes read there (the chroma at its own siting, centred on its 2x2 block) and converted."""
+    xy = np.asarray(xy, np.float32).reshape(-1, 1, 2)
+    if xy.shape[0] == 0:
+        return np.zeros((0, 3), np.uint8)
+    mx, my = np.ascontiguousarray(xy[..., 0]), np.ascontiguousarray(xy[..., 1])
+    if isinstance(frame, np.ndarray):
+        return cv2.remap(frame, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
+    ys = cv2.remap(frame.y, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    cx, cy = (mx - np.float32(0.5)) * np.float32(0.5), (my - np.float32(0.5)) * np.float32(0.5)
+    us = cv2.remap(frame.u, cx, cy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    vs = cv2.remap(frame.v, cx, cy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return cv2.transform(cv2.merge([ys, us, vs]), _TO_RGB).reshape(-1, 3)
 
 
 def as_rgb(frame) -> np.ndarray:

@@ -113,27 +113,34 @@ def test_the_live_ratio_lifts_nothing_the_target_light_darkens(frame_path):
 
 
 def test_the_persons_maps_are_not_reused_across_a_new_environment_or_a_gap(small_bundle, clip, monkeypatch):
-    """The person's maps are reused between frames (PERSON_EVERY), but never across a change of
-    environment or a frame without the face: the frame after either is what a path remaking them
-    every frame gives (the old ratio left the person under the last environment's change of light
-    for a frame; a matte from before the gap would sit where the person was)."""
+    """The person's maps are reused between frames (the scheduler remakes them when the head moved
+    or turned enough, or they aged), but never across a change of environment or a frame without
+    the face: the frame after either is what a path remaking them every frame gives (the old ratio
+    left the person under the last environment's change of light for a frame; a matte from before
+    the gap would sit where the person was). The field is remade every frame in both runs, and the
+    matte trusted on its own (not after a run of remakes, which the two runs count differently)."""
     from relight.engine import frame_path as fpm
+    from relight.engine import head_light, schedule
 
     _, frames = clip
     env, new = load_environment("builtin:sunset"), load_environment("builtin:window")
     outs = []
-    for every in (fpm.PERSON_EVERY, 1):
-        monkeypatch.setattr(fpm, "PERSON_EVERY", every)
+    monkeypatch.setattr(schedule, "FIELD_MAX_AGE", 1)
+    monkeypatch.setattr(head_light, "MATTE_TRUST_RUN", 1)
+    for every in (schedule.PERSON_MAX_AGE, 1):
+        monkeypatch.setattr(schedule, "PERSON_MAX_AGE", every)
         fp = fpm.FramePath(small_bundle, env, region="person")
         run = [fp.process(f, i / 30) for i, f in enumerate(frames[:7])]
         assert all(info.face for _, info in run)
-        for k in (7, 8):  # the switch after a frame that made the maps, and after one that reused them
+        for k in (7, 8):  # two switches in a row
             fp.set_environment(new)
             run.append(fp.process(frames[k], k / 30))
+            assert "person" in run[-1][1].ran  # made for the new light
             fp.set_environment(env)
-        run.append(fp.process(frames[9], 9 / 30))  # made the maps
+        run.append(fp.process(frames[9], 9 / 30))
         gap, _ = fp.process(np.full_like(frames[0], 90), 10 / 30)  # the room without the person
-        run.append(fp.process(frames[11], 11 / 30))  # would have reused them
+        run.append(fp.process(frames[11], 11 / 30))
+        assert "person" in run[-1][1].ran  # made again after the gap
         outs.append([o for o, _ in run])
     reused, remade = outs
     assert any(not np.array_equal(a, b) for a, b in zip(reused[:7], remade[:7], strict=True))  # it does reuse
@@ -149,10 +156,13 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
     switch makes its own)."""
     import threading
 
-    from relight.engine import frame_light, frame_person
+    from relight.engine import frame_light, frame_person, schedule
     from relight.engine import frame_path as fpm
 
     _, frames = clip
+    # the maps and the fits made at least every third frame (the clip's head moves little)
+    monkeypatch.setattr(schedule, "PERSON_MAX_AGE", 3)
+    monkeypatch.setattr(schedule, "LIGHT_MAX_AGE", 3)
     env, new = load_environment("builtin:sunset"), load_environment("builtin:window")
     taken, fitted = [], []
     real, real_fit = frame_person.PersonStage.took, frame_light.LiveLightStage.fit
@@ -181,7 +191,7 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
         fp.set_environment(new)
         before = len(taken)
         run.append(fp.process(frames[12], 12 / 30))
-        assert len(taken) == before + 1 and fp.person.age == 0  # the maps made for it, in it
+        assert len(taken) == before + 1 and fp.person.job is None  # the maps made for it, in it
         outs.append([o for o, _ in run])
     sync, live = outs
     assert taken.count(True) >= 3  # maps made on the worker were used (beyond the first, made in the frame)
