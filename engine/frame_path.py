@@ -22,7 +22,6 @@ reference into the frame.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -33,13 +32,13 @@ from relight.kernels.relighter import DEFAULT_TOLERANCE
 from relight.numerics import EPS_VALUE
 
 from . import composite
-from .field import FIELD_ROWS, GAIN_MAX, LightField, aligned_box, cover_box, field_factor, small_copy
+from .field import FIELD_ROWS
+from .frame_data import FrameInfo, Front
+from .frame_field import FieldStage
 from .frame_light import LiveLightStage, sync_relight
 from .frame_person import PersonStage
 from .frame_warp import face_warp, regularised_points
 from .gains import ambient_gain, paste_gain
-from .live_light import LiveLight
-from .person_maps import union_box
 from .pose import OneEuroFilter, PoseEstimator
 from .refind import refind_landmarks
 from .rig import FaceRig
@@ -47,7 +46,6 @@ from .schedule import RELIGHT_DEG, Head, Plan, Scheduler
 from .threads import Worker, limit_threads
 from .tracking import FaceTracker
 from .tracking_image import tracking_image
-from .warp import GRID_STEP
 
 #: Head turns (degrees) below which the last relight serves (:data:`.schedule.RELIGHT_DEG`).
 REUSE_DEG = RELIGHT_DEG
@@ -58,56 +56,6 @@ EXPOSURE_RANGE_EV = (-20.0, 20.0)
 ANGLE_MIN_CUTOFF = 1.5
 ANGLE_BETA = 0.2
 GAIN_MIN_CUTOFF = 0.5
-
-
-@dataclass
-class FrameInfo:
-    """What happened to one frame: ``face`` found, ``angles`` (yaw, pitch, roll) in degrees of
-    the smoothed head rotation (None without a face), ``points`` tracked, ``timings`` ms,
-    ``ran`` {stage: reason} of the slow stages that ran on it (:class:`.schedule.Plan`)."""
-
-    face: bool = False
-    angles: tuple[float, float, float] | None = None
-    raw_angles: tuple[float, float, float] | None = None
-    points: int = 0
-    note: str = ""
-    timings: dict = field(default_factory=dict)
-    light: LiveLight | None = None
-    reused: bool = False  # the last relight served this frame (the head turned < reuse_deg)
-    ran: dict = field(default_factory=dict)
-
-
-@dataclass
-class Front:
-    """What :meth:`FramePath.front` found in a frame - all :meth:`FramePath.back` reads of it.
-
-    ``frame``: the frame as given ((H, W, 3) uint8 sRGB or a YuvFrame); ``t``: its time (s);
-    ``t0``: perf_counter at the start of its path; ``info``: the FrameInfo both halves fill.
-    The rest is None when no head pose was found (``back`` then passes the frame through):
-    ``track`` the tracked points, ``keep`` the pose's inliers among them and ``ref_idx`` their
-    landmark indices, ``xy`` ((M, 2) float32) where the warp puts those landmarks, ``pose`` and
-    ``rotation`` (3x3, smoothed) the head's, ``size`` (w, h), ``track_gain`` the tracking copy's
-    brightening gain, ``warp`` (cur, ref, box, coarse) the warp the pose gives
-    (:func:`.frame_warp.face_warp`), ``brightness`` the face's mean grey code in the tracking
-    copy (the scheduler's test of the room's light), ``thumb`` a grey thumbnail of the frame and
-    ``thumb_scale`` its px per frame px (the scheduler's test of the scene: :mod:`.schedule`)."""
-
-    frame: object
-    t: float
-    t0: float
-    info: FrameInfo
-    track: object = None
-    keep: np.ndarray | None = None
-    ref_idx: np.ndarray | None = None
-    xy: np.ndarray | None = None
-    pose: object = None
-    rotation: np.ndarray | None = None
-    size: tuple[int, int] = (0, 0)
-    track_gain: float = 1.0
-    warp: tuple | None = None
-    brightness: float = 0.0
-    thumb: np.ndarray | None = None
-    thumb_scale: float = 1.0
 
 
 class FramePath:
@@ -176,11 +124,9 @@ class FramePath:
         # would hold its two dozen renders back - 1.5 s of a 720p bundle's start)
         self.set_environment(env)
         from relight.kernels.compositor import Compositor
-        from relight.kernels.field_apply import FieldApplier
 
         self.compositor = Compositor(rig.alpha_crop, rig.fill, rig.inv_ambient, rig.normal_crop, rig.origin,
                                      self.relighter)
-        self.applier = FieldApplier()
         self.rigid_warp = bool(rigid_warp)
         if region not in composite.REGIONS:
             raise InputError(f"region {region!r}: use one of {', '.join(composite.REGIONS)}")
@@ -193,7 +139,7 @@ class FramePath:
         self.live_light = LiveLightStage(bundle, rig, self.relighter, self.tracker, worker,
                                          live_source=self.live_source)
         self.schedule = Scheduler()
-        self.field: LightField | None = None
+        self.field = FieldStage(self.compositor, self.field_rows)
         self._field_key = None  # (mode, strength, draft, env) the field was made with
         self._new_target = True  # a new environment since the person's maps were made
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
@@ -299,9 +245,36 @@ class FramePath:
         self.live_light.reset()
         self.person.reset()
         self.schedule.reset()
-        self.field = None
+        self.field.reset()
         for est in self._estimators.values():
             est.last = None
+
+    def warm_up(self, size: tuple[int, int] | None = None, planes: bool = True) -> float:
+        """Run every kernel and model the frames will (and make PoCL compile each for its work-group
+        shape) before the first real frame: the bundle's own reference frame, scaled to ``size``
+        (w, h; None: as it is), through the path - RGB and, with ``planes``, in Y'CbCr planes -
+        then :meth:`reset`. A live source's first frames then wait for no compile (measured on a
+        fresh machine: one frame waited 1.9 s). Returns the seconds it took."""
+        from relight.video_yuv import YuvFrame, rgb_to_planes
+
+        t0 = time.perf_counter()
+        ref = np.ascontiguousarray(self.bundle.background)
+        if size is not None and tuple(size) != (ref.shape[1], ref.shape[0]):
+            ref = cv2.resize(ref, tuple(size), interpolation=cv2.INTER_AREA)
+        frames = [ref]
+        if planes and ref.shape[0] % 2 == 0 and ref.shape[1] % 2 == 0:
+            frames.append(YuvFrame(*rgb_to_planes(ref)))
+        live, self.live_source = self.live_source, False  # (the slow maps in the frame: all of them run)
+        self.person.live_source = self.live_light.live_source = False
+        try:
+            for i, f in enumerate(frames):
+                self.reset()
+                for k in range(2):
+                    self.process(f, (2 * i + k) / 30.0)
+        finally:
+            self.live_source = self.person.live_source = self.live_light.live_source = live
+            self.reset()
+        return time.perf_counter() - t0
 
     # ------------------------------------------------------------------ per frame
     def process(self, rgb, t: float):
@@ -403,8 +376,7 @@ class FramePath:
         # The relighter's rotation: the head's (a head turned by R sees the light from d at R^T d),
         # with the environment's own turn E composed (its lights at E d: seen at R^T E d).
         turn = with_env_turn(None if self.fixed_env else front.rotation, env_rot)
-        if self.field is not None and self.field.space != _space(front.frame):
-            self.field = None  # (frames of another kind: their codes differ)
+        self.field.check_space(front.frame)
         plan = self._plan(head, turn)
         info.ran = plan.ran()
         info.reused = plan.relight is None
@@ -419,12 +391,12 @@ class FramePath:
         if self.mode == "transfer":
             info.light = self.live_light.last
         if plan.field is not None:
-            self.field = self._make_field(front, head, plan, env_rot, defer_reference)
+            self._make_field(front, head, plan, env_rot, defer_reference)
             self.schedule.ran("field", head)
-        elif self.field is not None:
-            self.field = self.field.moved(anchor, front.size)
+        else:
+            self.field.carry(anchor, front.size)
         t4 = time.perf_counter()
-        out = self._apply(front.frame, self.field)
+        out = self.field.apply(front.frame)
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         tm["total"] = (time.perf_counter() - front.t0) * 1e3
         return out, info
@@ -448,9 +420,9 @@ class FramePath:
                                   has_person=self.person.last_maps() is not None,
                                   new_environment=self._new_target,
                                   settings_changed=settings != self._field_key or delivered,
-                                  relight_deg=self.reuse_deg, has_field=self.field is not None,
+                                  relight_deg=self.reuse_deg, has_field=self.field.last is not None,
                                   light_fits=self.live_light.fits, person_box=self._person_box(),
-                                  field_box=self.field.box if self.field is not None else None)
+                                  field_box=self.field.last.box if self.field.last is not None else None)
         self._field_key = settings
         self._field_env = self.env  # (kept alive: the id above stays its)
         return plan
@@ -460,11 +432,10 @@ class FramePath:
         last = self.person.last_maps()
         return last[1].box if last is not None else None
 
-    def _make_field(self, front: Front, head: Head, plan: Plan, env_rot, defer: bool) -> LightField | None:
-        """The light field of this frame (:mod:`.field`): the face's layer built for it (the live
-        light fitted when the plan says), the person's maps (region person: made when the plan
-        says, else the last ones carried), then the ``person_gain`` kernel over a copy of the box
-        they reach scaled down by the field's factor. None when nothing changes."""
+    def _make_field(self, front: Front, head: Head, plan: Plan, env_rot, defer: bool) -> None:
+        """The light field of this frame (:mod:`.frame_field`): the face's layer built for it (the
+        live light fitted when the plan says), the person's maps (region person: made when the
+        plan says, else the last ones carried), then the field over the box they reach."""
         rgb, t, tm = front.frame, front.t, front.info.timings
         _, _, box, coarse = front.warp
         t3 = time.perf_counter()
@@ -486,9 +457,8 @@ class FramePath:
                 self._new_target = False
             tm["person"] = (time.perf_counter() - t6) * 1e3
         t7 = time.perf_counter()
-        made = self._field_grid(rgb, box, coarse, layer_mode, tau, maps, head.anchor)
+        self.field.make(rgb, box, coarse, layer_mode, tau, maps, head.anchor, self.schedule.frame)
         tm["field"] = (time.perf_counter() - t7) * 1e3
-        return made
 
     def _light(self, front: Front, head: Head, plan: Plan, defer: bool):
         """The layer's light for this frame, by mode: (layer mode, exposure gain, the live face's
@@ -510,42 +480,6 @@ class FramePath:
         else:  # paste: the relit face's median matched to the live face's at the tracked points
             gain = paste_gain(self.rig, rgb, flat, front.track.xy[front.keep], front.ref_idx)
         return composite.LAYER_MODE[self.mode], gain, 0.0, 0.0, float(self.rig.ratio_eps), waited
-
-    def _field_grid(self, rgb, box, coarse, layer_mode: str, tau: float, maps, anchor) -> LightField | None:
-        """The ``person_gain`` kernel over the box the face (``box``, ``coarse``: the warp) and the
-        person's ``maps`` (or None: the face alone) reach, on a copy scaled down by the field's
-        factor: a :class:`.field.LightField` (None when nothing changes)."""
-        from relight.kernels.field_apply import COVER
-
-        from .head_light import MATTE_FLOOR
-
-        h, w = rgb.shape[:2]
-        f = field_factor((w, h), self.field_rows)
-        reach = box if maps is None or maps.box is None else union_box(box, maps.box)
-        # (a decoded frame's copy at a cell a pixel is still made of whole chroma samples)
-        ax0, ay0, ax1, ay1 = abox = aligned_box(reach, (w, h), f if f > 1 or isinstance(rgb, np.ndarray) else 2)
-        small = small_copy(rgb, abox, f)
-        face_box = (box[0] - ax0, box[1] - ay0, box[2] - ax0, box[3] - ay0)
-        person = {} if maps is None else dict(person=maps.grid, person_origin=maps.origin, person_scale=maps.scale,
-                                              floor=MATTE_FLOOR, offset=(ax0, ay0), gate=maps.gate)
-        codes = rgb.code_maps() if not isinstance(rgb, np.ndarray) else (None, None)
-        grid = self.compositor.person_gain(small, (0, 0, small.shape[1], small.shape[0]), face_box, coarse,
-                                           GRID_STEP, mode=layer_mode, tau=tau, scale=(f, f), gain_max=GAIN_MAX,
-                                           code_maps=codes, **person)
-        reach_box = cover_box(grid[..., COVER], (ax0, ay0), f, (w, h))
-        if reach_box is None:
-            return None
-        grid.flags.writeable = False
-        return LightField(grid, _space(rgb), f, (float(ax0), float(ay0)), reach_box, anchor, self.schedule.frame)
-
-    def _apply(self, frame, fld: LightField | None):
-        """``frame`` with the light field applied (a new frame of the same kind: the field's
-        kernel over its box, in the planes of a YuvFrame); the frame as it is without one."""
-        if fld is None:
-            return frame
-        if isinstance(frame, np.ndarray):
-            return self.applier.rgb(frame, fld.box, fld.grid, fld.sampling())
-        return frame.with_field(self.applier, fld.box, fld.grid, fld.sampling())
 
     def _refind(self, est, pose, ts, grey, idx):
         """The landmarks ``idx`` found again in ``grey`` (:func:`.refind.refind_landmarks`, against
@@ -569,11 +503,6 @@ def _thumbnail(grey: np.ndarray) -> np.ndarray:
     h, w = grey.shape
     th = min(THUMB_ROWS, h)
     return downscale_area(grey, (max(1, round(w * th / h)), th))
-
-
-def _space(frame):
-    """What a frame's codes are: "rgb" (sRGB) or a decoded frame's planes' (:attr:`YuvFrame.space`)."""
-    return "rgb" if isinstance(frame, np.ndarray) else frame.space
 
 
 def _face_brightness(grey: np.ndarray, xy: np.ndarray) -> float:

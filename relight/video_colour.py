@@ -75,6 +75,10 @@ PLANAR_FORMATS = {"yuv420p": (8, 2), "yuvj420p": (8, 2), "yuv422p": (8, 1), "yuv
                   "yuv420p12le": (12, 2), "yuv422p12le": (12, 1), "yuv444p12le": (12, 0)}
 
 
+#: Cameras' own 8-bit interleaved formats (their names hold digits that are not a bit depth: NV12).
+EIGHT_BIT_PACKED = frozenset({"nv12", "nv21", "yuyv422", "uyvy422", "yvyu422"})
+
+
 @dataclass(frozen=True)
 class VideoColour:
     """How one stream's codes are read (see the module docstring)."""
@@ -112,7 +116,7 @@ def colour_from_tags(fmt: str, matrix: int, primaries: int, transfer: int, rng: 
     """The reading of one combination of tags (cached: every frame of a stream has the same)."""
     notes = []
     bits = PLANAR_FORMATS.get(fmt, (8, 0))[0]
-    if fmt not in PLANAR_FORMATS:
+    if fmt not in PLANAR_FORMATS and fmt not in EIGHT_BIT_PACKED:
         bits = 16 if any(s in fmt for s in ("10", "12", "16", "48", "64")) else 8
     full = fmt.startswith("yuvj") or rng == 2
     m = _read_tag(_MATRIX_TAGS, matrix, "colour matrix", "bt2020" if primaries == 9 else

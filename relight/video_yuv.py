@@ -8,26 +8,32 @@ small copy of a box (:meth:`YuvFrame.small_box`), the live light a few samples
 (:func:`sample_codes`), and the light field is applied in the planes themselves
 (:meth:`YuvFrame.with_field`) - the rest of the frame leaves bit for bit as it came.
 
-Which frames: 8-bit 4:2:0 (``yuv420p``), Rec.709 primaries, SDR, no display rotation or mirror,
-and - because the output is tagged so - the BT.709 matrix (or untagged at 720 lines and more,
-which players read as BT.709) in limited range. Anything else takes the RGB path
-(:func:`YuvFrame.from_av` returns None).
+Which frames (:meth:`YuvFrame.from_av`): 8-bit 4:2:0 or 4:2:2 - planar (``yuv420p``,
+``yuv422p``, their full-range JPEG forms ``yuvj420p``/``yuvj422p``: a webcam's MJPEG), or a
+camera's own interleaved forms, unpacked (``nv12``, ``yuyv422``) - with the BT.709 or BT.601
+matrix in limited or full range (:class:`Codes`), Rec.709 primaries, SDR, no display rotation or
+mirror. Anything else takes the RGB path (``from_av`` returns None).
 
-Planes: ``y`` (H, W), ``u`` and ``v`` (H/2, W/2) uint8, limited range (16-235 / 16-240). Boxes
-are (x0, y0, x1, y1) pixels, x1/y1 exclusive, aligned to even numbers where the chroma needs it.
+Planes: ``y`` (H, W), ``u`` and ``v`` (H/2, W/2) for 4:2:0 or (H, W/2) for 4:2:2, uint8. Boxes
+are (x0, y0, x1, y1) pixels, x1/y1 exclusive.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
-#: BT.709 luma weights (Kr, Kb) and the limited range's scales (8-bit codes).
-_KR, _KB = 0.2126, 0.0722
-_Y_SCALE, _C_SCALE = 255.0 / 219.0, 255.0 / 224.0
 #: OpenCV's RGB -> grey weights (``cv2.COLOR_RGB2GRAY``: BT.601's), which the tracker's
 #: reference grey uses.
 _GREY = (0.299, 0.587, 0.114)
+#: Luma weights (Kr, Kb) of the matrices a kept frame may have.
+_K = {"bt709": (0.2126, 0.0722), "bt601": (0.299, 0.114)}
+#: Pixel formats kept in their planes: (chroma rows per luma row: 2 for 4:2:0, 1 for 4:2:2,
+#: full range by the format itself - the JPEG forms).
+KEPT_FORMATS = {"yuv420p": (2, False), "yuvj420p": (2, True), "nv12": (2, False), "yuv422p": (1, False),
+                "yuvj422p": (1, True), "yuyv422": (1, False)}
 
 
 def downscale_area(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -42,31 +48,61 @@ def downscale_area(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
 
 
-def _ycbcr_matrix() -> np.ndarray:
-    """(3, 3) float64: limited-range BT.709 8-bit codes (Y', Cb - 128, Cr - 128) -> R'G'B' codes."""
-    kg = 1.0 - _KR - _KB
-    # R' = Y' + 2 (1 - Kr) Cr, B' = Y' + 2 (1 - Kb) Cb, G' = Y' - (2 Kb (1 - Kb) Cb + 2 Kr (1 - Kr) Cr) / Kg
-    return np.array([[_Y_SCALE, 0.0, 2.0 * (1.0 - _KR) * _C_SCALE],
-                     [_Y_SCALE, -2.0 * _KB * (1.0 - _KB) / kg * _C_SCALE, -2.0 * _KR * (1.0 - _KR) / kg * _C_SCALE],
-                     [_Y_SCALE, 2.0 * (1.0 - _KB) * _C_SCALE, 0.0]])
+@dataclass(frozen=True)
+class Codes:
+    """What a frame's Y'CbCr codes are: its ``matrix`` ('bt709' or 'bt601') and whether they are
+    ``full`` range (0-255) or limited (16-235, chroma 16-240)."""
+
+    matrix: str = "bt709"
+    full: bool = False
+
+    def maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """((3, 4), (3, 4)) float32 affine maps of 8-bit codes (Y', Cb, Cr, 1) -> R'G'B' (0-255)
+        and back."""
+        kr, kb = _K[self.matrix]
+        kg = 1.0 - kr - kb
+        ys, cs = (1.0, 1.0) if self.full else (255.0 / 219.0, 255.0 / 224.0)
+        # R' = Y' + 2 (1 - Kr) Cr, B' = Y' + 2 (1 - Kb) Cb, G' = Y' - (2 Kb (1 - Kb) Cb + 2 Kr (1 - Kr) Cr) / Kg
+        m = np.array([[ys, 0.0, 2.0 * (1.0 - kr) * cs],
+                      [ys, -2.0 * kb * (1.0 - kb) / kg * cs, -2.0 * kr * (1.0 - kr) / kg * cs],
+                      [ys, 2.0 * (1.0 - kb) * cs, 0.0]])
+        off = np.array([0.0 if self.full else 16.0, 128.0, 128.0])
+        to_rgb = np.hstack([m, -(m @ off)[:, None]]).astype(np.float32)
+        to_ycc = np.hstack([np.linalg.inv(m), off[:, None]]).astype(np.float32)
+        return to_rgb, to_ycc
+
+    def grey_weights(self) -> tuple[float, float, float, float]:
+        """(a, b, c, d): cv2's grey of the RGB a pixel decodes to, as a Y + b (Cb - 128) + c (Cr -
+        128) + d (before clipping) - the conversion is linear."""
+        to_rgb, _ = self.maps()
+        m = to_rgb[:, :3].astype(np.float64)
+        a, b, c = np.asarray(_GREY) @ m
+        return float(a), float(b), float(c), float(np.asarray(_GREY) @ (to_rgb[:, 3] + m[:, 1:] @ [128.0, 128.0]))
+
+    @property
+    def av_tags(self):
+        """(swscale's colourspace, range) of these codes."""
+        from av.video.reformatter import ColorRange, Colorspace
+
+        return (Colorspace.ITU709 if self.matrix == "bt709" else Colorspace.ITU601,
+                ColorRange.JPEG if self.full else ColorRange.MPEG)
 
 
-_YCBCR = _ycbcr_matrix()
-_OFFSET = np.array([16.0, 128.0, 128.0])
-#: (3, 4) float32 affine maps for cv2.transform: codes (Y', Cb, Cr) -> R'G'B', and back.
-_TO_RGB = np.hstack([_YCBCR, -(_YCBCR @ _OFFSET)[:, None]]).astype(np.float32)
-_TO_YCBCR = np.hstack([np.linalg.inv(_YCBCR), _OFFSET[:, None]]).astype(np.float32)
+#: The codes relight writes (H.264, tagged so) and :func:`planes_to_rgb` / :func:`rgb_to_planes` use.
+BT709 = Codes("bt709", False)
+_TO_RGB, _TO_YCBCR = BT709.maps()
 
 
-def planes_to_rgb(y: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(h, w, 3) uint8 sRGB codes of 4:2:0 limited-range BT.709 planes (``y`` (h, w) even-sized,
-    ``u``, ``v`` (h/2, w/2)): the chroma upsampled bilinearly (samples centred on their 2x2
-    block), the matrix applied and rounded to the nearest code (OpenCV's vector paths: 0.65 ms for
-    a 440x610 box here, where swscale's exact settings take 4.4; within a code of them on average
-    - their chroma filter is bicubic - and as unbiased: tests/test_video.py)."""
+def planes_to_rgb(y: np.ndarray, u: np.ndarray, v: np.ndarray, codes: Codes = BT709) -> np.ndarray:
+    """(h, w, 3) uint8 sRGB codes of 4:2:0 or 4:2:2 planes (``y`` (h, w), even width and, for
+    4:2:0, height; ``u``, ``v`` (h/2 or h, w/2)): the chroma upsampled bilinearly (samples centred
+    on their blocks), ``codes``' matrix applied and rounded to the nearest code (OpenCV's vector
+    paths: 0.65 ms for a 440x610 box here, where swscale's exact settings take 4.4; within a code
+    of them on average - their chroma filter is bicubic - and as unbiased: tests/test_video.py)."""
     h, w = y.shape
+    to_rgb, _ = codes.maps() if codes is not BT709 else (_TO_RGB, _TO_YCBCR)
     up = cv2.resize(cv2.merge([u, v]), (w, h), interpolation=cv2.INTER_LINEAR)
-    return cv2.transform(cv2.merge([y, up]), _TO_RGB)
+    return cv2.transform(cv2.merge([y, up]), to_rgb)
 
 
 def rgb_to_planes(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -83,78 +119,103 @@ def rgb_to_planes(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return y.reshape(h, w), u, v
 
 
-def _grey_weights() -> tuple[float, float, float, float]:
-    """(a, b, c, d): cv2's grey of the RGB a limited-range BT.709 pixel decodes to, as
-    a Y + b (Cb - 128) + c (Cr - 128) + d (before clipping) - the conversion is linear."""
-    _, b, c = np.asarray(_GREY) @ _YCBCR
-    a = _Y_SCALE  # the grey weights sum to 1
-    return a, float(b), float(c), -16.0 * _Y_SCALE
+def _shrink(plane: np.ndarray, box, fx: int, fy: int) -> np.ndarray:
+    """The mean of each ``fx`` x ``fy`` block of ``plane``'s ``box`` (its far edges beyond the plane:
+    its last row and column replicated)."""
+    bx0, by0, bx1, by1 = box
+    ph, pw = plane.shape
+    crop = plane[by0:min(by1, ph), bx0:min(bx1, pw)]
+    if bx1 > pw or by1 > ph:
+        crop = cv2.copyMakeBorder(crop, 0, max(by1 - ph, 0), 0, max(bx1 - pw, 0), cv2.BORDER_REPLICATE)
+    if fx == 1 and fy == 1:
+        return np.ascontiguousarray(crop)
+    return cv2.resize(crop, ((bx1 - bx0) // fx, (by1 - by0) // fy), interpolation=cv2.INTER_AREA)
 
 
 class YuvFrame:
-    """One 8-bit 4:2:0 frame as decoded (see the module docstring)."""
+    """One 8-bit 4:2:0 or 4:2:2 frame as decoded (see the module docstring); ``codes`` its
+    :class:`Codes` (BT.709 limited range unless told)."""
 
-    def __init__(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, colorspace: int = 1, color_range: int = 1):
+    def __init__(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, codes: Codes = BT709):
         h, w = y.shape
-        if h % 2 or w % 2 or u.shape != (h // 2, w // 2) or v.shape != u.shape:
-            raise ValueError(f"planes {y.shape}, {u.shape}, {v.shape}: not 4:2:0 of an even-sized frame")
+        cy = 2 if u.shape[0] * 2 == h else 1
+        if w % 2 or (cy == 2 and h % 2) or u.shape != (h // cy, w // 2) or v.shape != u.shape:
+            raise ValueError(f"planes {y.shape}, {u.shape}, {v.shape}: not 4:2:0 or 4:2:2 of an even-sized frame")
         self.y, self.u, self.v = y, u, v
-        self.colorspace, self.color_range = int(colorspace), int(color_range)
+        self.codes = codes
+        self.cy = cy  # chroma rows per luma row: 2 (4:2:0) or 1 (4:2:2)
 
     # ------------------------------------------------------------------ in and out
     @classmethod
     def from_av(cls, frame) -> YuvFrame | None:
-        """The frame's planes (copied), or None when the frame is not one this path keeps."""
+        """The frame's planes (copied; an interleaved camera format unpacked), or None when the
+        frame is not one this path keeps."""
         from .video_colour import video_colour
         from .video_orient import display_orientation
 
-        if frame.format.name != "yuv420p" or frame.width % 2 or frame.height % 2:
+        name = frame.format.name
+        if name not in KEPT_FORMATS or frame.width % 2:
             return None
+        cy, jpeg = KEPT_FORMATS[name]
         colour = video_colour(frame)
-        if colour.bits != 8 or colour.primaries != "bt709" or colour.hdr or colour.full_range:
+        if colour.bits != 8 or colour.primaries != "bt709" or colour.hdr or colour.matrix not in _K:
             return None
-        if colour.matrix != "bt709" or display_orientation(frame) != (0, False):
+        if (cy == 2 and frame.height % 2) or display_orientation(frame) != (0, False):
             return None
-        h, w = frame.height, frame.width
-
-        def plane(i, ph, pw):
-            p = frame.planes[i]
-            return np.frombuffer(p, np.uint8).reshape(ph, p.line_size)[:, :pw].copy()
-
-        return cls(plane(0, h, w), plane(1, h // 2, w // 2), plane(2, h // 2, w // 2))
+        y, u, v = _unpack(frame, name, cy)
+        return cls(y, u, v, Codes(colour.matrix, colour.full_range or jpeg))
 
     def to_av(self):
-        """An ``av.VideoFrame`` (yuv420p) of these planes, tagged BT.709 limited range."""
+        """An ``av.VideoFrame`` (yuv420p) of these planes: as they are for BT.709 limited 4:2:0
+        (tagged so), else converted by swscale to it (never through RGB)."""
+        import av
+        from av.video.reformatter import ColorRange, Colorspace
+
+        from .video_frame import sws_flags
+
+        if self.cy == 2 and self.codes == BT709:
+            frame = av.VideoFrame.from_ndarray(_packed(self.y, self.u, self.v), format="yuv420p")
+            frame.colorspace, frame.color_range = Colorspace.ITU709, ColorRange.MPEG
+            return frame
+        src = self.av_frame()
+        cs, rng = self.codes.av_tags
+        out = src.reformat(format="yuv420p", src_colorspace=cs, src_color_range=rng, dst_colorspace=Colorspace.ITU709,
+                           dst_color_range=ColorRange.MPEG, interpolation=sws_flags())
+        out.colorspace, out.color_range = Colorspace.ITU709, ColorRange.MPEG
+        return out
+
+    def to_av_planes(self) -> np.ndarray:
+        """The planes packed as PyAV's yuv420p/yuv422p arrays are ((rows, W): one after the other)."""
+        return _packed(self.y, self.u, self.v)
+
+    def av_frame(self):
+        """These planes as an ``av.VideoFrame`` in their own format (yuv420p or yuv422p), untagged."""
         import av
 
-        frame = av.VideoFrame.from_ndarray(self._i420(self.y, self.u, self.v), format="yuv420p")
-        frame.colorspace, frame.color_range = self.colorspace, self.color_range
-        return frame
-
-    @staticmethod
-    def _i420(y, u, v) -> np.ndarray:
-        """The planes packed as PyAV's yuv420p arrays are: (3H/2, W), the planes one after the other."""
-        h, w = y.shape
-        return np.concatenate([y.ravel(), u.ravel(), v.ravel()]).reshape(h * 3 // 2, w)
+        return av.VideoFrame.from_ndarray(_packed(self.y, self.u, self.v),
+                                          format="yuv420p" if self.cy == 2 else "yuv422p")
 
     @property
     def shape(self) -> tuple[int, int, int]:
         """(H, W, 3): the shape of the RGB frame this is."""
         return (self.y.shape[0], self.y.shape[1], 3)
 
+    @property
+    def space(self) -> tuple:
+        """What its codes are (a light field made for them maps them)."""
+        return ("ycbcr", self.codes)
+
+    def code_maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """((3, 4), (3, 4)) float32 affine maps of its codes (Y', Cb, Cr, 1) -> R'G'B' codes and back."""
+        return (_TO_RGB, _TO_YCBCR) if self.codes == BT709 else self.codes.maps()
+
     def to_rgb(self) -> np.ndarray:
         """The whole frame as (H, W, 3) uint8 sRGB codes (what :func:`relight.video.frame_to_rgb` gives)."""
-        return self._rgb(self.y, self.u, self.v)
-
-    def _rgb(self, y, u, v) -> np.ndarray:
-        import av
-        from av.video.reformatter import ColorRange, Colorspace
-
         from .video_frame import sws_flags
 
-        frame = av.VideoFrame.from_ndarray(self._i420(y, u, v), format="yuv420p")
-        return frame.reformat(format="rgb24", src_colorspace=Colorspace.ITU709, src_color_range=ColorRange.MPEG,
-                              interpolation=sws_flags()).to_ndarray()
+        cs, rng = self.codes.av_tags
+        return self.av_frame().reformat(format="rgb24", src_colorspace=cs, src_color_range=rng,
+                                   interpolation=sws_flags()).to_ndarray()
 
     # ------------------------------------------------------------------ what the frame path touches
     def tracking_grey(self, size: tuple[int, int]) -> np.ndarray:
@@ -162,9 +223,9 @@ class YuvFrame:
         :func:`downscale_area` - made from the planes scaled first (the conversion is linear;
         clipping aside, the same)."""
         w, h = size
-        a, b, c, d = _grey_weights()
+        a, b, c, d = self.codes.grey_weights()
         ys = downscale_area(self.y, (w, h))
-        if w <= self.u.shape[1]:
+        if w <= self.u.shape[1] and h <= self.u.shape[0]:
             us, vs = downscale_area(self.u, (w, h)), downscale_area(self.v, (w, h))
         else:
             us = cv2.resize(self.u, (w, h), interpolation=cv2.INTER_LINEAR)
@@ -181,8 +242,9 @@ class YuvFrame:
         w, h = size
         if w % 2 or h % 2 or w >= self.y.shape[1] or h >= self.y.shape[0]:
             return downscale_area(self.to_rgb(), (w, h))
-        return planes_to_rgb(downscale_area(self.y, (w, h)), downscale_area(self.u, (w // 2, h // 2)),
-                             downscale_area(self.v, (w // 2, h // 2)))
+        ch = h // 2 if self.cy == 2 else h
+        return planes_to_rgb(downscale_area(self.y, (w, h)), downscale_area(self.u, (w // 2, ch)),
+                             downscale_area(self.v, (w // 2, ch)), self.codes)
 
     def small_box(self, box: tuple[int, int, int, int], factor: int) -> np.ndarray:
         """(h, w, 3) uint8 sRGB of the frame's ``box`` - its corner a multiple of the ``factor``
@@ -190,44 +252,54 @@ class YuvFrame:
         are replicated) - scaled down by ``factor``: each plane's blocks averaged, then converted
         (the conversion is linear); at factor 1 the box itself (:func:`planes_to_rgb`)."""
         x0, y0, x1, y1 = box
-
-        def shrink(plane, b, f):
-            bx0, by0, bx1, by1 = b
-            ph, pw = plane.shape
-            crop = plane[by0:min(by1, ph), bx0:min(bx1, pw)]
-            if bx1 > pw or by1 > ph:
-                crop = cv2.copyMakeBorder(crop, 0, max(by1 - ph, 0), 0, max(bx1 - pw, 0), cv2.BORDER_REPLICATE)
-            if f == 1:
-                return np.ascontiguousarray(crop)
-            return cv2.resize(crop, ((bx1 - bx0) // f, (by1 - by0) // f), interpolation=cv2.INTER_AREA)
-
-        ys = shrink(self.y, box, factor)
-        half = (x0 // 2, y0 // 2, -(-x1 // 2), -(-y1 // 2))
+        ys = _shrink(self.y, box, factor, factor)
+        cy = self.cy
+        half = (x0 // 2, y0 // cy, -(-x1 // 2), -(-y1 // cy))
         if factor == 1:  # (the box's corner and size even: whole chroma samples)
-            return planes_to_rgb(ys, shrink(self.u, half, 1), shrink(self.v, half, 1))
-        return cv2.transform(cv2.merge([ys, shrink(self.u, half, factor // 2), shrink(self.v, half, factor // 2)]),
-                             _TO_RGB)
-
-    @property
-    def space(self) -> tuple:
-        """What its codes are: the planes' matrix and range (a light field made for them maps them)."""
-        return ("ycbcr", self.colorspace, self.color_range)
-
-    def code_maps(self) -> tuple[np.ndarray, np.ndarray]:
-        """((3, 4), (3, 4)) float32 affine maps of its codes (Y', Cb, Cr, 1) -> R'G'B' codes and back."""
-        return _TO_RGB, _TO_YCBCR
+            return planes_to_rgb(ys, _shrink(self.u, half, 1, 1), _shrink(self.v, half, 1, 1), self.codes)
+        fy = factor // cy
+        to_rgb, _ = self.code_maps()
+        return cv2.transform(cv2.merge([ys, _shrink(self.u, half, factor // 2, fy),
+                                        _shrink(self.v, half, factor // 2, fy)]), to_rgb)
 
     def with_field(self, applier, box, grid: np.ndarray, sampling) -> YuvFrame:
         """A new frame: this one with a light field (maps of its codes: :meth:`code_maps`) applied
         over ``box`` in its planes (:meth:`relight.kernels.field_apply.FieldApplier.planes`)."""
         y, u, v = applier.planes(self.y, self.u, self.v, box, grid, sampling)
-        return YuvFrame(y, u, v, self.colorspace, self.color_range)
+        return YuvFrame(y, u, v, self.codes)
+
+
+def _unpack(frame, name: str, cy: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The planes (y, u, v) of a decoded frame of a kept format (copies)."""
+    h, w = frame.height, frame.width
+
+    def plane(i, ph, pw, channels=1):
+        p = frame.planes[i]
+        a = np.frombuffer(p, np.uint8).reshape(ph, p.line_size)[:, :pw * channels]
+        return a.reshape(ph, pw, channels) if channels > 1 else a.copy()
+
+    if name == "nv12":  # luma, then one plane of interleaved (Cb, Cr) at 4:2:0
+        uv = plane(1, h // 2, w // 2, 2)
+        return plane(0, h, w), np.ascontiguousarray(uv[..., 0]), np.ascontiguousarray(uv[..., 1])
+    if name == "yuyv422":  # one plane: Y0 Cb Y1 Cr per pair of pixels
+        packed = plane(0, h, w // 2, 4)
+        y = np.ascontiguousarray(packed[..., [0, 2]].reshape(h, w))
+        return y, np.ascontiguousarray(packed[..., 1]), np.ascontiguousarray(packed[..., 3])
+    ch = h // cy
+    return plane(0, h, w), plane(1, ch, w // 2), plane(2, ch, w // 2)
+
+
+def _packed(y: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The planes packed as PyAV's yuv420p/yuv422p arrays are: the planes one after the other,
+    shaped (rows, W)."""
+    w = y.shape[1]
+    return np.concatenate([y.ravel(), u.ravel(), v.ravel()]).reshape(-1, w)
 
 
 def sample_codes(frame, xy: np.ndarray) -> np.ndarray:
     """(N, 3) uint8 sRGB codes of ``frame`` ((H, W, 3) uint8 sRGB or a :class:`YuvFrame`) read
     bilinearly at frame positions ``xy`` (N, 2) float (edges replicated) - for a YuvFrame its
-    planes read there (the chroma at its own siting, centred on its 2x2 block) and converted."""
+    planes read there (the chroma at its own siting, centred on its block) and converted."""
     xy = np.asarray(xy, np.float32).reshape(-1, 1, 2)
     if xy.shape[0] == 0:
         return np.zeros((0, 3), np.uint8)
@@ -235,10 +307,12 @@ def sample_codes(frame, xy: np.ndarray) -> np.ndarray:
     if isinstance(frame, np.ndarray):
         return cv2.remap(frame, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
     ys = cv2.remap(frame.y, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    cx, cy = (mx - np.float32(0.5)) * np.float32(0.5), (my - np.float32(0.5)) * np.float32(0.5)
+    cx = (mx - np.float32(0.5)) * np.float32(0.5)
+    cy = (my - np.float32(0.5)) * np.float32(0.5) if frame.cy == 2 else my
     us = cv2.remap(frame.u, cx, cy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     vs = cv2.remap(frame.v, cx, cy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return cv2.transform(cv2.merge([ys, us, vs]), _TO_RGB).reshape(-1, 3)
+    to_rgb, _ = frame.code_maps()
+    return cv2.transform(cv2.merge([ys, us, vs]), to_rgb).reshape(-1, 3)
 
 
 def as_rgb(frame) -> np.ndarray:

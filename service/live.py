@@ -103,6 +103,9 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     # a live source: the person's maps made beside the frames, not in one of them
     fp = FramePath(bundle, controls.environment(), mode=mode, strength=strength, focal=focal, region=region,
                    live_source=True, exposure=exposure, env_turn=env_turn, env_spin=env_spin)
+    # every kernel built and run once, at the camera's size, before its first frame is read: no
+    # frame waits for a compile
+    res.warm_up_s = fp.warm_up(reader.frame_size)
     relit_slot = LatestFrame()
     status = status if status is not None else StatusLine()
     restore_keys = key_reader(controls)
@@ -140,8 +143,9 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
         while not controls.stop.is_set():
             item = relit_slot.peek()
             if item is not None:
-                if virtual_camera and cam is None:
-                    cam = VirtualCamera((item.rgb.shape[1], item.rgb.shape[0]), out_fps)
+                if virtual_camera and cam is None:  # (frames kept in their planes go as I420: no RGB made)
+                    cam = VirtualCamera((item.rgb.shape[1], item.rgb.shape[0]), out_fps,
+                                        planes=not isinstance(item.rgb, np.ndarray))
                     res.virtual_camera = cam.device
                 if record is not None and writer is None:
                     writer = VideoWriter(record, out_fps, (item.rgb.shape[1] // 2 * 2, item.rgb.shape[0] // 2 * 2),
@@ -149,7 +153,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                     res.record = str(record)
                 rgb = item.rgb
                 if cam is not None:
-                    cam.send(item.as_rgb())
+                    cam.send(item.rgb)
                 if writer is not None:  # a YuvFrame (even-sized) goes to the encoder as it is
                     writer.write(np.ascontiguousarray(rgb[:rgb.shape[0] // 2 * 2, :rgb.shape[1] // 2 * 2])
                                  if isinstance(rgb, np.ndarray) else rgb)
@@ -268,6 +272,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     wall = max(time.perf_counter() - t_start, 1e-6)
     res.wall_s = wall
     res.frames_in = reader.slot.put_count
+    res.camera_format, res.frames_in_planes = reader.pixel_format, reader.in_planes
     res.dropped = reader.slot.dropped
     res.frames_relit = stage["relit"]
     res.frames_out = stage["out"]

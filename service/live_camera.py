@@ -95,6 +95,9 @@ class CameraReader:
         self._stop = threading.Event()
         self.is_file = camera is not None and Path(camera).is_file()
         self.rate = None  # frames per second of the source (the file's, or the device's)
+        self.frame_size = None  # (w, h) of its frames as delivered, when known before the first
+        self.pixel_format = None  # the decoder's pixel format of its first frame
+        self.in_planes = 0  # frames delivered in their Y'CbCr planes (relight.video_yuv: no RGB made)
         self._open()
         self._thread = threading.Thread(target=self._run, name="relight-camera", daemon=True)
 
@@ -107,6 +110,7 @@ class CameraReader:
             info = probe_video(self.spec)
             self.rate = float(info.fps) if info.fps else 30.0
             self.name = str(self.spec)
+            self.frame_size = tuple(self.size) if self.size else (info.width, info.height)
             return
         fmt, name = device_input(self.spec)
         options = {}
@@ -122,6 +126,9 @@ class CameraReader:
         st = self.container.streams.video[0]
         self.rate = float(st.average_rate or st.guessed_rate or self.fps or 30)
         self.name = f"{name} ({fmt})"
+        cc = st.codec_context
+        self.frame_size = tuple(self.size) if self.size else ((cc.width, cc.height) if cc.width and cc.height
+                                                               else None)
 
     def start(self) -> CameraReader:
         self._thread.start()
@@ -150,12 +157,11 @@ class CameraReader:
         return np.ascontiguousarray(rgb)
 
     def _frames(self):
-        from relight.video import frame_to_rgb, read_frames_raw
-        from relight.video_yuv import YuvFrame
+        from relight.video import read_frames_raw
 
         if not self.is_file:
             for frame in self.container.decode(video=0):
-                yield frame_to_rgb(frame)
+                yield self._kept(frame)
             return
         while True:
             n = 0
@@ -163,10 +169,21 @@ class CameraReader:
             # converted: relight.video_yuv), else RGB as displayed.
             for frame in read_frames_raw(self.spec):
                 n += 1
-                yuv = YuvFrame.from_av(frame)
-                yield yuv if yuv is not None else frame_to_rgb(frame)
+                yield self._kept(frame)
             if not self.loop or n == 0:
                 return
+
+    def _kept(self, frame):
+        """A decoded frame kept in its planes where it can be (the camera's own format: 4:2:0,
+        4:2:2, NV12, YUYV, MJPEG's full-range planes - only what is touched is converted:
+        relight.video_yuv), else RGB as displayed."""
+        from relight.video import frame_to_rgb
+        from relight.video_yuv import YuvFrame
+
+        if self.pixel_format is None:
+            self.pixel_format = frame.format.name
+        yuv = YuvFrame.from_av(frame)
+        return frame_to_rgb(frame) if yuv is None else yuv
 
     def _run(self) -> None:
         period = 1.0 / self.rate if self.is_file else 0.0
@@ -181,7 +198,9 @@ class CameraReader:
                         self._stop.wait(wait)
                     if self._stop.is_set():
                         return
-                self.slot.put(CameraFrame(self._fit(rgb), time.perf_counter(), i))
+                fitted = self._fit(rgb)
+                self.in_planes += not isinstance(fitted, np.ndarray)
+                self.slot.put(CameraFrame(fitted, time.perf_counter(), i))
         except BaseException as exc:  # handed to the loop
             self.error = exc
         finally:

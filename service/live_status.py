@@ -41,6 +41,11 @@ class LiveResult:
     switches: list = field(default_factory=list)
     #: ms from each change the page (or a key) asked for to the first frame relit with it
     light_ms: list = field(default_factory=list)
+    #: seconds the path took to build and run every kernel before the camera's first frame
+    warm_up_s: float = 0.0
+    #: the camera's pixel format, and how many of its frames were kept in their Y'CbCr planes
+    camera_format: str | None = None
+    frames_in_planes: int = 0
 
     def as_json(self) -> dict:
         from dataclasses import asdict

@@ -3,17 +3,32 @@ time under its lock) and the Prometheus metrics. Made in the app's lifespan, kep
 and handed to the routes by :mod:`relight.service.dependencies`.
 
 The engine's lock is behind its API: its ``async`` methods take it (and run the work off the
-event loop), so no route can forget it; the sessions share the relighter, one frame at a time."""
+event loop), so no route can forget it; the sessions share the relighter, one frame at a time.
+Frames are decoded and encoded outside the lock (a client's JPEG work runs beside another's
+relight). ``POST /v1/relight`` with a session id (:data:`SESSION_HEADER`, or the ``session``
+query) keeps the client's track, filters and light between its requests (:meth:`Engine.named_session`:
+at most :data:`MAX_NAMED_SESSIONS`, the least recently used dropped, and any idle for
+:data:`SESSION_IDLE_S`)."""
 
 from __future__ import annotations
 
 import asyncio
+import re
 import time
+from collections import OrderedDict
 
 import numpy as np
 
 from .codec import decode_frame, encode_frame
 from .settings import ServeConfig
+
+#: A single request's session id: this header, or the ``session`` query parameter.
+SESSION_HEADER = "X-Relight-Session"
+#: What a session id may be (letters, digits, "-", "_", ".": 1 to 64 of them).
+SESSION_ID = re.compile(r"^[A-Za-z0-9._-]{1,64}$")
+#: Named sessions kept at most, and how long one may sit unused before it is dropped (s).
+MAX_NAMED_SESSIONS = 16
+SESSION_IDLE_S = 120.0
 
 
 class Metrics:
@@ -70,6 +85,9 @@ class Engine:
         self.shared = Session(FramePath(self.bundle, env, mode=config.mode, focal=config.focal,
                                                 region=config.region), env)
         self.path = self.shared.path
+        # every kernel built and run once before the first request (none waits for a compile)
+        self.warm_up_s = self.path.warm_up()
+        self._named: OrderedDict = OrderedDict()  # session id -> (Session, perf_counter of its last use)
         self._lock = asyncio.Lock()
 
     # ------------------------------------------------------------------ the API (takes the lock)
@@ -87,10 +105,25 @@ class Engine:
 
     async def decode_relight_encode(self, data: bytes, ctype: str, max_pixels: int, settings: dict,
                                     session: Session | None = None):
-        """(encoded relit frame, FrameInfo) of an encoded frame, decoded, relit and encoded in one
-        hop off the event loop (raises ServiceError/RelightError)."""
+        """(encoded relit frame, FrameInfo) of an encoded frame: decoded off the event loop, relit
+        under the lock, encoded off the event loop (raises ServiceError/RelightError)."""
+        rgb = await asyncio.to_thread(decode_frame, data, ctype, max_pixels)
+        out, info = await self.relight_frame(rgb, session=session, **settings)
+        return await asyncio.to_thread(encode_frame, out, ctype), info
+
+    async def named_session(self, name: str) -> Session:
+        """The session a client named (made on its first request): its own track, filters and light,
+        kept between its requests (module docstring)."""
         async with self._lock:
-            return await asyncio.to_thread(_decode_relight_encode, self, data, ctype, max_pixels, settings, session)
+            now = time.perf_counter()
+            for key in [k for k, (_, used) in self._named.items() if now - used > SESSION_IDLE_S]:
+                del self._named[key]
+            got = self._named.pop(name, None)
+            session = got[0] if got is not None else await asyncio.to_thread(self._session, False)
+            self._named[name] = (session, now)
+            while len(self._named) > MAX_NAMED_SESSIONS:
+                self._named.popitem(last=False)
+            return session
 
     async def choose(self, name: str) -> None:
         """A built-in or loaded environment ``name`` becomes the current one (loaded now)."""
@@ -109,13 +142,15 @@ class Engine:
             return await asyncio.to_thread(self.environment, self.env_name, self.default_rotation)
 
     # ------------------------------------------------------------------ under the lock
-    def _session(self) -> Session:
+    def _session(self, live_source: bool = True) -> Session:
         from ..engine.frame_path import FramePath
 
         env = self.environment(self.env_name)
-        # a stream is a live source: its person's maps made beside its frames (no device work)
+        # a stream is a live source: its person's maps made beside its frames (no device work); a
+        # named session's requests make theirs in the request (each answer is its frame's)
         return Session(FramePath(self.bundle, env, mode=self.config.mode, focal=self.config.focal,
-                                 region=self.config.region, relighter=self.path.relighter, live_source=True), env)
+                                 region=self.config.region, relighter=self.path.relighter, live_source=live_source),
+                       env)
 
     def set_uploaded(self, name: str, env: np.ndarray) -> None:
         """An uploaded (validated) environment becomes the current one under ``name``."""
@@ -162,9 +197,3 @@ class Engine:
             fp.set_env_spin(spin or 0.0)
         return fp.process(rgb, time.perf_counter())
 
-
-def _decode_relight_encode(engine: Engine, data: bytes, ctype: str, max_pixels: int, settings: dict,
-                           session: Session | None = None):
-    rgb = decode_frame(data, ctype, max_pixels)
-    out, info = engine._relight(rgb, session=session, **settings)
-    return encode_frame(out, ctype), info

@@ -161,7 +161,7 @@ def test_the_field_at_the_frames_own_scale_is_the_composite(frame_path, clip):
     kw = dict(mode="live", person=grid, frame_size=(w, h), floor=0.02, gate=True)
     want = fp.compositor.composite_person(rgb, box, face_box, coarse, step, **kw)
     cells = fp.compositor.person_gain(rgb, box, face_box, coarse, step, code_maps=(None, None), **kw)
-    got = fp.applier.rgb(rgb, box, cells, ((1.0, 1.0), (0.0, 0.0)))
+    got = fp.field.applier.rgb(rgb, box, cells, ((1.0, 1.0), (0.0, 0.0)))
     diff = np.abs(got.astype(int) - want)
     assert (want != rgb).any(axis=2).sum() > 1000  # it did something
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01

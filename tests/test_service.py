@@ -125,6 +125,28 @@ def test_each_request_is_relit_as_a_first_frame(server, frame):
     assert post(frame) == first
 
 
+def test_a_named_session_keeps_its_track_between_requests(server, frame):
+    """POST /v1/relight with a session id (header or query) goes on from that client's last frame:
+    the session counts its frames, another name starts its own, none is relit on its own as ever,
+    and a malformed id is refused (422)."""
+    def post(img, **kw):
+        r = httpx.post(f"{server}/v1/relight?env=sunset", content=_png(img), timeout=30,
+                       headers={"content-type": "image/png", **kw.get("headers", {})}, params=kw.get("params"))
+        assert r.status_code == 200 and r.headers["x-relight-face"] == "found", r.text
+        return r
+
+    first = post(frame, headers={"X-Relight-Session": "alice"})
+    assert first.headers["x-relight-session"] == "alice" and first.headers["x-relight-session-frames"] == "1"
+    moved = np.ascontiguousarray(np.roll(frame, (2, -3), axis=(0, 1)))
+    again = post(moved, params={"session": "alice"})
+    assert again.headers["x-relight-session-frames"] == "2"  # the same session, by the query this time
+    assert post(frame, headers={"X-Relight-Session": "bob"}).headers["x-relight-session-frames"] == "1"
+    assert "x-relight-session" not in post(frame).headers
+    r = httpx.post(f"{server}/v1/relight", content=_png(frame), timeout=30,
+                   headers={"content-type": "image/png", "X-Relight-Session": "no spaces/allowed"})
+    assert r.status_code == 422 and "session" in r.text
+
+
 def test_a_frame_without_a_face_comes_back_unchanged(server, frame):
     blank = np.full_like(frame, 120)
     r = httpx.post(f"{server}/v1/relight", content=_png(blank), headers={"content-type": "image/png"}, timeout=30)

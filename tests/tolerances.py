@@ -436,3 +436,7 @@ FIELD_TWIN_REL = 1e-4
 #: another order, and the twin fed the twin's gains).
 FIELD_CODES_REL = 1e-3
 FIELD_SAMPLE_CODES = 1.5
+#: A camera's frame kept in its planes (NV12, YUYV, MJPEG's full-range 4:2:2) converted to RGB
+#: against swscale's conversion of the decoded frame: mean absolute difference (8-bit codes; the
+#: same conversion, its chroma filter aside).
+CAMERA_FORMAT_CODES = 1.0
