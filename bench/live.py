@@ -4,7 +4,10 @@
    relit into the preview page with no viewer (the frames as a virtual camera would take them:
    nothing encoded) and, with ``record``, relit and recorded (H.264 at the output rate) as well -
    frames per second in, relit and out, dropped, latency (camera frame read -> relit frame
-   ready), CPU share (of one core; 200 % is both cores), per frame size.
+   ready), CPU share (of one core; 200 % is both cores), per frame size: the median of RUNS runs
+   after a warm-up run, beside the machine's floor measured in the same run (:mod:`.floor`:
+   decoding the clip alone, and with a constant light field applied); at 1280x720 also with the
+   preview page open and viewed (a client pulling its MJPEG stream).
 2. The page steering the light (``relight live``'s ``POST /control``): a key light dragged
    across the face, 10 positions a second, per frame size - how long each change takes to reach
    the relit frames (ms from the control's arrival to the first frame relit with it), and the
@@ -21,8 +24,11 @@ import io
 import json
 from pathlib import Path
 
-#: Frame sizes ``relight live`` is measured at.
-SIZES = ((640, 360), (1280, 720))
+#: Frame sizes ``relight live`` is measured at, and the runs whose medians are reported.
+SIZES = ((640, 360), (1280, 720), (1920, 1080))
+RUNS = 3
+#: The size measured with the preview viewed as well.
+VIEWED = (1280, 720)
 #: Seconds measured per case (``--seconds``), and at most that with ``--quick``.
 SECONDS = 15.0
 QUICK_SECONDS = 6.0
@@ -40,8 +46,8 @@ def _clip(out: Path, size, progress: bool) -> Path:
 def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float = SECONDS,
         browser: bool = True, record: bool = False) -> dict:
     import relight
-    from relight.service.live import StatusLine, run_live
 
+    from . import floor
     from .video import synth_bundle
 
     out = Path(out)
@@ -50,21 +56,26 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float
     seconds = min(seconds, QUICK_SECONDS) if quick else seconds
     bundle_path = synth_bundle(out, (640, 360), 20.0 if quick else 30.0, progress)
     bundle = relight.load_bundle(bundle_path)
-    doc: dict = {"live": [], "browser": []}
+    doc: dict = {"live": [], "browser": [], "floor": []}
     for size in sizes:
         clip = _clip(out, size, progress)
-        for recorded in (False, True) if record else (False,):
-            if progress:
-                print(f"relight live {size[0]}x{size[1]}{', recorded' if recorded else ''} for {seconds:g} s ...",
-                      flush=True)
-            res = run_live(bundle, ["builtin:sunset"], camera=str(clip), duration=seconds, focal="ortho",
-                           preview=True, record=out / f"live-{size[0]}x{size[1]}.mp4" if recorded else None,
-                           status=StatusLine(io.StringIO()))
-            doc["live"].append(res.as_json())
         if progress:
-            print(f"relight live {size[0]}x{size[1]}, a key light dragged on its page for {seconds:g} s ...",
-                  flush=True)
-        doc.setdefault("drag", []).append(_drag_run(bundle, clip, seconds))
+            print(f"the floor at {size[0]}x{size[1]} (decode alone; decode + a constant field) ...", flush=True)
+        doc["floor"].append(floor.measure(clip, frames=120, runs=1 if quick else RUNS))
+        viewed = (False, True) if size == VIEWED and not quick else (False,)
+        for recorded in (False, True) if record else (False,):
+            for view in viewed:
+                if progress:
+                    what = ", recorded" if recorded else ", the preview viewed" if view else ""
+                    print(f"relight live {size[0]}x{size[1]}{what}: {1 if quick else RUNS} runs of {seconds:g} s "
+                          "after a warm-up ...", flush=True)
+                doc["live"].append(_median_runs(bundle, clip, size, seconds, 1 if quick else RUNS,
+                                                out / f"live-{size[0]}x{size[1]}.mp4" if recorded else None, view))
+        if size[0] <= 1280:
+            if progress:
+                print(f"relight live {size[0]}x{size[1]}, a key light dragged on its page for {seconds:g} s ...",
+                      flush=True)
+            doc.setdefault("drag", []).append(_drag_run(bundle, clip, seconds))
     if browser:
         from .browser import find_chromium, run_browser_bench
 
@@ -75,6 +86,65 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, seconds: float
                 print(f"browser page: webrtc, then websocket, {seconds:g} s each ...", flush=True)
             doc["browser"] = run_browser_bench(bundle_path, _clip(out, (640, 360), progress), seconds=seconds)
     (out / "bench.json").write_text(json.dumps(doc, indent=1))
+    return doc
+
+
+def _one_run(bundle, clip: Path, seconds: float, record, viewed: bool) -> dict:
+    """One ``relight live`` run of the clip as the camera (the preview page open; ``viewed``: a
+    client pulling its MJPEG stream all along): its result as JSON."""
+    import threading
+
+    import httpx
+
+    from relight.service.live import StatusLine, run_live
+
+    ready: dict = {}
+    stop = threading.Event()
+    pulled = {"bytes": 0}
+
+    def view():
+        while "url" not in ready and not stop.is_set():
+            stop.wait(0.05)
+        try:
+            with httpx.stream("GET", ready["url"] + "stream.mjpg", timeout=10) as r:
+                for chunk in r.iter_bytes():
+                    pulled["bytes"] += len(chunk)
+                    if stop.is_set():
+                        break
+        except (httpx.HTTPError, KeyError):
+            pass
+
+    viewer = threading.Thread(target=view, daemon=True) if viewed else None
+    if viewer is not None:
+        viewer.start()
+    try:
+        res = run_live(bundle, ["builtin:sunset"], camera=str(clip), duration=seconds, focal="ortho", preview=True,
+                       record=record, status=StatusLine(io.StringIO()),
+                       on_ready=lambda r: ready.setdefault("url", r.preview))
+    finally:
+        stop.set()
+        if viewer is not None:
+            viewer.join(timeout=15)
+    doc = res.as_json()
+    doc["viewed"] = viewed
+    doc["viewer_mb"] = round(pulled["bytes"] / 1e6, 2) if viewed else None
+    return doc
+
+
+def _median_runs(bundle, clip: Path, size, seconds: float, runs: int, record, viewed: bool) -> dict:
+    """A warm-up run, then ``runs`` runs: the medians of their figures (fps, dropped share, latency
+    p95, CPU), each run's kept too."""
+    import numpy as np
+
+    _one_run(bundle, clip, min(seconds, 4.0), None, False)  # kernels compiled, caches warm
+    each = [_one_run(bundle, clip, seconds, record, viewed) for _ in range(runs)]
+    doc = dict(each[len(each) // 2])
+    for key in ("fps_in", "fps_relit", "fps_out", "cpu_percent", "dropped", "frames_in"):
+        doc[key] = float(np.median([r[key] for r in each]))
+    doc["dropped_share"] = float(np.median([r["dropped"] / max(r["frames_in"], 1) for r in each]))
+    doc["latency_ms"] = {k: float(np.median([r["latency_ms"].get(k, 0.0) for r in each]))
+                         for k in ("median", "p95", "p99", "max")}
+    doc["runs"] = each
     return doc
 
 
@@ -116,17 +186,22 @@ def _drag_run(bundle, clip: Path, seconds: float) -> dict:
 
 
 def table(doc: dict) -> str:
+    from . import floor
     from .browser import format_results
 
-    lines = ["relight live (a clip played as the camera at 30 fps; the preview page with no viewer, and recorded):",
+    lines = ["relight live (a clip played as the camera at 30 fps; the preview page with no viewer, viewed, and "
+             "recorded; medians of the runs after a warm-up; CPU % of one core, every thread):",
              f"{'size':>10s} {'sink':>9s} {'in fps':>7s} {'relit':>6s} {'out':>6s} {'dropped':>8s} {'lat p50':>8s} "
              f"{'p95':>6s} {'CPU %':>6s}"]
     for r in doc["live"]:
         lat = r["latency_ms"]
-        sink = "recorded" if r.get("record") else "preview"
+        sink = "recorded" if r.get("record") else "viewed" if r.get("viewed") else "preview"
+        dropped = f"{100 * r.get('dropped_share', 0):.1f} %"
         lines.append(f"{r['size'][0]:>5d}x{r['size'][1]:<4d} {sink:>9s} {r['fps_in']:7.1f} {r['fps_relit']:6.1f} "
-                     f"{r['fps_out']:6.1f} {r['dropped']:8d} {lat.get('median', 0):8.1f} {lat.get('p95', 0):6.1f} "
+                     f"{r['fps_out']:6.1f} {dropped:>8s} {lat.get('median', 0):8.1f} {lat.get('p95', 0):6.1f} "
                      f"{r['cpu_percent']:6.0f}")
+    for f in doc.get("floor", []):
+        lines.append(floor.line(f))
     if doc.get("drag"):
         lines += ["", "relight live's page: a key light dragged (10 positions a second); ms from each change "
                       "to the first frame relit with it:",

@@ -137,26 +137,24 @@ class LightField(NamedTuple):
     anchor: tuple[float, float]
     made: int
 
-    def sampling(self):
-        """((sx, sy), (gox, goy)) for :class:`relight.kernels.field_apply.FieldApplier`."""
-        s = 1.0 / self.factor
-        return (s, s), (self.corner[0] * s, self.corner[1] * s)
-
     def moved(self, anchor, size: tuple[int, int]) -> LightField:
         """The field carried to the head at ``anchor`` (frame px) in a frame of ``size`` (w, h):
-        shifted by the head's move from where the field is (its box shifted with it, grown to whole
-        pixels, clipped) - once that move passes :data:`CARRY_DEAD_AT_540` (else the field stays)."""
+        shifted by the head's move from where the field is, in whole even pixels (the field stays
+        on whole chroma samples: its tiles' weights are fixed), with its box - once that move passes
+        :data:`CARRY_DEAD_AT_540` (else the field stays)."""
         from relight.numerics import px_at
 
         dx, dy = float(anchor[0]) - self.anchor[0], float(anchor[1]) - self.anchor[1]
         if dx * dx + dy * dy < px_at(CARRY_DEAD_AT_540, size[1]) ** 2:
             return self
+        ix, iy = 2 * int(round(dx / 2.0)), 2 * int(round(dy / 2.0))
+        if ix == 0 and iy == 0:
+            return self
         x0, y0, x1, y1 = self.box
         w, h = size
-        box = (max(x0 + int(np.floor(dx)), 0), max(y0 + int(np.floor(dy)), 0), min(x1 + int(np.ceil(dx)), w),
-               min(y1 + int(np.ceil(dy)), h))
-        return self._replace(corner=(self.corner[0] + dx, self.corner[1] + dy), box=box,
-                             anchor=(float(anchor[0]), float(anchor[1])))
+        box = (max(x0 + ix, 0), max(y0 + iy, 0), min(x1 + ix, w), min(y1 + iy, h))
+        return self._replace(corner=(self.corner[0] + ix, self.corner[1] + iy), box=box,
+                             anchor=(self.anchor[0] + ix, self.anchor[1] + iy))
 
 
 def aligned_box(box, size: tuple[int, int], factor: int) -> tuple[int, int, int, int]:

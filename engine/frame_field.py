@@ -54,9 +54,10 @@ class FieldStage:
 
         h, w = frame.shape[:2]
         f = field_factor((w, h), self.rows)
+        if f == 1 and not isinstance(frame, np.ndarray):
+            f = 2  # (a decoded frame's field is made of whole chroma samples)
         reach = box if maps is None or maps.box is None else union_box(box, maps.box)
-        # (a decoded frame's copy at a cell a pixel is still made of whole chroma samples)
-        ax0, ay0, _, _ = abox = aligned_box(reach, (w, h), f if f > 1 or isinstance(frame, np.ndarray) else 2)
+        ax0, ay0, _, _ = abox = aligned_box(reach, (w, h), f)
         small = small_copy(frame, abox, f)
         face_box = (box[0] - ax0, box[1] - ay0, box[2] - ax0, box[3] - ay0)
         person = {} if maps is None else dict(person=maps.grid, person_origin=maps.origin, person_scale=maps.scale,
@@ -79,5 +80,5 @@ class FieldStage:
         if fld is None:
             return frame
         if isinstance(frame, np.ndarray):
-            return self.applier.rgb(frame, fld.box, fld.grid, fld.sampling())
-        return frame.with_field(self.applier, fld.box, fld.grid, fld.sampling())
+            return self.applier.rgb(frame, fld.box, fld.grid, fld.factor, fld.corner)
+        return frame.with_field(self.applier, fld.box, fld.grid, fld.factor, fld.corner)

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from relight.colour import LUMINANCE
-from relight.video_yuv import downscale_area
+from relight.video_yuv import downscale_area, downscale_fast
 
 #: Rows of the frames the tracker sees (larger frames are scaled down for tracking only), and the
 #: level (8-bit codes) a dark frame's brightest face tones are brought to for tracking.
@@ -50,7 +50,8 @@ def tracking_image(frame) -> tuple[np.ndarray, float, float]:
     uint8 sRGB or a :class:`relight.video_yuv.YuvFrame` (its planes scaled first, then made grey:
     :meth:`relight.video_yuv.YuvFrame.tracking_grey`): grey, scaled to
     at most ``TRACK_ROWS`` rows (LK's cost is its pyramids and windows; a third of a pixel at 1080
-    rows is still far below the pose's noise), a dark frame brightened (:func:`track_exposure`)."""
+    rows is still far below the pose's noise; scaled by :func:`relight.video_yuv.downscale_fast`),
+    a dark frame brightened (:func:`track_exposure`)."""
     h, w = frame.shape[:2]
     ts = min(1.0, TRACK_ROWS / h)
     if not isinstance(frame, np.ndarray):
@@ -58,7 +59,7 @@ def tracking_image(frame) -> tuple[np.ndarray, float, float]:
     else:
         grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
         if ts < 1:
-            grey = downscale_area(grey, (round(w * ts), round(h * ts)))
+            grey = downscale_fast(grey, (round(w * ts), round(h * ts)))
     grey, gain = track_exposure(grey)
     return grey, ts, gain
 

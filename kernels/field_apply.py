@@ -6,10 +6,10 @@ Grids are (gh, gw, 32) float32: two affine maps of the frame's codes (Y', Cb, Cr
 G', B' for RGB), each three rows out_c = m_c . (v0, v1, v2, 1) - the tangent at the cell's colour
 and the chord through black (a pixel darker than the cell's knee takes the chord: ``field.cl``) -
 then the share of the cell the change covers (0: nothing changes there), the knee in the frame's
-codes and four zeros (:func:`relight.engine.field.code_grid` makes them). ``sampling`` = ((sx,
-sy), (gox, goy)): the grid's cells per frame pixel and its first cell's position in those units (a
-frame pixel X reads grid position (X + 0.5) sx - 0.5 - gox). Boxes are (x0, y0, x1, y1) frame
-pixels.
+codes and four zeros (:func:`relight.engine.field.code_grid` makes them). A field is placed by
+its factor (frame pixels per cell) and corner (the frame pixel of its first cell's corner): a frame
+pixel X reads grid position (X + 0.5) / factor - 0.5 - corner / factor. Boxes are (x0, y0, x1, y1)
+frame pixels.
 """
 
 from __future__ import annotations
@@ -20,11 +20,28 @@ from relight.errors import InputError
 
 from .runtime import build_program, get_runtime
 
-#: Work-group (x, y) of both kernels.
+#: Work-group (x, y) of both kernels, in tiles; each work item runs TILES tiles along a row.
 GROUP = (16, 4)
+TILES = 4
 #: Floats per cell of a field grid, and where its cover is.
 CELL = 32
 COVER = 24
+
+
+def tile_geometry(factor: int, corner: float, step: int) -> tuple[int, float, int]:
+    """Along one axis, (T, O, s0): a tile's samples - pixels (``step`` 1) or chroma samples (2) -
+    between two cell centres, the first one's weight offset (its weight toward the next cell is
+    (i + O) / T), and the sample tile 0 starts at, for a field of ``factor`` pixels per cell whose
+    corner is at ``corner`` (a multiple of ``step``)."""
+    t = factor // step
+    lead = -(-(t - 1) // 2)  # ceil((T - 1) / 2)
+    return t, lead - (t - 1) / 2.0, int(corner) // step + lead
+
+
+def tile_range(lo: int, hi: int, t: int, s0: int) -> tuple[int, int]:
+    """(first tile, count) of the tiles of ``t`` samples from ``s0`` holding samples [lo, hi)."""
+    first = (lo - s0) // t
+    return first, (hi - 1 - s0) // t - first + 1
 
 
 def check_grid(grid: np.ndarray) -> np.ndarray:
@@ -37,13 +54,15 @@ def check_grid(grid: np.ndarray) -> np.ndarray:
     return grid
 
 
-def check_sampling(sampling):
-    """((sx, sy), (gox, goy)) as four float32 (scales positive, offsets finite; else InputError)."""
-    (sx, sy), (gox, goy) = sampling
-    vals = (float(sx), float(sy), float(gox), float(goy))
-    if not (np.isfinite(vals).all() and vals[0] > 0 and vals[1] > 0):
-        raise InputError(f"light field sampling {sampling}: positive scales, finite offsets")
-    return tuple(np.float32(v) for v in vals)
+def check_placement(factor: int, corner, step: int = 1) -> tuple[int, int, int]:
+    """(factor, corner x, corner y) as ints: the factor a whole number, even but for an RGB frame's
+    1 (``step`` 1), the corner a multiple of ``step`` (else InputError)."""
+    f, cx, cy = int(factor), float(corner[0]), float(corner[1])
+    if f != factor or f < 1 or f > 64 or (step == 2 and f % 2):
+        raise InputError(f"light field of {factor} pixels per cell: use 1 to 64 (even for planes)")
+    if not (cx == int(cx) and cy == int(cy) and int(cx) % step == 0 and int(cy) % step == 0):
+        raise InputError(f"light field corner {corner}: whole pixels, a multiple of {step}")
+    return f, int(cx), int(cy)
 
 
 def chroma_box(box, size: tuple[int, int], cy: int):
@@ -55,19 +74,33 @@ def chroma_box(box, size: tuple[int, int], cy: int):
 
 
 class FieldApplier:
-    """The ``field_rgb`` and ``field_planes`` kernels (built once; device buffers kept by size)."""
+    """The ``field_rgb`` and ``field_planes`` kernels (built per factor and chroma layout, kept;
+    device buffers kept by size). A field is placed by its ``factor`` (frame pixels per cell) and
+    ``corner`` (the frame pixel of its first cell's corner): a frame pixel X reads the grid at
+    (X + 0.5) / factor - 0.5 - corner / factor."""
 
     def __init__(self):
-        import pyopencl as cl
-
         self.rt = get_runtime()
-        from .compositor import KNEE_RAMP
-
-        prg = build_program("field", ("-cl-denorms-are-zero", f"-DKNEE_RAMP={float(np.float32(KNEE_RAMP)):.9e}f"))
-        self._k_rgb = cl.Kernel(prg, "field_rgb")
-        self._k_planes = cl.Kernel(prg, "field_planes")
+        self._kernels: dict = {}
         self._bufs: dict = {}
         self._grid_key = None  # (the grid array last sent, its buffer): a read-only grid reused is not sent again
+
+    def _kernel(self, name: str, factor: int, cy: int = 0):
+        """The kernel ``name`` built for ``factor`` and ``cy`` (0: RGB)."""
+        import pyopencl as cl
+
+        from .compositor import KNEE_RAMP
+
+        key = (name, factor, cy)
+        k = self._kernels.get(key)
+        if k is None:
+            step_x, step_y = (1, 1) if cy == 0 else (2, cy)
+            tx, ox, _ = tile_geometry(factor, 0, step_x)
+            ty, oy, _ = tile_geometry(factor, 0, step_y)
+            opts = ("-cl-denorms-are-zero", f"-DKNEE_RAMP={float(np.float32(KNEE_RAMP)):.9e}f", f"-DTX={tx}",
+                    f"-DTY={ty}", f"-DOX={ox:.1f}f", f"-DOY={oy:.1f}f", f"-DCY={max(cy, 1)}", f"-DTILES={TILES}")
+            k = self._kernels[key] = cl.Kernel(build_program("field", opts), name)
+        return k
 
     def _buf(self, key, nbytes: int):
         import pyopencl as cl
@@ -92,7 +125,13 @@ class FieldApplier:
         self._grid_key = (grid, buf)
         return buf
 
-    def rgb(self, img: np.ndarray, box, grid: np.ndarray, sampling) -> np.ndarray:
+    @staticmethod
+    def _launch_size(ntx: int, nty: int) -> tuple[int, int]:
+        gx, gy = GROUP
+        items = -(-ntx // TILES)
+        return -(-items // gx) * gx, -(-nty // gy) * gy
+
+    def rgb(self, img: np.ndarray, box, grid: np.ndarray, factor: int, corner) -> np.ndarray:
         """``img`` ((H, W, 3) uint8 sRGB) with the field applied over ``box`` (a new array)."""
         import pyopencl as cl
 
@@ -103,25 +142,28 @@ class FieldApplier:
         out = img.copy()
         if x1 <= x0 or y1 <= y0:
             return out
-        sx, sy, gox, goy = check_sampling(sampling)
+        f, cx, cy = check_placement(factor, corner)
+        t, _, px0 = tile_geometry(f, cx, 1)
+        _, _, py0 = tile_geometry(f, cy, 1)
+        ta0, nta = tile_range(x0, x1, t, px0)
+        tb0, ntb = tile_range(y0, y1, t, py0)
         gbuf = self._grid(grid)
         q = self.rt.queue
         row = w * 3
         buf = self._buf(("rgb", img.shape), img.nbytes)
         cl.enqueue_copy(q, buf, img[y0:y1], dst_offset=y0 * row, is_blocking=False)
-        bw, bh = x1 - x0, y1 - y0
-        gx, gy = GROUP
-        self._k_rgb(q, (-(-bw // gx) * gx, -(-bh // gy) * gy), GROUP, buf, np.int32(w), np.int32(x0), np.int32(y0),
-                    np.int32(bw), np.int32(bh), gbuf, np.int32(grid.shape[1]), np.int32(grid.shape[0]), sx, sy, gox,
-                    goy)
+        self._kernel("field_rgb", f)(q, self._launch_size(nta, ntb), GROUP, buf, np.int32(w), np.int32(x0),
+                                     np.int32(y0), np.int32(x1), np.int32(y1), np.int32(ta0), np.int32(tb0),
+                                     np.int32(nta), np.int32(ntb), np.int32(px0), np.int32(py0), gbuf,
+                                     np.int32(grid.shape[1]), np.int32(grid.shape[0]))
         cl.enqueue_copy(q, out[y0:y1], buf, src_offset=y0 * row, is_blocking=True)
         return out
 
-    def planes(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, box, grid: np.ndarray,
-               sampling) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def planes(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, box, grid: np.ndarray, factor: int,
+               corner) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """New planes: ``y`` (H, W), ``u``, ``v`` (H / cy, W / 2) uint8 (cy = 2: 4:2:0, 1: 4:2:2) with
-        the field (its maps of (Y', Cb, Cr) codes) applied over ``box`` (grown to whole chroma
-        samples)."""
+        the field (its maps of (Y', Cb, Cr) codes; ``factor`` even, ``corner`` even) applied over
+        ``box`` (grown to whole chroma samples)."""
         import pyopencl as cl
 
         h, w = y.shape
@@ -134,26 +176,28 @@ class FieldApplier:
         cx0, cy0, cx1, cy1 = chroma_box(box, (w, h), cy)
         if cx1 <= cx0 or cy1 <= cy0:
             return yo, uo, vo
-        sx, sy, gox, goy = check_sampling(sampling)
+        f, gx, gy = check_placement(factor, corner, 2)
+        tx, _, sx0 = tile_geometry(f, gx, 2)
+        ty, _, sy0 = tile_geometry(f, gy, cy)
+        ta0, nta = tile_range(cx0, cx1, tx, sx0)
+        tb0, ntb = tile_range(cy0, cy1, ty, sy0)
         gbuf = self._grid(grid)
         q = self.rt.queue
         ly0, ly1 = cy0 * cy, cy1 * cy
-        ry0, ry1 = max(cy0 - 1, 0), min(cy1 + 1, ch_)  # the chroma rows read (the box's and a neighbour each side)
         by = self._buf(("y", y.shape), y.nbytes)
         cl.enqueue_copy(q, by, np.ascontiguousarray(y[ly0:ly1]), dst_offset=ly0 * w, is_blocking=False)
         chroma = []
         for name, plane in (("u", u), ("v", v)):
-            rows = np.ascontiguousarray(plane[ry0:ry1])
+            rows = np.ascontiguousarray(plane[cy0:cy1])
             src, dst = self._buf((name, u.shape), u.nbytes), self._buf((name + " out", u.shape), u.nbytes)
             for b in (src, dst):  # (the samples nothing changes in are not written: they keep the input's)
-                cl.enqueue_copy(q, b, rows, dst_offset=ry0 * cw_, is_blocking=False)
+                cl.enqueue_copy(q, b, rows, dst_offset=cy0 * cw_, is_blocking=False)
             chroma += [src, dst]
-        bw, bh = cx1 - cx0, cy1 - cy0
-        gx, gy = GROUP
-        self._k_planes(q, (-(-bw // gx) * gx, -(-bh // gy) * gy), GROUP, by, np.int32(w), chroma[0], chroma[2],
-                       chroma[1], chroma[3], np.int32(cw_), np.int32(cw_), np.int32(ch_), np.int32(cy), np.int32(cx0),
-                       np.int32(cy0), np.int32(bw), np.int32(bh), gbuf, np.int32(grid.shape[1]),
-                       np.int32(grid.shape[0]), sx, sy, gox, goy)
+        self._kernel("field_planes", f, cy)(q, self._launch_size(nta, ntb), GROUP, by, np.int32(w), chroma[0],
+                                            chroma[2], chroma[1], chroma[3], np.int32(cw_), np.int32(cx0),
+                                            np.int32(cy0), np.int32(cx1), np.int32(cy1), np.int32(ta0),
+                                            np.int32(tb0), np.int32(nta), np.int32(ntb), np.int32(sx0),
+                                            np.int32(sy0), gbuf, np.int32(grid.shape[1]), np.int32(grid.shape[0]))
         cl.enqueue_copy(q, yo[ly0:ly1], by, src_offset=ly0 * w, is_blocking=False)
         cl.enqueue_copy(q, uo[cy0:cy1], chroma[1], src_offset=cy0 * cw_, is_blocking=False)
         cl.enqueue_copy(q, vo[cy0:cy1], chroma[3], src_offset=cy0 * cw_, is_blocking=True)

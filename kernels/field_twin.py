@@ -28,9 +28,10 @@ def sample_field_numpy(grid: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.n
     return out
 
 
-def _positions(n0: int, n1: int, s: float, go: float) -> np.ndarray:
-    return ((np.arange(n0, n1, dtype=np.float32) + np.float32(0.5)) * np.float32(s) - np.float32(0.5)
-            - np.float32(go)).astype(np.float32)
+def _positions(centres: np.ndarray, factor: int, corner: float) -> np.ndarray:
+    """Grid positions of frame positions ``centres`` (pixel-centre coordinates) for a field of
+    ``factor`` pixels per cell cornered at ``corner``."""
+    return ((np.asarray(centres, np.float64) + 0.5 - corner) / factor - 0.5).astype(np.float32)
 
 
 def _ramp(v: np.ndarray, knee: np.ndarray) -> np.ndarray:
@@ -48,17 +49,16 @@ def _map(m: np.ndarray, row: int, v0, v1, v2) -> np.ndarray:
     return m[..., 4 * row] * v0 + m[..., 4 * row + 1] * v1 + m[..., 4 * row + 2] * v2 + m[..., 4 * row + 3]
 
 
-def field_rgb_numpy(img: np.ndarray, box, grid: np.ndarray, sampling) -> np.ndarray:
+def field_rgb_numpy(img: np.ndarray, box, grid: np.ndarray, factor: int, corner) -> np.ndarray:
     """Twin of ``field_rgb``: a new (H, W, 3) uint8 frame."""
-    (sx, sy), (gox, goy) = sampling
     out = np.array(img, dtype=np.uint8)
     h, w = out.shape[:2]
     x0, y0, x1, y1 = max(int(box[0]), 0), max(int(box[1]), 0), min(int(box[2]), w), min(int(box[3]), h)
     if x1 <= x0 or y1 <= y0:
         return out
     shape = (y1 - y0, x1 - x0)
-    m = sample_field_numpy(grid, np.broadcast_to(_positions(x0, x1, sx, gox)[None, :], shape),
-                           np.broadcast_to(_positions(y0, y1, sy, goy)[:, None], shape))
+    m = sample_field_numpy(grid, np.broadcast_to(_positions(np.arange(x0, x1), factor, corner[0])[None, :], shape),
+                           np.broadcast_to(_positions(np.arange(y0, y1), factor, corner[1])[:, None], shape))
     region = out[y0:y1, x0:x1]
     v = region.astype(np.float32)
     new = []
@@ -72,10 +72,9 @@ def field_rgb_numpy(img: np.ndarray, box, grid: np.ndarray, sampling) -> np.ndar
     return out
 
 
-def field_planes_numpy(y: np.ndarray, u: np.ndarray, v: np.ndarray, box, grid: np.ndarray,
-                       sampling) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def field_planes_numpy(y: np.ndarray, u: np.ndarray, v: np.ndarray, box, grid: np.ndarray, factor: int,
+                       corner) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Twin of ``field_planes``: new planes."""
-    (sx, sy), (gox, goy) = sampling
     yo, uo, vo = np.array(y), np.array(u), np.array(v)
     h, w = y.shape
     cy = h // u.shape[0]
@@ -83,30 +82,21 @@ def field_planes_numpy(y: np.ndarray, u: np.ndarray, v: np.ndarray, box, grid: n
     if cx1 <= cx0 or cy1 <= cy0:
         return yo, uo, vo
     ci, cj = np.meshgrid(np.arange(cx0, cx1), np.arange(cy0, cy1))
-    cx = (2.0 * ci + 0.5).astype(np.float32)
-    cyc = (cy * cj + 0.5 * (cy - 1)).astype(np.float32)
-    m = sample_field_numpy(grid, (cx + np.float32(0.5)) * np.float32(sx) - np.float32(0.5) - np.float32(gox),
-                           (cyc + np.float32(0.5)) * np.float32(sy) - np.float32(0.5) - np.float32(goy))
+    # each chroma sample's centre (frame px): its block of 2 x cy luma pixels'
+    m = sample_field_numpy(grid, _positions(2.0 * ci + 0.5, factor, corner[0]),
+                           _positions(cy * cj + 0.5 * (cy - 1), factor, corner[1]))
     on = m[..., COVER] > 0
     cb = u[cj, ci].astype(np.float32)
     cr = v[cj, ci].astype(np.float32)
-    ch, cw = u.shape
+    bt = m[..., 1] * cb + m[..., 2] * cr + m[..., 3]
+    bd = m[..., 13] * cb + m[..., 14] * cr + m[..., 15]
     total = np.zeros(ci.shape, np.float32)
-    hy = np.float32(0.25 if cy == 2 else 0.0)
-    q, r = np.float32(0.75), np.float32(0.25)
     for k in range(2 * cy):
         px, py = 2 * ci + (k & 1), cy * cj + (k >> 1)
-        dx = np.clip(ci + (1 if k & 1 else -1), 0, cw - 1)
-        dy = np.clip(cj + (1 if k >> 1 else -1), 0, ch - 1) if cy == 2 else cj
-        own = []
-        for plane, centre in ((u, cb), (v, cr)):
-            p = plane.astype(np.float32)
-            own.append((np.float32(1.0) - hy) * (q * centre + r * p[cj, dx]) + hy * (q * p[dy, ci] + r * p[dy, dx]))
         lum = y[py, px].astype(np.float32)
         total += lum
-        t = m[..., 0] * lum + m[..., 1] * own[0] + m[..., 2] * own[1] + m[..., 3]
-        d = m[..., 12] * lum + m[..., 13] * own[0] + m[..., 14] * own[1] + m[..., 15]
-        new = _code8(t + _ramp(lum, m[..., 25]) * (d - t))
+        t = m[..., 0] * lum + bt
+        new = _code8(t + _ramp(lum, m[..., 25]) * (m[..., 12] * lum + bd - t))
         yo[py[on], px[on]] = new[on]
     lm = total / np.float32(2 * cy)
     a = _ramp(lm, m[..., 25])

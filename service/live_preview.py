@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
@@ -36,8 +37,10 @@ from relight.directions import ENV_TURN_RANGE_DEG
 from .controls import RANGES
 from .live_camera import LatestFrame
 
-#: The MJPEG preview's JPEG quality.
+#: The MJPEG preview's JPEG quality, and its most frames a second to a viewer (a monitor of the
+#: relit camera: RGB and a JPEG are made for it at this rate at most, off the frames' path).
 PREVIEW_QUALITY = 80
+PREVIEW_FPS = 15.0
 #: Largest bodies read: a control, and an uploaded map or photo (bytes).
 MAX_CONTROL = 4096
 MAX_UPLOAD = 64 << 20
@@ -103,13 +106,14 @@ class PreviewServer:
         return buf.tobytes() if ok else b""
 
     def frame_rgb(self, item) -> np.ndarray:
-        """A relit item as shown: the split applied when one is set."""
-        rgb = item.as_rgb()
+        """A relit item as shown: the split applied when one is set (a frame kept in its planes
+        converted by OpenCV's fast path: a viewer's picture, not a recording)."""
+        from relight.video_yuv import view_rgb
+
+        rgb = view_rgb(item.rgb)
         split = self.controls.split if self.controls is not None else None
         if split is not None and item.src is not None:
-            from relight.video_yuv import as_rgb
-
-            src = as_rgb(item.src)
+            src = view_rgb(item.src)
             if src.shape == rgb.shape:
                 return split_frame(rgb, src, split)
         return rgb
@@ -390,13 +394,14 @@ def _handler(preview: PreviewServer):
             self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
             self.send_header("Cache-Control", "no-store")
             self.end_headers()
-            last = None
+            last, due = None, 0.0
             while not preview.closed.is_set():
                 item = preview.slot.peek()
-                if item is None or item is last:
-                    preview.closed.wait(0.01)
+                wait = due - time.perf_counter()
+                if item is None or item is last or wait > 0:
+                    preview.closed.wait(max(min(wait, 0.05), 0.005))
                     continue
-                last = item
+                last, due = item, time.perf_counter() + 1.0 / PREVIEW_FPS
                 jpeg = preview.encode(preview.frame_rgb(item))
                 self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: "
                                  + str(len(jpeg)).encode() + b"\r\n\r\n" + jpeg + b"\r\n")

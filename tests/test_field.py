@@ -34,30 +34,31 @@ def _planes(rgb):
     return rgb_to_planes(rgb)
 
 
+@pytest.mark.parametrize("factor, corner", [(4, (2, -6)), (6, (8, 4)), (2, (0, 0))])
 @pytest.mark.parametrize("sub", [2, 1])
-def test_the_field_kernels_match_their_numpy_twins(sub):
+def test_the_field_kernels_match_their_numpy_twins(sub, factor, corner):
     """field_rgb and field_planes (4:2:0 and 4:2:2) give their twins' bytes, with gains, offsets
-    and cells of no change; they change pixels only inside the box."""
+    and cells of no change, at fields of several factors and corners (the tiles' weights); they
+    change pixels only inside the box."""
     from relight.kernels.field_apply import FieldApplier
     from relight.kernels.field_twin import field_planes_numpy, field_rgb_numpy
 
     rng = np.random.default_rng(7)
     h, w = 72, 128
     rgb = cv2.GaussianBlur(rng.integers(0, 256, (h, w, 3), dtype=np.uint8), (0, 0), 1.5)
-    grid = _grid(rng, (10, 14))
-    sampling = ((14 / w, 10 / h), (0.3, -0.2))
+    grid = _grid(rng, (h // factor + 2, w // factor + 2))
     box = (5, 3, 121, 70)
     fa = FieldApplier()
-    got = fa.rgb(rgb, box, grid, sampling)
-    want = field_rgb_numpy(rgb, box, grid, sampling)
+    got = fa.rgb(rgb, box, grid, factor, corner)
+    want = field_rgb_numpy(rgb, box, grid, factor, corner)
     assert np.abs(got.astype(int) - want).max() <= FIELD_TWIN_CODES
     assert (got != rgb).any(axis=2).mean() > 0.3  # it did something
     assert (got[:box[1]] == rgb[:box[1]]).all() and (got[:, box[2]:] == rgb[:, box[2]:]).all()
     y, u, v = _planes(rgb)
     if sub == 1:  # 4:2:2: the chroma of every row
         u, v = (np.ascontiguousarray(cv2.resize(p, (w // 2, h), interpolation=cv2.INTER_LINEAR)) for p in (u, v))
-    got = fa.planes(y, u, v, box, grid, sampling)
-    want = field_planes_numpy(y, u, v, box, grid, sampling)
+    got = fa.planes(y, u, v, box, grid, factor, corner)
+    want = field_planes_numpy(y, u, v, box, grid, factor, corner)
     for a, b, before in zip(got, want, (y, u, v), strict=True):
         assert np.abs(a.astype(int) - b).max() <= FIELD_TWIN_CODES
         assert (a != before).mean() > 0.3
@@ -75,13 +76,12 @@ def test_a_field_of_no_change_gives_the_frame_back():
     cells = np.zeros((9, 13, 8), np.float32)
     cells[..., :4] = 1.0
     colour = rng.integers(0, 256, (9, 13, 3), dtype=np.uint8)
-    sampling = ((13 / 96, 9 / 64), (0.0, 0.0))
     fa = FieldApplier()
-    np.testing.assert_array_equal(fa.rgb(rgb, (0, 0, 96, 64), code_grid(cells, colour), sampling), rgb)
+    np.testing.assert_array_equal(fa.rgb(rgb, (0, 0, 96, 64), code_grid(cells, colour), 8, (0, 0)), rgb)
     frame = YuvFrame(*_planes(rgb))
     planes = (frame.y, frame.u, frame.v)
     unit = code_grid(cells, colour, *frame.code_maps())
-    for a, b in zip(fa.planes(*planes, (0, 0, 96, 64), unit, sampling), planes, strict=True):
+    for a, b in zip(fa.planes(*planes, (0, 0, 96, 64), unit, 8, (0, 0)), planes, strict=True):
         np.testing.assert_array_equal(a, b)
 
 
@@ -161,7 +161,7 @@ def test_the_field_at_the_frames_own_scale_is_the_composite(frame_path, clip):
     kw = dict(mode="live", person=grid, frame_size=(w, h), floor=0.02, gate=True)
     want = fp.compositor.composite_person(rgb, box, face_box, coarse, step, **kw)
     cells = fp.compositor.person_gain(rgb, box, face_box, coarse, step, code_maps=(None, None), **kw)
-    got = fp.field.applier.rgb(rgb, box, cells, ((1.0, 1.0), (0.0, 0.0)))
+    got = fp.field.applier.rgb(rgb, box, cells, 1, (0, 0))
     diff = np.abs(got.astype(int) - want)
     assert (want != rgb).any(axis=2).sum() > 1000  # it did something
     assert diff.max() <= COMPOSITE_TWIN_CODES and (diff > 0).mean() < 0.01
@@ -180,11 +180,11 @@ def test_a_carried_field_moves_with_the_head():
     grid[..., 24] = 1.0
     fld = LightField(grid, "rgb", 4, (40.0, 20.0), (36, 16, 108, 72), (70.0, 45.0), 0)
     fa = FieldApplier()
-    a = fa.rgb(rgb, fld.box, fld.grid, fld.sampling())
-    dx, dy = 7, -5
+    a = fa.rgb(rgb, fld.box, fld.grid, fld.factor, fld.corner)
+    dx, dy = 8, -6  # (a field is carried in whole even pixels)
     moved = np.roll(rgb, (dy, dx), axis=(0, 1))
     carried = fld.moved((70.0 + dx, 45.0 + dy), (w, h))
-    b = fa.rgb(moved, carried.box, carried.grid, carried.sampling())
+    b = fa.rgb(moved, carried.box, carried.grid, carried.factor, carried.corner)
     np.testing.assert_array_equal(np.roll(a, (dy, dx), axis=(0, 1))[10:-10, 10:-10], b[10:-10, 10:-10])
 
 
