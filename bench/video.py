@@ -32,6 +32,7 @@ import numpy as np
 
 from relight.engine.composite import DEFAULT_MODE, DEFAULT_REGION
 
+from . import floor
 from .clips import CAPTURE_HZ as CLIP_CAPTURE_HZ
 from .clips import flicker_step, synth_bundle, synth_live  # noqa: F401 (used by the other benches)
 from .machine import cpu_jiffies, steal_share
@@ -51,7 +52,11 @@ SPEED_SIZES = ((1280, 720), (1920, 1080))
 SPEED_CAPTURE = (1280, 720)
 SPEED_KEYS = ("size", "frames", "faces", "face_pixels", "bundle_pixels", "stage_ms", "fps_sustained", "fps_pipelined",
               "cpu_ms_per_frame", "wall_ms_per_frame", "cpu_steal", "reused_frames", "face_frames",
-              "rotation_error_deg")
+              "rotation_error_deg", "planes", "ran")
+#: A still head: the speed clip's first frame with a face, repeated this many frames (the slow
+#: stages idle once the live light's exposure lock has settled; the last STILL_TIMED are timed).
+STILL_FRAMES = 90
+STILL_TIMED = 30
 #: Other synthetic heads (seeds) whose head pose is measured at 640x360 too, each with its own
 #: capture and live clip: a tracking change is judged over several heads, not tuned to one
 #: (the closed loop moves one clip's figures by a few tenths of a degree for small changes).
@@ -73,10 +78,24 @@ def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
                        for k, angles in estimates.items()])
 
 
-def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
+def _frames(live: Path, planes: bool) -> list:
+    """The clip's frames: (H, W, 3) uint8 sRGB, or (``planes``) kept in the decoder's planes as
+    ``relight live``'s camera reader keeps them (:class:`relight.video_yuv.YuvFrame`)."""
+    if not planes:
+        from relight.video import read_frames
+
+        return list(read_frames(live / "live.mp4"))
+    from relight.video_read import read_frames_raw
+    from relight.video_yuv import YuvFrame
+
+    return [YuvFrame.from_av(f) for f in read_frames_raw(live / "live.mp4")]
+
+
+def _per_frame(bundle_path: Path, live: Path, env: str, mode: str, planes: bool = False) -> dict:
+    """The path over the clip (``planes``: in the decoder's planes, as ``relight live`` runs it)."""
     import relight
     from relight.engine.frame_path import FramePath
-    from relight.video import read_frames
+    from relight.video_yuv import view_rgb
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
     fps = float(meta["fps"])
@@ -84,7 +103,7 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     # relight synth's camera is orthographic.
     focal = "ortho" if "orthographic" in meta.get("conventions", "") else None
     fp = FramePath(bundle, relight.load_environment(env), mode=mode, focal=focal)
-    frames = list(read_frames(live / "live.mp4"))
+    frames = _frames(live, planes)
     # Warm-up (kernel caches, first allocations), then the measured pass from a fresh track.
     for i, f in enumerate(frames[:10]):
         fp.process(f, i / fps)
@@ -97,6 +116,7 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     prev = None
     side = side_cpu = 0.0
     reused = []
+    ran: dict = {}  # {stage: frames it ran on} (the scheduler's plan)
 
     jiffies0 = cpu_jiffies()
     t0 = time.perf_counter()
@@ -107,6 +127,8 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
             times[k].append(info.timings.get(k, 0.0))
         if info.face:
             reused.append((info.reused, info.timings.get("relight", 0.0)))
+        for k in info.ran:
+            ran[k] = ran.get(k, 0) + 1
         if info.face:
             estimates[str(i)] = info.angles
             raw[str(i)] = info.raw_angles
@@ -114,13 +136,14 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
             lights[str(i)] = info.light.as_json()
         t_side = time.perf_counter()  # the benchmark's own measuring, left out of the wall and CPU time
         c_side = time.process_time()
+        f_rgb, out_rgb = view_rgb(f), view_rgb(out)
         if prev is not None:
-            d = flicker_step(prev[0], prev[1], f, out)
+            d = flicker_step(prev[0], prev[1], f_rgb, out_rgb)
             if d is not None:
                 flick.append(d)
-        prev = (f, out)
+        prev = (f_rgb, out_rgb)
         if i in (len(frames) // 5, len(frames) // 2, 4 * len(frames) // 5):
-            pairs.append((i, f, out))
+            pairs.append((i, f_rgb, out_rgb))
         side += time.perf_counter() - t_side
         side_cpu += time.process_time() - c_side
     wall = time.perf_counter() - t0 - side
@@ -150,6 +173,7 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
         face_px = int((cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE) > 0).sum())
     first = min((int(k) for k in estimates), default=None)
     return {"frames": len(frames), "faces": len(estimates), "first_face_frame": first, "size": meta["size"],
+            "planes": planes, "ran": ran,
             "face_pixels": face_px,
             "bundle_pixels": int(np.asarray(bundle.pixels).size),
             "stage_ms": {k: {"median": float(np.median(v)), "p99": float(np.percentile(v, 99))}
@@ -171,6 +195,30 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
             "flicker_p95_codes": float(np.percentile(flick, 95)) if flick else None,
             "live_light_last": lights.get(str(len(frames) - 1)),
             "estimates": estimates, "raw_estimates": raw, "truth": meta["head_rotation"], "_pairs": pairs}
+
+
+def _still_head(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
+    """The path's CPU on a still head (:data:`STILL_FRAMES` copies of the clip's first frame with
+    a face, in the decoder's planes): ms per frame over the last :data:`STILL_TIMED`, and the
+    slow stages that ran on them (none, once settled: the scheduler's promise)."""
+    import relight
+    from relight.engine.frame_path import FramePath
+
+    meta = json.loads((live / "truth" / "meta.json").read_text())
+    fp = FramePath(relight.load_bundle(bundle_path), relight.load_environment(env), mode=mode,
+                   focal="ortho" if "orthographic" in meta.get("conventions", "") else None)
+    frames = _frames(live, planes=True)
+    still = next((f for i, f in enumerate(frames[:30]) if fp.process(f, i / 30.0)[1].face), frames[0])
+    fp.reset()
+    cpu, ran = [], {}
+    for i in range(STILL_FRAMES):
+        c0 = time.process_time()
+        _, info = fp.process(still, i / float(meta["fps"]))
+        if i >= STILL_FRAMES - STILL_TIMED:
+            cpu.append(1e3 * (time.process_time() - c0))
+            for k in info.ran:
+                ran[k] = ran.get(k, 0) + 1
+    return {"frames": STILL_TIMED, "cpu_ms_per_frame": float(np.median(cpu)), "ran": ran}
 
 
 def _filter_run(bundle_path: Path, live: Path, out: Path, env: str) -> dict:
@@ -275,8 +323,12 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = ENV,
         for size in SPEED_SIZES:
             if progress:
                 print(f"timing the per-frame path at {size[0]}x{size[1]} ...", flush=True)
-            r = _per_frame(big_bundle, synth_live(out, size, 10.0, progress), env, mode)
-            doc["speed"].append({k: r[k] for k in SPEED_KEYS})
+            clip = synth_live(out, size, 10.0, progress)
+            r = _per_frame(big_bundle, clip, env, mode, planes=True)  # (as relight live runs it)
+            row = {k: r[k] for k in SPEED_KEYS}
+            row["floor"] = floor.measure(clip / "live.mp4")  # the machine's floor, the same hour
+            row["still"] = _still_head(big_bundle, clip, env, mode)
+            doc["speed"].append(row)
     # The live frame against its truth (every frame rendered under the target light): the person
     # relit, the background untouched, no seam - on the heads developed on and unseen ones.
     from . import live_frame
@@ -367,6 +419,18 @@ def table(doc: dict) -> str:
                          f"{r['wall_ms_per_frame']:6.1f} "
                          f"{r['cpu_ms_per_frame']:6.1f} {cores:5.2f} {_pct(r.get('cpu_steal')):>5s} {reused:>7s}  "
                          + " ".join(f"{k} {st[k]['median']:.1f}" for k in STAGES if k != "total"))
+        for r in doc["speed"]:
+            size = f"{r['size'][0]}x{r['size'][1]}"
+            if r.get("ran"):
+                lines.append(f"  {size}{' in planes' if r.get('planes') else ''}: slow stages ran on "
+                             + ", ".join(f"{k} {n}" for k, n in r["ran"].items()) + f" of {r['frames']} frames")
+            if r.get("floor"):
+                lines.append("  " + floor.line(r["floor"]) + f"; the path above {r['cpu_ms_per_frame']:.1f} ms")
+            if r.get("still"):
+                st = r["still"]
+                lines.append(f"  a still head at {size}: {st['cpu_ms_per_frame']:.1f} ms CPU a frame (median of "
+                             f"{st['frames']}), slow stages ran: "
+                             + (", ".join(f"{k} {n}" for k, n in st["ran"].items()) or "none"))
     if doc.get("live_frame"):
         from . import live_frame
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .frame_warp import FaceWarp
 from .live_light import LiveLight
 
 
@@ -37,8 +38,8 @@ class Front:
     ``track`` the tracked points, ``keep`` the pose's inliers among them and ``ref_idx`` their
     landmark indices, ``xy`` ((M, 2) float32) where the warp puts those landmarks, ``pose`` and
     ``rotation`` (3x3, smoothed) the head's, ``size`` (w, h), ``track_gain`` the tracking copy's
-    brightening gain, ``warp`` (cur, ref, box, coarse) the warp the pose gives
-    (:func:`.frame_warp.face_warp`), ``brightness`` the face's mean grey code in the tracking
+    brightening gain, ``warp`` the warp the pose gives (a :class:`.frame_warp.FaceWarp`: its
+    coarse map made when the field is), ``brightness`` the face's mean grey code in the tracking
     copy (the scheduler's test of the room's light), ``thumb`` a grey thumbnail of the frame and
     ``thumb_scale`` its px per frame px (the scheduler's test of the scene: :mod:`.schedule`)."""
 
@@ -54,7 +55,7 @@ class Front:
     rotation: np.ndarray | None = None
     size: tuple[int, int] = (0, 0)
     track_gain: float = 1.0
-    warp: tuple | None = None
+    warp: FaceWarp | None = None
     brightness: float = 0.0
     thumb: np.ndarray | None = None
     thumb_scale: float = 1.0

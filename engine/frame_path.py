@@ -362,14 +362,10 @@ class FramePath:
         if front.pose is None:
             return front.frame, front.info
         info, tm = front.info, front.info.timings
-        cur, _, box, coarse = front.warp
-        if coarse is None:
-            info.face = False
-            info.note = "face outside the frame"
-            tm["total"] = (time.perf_counter() - front.t0) * 1e3
-            return front.frame, info
-        t2 = time.perf_counter()
-        anchor = tuple(float(v) for v in cur.mean(axis=0))  # the head's place (frame px): what the field follows
+        box = front.warp.box
+        if box is None:
+            return _outside(front)
+        anchor = tuple(float(v) for v in front.warp.cur.mean(axis=0))  # the head's place: the field follows it
         head = Head(anchor, front.rotation, float(np.hypot(box[2] - box[0], box[3] - box[1])), front.brightness,
                     front.thumb, front.thumb_scale)
         env_rot = self.env_rotation(front.t)
@@ -378,6 +374,13 @@ class FramePath:
         turn = with_env_turn(None if self.fixed_env else front.rotation, env_rot)
         self.field.check_space(front.frame)
         plan = self._plan(head, turn)
+        if plan.field is not None:  # the warp's coarse map: made only for a field made on this frame
+            t3 = time.perf_counter()
+            coarse = front.warp.coarse()
+            tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3
+            if coarse is None:
+                return _outside(front)
+        t2 = time.perf_counter()
         info.ran = plan.ran()
         info.reused = plan.relight is None
         if plan.relight is not None:  # queued, not waited for: synced before the host reads it
@@ -437,7 +440,7 @@ class FramePath:
         live light fitted when the plan says), the person's maps (region person: made when the
         plan says, else the last ones carried), then the field over the box they reach."""
         rgb, t, tm = front.frame, front.t, front.info.timings
-        _, _, box, coarse = front.warp
+        box, coarse = front.warp.box, front.warp.coarse()
         t3 = time.perf_counter()
         layer_mode, gain, live_median, tau, eps, waited = self._light(front, head, plan, defer)
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
@@ -465,7 +468,7 @@ class FramePath:
         median, tau, eps, ms waited for the relight) - mode transfer's live light fitted when the
         plan says (:meth:`.frame_light.LiveLightStage.transfer`)."""
         rgb, info, tm = front.frame, front.info, front.info.timings
-        cur, ref, _, _ = front.warp
+        cur, ref = front.warp.cur, front.warp.ref
         flat = self.relit_frame.reshape(-1, 3)
         if self.mode == "transfer":
             out = self.live_light.transfer(rgb, cur, ref, front.rotation, front.t, flat, tm, front.track_gain, defer,
@@ -491,6 +494,14 @@ class FramePath:
         """Hand the tracker the live-lit reference a deferred :meth:`back` made (between frames,
         when no :meth:`front` runs)."""
         self.live_light.commit_reference()
+
+
+def _outside(front: Front):
+    """The frame passed through, its info saying the face is outside it."""
+    front.info.face = False
+    front.info.note = "face outside the frame"
+    front.info.timings["total"] = (time.perf_counter() - front.t0) * 1e3
+    return front.frame, front.info
 
 
 def _thumbnail(grey: np.ndarray) -> np.ndarray:

@@ -1,8 +1,8 @@
 """The face's warp in one frame: where the rig's points sit in the frame (the head pose's
 projection plus what the tracked landmarks add beyond the tracking noise,
-:func:`regularised_points`), the warp they give (:func:`face_warp`: the coarse map of frame pixels
-to reference positions, :mod:`.warp`), and the live frame read through it at the live light's
-sample pixels (:func:`sample_live`).
+:func:`regularised_points`), the warp they give (:func:`face_warp`: a :class:`FaceWarp`, its
+coarse map of frame pixels to reference positions made when asked, :mod:`.warp`), and the live
+frame read through it at the live light's sample pixels (:func:`sample_live`).
 
 ``rig`` is the path's :class:`relight.engine.rig.FaceRig`; points are (N, 2) float32 pixels (x
 right, y down); boxes are (x0, y0, x1, y1).
@@ -56,26 +56,42 @@ def _mesh_positions(rig, est, pose, ref_idx: np.ndarray, xy: np.ndarray) -> tupl
     return cur, depth
 
 
-def face_warp(rig, est, pose, size, ref_idx: np.ndarray, xy: np.ndarray, rigid: bool):
-    """(cur, ref, box, coarse): where the warp's points sit in the frame (N, 2) and in the
-    reference, the frame's box they span and the coarse map over it (None: the face is outside
-    the frame or its points do not triangulate). ``est``: the frame's
+class FaceWarp:
+    """The face's warp in one frame (:func:`face_warp`): ``cur`` and ``ref`` where its points sit
+    in the frame (N, 2) and in the reference, ``box`` the frame's box they span (None: the face
+    is outside the frame) and :meth:`coarse` the coarse map over it - made when first asked (a
+    frame that carries the last light field needs the points alone: 2-3 ms saved at 720p)."""
+
+    def __init__(self, rig, cur: np.ndarray, ref: np.ndarray, box, depth: np.ndarray | None):
+        self._rig, self.cur, self.ref, self.box, self._depth = rig, cur, ref, box, depth
+        self._coarse = None
+        self._made = box is None
+
+    def coarse(self) -> np.ndarray | None:
+        """The coarse map of frame pixels to reference positions over :attr:`box`
+        (:mod:`.warp`; None: the face is outside the frame or its points do not triangulate)."""
+        if not self._made:
+            self._made = True
+            if self._depth is not None:
+                self._coarse = mesh_coarse_map(self.cur, self.ref, self._rig.mesh_triangles, self.box, self._depth)
+            else:
+                self._coarse = coarse_map(self.cur, self.ref, self.box)
+        return self._coarse
+
+
+def face_warp(rig, est, pose, size, ref_idx: np.ndarray, xy: np.ndarray, rigid: bool) -> FaceWarp:
+    """The face's :class:`FaceWarp` in this frame. ``est``: the frame's
     :class:`relight.engine.pose.PoseEstimator` (``size`` (w, h)) and ``pose`` its head pose;
     ``ref_idx``, ``xy``: the tracked landmarks and where they sit (:func:`regularised_points`);
     ``rigid``: the rig's mesh moved by the pose and the landmarks, else the landmarks and an
     affine ring (FramePath's ``rigid_warp``)."""
     if rigid:
         cur, depth = _mesh_positions(rig, est, pose, ref_idx, xy)
-        ref = rig.mesh_ref
-        box = points_box(cur, size)
-        coarse = mesh_coarse_map(cur, ref, rig.mesh_triangles, box, depth) if box is not None else None
-    else:
-        ring = rig.control_ref[rig.ring_index]
-        cur = np.concatenate([xy, _affine_ring(rig.control_ref[ref_idx], xy, ring)])
-        ref = np.concatenate([rig.control_ref[ref_idx], ring])
-        box = points_box(cur, size)
-        coarse = coarse_map(cur, ref, box) if box is not None else None
-    return cur, ref, box, coarse
+        return FaceWarp(rig, cur, rig.mesh_ref, points_box(cur, size), depth)
+    ring = rig.control_ref[rig.ring_index]
+    cur = np.concatenate([xy, _affine_ring(rig.control_ref[ref_idx], xy, ring)])
+    ref = np.concatenate([rig.control_ref[ref_idx], ring])
+    return FaceWarp(rig, cur, ref, points_box(cur, size), None)
 
 
 def sample_live(rig, rgb, cur: np.ndarray, ref: np.ndarray, rotation: np.ndarray, rigid: bool):

@@ -9,20 +9,22 @@ room costs the tracking and the one pass over the frame:
 =============  ============================================================================
 stage          runs when (:meth:`Scheduler.plan`)
 =============  ============================================================================
-relight        the environment or the exposure changed, or the head turned RELIGHT_DEG
-               since the last relight (else the last one serves)
+relight        a field is made and the environment or the exposure changed, or the head
+               turned RELIGHT_DEG since the last relight (the relit face feeds the field
+               alone: else the last one serves)
 light          mode transfer: no live light yet; the face's brightness moved LIGHT_STEP
                since the last fit (a lamp, the camera's exposure); LIGHT_EVERY frames
-               passed while the head moves or the exposure settles (its first fits); or
-               LIGHT_MAX_AGE frames passed
+               passed while the head moves (LIGHT_SETTLE_EVERY while the exposure settles:
+               its first fits); or LIGHT_MAX_AGE frames passed
 person         region person: no maps yet; a new environment; the head moved PERSON_MOVE
                of its size or turned PERSON_DEG since they were made; the scene changed in
                the person's box (arms, shoulders, a hand: SCENE_STEP); or PERSON_MAX_AGE
                frames passed
-field          anything above ran; the head turned FIELD_DEG or changed size FIELD_SIZE
-               since it was made (a translation is carried: :meth:`.field.LightField.moved`);
-               a setting changed; the scene changed in the field's box; or FIELD_MAX_AGE
-               frames passed
+field          the light, the person's maps, a setting or the environment changed; the head
+               turned FIELD_JUMP_DEG since it was made, or FIELD_DEG and FIELD_EVERY frames
+               passed; its size changed FIELD_SIZE (a translation is carried:
+               :meth:`.field.LightField.moved`); the scene changed in the field's box; or
+               FIELD_MAX_AGE frames passed
 =============  ============================================================================
 
 "The scene changed in a box": the mean absolute difference of a grey thumbnail of the frame
@@ -50,20 +52,30 @@ from relight.numerics import EPS
 RELIGHT_DEG = 0.1
 #: Mode transfer's live light: refitted when the face's mean brightness (the tracking copy's
 #: grey codes) moves this share since the last fit; every LIGHT_EVERY frames while the head
-#: moves or the exposure settles (its first LIGHT_SETTLE fits: the exposure lock's,
-#: :data:`.gains.EXPOSURE_LOCK_FITS`); at least every LIGHT_MAX_AGE frames.
+#: moves, every LIGHT_SETTLE_EVERY while the exposure settles (its first LIGHT_SETTLE fits: the
+#: exposure lock's, :data:`.gains.EXPOSURE_LOCK_FITS`); at least every LIGHT_MAX_AGE frames.
 LIGHT_STEP = 0.04
-LIGHT_EVERY = 3
+LIGHT_EVERY = 4
+LIGHT_SETTLE_EVERY = 3
 LIGHT_SETTLE = 8
 LIGHT_MAX_AGE = 60
 #: The person's maps: remade when the head moved this share of its size (the face's box
 #: diagonal) or turned PERSON_DEG since they were made, or after PERSON_MAX_AGE frames.
 PERSON_MOVE = 0.08
-PERSON_DEG = 4.0
+PERSON_DEG = 6.0
 PERSON_MAX_AGE = 150
-#: The light field: remade when the head turned FIELD_DEG or its size changed FIELD_SIZE (a
-#: share) since it was made, or after FIELD_MAX_AGE frames.
+#: The light field: remade when the head turned FIELD_JUMP_DEG since it was made, or FIELD_DEG
+#: once FIELD_EVERY frames passed (between, it is carried with the head), or its size changed
+#: FIELD_SIZE (a share), or after FIELD_MAX_AGE frames.
+#:
+#: The rates (FIELD_EVERY, LIGHT_EVERY, PERSON_DEG) were chosen on the live-frame truth clips,
+#: whose heads turn 1-4 deg a frame - far faster than a head on a call: at 2 / 4 / 6 the
+#: person's PSNR moved -0.19 to +0.14 dB against a field made on every frame (3 / 6 / 4:
+#: -0.04 to -0.27 dB; the person's maps at 8 deg: -0.4 to -1.1 dB and a smear off the person),
+#: while the field was made on 65-68 % of the frames and the light fitted on 30 % (docs/performance.md).
 FIELD_DEG = 0.25
+FIELD_EVERY = 2
+FIELD_JUMP_DEG = 2.0
 FIELD_SIZE = 0.01
 FIELD_MAX_AGE = 150
 #: The scene's test: a grey thumbnail of this many rows, and the mean change over a box (8-bit
@@ -146,23 +158,27 @@ class Scheduler:
         LIGHT_SETTLE come every LIGHT_EVERY frames); ``person_box``, ``field_box``: the frame's
         boxes (x0, y0, x1, y1) the person's maps and the field reach (the scene's test)."""
         m = self.marks
-        relight = "new light" if relight_key_changed else self._turned(head, m["relight"], relight_deg)
         light = None
         if light_wanted:
             light = ("first" if not has_light else self._brightness(head, m["light"])
                      or self._aged(m["light"], LIGHT_MAX_AGE)
-                     or self._every(head, m["light"], LIGHT_EVERY, settling=light_fits < LIGHT_SETTLE))
+                     or self._every(head, m["light"], settling=light_fits < LIGHT_SETTLE))
         person = None
         if person_wanted:
             person = ("first" if not has_person else "new light" if new_environment
                       else self._moved_share(head, m["person"], PERSON_MOVE) or self._turned(head, m["person"],
                                                                                               PERSON_DEG)
                       or self._scene(head, m["person"], person_box) or self._aged(m["person"], PERSON_MAX_AGE))
-        upstream = relight or light or person
         fld = ("first" if m["field"].head is None or not has_field else "settings" if settings_changed
-               else f"{_stage_of(relight, light, person)} ran" if upstream
-               else self._turned(head, m["field"], FIELD_DEG) or self._resized(head, m["field"])
+               else "new light" if relight_key_changed
+               else f"{'light' if light else 'person'} ran" if light or person
+               else self._field_turned(head, m["field"]) or self._resized(head, m["field"])
                or self._scene(head, m["field"], field_box) or self._aged(m["field"], FIELD_MAX_AGE))
+        # the relight feeds the field alone (and the live light's fit, which makes a field): it
+        # runs when a field is made and the head turned since the last relight
+        relight = None
+        if fld is not None:
+            relight = "new light" if relight_key_changed else self._turned(head, m["relight"], relight_deg)
         return Plan(relight=relight, light=light, person=person, field=fld)
 
     def ran(self, stage: str, head: Head) -> None:
@@ -183,6 +199,15 @@ class Scheduler:
         t = turned_deg(head.rotation, mark.head.rotation)
         return f"turned {t:.2f} deg" if t >= deg else None
 
+    def _field_turned(self, head: Head, mark: Mark) -> str | None:
+        """The field's turn test: FIELD_JUMP_DEG at once; FIELD_DEG once FIELD_EVERY frames passed
+        since it was made (between, the field is carried: :meth:`.field.LightField.moved`)."""
+        t = turned_deg(head.rotation, mark.head.rotation)
+        age = self.frame - mark.frame
+        if t >= FIELD_JUMP_DEG or (t >= FIELD_DEG and age >= FIELD_EVERY):
+            return f"turned {t:.2f} deg in {age} frames"
+        return None
+
     def _moved_share(self, head: Head, mark: Mark, share: float) -> str | None:
         if mark.head is None:
             return "first"
@@ -197,9 +222,10 @@ class Scheduler:
         age = self.frame - mark.frame
         return f"{age} frames old" if age >= frames else None
 
-    def _every(self, head: Head, mark: Mark, frames: int, settling: bool = False) -> str | None:
-        """Every ``frames`` frames while the head moves (turned or moved since the mark), or while
-        ``settling``."""
+    def _every(self, head: Head, mark: Mark, settling: bool = False) -> str | None:
+        """Every LIGHT_EVERY frames while the head moves (turned or moved since the mark), or every
+        LIGHT_SETTLE_EVERY while ``settling``."""
+        frames = LIGHT_SETTLE_EVERY if settling else LIGHT_EVERY
         if self.frame - mark.frame < frames or mark.head is None:
             return None
         if settling:
@@ -231,7 +257,3 @@ class Scheduler:
         b0, b1 = mark.head.brightness, head.brightness
         step = abs(b1 - b0) / max(b0, 1.0)
         return f"brightness {step:+.1%}" if step >= LIGHT_STEP else None
-
-
-def _stage_of(relight, light, person) -> str:
-    return "relight" if relight else "light" if light else "person"

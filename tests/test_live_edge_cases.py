@@ -179,8 +179,8 @@ def test_a_camera_that_changes_exposure_mid_stream(path, frames, head):
     assert all(i.face for i in infos[15:])  # the track holds through the step
 
 
-@pytest.mark.parametrize("size", [(1920, 1080), (320, 180)])
-def test_1080p_and_320x180(path, frames, head, size):
+@pytest.mark.parametrize("size", [(3840, 2160), (1920, 1080), (320, 180)])
+def test_4k_1080p_and_320x180(path, frames, head, size):
     seq = [cv2.resize(f, size, interpolation=cv2.INTER_LINEAR) if (f.shape[1], f.shape[0]) != size else f
            for f in frames[:8]]
     big = cv2.resize(head.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
@@ -189,13 +189,29 @@ def test_1080p_and_320x180(path, frames, head, size):
 
 
 def test_a_still_head_is_not_relit_again(path, frames, head):
-    seq = [frames[5]] * 16
+    from relight.engine.gains import EXPOSURE_LOCK_FITS
+    from relight.engine.schedule import LIGHT_SETTLE_EVERY
+
+    settle = EXPOSURE_LOCK_FITS * LIGHT_SETTLE_EVERY + 2  # the exposure lock's first fits come while it settles
+    seq = [frames[5]] * (settle + 12)
     outs, infos = _run(path, seq, head)
     assert all(i.face for i in infos)
     # once the pose filter has settled (the first re-anchoring moves the points once), the head
     # does not turn: the relight is kept, and the output holds still
     assert all(i.reused for i in infos[8:])
     assert max(np.abs(a.astype(int) - outs[-1]).max() for a in outs[-4:]) <= EDGE_STILL_CODES
+    # and every slow stage idles (issue 48): the frames are tracked and the field applied, no more
+    idle = [i.ran for i in infos[settle:]]
+    assert not any(idle), idle
+
+
+def test_a_sudden_light_change_refits_the_light_within_3_frames(path, frames, head):
+    # a lamp switched on beside the camera at frame 20: the frame 1.6 times brighter from then on
+    seq = frames[:20] + [np.clip(f.astype(np.float32) * 1.6, 0, 255).astype(np.uint8) for f in frames[20:30]]
+    outs, infos = _run(path, seq, head)
+    assert all(i.face for i in infos[20:23])
+    # (refitted because the face's brightness moved - not by the settling fits' own rate)
+    assert any("brightness" in i.ran.get("light", "") for i in infos[20:23]), [i.ran for i in infos[18:24]]
 
 
 def test_a_very_fast_turn(path, frames, head):
