@@ -3,6 +3,7 @@
 :class:`FrameInfo` both halves fill (what happened to the frame, and which slow stages ran)."""
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,3 +60,10 @@ class Front:
     brightness: float = 0.0
     thumb: np.ndarray | None = None
     thumb_scale: float = 1.0
+
+    def outside(self):
+        """(frame, info): the frame passed through, its info saying the face is outside it."""
+        self.info.face = False
+        self.info.note = "face outside the frame"
+        self.info.timings["total"] = (time.perf_counter() - self.t0) * 1e3
+        return self.frame, self.info

@@ -42,7 +42,7 @@ from .gains import ambient_gain, paste_gain
 from .pose import OneEuroFilter, PoseEstimator
 from .refind import refind_landmarks
 from .rig import FaceRig
-from .schedule import RELIGHT_DEG, Head, Plan, Scheduler
+from .schedule import RELIGHT_DEG, Head, Plan, Scheduler, face_brightness, thumbnail
 from .threads import Worker, limit_threads
 from .tracking import FaceTracker
 from .tracking_image import tracking_image
@@ -348,9 +348,9 @@ class FramePath:
         t2 = time.perf_counter()
         warp = face_warp(self.rig, est, pose, size, ref_idx, xy, self.rigid_warp)  # the pose alone decides it
         tm["warp"] = (time.perf_counter() - t2) * 1e3
-        thumb = _thumbnail(grey)
+        thumb = thumbnail(grey)
         return Front(rgb, t, t0, info, track=track, keep=keep, ref_idx=ref_idx, xy=xy, pose=pose, rotation=rotation,
-                     size=size, track_gain=track_gain, warp=warp, brightness=_face_brightness(grey, track.xy * ts),
+                     size=size, track_gain=track_gain, warp=warp, brightness=face_brightness(grey, track.xy * ts),
                      thumb=thumb, thumb_scale=thumb.shape[0] / h)
 
     def back(self, front: Front, defer_reference: bool = False):
@@ -364,7 +364,7 @@ class FramePath:
         info, tm = front.info, front.info.timings
         box = front.warp.box
         if box is None:
-            return _outside(front)
+            return front.outside()
         anchor = tuple(float(v) for v in front.warp.cur.mean(axis=0))  # the head's place: the field follows it
         head = Head(anchor, front.rotation, float(np.hypot(box[2] - box[0], box[3] - box[1])), front.brightness,
                     front.thumb, front.thumb_scale)
@@ -379,7 +379,7 @@ class FramePath:
             coarse = front.warp.coarse()
             tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3
             if coarse is None:
-                return _outside(front)
+                return front.outside()
         t2 = time.perf_counter()
         info.ran = plan.ran()
         info.reused = plan.relight is None
@@ -494,32 +494,3 @@ class FramePath:
         """Hand the tracker the live-lit reference a deferred :meth:`back` made (between frames,
         when no :meth:`front` runs)."""
         self.live_light.commit_reference()
-
-
-def _outside(front: Front):
-    """The frame passed through, its info saying the face is outside it."""
-    front.info.face = False
-    front.info.note = "face outside the frame"
-    front.info.timings["total"] = (time.perf_counter() - front.t0) * 1e3
-    return front.frame, front.info
-
-
-def _thumbnail(grey: np.ndarray) -> np.ndarray:
-    """The scheduler's grey thumbnail of a frame (:data:`.schedule.THUMB_ROWS` rows) from its
-    tracking copy ``grey``."""
-    from relight.video_yuv import downscale_area
-
-    from .schedule import THUMB_ROWS
-
-    h, w = grey.shape
-    th = min(THUMB_ROWS, h)
-    return downscale_area(grey, (max(1, round(w * th / h)), th))
-
-
-def _face_brightness(grey: np.ndarray, xy: np.ndarray) -> float:
-    """The mean grey code of the tracking copy ``grey`` over the box of the tracked points ``xy``
-    (the face): the scheduler's cheap test of the room's light and the camera's exposure."""
-    h, w = grey.shape
-    x0, y0 = (int(np.clip(v, 0, m - 1)) for v, m in zip(xy.min(axis=0), (w, h), strict=True))
-    x1, y1 = (int(np.clip(v, 0, m - 1)) + 1 for v, m in zip(xy.max(axis=0), (w, h), strict=True))
-    return float(cv2.mean(grey[y0:y1, x0:x1])[0]) if x1 > x0 and y1 > y0 else 0.0

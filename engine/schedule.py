@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from relight.numerics import EPS
@@ -245,8 +246,6 @@ class Scheduler:
         x1, y1 = min(int(np.ceil(box[2] * s)), tw), min(int(np.ceil(box[3] * s)), th)
         if x1 <= x0 or y1 <= y0:
             return None
-        import cv2
-
         d = cv2.absdiff(head.thumb[y0:y1, x0:x1], mark.head.thumb[y0:y1, x0:x1])
         change = float(cv2.mean(d)[0])
         return f"scene changed {change:.1f} codes" if change >= SCENE_STEP else None
@@ -257,3 +256,22 @@ class Scheduler:
         b0, b1 = mark.head.brightness, head.brightness
         step = abs(b1 - b0) / max(b0, 1.0)
         return f"brightness {step:+.1%}" if step >= LIGHT_STEP else None
+
+
+def thumbnail(grey: np.ndarray) -> np.ndarray:
+    """The scheduler's grey thumbnail of a frame (:data:`THUMB_ROWS` rows) from its
+    tracking copy ``grey``."""
+    from relight.video_yuv import downscale_area
+
+    h, w = grey.shape
+    th = min(THUMB_ROWS, h)
+    return downscale_area(grey, (max(1, round(w * th / h)), th))
+
+
+def face_brightness(grey: np.ndarray, xy: np.ndarray) -> float:
+    """The mean grey code of the tracking copy ``grey`` over the box of the tracked points ``xy``
+    (the face): the scheduler's cheap test of the room's light and the camera's exposure."""
+    h, w = grey.shape
+    x0, y0 = (int(np.clip(v, 0, m - 1)) for v, m in zip(xy.min(axis=0), (w, h), strict=True))
+    x1, y1 = (int(np.clip(v, 0, m - 1)) + 1 for v, m in zip(xy.max(axis=0), (w, h), strict=True))
+    return float(cv2.mean(grey[y0:y1, x0:x1])[0]) if x1 > x0 and y1 > y0 else 0.0
