@@ -46,7 +46,7 @@ REGIONS = ("person", "face")
 #: scanned head) with the background's mean change under 0.2 codes, and 0.1-1.3 dB on each of the
 #: ten real Yale faces (the face's turned-away and feathered edge gets the face's change of light
 #: instead of the room's); at 720p the per-frame path then costs 62 ms of CPU a frame against 37 for
-#: the face alone (the segmentation, its colour check and the ratio every PERSON_EVERY frames; the
+#: the face alone (the segmentation, its colour check and the ratio then every 2nd frame; the
 #: face's and the person's composite in one kernel pass every frame).
 DEFAULT_REGION = "person"
 #: Mode transfer: a live pixel passes its own detail into the output only where it differs from

@@ -24,8 +24,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import cv2
 import numpy as np
+
+from relight.video_yuv import block_means
 
 #: The field's rows: a frame is scaled down by the even factor that leaves it about this many
 #: rows (720p: 4, 1080p: 6; issue 48's table, docs/performance.md "The light field": on the live
@@ -167,26 +168,12 @@ def aligned_box(box, size: tuple[int, int], factor: int) -> tuple[int, int, int,
     return x0, y0, max(x1, x0 + factor), max(y1, y0 + factor)
 
 
-def _shrink(plane: np.ndarray, box, factor: int) -> np.ndarray:
-    """The mean of each ``factor`` x ``factor`` block of ``plane``'s ``box`` (the box's far edges
-    beyond the plane: its last row and column replicated)."""
-    x0, y0, x1, y1 = box
-    h, w = plane.shape[:2]
-    crop = plane[y0:min(y1, h), x0:min(x1, w)]
-    pad_y, pad_x = y1 - min(y1, h), x1 - min(x1, w)
-    if pad_x or pad_y:
-        crop = cv2.copyMakeBorder(crop, 0, pad_y, 0, pad_x, cv2.BORDER_REPLICATE)
-    if factor == 1:
-        return np.ascontiguousarray(crop)
-    return cv2.resize(crop, ((x1 - x0) // factor, (y1 - y0) // factor), interpolation=cv2.INTER_AREA)
-
-
 def small_copy(frame, box, factor: int) -> np.ndarray:
     """(h, w, 3) uint8 sRGB: the frame's ``box`` (aligned: :func:`aligned_box`) scaled down by
     ``factor`` (block means) - for a :class:`relight.video_yuv.YuvFrame` its planes scaled first,
     then converted (the conversion is linear)."""
     if isinstance(frame, np.ndarray):
-        return _shrink(frame, box, factor)
+        return block_means(frame, box, factor, factor)
     return frame.small_box(box, factor)
 
 

@@ -6,7 +6,7 @@ then, per frame, :meth:`FramePath.front` (track, head pose, warp: a :class:`Fron
 :meth:`FramePath.back`: the scheduler (:mod:`.schedule`) says which slow stages run on this frame
 and why - the relight of the bundle, the live light's fit, the person's maps, the light field
 (:mod:`.field`: the face's and the person's change of light as a coarse grid of affine changes of
-linear light, made on a copy of the frame scaled down by :data:`.field.FIELD_FACTOR`) - and the
+linear light, made on a copy of the frame scaled to about :data:`.field.FIELD_ROWS` rows) - and the
 field, made now or carried with the head, is applied to the frame at its full resolution in one
 pass (:class:`relight.kernels.field_apply.FieldApplier`), in the decoder's planes for a
 :class:`relight.video_yuv.YuvFrame`. :class:`FramePath` is the one stateful object: the rig, the
@@ -140,7 +140,7 @@ class FramePath:
                                          live_source=self.live_source)
         self.schedule = Scheduler()
         self.field = FieldStage(self.compositor, self.field_rows)
-        self._field_key = None  # (mode, strength, draft, env) the field was made with
+        self._field_key = None  # the settings the field was made with (:meth:`_plan`)
         self._new_target = True  # a new environment since the person's maps were made
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)

@@ -16,7 +16,7 @@ from relight.colour import LUMINANCE, decode_srgb8
 from . import composite
 
 #: Mode transfer: light fits whose exposure gains (their running median) set the exposure, then
-#: held (:class:`ExposureLock`): 0.8 s of fits at :data:`.schedule.LIGHT_EVERY`.
+#: held (:class:`ExposureLock`): 0.8 s of fits at :data:`.schedule.LIGHT_SETTLE_EVERY`.
 EXPOSURE_LOCK_FITS = 8
 
 

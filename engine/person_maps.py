@@ -53,8 +53,8 @@ class PersonMaps(NamedTuple):
     def moved(self, anchor) -> PersonMaps:
         """The maps carried to the head at ``anchor`` (frame px): the grid's origin and the box
         shifted by the head's move since they were made (the hair and ears move with the head;
-        the maps are remade every :data:`.frame_path.PERSON_EVERY` frames, the face's own alpha
-        is every frame's)."""
+        the maps are remade when the scheduler says, :mod:`.schedule`; the face's own alpha is
+        every frame's)."""
         dx, dy = float(anchor[0]) - self.anchor[0], float(anchor[1]) - self.anchor[1]
         if dx == 0.0 and dy == 0.0:
             return self

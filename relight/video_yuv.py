@@ -36,29 +36,30 @@ KEPT_FORMATS = {"yuv420p": (2, False), "yuvj420p": (2, True), "nv12": (2, False)
                 "yuvj422p": (1, True), "yuyv422": (1, False)}
 
 
-def downscale_fast(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """``img`` scaled down to ``size`` (w, h): halved by area while that stays at least ``size``,
-    then the rest (less than a halving) bilinearly - OpenCV's area filter at a non-integer scale
-    costs 1.6 ms a 640x360 plane here, the bilinear step 0.3 (the tracker's copy: what is left to
-    scale after the halvings aliases little)."""
+def _halve_then(img: np.ndarray, size: tuple[int, int], rest: int) -> np.ndarray:
+    """``img`` halved by area while that stays at least ``size`` (w, h), then scaled the rest of
+    the way (less than a halving) with OpenCV's interpolation ``rest``."""
     w, h = size
     while img.shape[1] >= 2 * w and img.shape[0] >= 2 * h:
         img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
     if (img.shape[1], img.shape[0]) == (w, h):
         return img
-    return cv2.resize(img, (w, h), interpolation=cv2.INTER_LINEAR)
+    return cv2.resize(img, (w, h), interpolation=rest)
+
+
+def downscale_fast(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``img`` scaled down to ``size`` (w, h): halved by area while that stays at least ``size``,
+    then the rest (less than a halving) bilinearly - OpenCV's area filter at a non-integer scale
+    costs 1.6 ms a 640x360 plane here, the bilinear step 0.3 (the tracker's copy: what is left to
+    scale after the halvings aliases little)."""
+    return _halve_then(img, size, cv2.INTER_LINEAR)
 
 
 def downscale_area(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """``img`` scaled down to ``size`` (w, h) by area: halved by area while that stays at least
     ``size``, then the rest (OpenCV's area filter at a non-integer scale costs 2.5 ms on a 720p
     plane, 0.9 this way; within a code or two of it on average)."""
-    w, h = size
-    while img.shape[1] >= 2 * w and img.shape[0] >= 2 * h:
-        img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
-    if (img.shape[1], img.shape[0]) == (w, h):
-        return img
-    return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    return _halve_then(img, size, cv2.INTER_AREA)
 
 
 @dataclass(frozen=True)
@@ -132,11 +133,11 @@ def rgb_to_planes(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return y.reshape(h, w), u, v
 
 
-def _shrink(plane: np.ndarray, box, fx: int, fy: int) -> np.ndarray:
-    """The mean of each ``fx`` x ``fy`` block of ``plane``'s ``box`` (its far edges beyond the plane:
-    its last row and column replicated)."""
+def block_means(plane: np.ndarray, box, fx: int, fy: int) -> np.ndarray:
+    """The mean of each ``fx`` x ``fy`` block of ``plane``'s ``box`` ((H, W) or (H, W, C); its far
+    edges beyond the plane: its last row and column replicated)."""
     bx0, by0, bx1, by1 = box
-    ph, pw = plane.shape
+    ph, pw = plane.shape[:2]
     crop = plane[by0:min(by1, ph), bx0:min(bx1, pw)]
     if bx1 > pw or by1 > ph:
         crop = cv2.copyMakeBorder(crop, 0, max(by1 - ph, 0), 0, max(bx1 - pw, 0), cv2.BORDER_REPLICATE)
@@ -267,15 +268,15 @@ class YuvFrame:
         are replicated) - scaled down by ``factor``: each plane's blocks averaged, then converted
         (the conversion is linear); at factor 1 the box itself (:func:`planes_to_rgb`)."""
         x0, y0, x1, y1 = box
-        ys = _shrink(self.y, box, factor, factor)
+        ys = block_means(self.y, box, factor, factor)
         cy = self.cy
         half = (x0 // 2, y0 // cy, -(-x1 // 2), -(-y1 // cy))
         if factor == 1:  # (the box's corner and size even: whole chroma samples)
-            return planes_to_rgb(ys, _shrink(self.u, half, 1, 1), _shrink(self.v, half, 1, 1), self.codes)
+            return planes_to_rgb(ys, block_means(self.u, half, 1, 1), block_means(self.v, half, 1, 1), self.codes)
         fy = factor // cy
         to_rgb, _ = self.code_maps()
-        return cv2.transform(cv2.merge([ys, _shrink(self.u, half, factor // 2, fy),
-                                        _shrink(self.v, half, factor // 2, fy)]), to_rgb)
+        return cv2.transform(cv2.merge([ys, block_means(self.u, half, factor // 2, fy),
+                                        block_means(self.v, half, factor // 2, fy)]), to_rgb)
 
     def with_field(self, applier, box, grid: np.ndarray, factor: int, corner) -> YuvFrame:
         """A new frame: this one with a light field (maps of its codes: :meth:`code_maps`; ``factor``

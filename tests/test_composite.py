@@ -212,19 +212,13 @@ def _person_grid(rng, shape):
     return grid
 
 
-@pytest.mark.parametrize("scale", [1.0, (2.5, 2.4)])
-def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale):
-    """The whole person in one pass (the face's composite inside its box, the light's change
-    over the person's matte beyond): the kernel and its NumPy twin give the same bytes but for
-    rounding - on the frame (scale 1) and on a smaller copy of it (the work scale's pass); with
-    no person grid, the face's composite alone, as warp_composite makes it."""
-    from relight.engine.warp import GRID_STEP, coarse_map, points_box
-    from relight.kernels.composite_twin import composite_person_numpy
+def face_layer(fp, frames, rng):
+    """A frame, the face's box and coarse map in it (the reference moved a little by ``rng``), the
+    layer's head turn, and the layer built for it (mode live, a live light from the left): (frame,
+    face box, coarse map, turn, the live slot's frame, the layer's settings)."""
+    from relight.engine.warp import coarse_map, points_box
 
-    _, frames = clip
-    fp = frame_path
     rgb = frames[5]
-    rng = np.random.default_rng(11)
     ref = fp.rig.control_ref
     cur = ref + np.array([3.0, -2.0]) + rng.normal(0, 0.3, ref.shape)
     h, w = rgb.shape[:2]
@@ -236,6 +230,23 @@ def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale)
                     live_median=live_median)
     turn = rotation_matrix(10, -5, 2)
     fp.compositor.layer(relit=fp.relighter.buffer(), live=fp.relighter.slot("live")[1], rotation=turn, **settings)
+    return rgb, face_box, coarse, turn, live, settings
+
+
+@pytest.mark.parametrize("scale", [1.0, (2.5, 2.4)])
+def test_composite_person_kernel_matches_its_numpy_twin(frame_path, clip, scale):
+    """The whole person in one pass (the face's composite inside its box, the light's change
+    over the person's matte beyond): the kernel and its NumPy twin give the same bytes but for
+    rounding - on the frame (scale 1) and on a smaller copy of it (the work scale's pass); with
+    no person grid, the face's composite alone, as warp_composite makes it."""
+    from relight.engine.warp import GRID_STEP
+    from relight.kernels.composite_twin import composite_person_numpy
+
+    _, frames = clip
+    fp = frame_path
+    rng = np.random.default_rng(11)
+    rgb, face_box, coarse, turn, live, settings = face_layer(fp, frames, rng)
+    h, w = rgb.shape[:2]
     layer = _layer_numpy(fp, turn, live=live, **settings)
     sx, sy = np.broadcast_to(np.asarray(scale, float), (2,))
     img = rgb if sx == 1.0 else cv2.resize(rgb, (round(w / sx), round(h / sy)), interpolation=cv2.INTER_AREA)

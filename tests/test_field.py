@@ -6,7 +6,6 @@ import cv2
 import numpy as np
 import pytest
 
-from relight import load_environment
 from relight.directions import rotation_matrix
 
 from .tolerances import COMPOSITE_TWIN_CODES, FIELD_CODES_REL, FIELD_SAMPLE_CODES, FIELD_TWIN_CODES, FIELD_TWIN_REL
@@ -86,24 +85,12 @@ def test_a_field_of_no_change_gives_the_frame_back():
 
 
 def _face_setup(fp, frames, rng):
-    """A frame, the face's box and coarse map in it (the reference moved a little) and a layer
-    built for it (mode live, a live light from the left)."""
-    from relight.engine.warp import GRID_STEP, coarse_map, points_box
+    """(frame, face box, coarse map, grid step, the layer's settings): :func:`.test_composite.face_layer`."""
+    from relight.engine.warp import GRID_STEP
 
-    from .test_composite import _live_slot
+    from .test_composite import face_layer
 
-    rgb = frames[5]
-    ref = fp.rig.control_ref
-    cur = ref + np.array([3.0, -2.0]) + rng.normal(0, 0.3, ref.shape)
-    h, w = rgb.shape[:2]
-    face_box = points_box(cur, (w, h), pad=0)
-    coarse = coarse_map(cur, ref, face_box)
-    fp.relighter.relight(load_environment("builtin:studio"), rotation_matrix(5, -3, 1))
-    live, live_median = _live_slot(fp, [-0.7, 0.2, 0.6])
-    settings = dict(mode="live", gain=1.2, strength=1.0, eps=float(fp.rig.ratio_eps), ratio_max=6.0,
-                    live_median=live_median)
-    fp.compositor.layer(relit=fp.relighter.buffer(), live=fp.relighter.slot("live")[1],
-                        rotation=rotation_matrix(10, -5, 2), **settings)
+    rgb, face_box, coarse, _, live, settings = face_layer(fp, frames, rng)
     return rgb, face_box, coarse, GRID_STEP, dict(live=live, **settings)
 
 
