@@ -42,12 +42,13 @@ class FieldStage:
         if self.last is not None:
             self.last = self.last.moved(anchor, size)
 
-    def make(self, frame, box, coarse, layer_mode: str, tau: float, maps, anchor, index: int) -> None:
+    def made(self, frame, box, coarse, layer_mode: str, tau: float, maps, anchor, index: int):
         """The field of this frame: the compositor's ``person_gain`` kernel (its last layer: this
         frame's) over the box the face (``box``, ``coarse``: the warp) and the person's ``maps``
         (or None: the face alone) reach, on a copy scaled down by the field's factor, as maps of
-        ``frame``'s codes. None in use when nothing changes. ``anchor``: the head's place;
-        ``index``: the frame's number."""
+        ``frame``'s codes: a :class:`.field.LightField`, or None when nothing changes. ``anchor``:
+        the head's place; ``index``: the frame's number. Reads the compositor, not ``last``: it
+        may run on a worker while the frames carry and apply the field in use."""
         from relight.kernels.field_apply import COVER
 
         from .head_light import MATTE_FLOOR
@@ -68,10 +69,9 @@ class FieldStage:
                                            code_maps=codes, **person)
         reach_box = cover_box(grid[..., COVER], (ax0, ay0), f, (w, h))
         if reach_box is None:
-            self.last = None
-            return
+            return None
         grid.flags.writeable = False
-        self.last = LightField(grid, frame_space(frame), f, (float(ax0), float(ay0)), reach_box, anchor, index)
+        return LightField(grid, frame_space(frame), f, (float(ax0), float(ay0)), reach_box, anchor, index)
 
     def apply(self, frame):
         """``frame`` with the field in use applied (a new frame of the same kind: the field's kernel

@@ -5,6 +5,7 @@ exposure (:class:`LiveLightStage`, the one object holding that state).
 """
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -49,6 +50,7 @@ class LiveLightStage:
         self.job = None
         self.exposure_lock = ExposureLock()
         self.next_reference = None
+        self._reference_lock = threading.Lock()
         self.fits = 0  # fits taken into use since the last reset (the scheduler's settling)
 
     def ready(self) -> bool:
@@ -146,12 +148,14 @@ class LiveLightStage:
         ``defer``: kept for :meth:`commit_reference` instead of handed to the tracker now."""
         ref = lit_reference(self.tracker.reference, lit, self.rig.lit_box, self.rig.track_face, gain)
         if defer:
-            self.next_reference = ref
+            with self._reference_lock:  # (made on a worker beside a live source's frames)
+                self.next_reference = ref
         else:
             self.tracker.lit_reference = ref
 
     def commit_reference(self) -> None:
         """Hand the tracker the live-lit reference a deferred frame made."""
-        if self.next_reference is not None:
-            self.tracker.lit_reference = self.next_reference
-            self.next_reference = None
+        with self._reference_lock:
+            ref, self.next_reference = self.next_reference, None
+        if ref is not None:
+            self.tracker.lit_reference = ref

@@ -135,6 +135,8 @@ class FramePath:
         # made on one worker thread beside the frames
         self.live_source = bool(live_source)
         worker = Worker()
+        self._field_worker = Worker("relight-field")  # a live source's slow stages, beside its frames
+        self._field_job = None  # (the Future of _field_work in flight)
         self.person = PersonStage(bundle, rig, self.compositor, worker, live_source=self.live_source)
         self.live_light = LiveLightStage(bundle, rig, self.relighter, self.tracker, worker,
                                          live_source=self.live_source)
@@ -158,6 +160,7 @@ class FramePath:
         until :meth:`settle`."""
         from relight.kernels.relighter import frozen
 
+        self.join()
         env = frozen(env)
         self.relighter.lights(env)  # validates and converts once
         self.env = env
@@ -175,6 +178,7 @@ class FramePath:
     def settle(self) -> None:
         """The moved light came to rest: relit in full from the next frame (its exact texels'
         rows made - ahead of the head's turns, on their own thread)."""
+        self.join()
         if self.draft:
             self.draft = False
             self._relit_key = None
@@ -186,16 +190,19 @@ class FramePath:
         return self.region == "person" and self.mode == "transfer"
 
     def set_mode(self, mode: str) -> None:
+        self.join()
         if mode not in composite.MODES:
             raise InputError(f"mode {mode!r}: use one of {', '.join(composite.MODES)}")
         self.mode = mode
 
     def set_strength(self, strength: float) -> None:
+        self.join()
         if not (np.isfinite(strength) and 0.0 <= strength <= 1.0):
             raise InputError(f"strength {strength}: use a number from 0 to 1")
         self.strength = float(strength)
 
     def set_exposure(self, ev: float) -> None:
+        self.join()
         lo, hi = EXPOSURE_RANGE_EV
         if not (np.isfinite(ev) and lo <= ev <= hi):
             raise InputError(f"exposure {ev}: use stops (EV) between {lo:g} and {hi:g}")
@@ -203,6 +210,7 @@ class FramePath:
 
     def set_env_turn(self, deg: float) -> None:
         """Turn the environment about the vertical by ``deg`` (:data:`relight.directions.ENV_TURN_RANGE_DEG`)."""
+        self.join()
         lo, hi = ENV_TURN_RANGE_DEG
         if not (np.isfinite(deg) and lo <= deg <= hi):
             raise InputError(f"environment turn {deg}: use degrees between {lo:g} and {hi:g}")
@@ -211,6 +219,7 @@ class FramePath:
     def set_env_spin(self, deg_per_s: float) -> None:
         """Spin the environment about the vertical by ``deg_per_s`` degrees per second of the
         frames' time, from the next frame on (where the turn has it)."""
+        self.join()
         lo, hi = ENV_SPIN_RANGE_DEG_S
         if not (np.isfinite(deg_per_s) and lo <= deg_per_s <= hi):
             raise InputError(f"environment spin {deg_per_s}: use degrees per second between {lo:g} and {hi:g}")
@@ -238,6 +247,7 @@ class FramePath:
 
     def reset(self) -> None:
         """Forget the track and the filters (a new, unrelated video follows)."""
+        self.join()
         self.tracker.drop(back_off=False)
         self.tracker.prev = None
         self.angle_filter.reset()
@@ -355,10 +365,17 @@ class FramePath:
 
     def back(self, front: Front, defer_reference: bool = False):
         """The second half of :meth:`process` for the result of :meth:`front`: the scheduler's
-        plan (:mod:`.schedule`), the slow stages it names, and the light field - made on this
-        frame or carried with the head - applied to the frame."""
+        plan (:mod:`.schedule`), the slow stages it names - in this frame, or for a live source
+        with a field in use beside the frames (:meth:`_field_work` on a worker: this frame and the
+        next go on with the field in use, carried with the head, until it is made) - and the light
+        field applied.
+        ``defer_reference``: the tracker's live-lit reference kept for :meth:`commit_reference`
+        (a caller running :meth:`front` of the next frame meanwhile)."""
         self.person.next_frame()
         self.schedule.next_frame()
+        self._take_field(front.info.timings)
+        if not defer_reference:
+            self.commit_reference()
         if front.pose is None:
             return front.frame, front.info
         info, tm = front.info, front.info.timings
@@ -373,36 +390,83 @@ class FramePath:
         # with the environment's own turn E composed (its lights at E d: seen at R^T E d).
         turn = with_env_turn(None if self.fixed_env else front.rotation, env_rot)
         self.field.check_space(front.frame)
-        plan = self._plan(head, turn)
-        if plan.field is not None:  # the warp's coarse map: made only for a field made on this frame
-            t3 = time.perf_counter()
-            coarse = front.warp.coarse()
-            tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3
-            if coarse is None:
-                return front.outside()
-        t2 = time.perf_counter()
+        # (while a field is made beside the frames the stages are the worker's: nothing is planned)
+        plan = self._plan(head, turn) if self._field_job is None else Plan()
         info.ran = plan.ran()
         info.reused = plan.relight is None
-        if plan.relight is not None:  # queued, not waited for: synced before the host reads it
-            self.relighter.relight(self.env, turn, exposure=self.exposure, out=self.relit_frame, wait=False,
-                                   direct=0 if self.draft else None)
-            self._relit_key = (self.env, self.exposure, turn)
-            self.schedule.ran("relight", head)
-        tm["relight"] = (time.perf_counter() - t2) * 1e3
         if self.whole_head and self.strength > 0:
             self.person.touch()
+        if plan.field is not None and self.live_source and self.field.last is not None:
+            self._field_job = self._field_worker.submit(self._field_work, front, head, plan, env_rot, turn,
+                                                        self.schedule.frame, True, {})
+        elif plan.field is not None:
+            made = self._field_work(front, head, plan, env_rot, turn, self.schedule.frame, defer_reference, tm)
+            if made is None:
+                return front.outside()
+            self._took_field(made)
+        if plan.field is None or self._field_job is not None:
+            self.field.carry(anchor, front.size)
         if self.mode == "transfer":
             info.light = self.live_light.last
-        if plan.field is not None:
-            self._make_field(front, head, plan, env_rot, defer_reference)
-            self.schedule.ran("field", head)
-        else:
-            self.field.carry(anchor, front.size)
         t4 = time.perf_counter()
         out = self.field.apply(front.frame)
         tm["composite"] = (time.perf_counter() - t4) * 1e3
         tm["total"] = (time.perf_counter() - front.t0) * 1e3
         return out, info
+
+    def _field_work(self, front: Front, head: Head, plan: Plan, env_rot, turn, frame: int, defer: bool, tm: dict):
+        """The slow stages ``plan`` names for the frame ``front`` (number ``frame``): the relight,
+        the live light, the person's maps and the light field (:meth:`_make_field`). Returns
+        (the field made - a :class:`.field.LightField` or None -, the stages that ran, the head,
+        ``frame``, ``tm``: the ms they took), or None when the warp's coarse map leaves the frame.
+        Touches the relighter, the compositor and the stages, never the tracker (the live-lit
+        reference is kept for :meth:`commit_reference` with ``defer``): a live source runs it on a
+        worker while frames go on (:meth:`_take_field` takes what it made)."""
+        t3 = time.perf_counter()
+        coarse = front.warp.coarse()  # the warp's coarse map: made only for a field
+        tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3
+        if coarse is None:
+            return None
+        ran = ["field"]
+        t2 = time.perf_counter()
+        if plan.relight is not None:  # queued, not waited for: synced before the host reads it
+            self.relighter.relight(self.env, turn, exposure=self.exposure, out=self.relit_frame, wait=False,
+                                   direct=0 if self.draft else None)
+            self._relit_key = (self.env, self.exposure, turn)
+            ran.append("relight")
+        tm["relight"] = (time.perf_counter() - t2) * 1e3
+        made = self._make_field(front, head, plan, env_rot, defer, tm, ran, frame)
+        return made, ran, head, frame, tm
+
+    def _took_field(self, made, tm: dict | None = None) -> None:
+        """What :meth:`_field_work` made taken into use: the field, the scheduler's marks of the
+        stages that ran (at the frame they ran for), their ms added to ``tm``."""
+        fld, ran, head, frame, job_tm = made
+        self.field.last = fld
+        for stage in ran:
+            self.schedule.ran(stage, head, frame)
+        if "person" in ran:
+            self._new_target = False
+        if tm is not None:
+            for k, v in job_tm.items():
+                tm[k] = tm.get(k, 0.0) + v
+
+    def _take_field(self, tm: dict | None, wait: bool = False) -> None:
+        """A field made beside the frames taken into use once made (``wait``: waited for)."""
+        job = self._field_job
+        if job is None or not (wait or job.done()):
+            return
+        self._field_job = None
+        made = job.result()
+        if made is not None:
+            self._took_field(made, tm)
+
+    def join(self) -> None:
+        """Wait for the slow stages a live source runs beside its frames (the field, then the
+        person's maps and the live light's fit) and take what they made: after it the path's
+        state is its own thread's (a setting changed, a reset, a test comparing frames)."""
+        if getattr(self, "_field_job", None) is not None:
+            self._take_field(None, wait=True)
 
     def _plan(self, head: Head, turn) -> Plan:
         """The scheduler's plan for this frame (:meth:`.schedule.Scheduler.plan`) from what the path
@@ -435,14 +499,17 @@ class FramePath:
         last = self.person.last_maps()
         return last[1].box if last is not None else None
 
-    def _make_field(self, front: Front, head: Head, plan: Plan, env_rot, defer: bool) -> None:
+    def _make_field(self, front: Front, head: Head, plan: Plan, env_rot, defer: bool, tm: dict, ran: list,
+                    frame: int):
         """The light field of this frame (:mod:`.frame_field`): the face's layer built for it (the
         live light fitted when the plan says), the person's maps (region person: made when the
-        plan says, else the last ones carried), then the field over the box they reach."""
-        rgb, t, tm = front.frame, front.t, front.info.timings
+        plan says, else the last ones carried), then the field over the box they reach (returned:
+        a :class:`.field.LightField` or None). The stages that ran are appended to ``ran``, their
+        ms to ``tm``."""
+        rgb, t = front.frame, front.t
         box, coarse = front.warp.box, front.warp.coarse()
         t3 = time.perf_counter()
-        layer_mode, gain, live_median, tau, eps, waited = self._light(front, head, plan, defer)
+        layer_mode, gain, live_median, tau, eps, waited = self._light(front, plan, defer, tm, ran)
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
         tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
         live_buf = self.relighter.slot("live")[1] if layer_mode == "live" else None
@@ -456,26 +523,25 @@ class FramePath:
                                     env=self.env, strength=self.strength, fixed_env=self.fixed_env,
                                     texel_light=self.live_light.texel_light, env_rotation=env_rot)
             if plan.person is not None:
-                self.schedule.ran("person", head)
-                self._new_target = False
+                ran.append("person")
             tm["person"] = (time.perf_counter() - t6) * 1e3
         t7 = time.perf_counter()
-        self.field.make(rgb, box, coarse, layer_mode, tau, maps, head.anchor, self.schedule.frame)
+        made = self.field.made(rgb, box, coarse, layer_mode, tau, maps, head.anchor, frame)
         tm["field"] = (time.perf_counter() - t7) * 1e3
+        return made
 
-    def _light(self, front: Front, head: Head, plan: Plan, defer: bool):
+    def _light(self, front: Front, plan: Plan, defer: bool, tm: dict, ran: list):
         """The layer's light for this frame, by mode: (layer mode, exposure gain, the live face's
         median, tau, eps, ms waited for the relight) - mode transfer's live light fitted when the
-        plan says (:meth:`.frame_light.LiveLightStage.transfer`)."""
-        rgb, info, tm = front.frame, front.info, front.info.timings
+        plan says (:meth:`.frame_light.LiveLightStage.transfer`; "light" appended to ``ran``)."""
+        rgb = front.frame
         cur, ref = front.warp.cur, front.warp.ref
         flat = self.relit_frame.reshape(-1, 3)
         if self.mode == "transfer":
             out = self.live_light.transfer(rgb, cur, ref, front.rotation, front.t, flat, tm, front.track_gain, defer,
                                            self.rigid_warp, plan.light is not None)
             if plan.light is not None:
-                self.schedule.ran("light", head)
-            info.light = self.live_light.last
+                ran.append("light")
             return out
         waited = sync_relight(self.relighter, tm)
         if self.mode == "ambient":  # the lighting ratio's median is 1: the face keeps its brightness

@@ -182,9 +182,10 @@ class Scheduler:
             relight = "new light" if relight_key_changed else self._turned(head, m["relight"], relight_deg)
         return Plan(relight=relight, light=light, person=person, field=fld)
 
-    def ran(self, stage: str, head: Head) -> None:
-        """Mark ``stage`` as run on this frame with ``head``."""
-        self.marks[stage] = Mark(head, self.frame)
+    def ran(self, stage: str, head: Head, frame: int | None = None) -> None:
+        """Mark ``stage`` as run with ``head`` on the frame ``frame`` (None: this one; a stage run
+        beside the frames is marked at the frame it ran for)."""
+        self.marks[stage] = Mark(head, self.frame if frame is None else int(frame))
 
     def next_frame(self) -> None:
         self.frame += 1

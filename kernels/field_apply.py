@@ -18,7 +18,7 @@ import numpy as np
 
 from relight.errors import InputError
 
-from .runtime import build_program, get_runtime
+from .runtime import aligned_copy, build_program, get_runtime
 
 #: Work-group (x, y) of both kernels, in tiles; each work item runs TILES tiles along a row.
 GROUP = (16, 4)
@@ -133,13 +133,11 @@ class FieldApplier:
 
     def rgb(self, img: np.ndarray, box, grid: np.ndarray, factor: int, corner) -> np.ndarray:
         """``img`` ((H, W, 3) uint8 sRGB) with the field applied over ``box`` (a new array)."""
-        import pyopencl as cl
-
-        img = np.ascontiguousarray(img, dtype=np.uint8)
+        img = np.asarray(img, dtype=np.uint8)
         h, w = img.shape[:2]
         x0, y0, x1, y1 = (int(v) for v in box)
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
-        out = img.copy()
+        out = aligned_copy(img)
         if x1 <= x0 or y1 <= y0:
             return out
         f, cx, cy = check_placement(factor, corner)
@@ -149,15 +147,30 @@ class FieldApplier:
         tb0, ntb = tile_range(y0, y1, t, py0)
         gbuf = self._grid(grid)
         q = self.rt.queue
-        row = w * 3
-        buf = self._buf(("rgb", img.shape), img.nbytes)
-        cl.enqueue_copy(q, buf, img[y0:y1], dst_offset=y0 * row, is_blocking=False)
+        buf = self._wrap(out)
         self._kernel("field_rgb", f)(q, self._launch_size(nta, ntb), GROUP, buf, np.int32(w), np.int32(x0),
                                      np.int32(y0), np.int32(x1), np.int32(y1), np.int32(ta0), np.int32(tb0),
                                      np.int32(nta), np.int32(ntb), np.int32(px0), np.int32(py0), gbuf,
                                      np.int32(grid.shape[1]), np.int32(grid.shape[0]))
-        cl.enqueue_copy(q, out[y0:y1], buf, src_offset=y0 * row, is_blocking=True)
+        self._finish([(buf, out)])
         return out
+
+    def _wrap(self, a: np.ndarray):
+        """A device buffer over the host array ``a`` (aligned: PoCL works in it in place)."""
+        import pyopencl as cl
+
+        return cl.Buffer(self.rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR, hostbuf=a)
+
+    def _finish(self, pairs) -> None:
+        """Wait for the queue and make each (buffer, host array) pair's device writes the host's
+        (a map and unmap: no copy where the device works in the host's memory)."""
+        import pyopencl as cl
+
+        q = self.rt.queue
+        for buf, a in pairs:
+            m, _ = cl.enqueue_map_buffer(q, buf, cl.map_flags.READ, 0, a.shape, a.dtype, is_blocking=True)
+            m.base.release(q)
+        q.finish()
 
     def planes(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, box, grid: np.ndarray, factor: int,
                corner) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -172,7 +185,7 @@ class FieldApplier:
             raise InputError(f"planes {y.shape}, {u.shape}, {v.shape}: expected 4:2:0 or 4:2:2 of an even width "
                              "(and an even height for 4:2:0)")
         cy = h // ch_
-        yo, uo, vo = y.copy(), u.copy(), v.copy()
+        yo, uo, vo = aligned_copy(y), aligned_copy(u), aligned_copy(v)
         cx0, cy0, cx1, cy1 = chroma_box(box, (w, h), cy)
         if cx1 <= cx0 or cy1 <= cy0:
             return yo, uo, vo
@@ -182,23 +195,12 @@ class FieldApplier:
         ta0, nta = tile_range(cx0, cx1, tx, sx0)
         tb0, ntb = tile_range(cy0, cy1, ty, sy0)
         gbuf = self._grid(grid)
-        q = self.rt.queue
-        ly0, ly1 = cy0 * cy, cy1 * cy
-        by = self._buf(("y", y.shape), y.nbytes)
-        cl.enqueue_copy(q, by, np.ascontiguousarray(y[ly0:ly1]), dst_offset=ly0 * w, is_blocking=False)
-        chroma = []
-        for name, plane in (("u", u), ("v", v)):
-            rows = np.ascontiguousarray(plane[cy0:cy1])
-            src, dst = self._buf((name, u.shape), u.nbytes), self._buf((name + " out", u.shape), u.nbytes)
-            for b in (src, dst):  # (the samples nothing changes in are not written: they keep the input's)
-                cl.enqueue_copy(q, b, rows, dst_offset=cy0 * cw_, is_blocking=False)
-            chroma += [src, dst]
-        self._kernel("field_planes", f, cy)(q, self._launch_size(nta, ntb), GROUP, by, np.int32(w), chroma[0],
-                                            chroma[2], chroma[1], chroma[3], np.int32(cw_), np.int32(cx0),
-                                            np.int32(cy0), np.int32(cx1), np.int32(cy1), np.int32(ta0),
-                                            np.int32(tb0), np.int32(nta), np.int32(ntb), np.int32(sx0),
-                                            np.int32(sy0), gbuf, np.int32(grid.shape[1]), np.int32(grid.shape[0]))
-        cl.enqueue_copy(q, yo[ly0:ly1], by, src_offset=ly0 * w, is_blocking=False)
-        cl.enqueue_copy(q, uo[cy0:cy1], chroma[1], src_offset=cy0 * cw_, is_blocking=False)
-        cl.enqueue_copy(q, vo[cy0:cy1], chroma[3], src_offset=cy0 * cw_, is_blocking=True)
+        by, bu, bv = self._wrap(yo), self._wrap(uo), self._wrap(vo)
+        # (the chroma in place: each sample is read and written by its own tile alone)
+        self._kernel("field_planes", f, cy)(self.rt.queue, self._launch_size(nta, ntb), GROUP, by, np.int32(w), bu,
+                                            bv, bu, bv, np.int32(cw_), np.int32(cx0), np.int32(cy0), np.int32(cx1),
+                                            np.int32(cy1), np.int32(ta0), np.int32(tb0), np.int32(nta),
+                                            np.int32(ntb), np.int32(sx0), np.int32(sy0), gbuf,
+                                            np.int32(grid.shape[1]), np.int32(grid.shape[0]))
+        self._finish([(by, yo), (bu, uo), (bv, vo)])
         return yo, uo, vo

@@ -147,3 +147,17 @@ def aligned_zeros(shape, dtype, align: int = ALIGN):
     raw = np.zeros(n + align, dtype=np.uint8)
     off = (-raw.ctypes.data) % align
     return raw[off:off + n].view(dtype).reshape(shape)
+
+
+def aligned_copy(a, align: int = ALIGN):
+    """A C-ordered copy of ``a`` whose data start on an ``align``-byte boundary (handed to the
+    device with USE_HOST_PTR, PoCL works on it in place)."""
+    import numpy as np
+
+    a = np.asarray(a)
+    n = a.nbytes
+    raw = np.empty(n + align, dtype=np.uint8)
+    off = (-raw.ctypes.data) % align
+    out = raw[off:off + n].view(a.dtype).reshape(a.shape)
+    np.copyto(out, a)
+    return out

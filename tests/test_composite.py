@@ -149,11 +149,11 @@ def test_the_persons_maps_are_not_reused_across_a_new_environment_or_a_gap(small
 
 
 def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, clip, monkeypatch):
-    """live_source (relight live): the person's maps and the live light's fit made on a worker
-    while the frames go on with the newest made - frames relit as the path making them in the
-    frame does but for the maps' age (close, not the same), the worker's maps and fits taken into
-    use, and a new environment never served a map made for the old one (the frame after the
-    switch makes its own)."""
+    """live_source (relight live): the light field, the person's maps and the live light's fit
+    made on workers while the frames go on with the newest made - frames relit as the path making
+    them in the frame does but for their age (close, not the same), the workers' maps and fits
+    taken into use, and a new environment never served a map made for the old one (the field
+    made after the switch makes its own)."""
     import threading
 
     from relight.engine import frame_light, frame_person, schedule
@@ -183,7 +183,8 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
         run = []
         for i, f in enumerate(frames[:12]):
             run.append(fp.process(f, i / 30))
-            if live:  # the worker's maps are ready by the next frame here (a slow machine's may not)
+            if live:  # the worker's field and maps are ready by the next frame here (a slow machine's may not)
+                fp.join()
                 for job in (fp.person.job, fp.live_light.job):
                     if job is not None:
                         job.result()
@@ -191,6 +192,7 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
         fp.set_environment(new)
         before = len(taken)
         run.append(fp.process(frames[12], 12 / 30))
+        fp.join()  # (a live source's field made beside the frames, for the new environment)
         assert len(taken) == before + 1 and fp.person.job is None  # the maps made for it, in it
         outs.append([o for o, _ in run])
     sync, live = outs
