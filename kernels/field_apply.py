@@ -177,7 +177,6 @@ class FieldApplier:
         """New planes: ``y`` (H, W), ``u``, ``v`` (H / cy, W / 2) uint8 (cy = 2: 4:2:0, 1: 4:2:2) with
         the field (its maps of (Y', Cb, Cr) codes; ``factor`` even, ``corner`` even) applied over
         ``box`` (grown to whole chroma samples)."""
-        import pyopencl as cl
 
         h, w = y.shape
         ch_, cw_ = u.shape
