@@ -143,6 +143,7 @@ class FramePath:
         self.schedule = Scheduler()
         self.field = FieldStage(self.compositor, self.field_rows)
         self._field_key = None  # the settings the field was made with (:meth:`_plan`)
+        self._asked = False  # this frame's plan answers a change the user asked for (:meth:`_plan`)
         self._new_target = True  # a new environment since the person's maps were made
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
@@ -367,8 +368,9 @@ class FramePath:
         """The second half of :meth:`process` for the result of :meth:`front`: the scheduler's
         plan (:mod:`.schedule`), the slow stages it names - in this frame, or for a live source
         with a field in use beside the frames (:meth:`_field_work` on a worker: this frame and the
-        next go on with the field in use, carried with the head, until it is made) - and the light
-        field applied.
+        next go on with the field in use, carried with the head, until it is made; a change the
+        user asked for - a setting, the light - is made in the frame: it shows at once) - and the
+        light field applied.
         ``defer_reference``: the tracker's live-lit reference kept for :meth:`commit_reference`
         (a caller running :meth:`front` of the next frame meanwhile)."""
         self.person.next_frame()
@@ -396,7 +398,7 @@ class FramePath:
         info.reused = plan.relight is None
         if self.whole_head and self.strength > 0:
             self.person.touch()
-        if plan.field is not None and self.live_source and self.field.last is not None:
+        if plan.field is not None and self.live_source and self.field.last is not None and not self._asked:
             self._field_job = self._field_worker.submit(self._field_work, front, head, plan, env_rot, turn,
                                                         self.schedule.frame, True, {})
         elif plan.field is not None:
@@ -481,6 +483,9 @@ class FramePath:
             key_changed = rotation_angle_deg(last[2], turn) > 0  # (reuse_deg 0: every turn relights)
         delivered = self.live_light.ready() or self.person.ready()
         settings = (self.mode, self.strength, self.draft, self.exposure, self.region, self.fixed_env, id(self.env))
+        # a change the user asked for (a setting, the light, the exposure) is shown on this frame: its
+        # field is made in it, never beside the frames
+        self._asked = key_changed or settings != self._field_key
         plan = self.schedule.plan(head, relight_key_changed=key_changed, light_wanted=self.mode == "transfer",
                                   has_light=self.live_light.now is not None,
                                   person_wanted=self.whole_head and self.strength > 0,
