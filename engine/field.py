@@ -41,13 +41,19 @@ GAIN_MAX = 6.0
 CARRY_DEAD_AT_540 = 0.5
 
 
+#: The most frame pixels a cell spans (the planes' kernel runs whole tiles of at most 8 chroma
+#: samples: :mod:`relight.kernels.field_apply`); a taller frame's field has more rows.
+MAX_FACTOR = 16
+
+
 def field_factor(size: tuple[int, int], rows: int = FIELD_ROWS) -> int:
     """The factor for a frame of ``size`` (w, h): the even number of frame pixels per cell that
-    leaves about ``rows`` rows (4:2:0 chroma is half the luma's) - or 1, a cell a pixel, for a
-    frame of fewer than 1.5 ``rows`` rows (its field is the composite itself, and as cheap)."""
+    leaves about ``rows`` rows (4:2:0 chroma is half the luma's; at most :data:`MAX_FACTOR`) - or
+    1, a cell a pixel, for a frame of fewer than 1.5 ``rows`` rows (its field is the composite
+    itself, and as cheap)."""
     w, h = size
     rows = max(int(rows), 1)
-    return 1 if h < 1.5 * rows else max(2, 2 * int(round(h / (2.0 * rows))))
+    return 1 if h < 1.5 * rows else min(max(2, 2 * int(round(h / (2.0 * rows)))), MAX_FACTOR)
 
 
 def code_grid(cells: np.ndarray, colour: np.ndarray, to_rgb: np.ndarray | None = None,

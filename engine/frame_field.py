@@ -71,6 +71,8 @@ class FieldStage:
         if reach_box is None:
             return None
         grid.flags.writeable = False
+        if not isinstance(frame, np.ndarray):
+            self.applier.prepare(grid)  # (laid out for the planes' kernel here: on the worker for a live source)
         return LightField(grid, frame_space(frame), f, (float(ax0), float(ay0)), reach_box, anchor, index)
 
     def apply(self, frame):

@@ -74,10 +74,12 @@ class FramePath:
     rigid_warp : the warp's control points are a grid over the face moved rigidly by the head pose
     (the bundle's depth) plus the tracked landmarks (the default), instead of the landmarks and an
     affine ring around them (False: the path before issue 32).
-    live_source : the slow maps - the person's matte and ratio (region person) and the live
-    light's fit (mode transfer) - made on a worker thread while frames go on with the newest made
-    (a frame or two older: a live source's next frame should not wait for them); False (files,
-    the service's single requests) makes them in the frame that needs them: runs are repeatable.
+    live_source : the slow stages - the light field with the relight and the layer it is made of
+    (once a field is in use), the person's matte and ratio (region person) and the live light's
+    fit (mode transfer) - made on worker threads while frames go on with the newest made, carried
+    with the head (a frame or two older: a live source's next frame should not wait for them; a
+    change the user asks for is still made in the frame); False (files, the service's single
+    requests) makes them in the frame that needs them: runs are repeatable.
     field_rows : the light field's rows (:data:`.field.FIELD_ROWS`): a frame is scaled down by the
     even factor that leaves about this many (:func:`.field.field_factor`).
     """

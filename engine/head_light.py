@@ -65,6 +65,8 @@ PERSON_SHARE = (0.1, 0.6)
 #: Beyond the bundle's cover its normals fade into the inflated body's over this share of the
 #: face's size (:func:`joined_normals`).
 NORMAL_REACH = 0.25
+#: The bundle's normals carried past its cover are smoothed over this share of that reach.
+CARRY_SMOOTH = 0.5
 
 
 #: The matte is trusted around a face when it covers (> 0.5) at least this share of the face's
@@ -266,6 +268,10 @@ def joined_normals(inflated: np.ndarray, face_normals: np.ndarray, face_cover: n
     idx = np.flatnonzero(solid.ravel())
     nearest = idx[np.clip(labels.ravel() - 1, 0, idx.size - 1)]
     carried = face_normals.reshape(-1, 3)[nearest].reshape(face_normals.shape)
+    # smoothed along the edge: the nearest pixel's normal alone is a patchwork (each pixel beyond
+    # takes one of the edge's normals - a capture's edge is ragged - and a hard light shows every
+    # patch, as the demo's turned head under sunset did behind its far ear)
+    carried = gaussian_smooth(np.ascontiguousarray(carried, np.float32), CARRY_SMOOTH * reach)
     bundle = cov[..., None] * face_normals + (1.0 - cov[..., None]) * carried
     wb = np.maximum(cov, fade)[..., None]
     out = wb * bundle + (1.0 - wb) * inflated

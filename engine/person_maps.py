@@ -160,7 +160,10 @@ def face_alpha_work(rig, box, coarse: np.ndarray, rotation: np.ndarray, size, wo
     cover = cv2.remap(rig.mask_crop.astype(np.float32), px, py, cv2.INTER_LINEAR,
                       borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     facing = facing_weight(turned[..., 2], normal[..., 2])
-    return (alpha * facing * strength).astype(np.float32), turned, cover
+    # the bundle's normals are trusted where it has them and the head's turn has not taken them
+    # past the capture's view (there the face fades out too: an ear or a jaw seen edge-on holds the
+    # capture's noisiest normals, and a hard light showed each of them as a patch)
+    return (alpha * facing * strength).astype(np.float32), turned, (cover * facing).astype(np.float32)
 
 
 def environment_texels(env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -27,6 +27,13 @@ field          the light, the person's maps, a setting or the environment change
                FIELD_MAX_AGE frames passed
 =============  ============================================================================
 
+Where they run: in the frame for files and single requests (runs are repeatable); for a live
+source (``relight live``, the service's streams) with a field in use, beside the frames - the
+stages a plan names run on a worker (:meth:`.frame_path.FramePath._field_work`), frames go on
+with the field in use carried with the head, and no plan is made until the worker's field is
+taken (a stage is marked as run at the frame it ran for). A change the user asked for (a
+setting, the light, the exposure) is made in the frame: it shows at once.
+
 "The scene changed in a box": the mean absolute difference of a grey thumbnail of the frame
 (:data:`THUMB_ROWS` rows, made from the tracking copy) over the box, against the thumbnail of
 the frame the stage last ran on, is SCENE_STEP codes or more. A still head in a still room runs

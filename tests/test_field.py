@@ -33,7 +33,7 @@ def _planes(rgb):
     return rgb_to_planes(rgb)
 
 
-@pytest.mark.parametrize("factor, corner", [(4, (2, -6)), (6, (8, 4)), (2, (0, 0))])
+@pytest.mark.parametrize("factor, corner", [(4, (2, -6)), (6, (8, 4)), (2, (0, 0)), (12, (4, -12)), (16, (-16, 8))])
 @pytest.mark.parametrize("sub", [2, 1])
 def test_the_field_kernels_match_their_numpy_twins(sub, factor, corner):
     """field_rgb and field_planes (4:2:0 and 4:2:2) give their twins' bytes, with gains, offsets
