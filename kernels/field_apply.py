@@ -100,7 +100,12 @@ class FieldApplier:
     (X + 0.5) / factor - 0.5 - corner / factor."""
 
     def __init__(self):
+        import pyopencl as cl
+
         self.rt = get_runtime()
+        # its own queue: a frame's pass waits for nothing the relighter or the compositor queued
+        # (a live source makes its next field on a worker meanwhile)
+        self.queue = cl.CommandQueue(self.rt.context, self.rt.device)
         self._kernels: dict = {}
         self._bufs: dict = {}
         self._grid_key = None  # (the grid array last sent, its buffer): a read-only grid reused is not sent again
@@ -143,7 +148,7 @@ class FieldApplier:
             return self._grid_key[1]
         g = check_grid(grid)
         buf = self._buf("grid", g.nbytes)
-        cl.enqueue_copy(self.rt.queue, buf, g, is_blocking=False)
+        cl.enqueue_copy(self.queue, buf, g, is_blocking=False)
         self._grid_key = (grid, buf)
         return buf
 
@@ -168,7 +173,7 @@ class FieldApplier:
         ta0, nta = tile_range(x0, x1, t, px0)
         tb0, ntb = tile_range(y0, y1, t, py0)
         gbuf = self._grid(grid)
-        q = self.rt.queue
+        q = self.queue
         buf = self._wrap(out)
         self._kernel("field_rgb", f)(q, self._launch_size(nta, ntb), GROUP, buf, np.int32(w), np.int32(x0),
                                      np.int32(y0), np.int32(x1), np.int32(y1), np.int32(ta0), np.int32(tb0),
@@ -188,7 +193,7 @@ class FieldApplier:
         (a map and unmap: no copy where the device works in the host's memory)."""
         import pyopencl as cl
 
-        q = self.rt.queue
+        q = self.queue
         for buf, a in pairs:
             m, _ = cl.enqueue_map_buffer(q, buf, cl.map_flags.READ, 0, a.shape, a.dtype, is_blocking=True)
             m.base.release(q)
@@ -221,7 +226,7 @@ class FieldApplier:
         by, bu, bv = self._wrap(yo), self._wrap(uo), self._wrap(vo)
         gx_, gy_ = GROUP_PLANES
         size = (-(-items // gx_) * gx_, -(-(cy1 - cy0) // gy_) * gy_)
-        self._kernel("field_planes", f, cy)(self.rt.queue, size, GROUP_PLANES, by, np.int32(w), bu, bv, np.int32(cw_),
+        self._kernel("field_planes", f, cy)(self.queue, size, GROUP_PLANES, by, np.int32(w), bu, bv, np.int32(cw_),
                                             np.int32(cx0), np.int32(cy0), np.int32(cx1), np.int32(cy1),
                                             np.int32(ta0), np.int32(items), np.int32(sx0), np.int32(sy0), sbuf,
                                             np.int32(grid.shape[1]), np.int32(grid.shape[0]), np.int32(soa.shape[2]),
@@ -246,6 +251,6 @@ class FieldApplier:
         ready = self._prepared
         soa = ready[1] if ready is not None and ready[0] is grid else soa_rows(check_grid(grid))
         buf = self._buf("soa", soa.nbytes)
-        cl.enqueue_copy(self.rt.queue, buf, soa, is_blocking=False)
+        cl.enqueue_copy(self.queue, buf, soa, is_blocking=False)
         self._soa_key = (grid, soa, buf)
         return soa, buf
