@@ -107,6 +107,20 @@ typedef uchar uchar16u __attribute__((ext_vector_type(16), aligned(1)));
 #define LD16B(p) __builtin_convertvector(*(__global const uchar16u *)(p), float16)
 #define ST8B(v, p) (*(__global uchar8u *)(p) = __builtin_convertvector((v), uchar8))
 #define ST16B(v, p) (*(__global uchar16u *)(p) = __builtin_convertvector((v), uchar16))
+typedef uchar uchar4u __attribute__((ext_vector_type(4), aligned(1)));
+typedef uchar uchar2u __attribute__((ext_vector_type(2), aligned(1)));
+/* the first LANES chroma samples (n = LANES) or their 2 x LANES luma pixels (n = 2 LANES) of a
+   vector stored, in whole pieces (a run of fewer than 8 samples must not touch its neighbour's) */
+#define ST_FIRST8(b, p, n) do {                                                                     \
+        if ((n) >= 4) *(__global uchar4u *)(p) = (b).s0123;                                          \
+        if (((n) & 3) >= 2) *(__global uchar2u *)((p) + ((n) & 4)) = ((n) >= 4 ? (b).s45 : (b).s01); \
+        if ((n) & 1) (p)[(n) - 1] = (b)[(n) - 1];                                                    \
+    } while (0)
+#define ST_FIRST16(b, p, n) do {                                                                    \
+        *(__global uchar8u *)(p) = (b).s01234567;                                                    \
+        uchar8 hi_ = (b).s89abcdef;                                                                  \
+        ST_FIRST8(hi_, (p) + 8, (n) - 8);                                                            \
+    } while (0)
 #define NT (TX >= 8 ? 1 : 8 / TX)
 #define LANES (NT * TX)
 #define LO_IDX 0 / TX, 1 / TX, 2 / TX, 3 / TX, 4 / TX, 5 / TX, 6 / TX, 7 / TX
@@ -161,7 +175,8 @@ __kernel void field_planes(
     int8 on = in & (COVER(24) > 0.0f);
     if (!(on.s0 | on.s1 | on.s2 | on.s3 | on.s4 | on.s5 | on.s6 | on.s7))
         return;
-    int full = LANES == 8 && ci >= cx0 && ci + 8 <= cx1;
+    /* whole vectors: the run inside the box and 8 samples inside the row (LANES of them stored) */
+    int full = ci >= cx0 && ci + LANES <= cx1 && ci + 8 <= c_stride;
     size_t co = (size_t)cj * c_stride + ci;
     size_t lo = (size_t)(CY * cj) * y_stride + 2 * ci;
     float8 cb, cr;
@@ -218,12 +233,24 @@ __kernel void field_planes(
     float8 vd = COEF(20) * lm + COEF(21) * cb + COEF(22) * cr + COEF(23);
     float8 un = on ? round8(ut + s * (ud - ut)) : cb, vn = on ? round8(vt + s * (vd - vt)) : cr;
     if (full) {
+#if LANES == 8
         ST16B(o0, yp + lo);
 #if CY == 2
         ST16B(o1, yp + lo + y_stride);
 #endif
         ST8B(un, up + co);
         ST8B(vn, vp + co);
+#else
+        uchar16 b0 = __builtin_convertvector(o0, uchar16);
+        uchar8 bu = __builtin_convertvector(un, uchar8), bv = __builtin_convertvector(vn, uchar8);
+        ST_FIRST16(b0, yp + lo, 2 * LANES);
+#if CY == 2
+        uchar16 b1 = __builtin_convertvector(o1, uchar16);
+        ST_FIRST16(b1, yp + lo + y_stride, 2 * LANES);
+#endif
+        ST_FIRST8(bu, up + co, LANES);
+        ST_FIRST8(bv, vp + co, LANES);
+#endif
     } else {
         uchar t0[16], t1[16], tu[8], tv[8];
         *(uchar16 *)t0 = __builtin_convertvector(o0, uchar16);
