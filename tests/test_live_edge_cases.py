@@ -214,6 +214,29 @@ def test_a_sudden_light_change_refits_the_light_within_3_frames(path, frames, he
     assert any("brightness" in i.ran.get("light", "") for i in infos[20:23]), [i.ran for i in infos[18:24]]
 
 
+def test_a_live_source_refits_a_sudden_light_change_beside_its_frames(small_bundle, frames):
+    """A live source makes its fields on a worker: the lamp switched on at frame 20 still starts
+    a refit within 3 frames, the field made beside the frames is taken (made after the change, in
+    use by frame 24), and every frame is relit meanwhile (the field in use carried)."""
+    from relight.engine.frame_path import FramePath
+
+    live = FramePath(small_bundle, load_environment("builtin:sunset"), live_source=True)
+    seq = frames[:20] + [np.clip(f.astype(np.float32) * 1.6, 0, 255).astype(np.uint8) for f in frames[20:30]]
+    infos, made = [], []
+    for i, f in enumerate(seq):
+        out, info = live.process(f, i / 30)
+        infos.append(info)
+        made.append(live.field.last.made if live.field.last is not None else -1)
+        assert info.face and (out != f).any(), i  # relit on every frame, a field made or carried
+        live.join()  # (frames 33 ms apart: the worker's field is ready by the next one here)
+    # fields made beside the frames: a frame that started one went on with the last (carried),
+    # and the next took it
+    beside = [i for i, inf in enumerate(infos[1:20], 1) if "field" in inf.ran and made[i] < i]
+    assert beside and all(made[i + 1] > made[i] for i in beside), (beside, made[:20])
+    assert any("brightness" in i.ran.get("light", "") for i in infos[20:23]), [i.ran for i in infos[18:24]]
+    assert made[24] >= 21, made[18:26]  # (frame i is the path's frame i + 1)
+
+
 def test_a_very_fast_turn(path, frames, head):
     seq = frames[::6] + frames[::-6]  # every 6th frame, there and back: six times the clip's speed
     outs, infos = _run(path, seq, head)
