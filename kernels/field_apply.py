@@ -204,7 +204,6 @@ class FieldApplier:
         """New planes: ``y`` (H, W), ``u``, ``v`` (H / cy, W / 2) uint8 (cy = 2: 4:2:0, 1: 4:2:2) with
         the field (its maps of (Y', Cb, Cr) codes; ``factor`` even, ``corner`` even) applied over
         ``box`` (grown to whole chroma samples)."""
-
         h, w = y.shape
         ch_, cw_ = u.shape
         if w % 2 or cw_ * 2 != w or v.shape != u.shape or ch_ not in (h, h // 2) or (ch_ != h and h % 2):
@@ -219,7 +218,7 @@ class FieldApplier:
         if f > 2 * LANES:
             raise InputError(f"light field of {factor} pixels per cell on planes: use at most {2 * LANES}")
         tx, _, sx0 = tile_geometry(f, gx, 2)
-        ty, _, sy0 = tile_geometry(f, gy, cy)
+        _, _, sy0 = tile_geometry(f, gy, cy)
         ta0, nta = tile_range(cx0, cx1, tx, sx0)
         items = -(-nta // (LANES // tx))
         soa, sbuf = self._soa(grid)

@@ -138,15 +138,23 @@ def compiler_output_wanted() -> bool:
 ALIGN = 64
 
 
-def aligned_zeros(shape, dtype, align: int = ALIGN):
-    """A zeroed C-ordered array whose data start on an ``align``-byte boundary."""
+def _aligned(alloc, shape, dtype, align: int):
+    """An array of ``shape`` and ``dtype`` in a buffer from ``alloc`` (np.zeros or np.empty) whose
+    data start on an ``align``-byte boundary."""
     import numpy as np
 
     dtype = np.dtype(dtype)
     n = int(np.prod(shape)) * dtype.itemsize
-    raw = np.zeros(n + align, dtype=np.uint8)
+    raw = alloc(n + align, dtype=np.uint8)
     off = (-raw.ctypes.data) % align
     return raw[off:off + n].view(dtype).reshape(shape)
+
+
+def aligned_zeros(shape, dtype, align: int = ALIGN):
+    """A zeroed C-ordered array whose data start on an ``align``-byte boundary."""
+    import numpy as np
+
+    return _aligned(np.zeros, shape, dtype, align)
 
 
 def aligned_copy(a, align: int = ALIGN):
@@ -155,9 +163,6 @@ def aligned_copy(a, align: int = ALIGN):
     import numpy as np
 
     a = np.asarray(a)
-    n = a.nbytes
-    raw = np.empty(n + align, dtype=np.uint8)
-    off = (-raw.ctypes.data) % align
-    out = raw[off:off + n].view(a.dtype).reshape(a.shape)
+    out = _aligned(np.empty, a.shape, a.dtype, align)
     np.copyto(out, a)
     return out
