@@ -96,6 +96,7 @@ class FramePath:
         self.relighter = relighter if relighter is not None else Relighter(bundle, tolerance=tolerance)
         # The relit reference frame, filled in place by the relight of each frame (its out=).
         self.relit_frame = np.zeros_like(self.relighter.frame)
+        self._field_job = None  # (the Future of _field_work in flight: the setters below join it)
         self.set_mode(mode)
         self.set_strength(strength)
         self.set_exposure(exposure)
@@ -122,6 +123,7 @@ class FramePath:
         finder = FaceFinder.from_relighter(self.relighter, rig.solid_full, scale=rig.ref_track_scale,
                                            room=bundle.ambient_frame() if room is not None else None)
         self.tracker = FaceTracker(rig.track_reference, rig.track_landmarks, rig.track_mask, finder=finder)
+        self._field_worker = Worker("relight-field")  # a live source's slow stages, beside its frames
         # (after the finder's basis: the environment's rows, made ahead on the device's queue,
         # would hold its two dozen renders back - 1.5 s of a 720p bundle's start)
         self.set_environment(env)
@@ -137,15 +139,12 @@ class FramePath:
         # made on one worker thread beside the frames
         self.live_source = bool(live_source)
         worker = Worker()
-        self._field_worker = Worker("relight-field")  # a live source's slow stages, beside its frames
-        self._field_job = None  # (the Future of _field_work in flight)
         self.person = PersonStage(bundle, rig, self.compositor, worker, live_source=self.live_source)
         self.live_light = LiveLightStage(bundle, rig, self.relighter, self.tracker, worker,
                                          live_source=self.live_source)
         self.schedule = Scheduler()
         self.field = FieldStage(self.compositor, self.field_rows)
         self._field_key = None  # the settings the field was made with (:meth:`_plan`)
-        self._asked = False  # this frame's plan answers a change the user asked for (:meth:`_plan`)
         self._new_target = True  # a new environment since the person's maps were made
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
@@ -395,12 +394,12 @@ class FramePath:
         turn = with_env_turn(None if self.fixed_env else front.rotation, env_rot)
         self.field.check_space(front.frame)
         # (while a field is made beside the frames the stages are the worker's: nothing is planned)
-        plan = self._plan(head, turn) if self._field_job is None else Plan()
+        plan, asked = self._plan(head, turn) if self._field_job is None else (Plan(), False)
         info.ran = plan.ran()
         info.reused = plan.relight is None
         if self.whole_head and self.strength > 0:
             self.person.touch()
-        if plan.field is not None and self.live_source and self.field.last is not None and not self._asked:
+        if plan.field is not None and self.live_source and self.field.last is not None and not asked:
             self._field_job = self._field_worker.submit(self._field_work, front, head, plan, env_rot, turn,
                                                         self.schedule.frame, True, {})
         elif plan.field is not None:
@@ -439,7 +438,7 @@ class FramePath:
             self._relit_key = (self.env, self.exposure, turn)
             ran.append("relight")
         tm["relight"] = (time.perf_counter() - t2) * 1e3
-        made = self._make_field(front, head, plan, env_rot, defer, tm, ran, frame)
+        made = self._make_field(front, coarse, head, plan, env_rot, defer, tm, ran, frame)
         return made, ran, head, frame, tm
 
     def _took_field(self, made, tm: dict | None = None) -> None:
@@ -469,13 +468,15 @@ class FramePath:
         """Wait for the slow stages a live source runs beside its frames (the field, then the
         person's maps and the live light's fit) and take what they made: after it the path's
         state is its own thread's (a setting changed, a reset, a test comparing frames)."""
-        if getattr(self, "_field_job", None) is not None:
+        if self._field_job is not None:
             self._take_field(None, wait=True)
 
-    def _plan(self, head: Head, turn) -> Plan:
+    def _plan(self, head: Head, turn) -> tuple[Plan, bool]:
         """The scheduler's plan for this frame (:meth:`.schedule.Scheduler.plan`) from what the path
         holds: the last relight's key, the live light and the person's maps in use (and those made
-        beside the frames, waiting), the settings the field was made with."""
+        beside the frames, waiting), the settings the field was made with; and whether it answers
+        a change the user asked for (a setting, the light, the exposure: shown on this frame, its
+        field made in it, never beside the frames)."""
         from relight.kernels.relighter import rotation_angle_deg
 
         last = self._relit_key
@@ -485,9 +486,7 @@ class FramePath:
             key_changed = rotation_angle_deg(last[2], turn) > 0  # (reuse_deg 0: every turn relights)
         delivered = self.live_light.ready() or self.person.ready()
         settings = (self.mode, self.strength, self.draft, self.exposure, self.region, self.fixed_env, id(self.env))
-        # a change the user asked for (a setting, the light, the exposure) is shown on this frame: its
-        # field is made in it, never beside the frames
-        self._asked = key_changed or settings != self._field_key
+        asked = key_changed or settings != self._field_key
         plan = self.schedule.plan(head, relight_key_changed=key_changed, light_wanted=self.mode == "transfer",
                                   has_light=self.live_light.now is not None,
                                   person_wanted=self.whole_head and self.strength > 0,
@@ -499,22 +498,22 @@ class FramePath:
                                   field_box=self.field.last.box if self.field.last is not None else None)
         self._field_key = settings
         self._field_env = self.env  # (kept alive: the id above stays its)
-        return plan
+        return plan, asked
 
     def _person_box(self):
         """The frame's box the person's maps in use reach (None: none in use)."""
         last = self.person.last_maps()
         return last[1].box if last is not None else None
 
-    def _make_field(self, front: Front, head: Head, plan: Plan, env_rot, defer: bool, tm: dict, ran: list,
-                    frame: int):
+    def _make_field(self, front: Front, coarse: np.ndarray, head: Head, plan: Plan, env_rot, defer: bool, tm: dict,
+                    ran: list, frame: int):
         """The light field of this frame (:mod:`.frame_field`): the face's layer built for it (the
         live light fitted when the plan says), the person's maps (region person: made when the
         plan says, else the last ones carried), then the field over the box they reach (returned:
-        a :class:`.field.LightField` or None). The stages that ran are appended to ``ran``, their
-        ms to ``tm``."""
+        a :class:`.field.LightField` or None). ``coarse``: the warp's coarse map (made by the
+        caller). The stages that ran are appended to ``ran``, their ms to ``tm``."""
         rgb, t = front.frame, front.t
-        box, coarse = front.warp.box, front.warp.coarse()
+        box = front.warp.box
         t3 = time.perf_counter()
         layer_mode, gain, live_median, tau, eps, waited = self._light(front, plan, defer, tm, ran)
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
