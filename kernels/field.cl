@@ -29,7 +29,6 @@
  */
 
 inline float4 clamp4(float4 v, float lo, float hi) { return v < lo ? (float4)(lo) : (v > hi ? (float4)(hi) : v); }
-inline uchar code8(float v) { return (uchar)(v < 0.0f ? 0.0f : (v > 255.0f ? 255.0f : v + 0.5f)); }
 inline int iclamp(int v, int lo, int hi) { return v < lo ? lo : (v > hi ? hi : v); }
 
 /* The chord's share of a value v (a code) against its cell's knee: 0 at and above knee + KNEE_RAMP / 2,
