@@ -58,6 +58,13 @@ ANGLE_BETA = 0.2
 GAIN_MIN_CUTOFF = 0.5
 
 
+#: A face's pose is provisional for at most this many re-anchorings after it is found, until one
+#: moves it less than SETTLED_DEG (the relight's own threshold): the pose filter starts again at
+#: each (:meth:`FramePath._settle_pose`).
+SETTLE_ANCHORINGS = 3
+SETTLED_DEG = RELIGHT_DEG
+
+
 class FramePath:
     """Relights faces in frames with one bundle (see the module docstring).
 
@@ -118,13 +125,13 @@ class FramePath:
         self.rig = rig = FaceRig.build(bundle, self.relighter, focal)
         self.focal = rig.focal
         room = bundle.room_light
-        from .acquire import FaceFinder
+        from .face_subspace import FaceSubspace
 
-        finder = FaceFinder.from_relighter(self.relighter, rig.solid_full, scale=rig.ref_track_scale,
-                                           room=bundle.ambient_frame() if room is not None else None)
-        self.tracker = FaceTracker(rig.track_reference, rig.track_landmarks, rig.track_mask, finder=finder)
+        subspace = FaceSubspace.from_relighter(self.relighter, rig.solid_full, scale=rig.ref_track_scale,
+                                               room=bundle.ambient_frame() if room is not None else None)
+        self.tracker = FaceTracker(rig.track_reference, rig.track_landmarks, rig.track_mask, subspace=subspace)
         self._field_worker = Worker("relight-field")  # a live source's slow stages, beside its frames
-        # (after the finder's basis: the environment's rows, made ahead on the device's queue,
+        # (after the subspace's basis: the environment's rows, made ahead on the device's queue,
         # would hold its two dozen renders back - 1.5 s of a 720p bundle's start)
         self.set_environment(env)
         from relight.kernels.compositor import Compositor
@@ -148,6 +155,7 @@ class FramePath:
         self._new_target = True  # a new environment since the person's maps were made
         self._estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
+        self._settling = 0  # re-anchorings left while a face's pose is provisional (:meth:`_settle_pose`)
         self.gain_filter = OneEuroFilter(GAIN_MIN_CUTOFF, 0.0)
 
     # ------------------------------------------------------------------ settings
@@ -331,6 +339,8 @@ class FramePath:
         tm["track"] = (time.perf_counter() - t0) * 1e3
         t1 = time.perf_counter()
         pose = est.solve(track.ref_index, track.xy) if track is not None else None
+        if pose is not None and self.tracker.acquired:
+            track, pose = self._anchor_acquired(est, pose, grey, ts, track)
         if pose is None:
             if track is not None:
                 self.tracker.drop()
@@ -352,6 +362,7 @@ class FramePath:
         # of each tracked point beyond the tracking noise (a rigid face is warped rigidly instead
         # of bent by every point's error).
         xy = regularised_points(est.project(pose, ref_idx).astype(np.float32), track.xy[keep], size)
+        self._settle_pose(last, pose)
         angles = self.angle_filter(pose.angles, t)
         rotation = rotation_matrix(*angles)
         info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles
@@ -555,6 +566,41 @@ class FramePath:
         else:  # paste: the relit face's median matched to the live face's at the tracked points
             gain = paste_gain(self.rig, rgb, flat, front.track.xy[front.keep], front.ref_idx)
         return composite.LAYER_MODE[self.mode], gain, 0.0, 0.0, float(self.rig.ratio_eps), waited
+
+    def _anchor_acquired(self, est, pose, grey, ts, track):
+        """(track, pose) of a face found on this frame: its landmarks found again at once with the
+        pose they gave (:meth:`.tracking.FaceTracker.anchor_acquired`) and the pose solved again
+        (the first kept where that fails). The pose is provisional for the next few re-anchorings
+        (:meth:`_settle_pose`)."""
+        self._settling = SETTLE_ANCHORINGS
+        followed = self.tracker.track
+        anchored = self.tracker.anchor_acquired(grey, lambda idx: est.project(pose, idx) * ts,
+                                                lambda idx, g: self._refind(est, pose, ts, g, idx))
+        if ts < 1:
+            anchored = type(anchored)(ref_index=anchored.ref_index, xy=anchored.xy / np.float32(ts))
+        again = est.solve(anchored.ref_index, anchored.xy)
+        if again is None:  # the pass undone: the acquisition's points and pose
+            est.last, self.tracker.track = pose, followed
+            return track, pose
+        return anchored, again
+
+    def _settle_pose(self, last, pose) -> None:
+        """A face's first re-anchorings after it was found move its points (and the pose) by up to
+        ~1 deg while they converge - the live-lit reference they match arrives a frame or two
+        after the face is found; the pose filter would follow each step for a second or more as
+        if the head turned (measured on the tests' still head: 0.76 deg over 20 frames, relit again
+        at frame 21). While the pose is provisional (:data:`SETTLE_ANCHORINGS` re-anchorings after
+        it was found, until one moves it less than :data:`SETTLED_DEG`) the filter starts again at
+        each re-anchoring's pose."""
+        if not (self._settling and self.tracker.reanchored):
+            return
+        from relight.kernels.relighter import rotation_angle_deg
+
+        if last is not None and rotation_angle_deg(last.rotation, pose.rotation) < SETTLED_DEG:
+            self._settling = 0
+            return
+        self._settling -= 1
+        self.angle_filter.reset()
 
     def _refind(self, est, pose, ts, grey, idx):
         """The landmarks ``idx`` found again in ``grey`` (:func:`.refind.refind_landmarks`, against

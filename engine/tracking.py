@@ -3,10 +3,14 @@
 Every tracked point keeps the index of the reference landmark it came from, so it carries that
 landmark's 3D position (for the head pose) and its reference position (for the warp).
 
-* Acquire: OpenCV's Haar cascade finds the face in the frame (on a downscaled copy) and in the
-  reference; the box pair gives a similarity guess for every landmark; pyramidal Lucas-Kanade
-  from the reference (brightness matched inside the face box) refines it; forward-backward
-  checked. No face, or too few points survive: no track (the caller passes the frame through).
+* Acquire: the face detector (:mod:`.face_detect`: BlazeFace, turned, tilted and side-lit faces
+  included) finds the faces in the frame with six keypoints each; the similarity that takes the
+  reference's face to a face's guesses every landmark; pyramidal Lucas-Kanade from the
+  reference brightness matched there, and from the reference relit as the frame is lit where the
+  bundle's illumination subspace puts the face (:mod:`.face_subspace`), refines it -
+  forward-backward checked, the start that holds more points kept. Of several faces the one LK
+  follows the most landmarks of is taken (the bundle's person). No face, or too few points
+  survive: no track (the caller passes the frame through).
 * Track: pyramidal LK from the previous frame, forward-backward checked.
 * Re-anchor: every ``REANCHOR_EVERY`` frames, or when the points thin out, the landmarks are
   searched again from the reference, starting where the current pose puts them (drift and lost
@@ -24,8 +28,9 @@ import cv2
 import numpy as np
 
 from relight.errors import InputError
-from relight.faces import detect_face_grey
 from relight.numerics import px_at
+
+from .face_detect import Face, FaceDetector, face_similarity
 
 #: Lucas-Kanade window (px, at 540 rows; scaled with the frame), pyramid levels, iterations.
 LK_WINDOW_AT_540 = 15
@@ -44,13 +49,12 @@ REANCHOR_BELOW = 0.6
 #: The reference is resampled into the frame's geometry before LK when the frame's size differs
 #: or the face's scale differs by more than this share.
 REWARP_SCALE = 0.08
-#: While no face is in view, the subspace search (~0.7 s a 320x240 frame here, the Haar box 30
-#: ms) runs again after 1, 2, 4, then every SEARCH_BACKOFF_MAX frames: an empty room costs an
-#: eighth of that per frame instead of all of it, a face that comes back is found within
-#: SEARCH_BACKOFF_MAX frames (or at once when the Haar box sees it).
+#: While no face is in view, the search for a small face (the detector's squares: ~15 runs of its
+#: model, ~70 ms at 720p) runs again after 1, 2, 4, then every SEARCH_BACKOFF_MAX frames; the
+#: whole frame (one run, ~5 ms) is searched on every frame.
 SEARCH_BACKOFF_MAX = 8
-#: Haar detection runs on a copy at most this many rows high.
-DETECT_ROWS = 360
+#: Faces (best first) tried when the detector finds several (the one LK follows the most landmarks of is taken).
+CANDIDATE_FACES = 3
 #: A point found again by re-anchoring replaces the followed one (or joins, when it was lost) only
 #: within this distance (px at 540 rows) of it (or of where the pose puts it).
 REANCHOR_AGREE_AT_540 = 3.0
@@ -70,10 +74,10 @@ class Track:
         return int(self.ref_index.size)
 
 
-def detect_face_box(grey: np.ndarray) -> tuple[int, int, int, int] | None:
-    """The largest frontal face (x, y, w, h) in a grey frame, or None (detected on a copy of
-    ``DETECT_ROWS`` rows: :func:`relight.faces.detect_face_grey`)."""
-    return detect_face_grey(grey, DETECT_ROWS)
+def face_xywh(face: Face) -> tuple[int, int, int, int]:
+    """A detected face's box as (x, y, w, h) whole pixels."""
+    x0, y0, x1, y1 = (float(v) for v in face.box)
+    return int(round(x0)), int(round(y0)), max(int(round(x1 - x0)), 1), max(int(round(y1 - y0)), 1)
 
 
 def bounding_xywh(xs: np.ndarray, ys: np.ndarray) -> tuple[int, int, int, int]:
@@ -97,15 +101,24 @@ def thin_points(points: np.ndarray, n: int) -> np.ndarray:
 class FaceTracker:
     """Follows the reference landmarks (N, 2) of ``reference`` (grey uint8) through frames."""
 
-    def __init__(self, reference: np.ndarray, landmarks: np.ndarray, mask: np.ndarray, finder=None):
+    def __init__(self, reference: np.ndarray, landmarks: np.ndarray, mask: np.ndarray, subspace=None):
         self.reference = np.ascontiguousarray(reference)
-        self.finder = finder
+        self.subspace = subspace
         self.landmarks = thin_points(np.asarray(landmarks, dtype=np.float32).reshape(-1, 2), MAX_TRACKED)
         if len(self.landmarks) < MIN_POINTS:
             raise InputError(f"the bundle has {len(self.landmarks)} landmarks; tracking needs {MIN_POINTS}")
         self.mask = mask
-        box = detect_face_box(self.reference)
-        if box is None:  # the reference face as the mask's bounding box
+        self.detector = FaceDetector()
+        # The reference's face: its keypoints map a face found in a frame to the landmarks; its box
+        # is where brightness is matched (the mask's bounding box when the detector sees none).
+        self.ref_face = self._reference_face()
+        if self.ref_face is not None:  # (within the reference: a tight crop's face box passes its edges)
+            h, w = self.reference.shape
+            x0, y0, bw, bh = face_xywh(self.ref_face)
+            x1, y1 = min(x0 + bw, w), min(y0 + bh, h)
+            x0, y0 = max(x0, 0), max(y0, 0)
+            box = (x0, y0, max(x1 - x0, 1), max(y1 - y0, 1))
+        else:
             ys, xs = np.nonzero(mask)
             box = bounding_xywh(xs, ys)
         self.ref_box = box
@@ -116,9 +129,26 @@ class FaceTracker:
         self.lit_reference: np.ndarray | None = None
         self.anchored = len(self.landmarks)  # points the track had when last found or re-anchored
         self.age = 0
-        # Back-off of the subspace search while no face is found: frames to skip, and the gap.
+        # what this frame's update did: found the face anew, or re-anchored its track
+        self.acquired = self.reanchored = False
+        # Back-off of the search for a small face while no face is found: frames to skip, and the gap.
         self.search_wait = 0
         self.search_gap = 0
+
+    def _reference_face(self) -> Face | None:
+        """The detector's face in the reference: the surer of the face found in it and on a copy
+        with a plain border around it. A photo set's reference is a tight crop of the face, which
+        the detector, made for faces in a scene, sees poorly there (a real Yale face: score 0.57,
+        its box three quarters of the face; every frame of its clip then went unrelit); a video's
+        reference frame shows the face in the room, smaller once bordered."""
+        found = self.detector.detect(self.reference)
+        h, w = self.reference.shape
+        pad = max(h, w) // 2
+        boxed = cv2.copyMakeBorder(self.reference, pad, pad, pad, pad, cv2.BORDER_CONSTANT,
+                                   value=int(np.median(self.reference)))
+        bordered = [Face(score=f.score, box=f.box - np.float32(pad), keypoints=f.keypoints - np.float32(pad))
+                    for f in self.detector.detect(boxed)[:1]]
+        return max(found[:1] + bordered, key=lambda f: f.score, default=None)
 
     def _lk_params(self, rows: int) -> tuple[dict, float]:
         s = px_at(1.0, rows)
@@ -168,20 +198,25 @@ class FaceTracker:
 
     def relit_reference(self, grey: np.ndarray, sim: np.ndarray) -> np.ndarray:
         """The reference with its face relit as ``grey`` shows it where ``sim`` (reference ->
-        frame) puts it (:meth:`relight.engine.acquire.FaceFinder.relit`); the plain reference
-        without a finder or when the fit explains little of the face."""
-        if self.finder is None:
-            return self.reference
+        frame) puts it (:meth:`relight.engine.face_subspace.FaceSubspace.relit`); the plain reference
+        without a subspace or when the fit explains little of the face."""
+        relit = self._relit(grey, sim)
+        return self.reference if relit is None else relit
+
+    def _relit(self, grey: np.ndarray, sim: np.ndarray) -> np.ndarray | None:
+        """:meth:`relit_reference`, or None where it would be the plain reference."""
+        if self.subspace is None:
+            return None
         from relight.colour import decode_srgb8, encode_srgb8
 
-        relit, share = self.finder.relit(decode_srgb8(grey), sim)
+        relit, share = self.subspace.relit(decode_srgb8(grey), sim)
         if not share > RELIT_MIN_SHARE:
-            return self.reference
+            return None
         out = self.reference.copy()
-        x0, y0 = (int(round(v)) for v in self.finder.origin)
+        x0, y0 = (int(round(v)) for v in self.subspace.origin)
         h, w = relit.shape
         region = out[y0:y0 + h, x0:x0 + w]
-        m = self.finder.mask[:region.shape[0], :region.shape[1]]
+        m = self.subspace.mask[:region.shape[0], :region.shape[1]]
         region[m] = encode_srgb8(np.clip(relit[:region.shape[0], :region.shape[1]][m], 0.0, 1.0))
         return out
 
@@ -224,44 +259,120 @@ class FaceTracker:
         return Track(ref_index=idx[ok], xy=pts[ok].astype(np.float32))
 
     def acquire(self, grey: np.ndarray) -> Track | None:
-        """Find the face from scratch: Haar box -> similarity guess -> LK from the reference; where
-        that finds nothing (a face lit from one side, a tight crop), the bundle's own face in its
-        illumination subspace (:mod:`relight.engine.acquire`) -> LK from the reference relit as
-        the frame is lit."""
-        box = detect_face_box(grey)
-        if box is not None:
-            rx, ry, rw, _ = self.ref_box
-            x, y, w, _ = box
-            s = w / max(rw, 1)
-            guess = (self.landmarks - np.array([rx, ry], np.float32)) * s + np.array([x, y], np.float32)
-            track = self.from_reference(grey, guess, box=box)
-            if track is not None:
-                return track
-        if self.finder is None:
-            return None
-        if self.search_wait > 0:  # a recent search found nothing: the Haar box alone this frame
+        """Find the face from scratch (see the module docstring): the detector's faces -> the
+        similarity of their keypoints -> LK from the reference relit as the frame is lit. The
+        squares for a small face are searched only when the whole frame shows none and no
+        search backs off (:data:`SEARCH_BACKOFF_MAX`)."""
+        small = self.search_wait == 0
+        if not small:
             self.search_wait -= 1
-            return None
-        track = self._search(grey)
+        faces = self.detector.detect(grey, small=small)
+        track = self._from_faces(grey, faces[:CANDIDATE_FACES]) if faces else None
         if track is None:
-            self._back_off()
+            if small:
+                self._back_off()
         else:
-            self.search_gap = 0
+            self.search_wait = self.search_gap = 0
         return track
 
-    def _search(self, grey: np.ndarray) -> Track | None:
-        from relight.colour import decode_srgb8
+    def face_similarity(self, face: Face) -> np.ndarray | None:
+        """The (2, 3) reference -> frame similarity a detected face gives: against the reference's
+        face (:func:`.face_detect.face_similarity`), or (the detector saw no face in the
+        reference) the boxes' scale and shift."""
+        if self.ref_face is not None:
+            return face_similarity(self.ref_face, face)
+        rx, ry, rw, _ = self.ref_box
+        x, y, w, _ = face_xywh(face)
+        s = w / max(rw, 1)
+        return np.array([[s, 0.0, x - s * rx], [0.0, s, y - s * ry]])
 
-        found = self.finder.find(decode_srgb8(grey))
-        if found is None:
-            return None
-        guess = (self.landmarks @ found.sim[:, :2].T + found.sim[:, 2]).astype(np.float32)
+    def _from_faces(self, grey: np.ndarray, faces: list[Face]) -> Track | None:
+        """The track of the face among ``faces`` that LK follows the most landmarks of from the
+        reference: the bundle's person (another face does not look like its reference, and the
+        subspace of a few smooth basis images explains any face about as well)."""
+        best = None
+        for face in faces:
+            sim = self.face_similarity(face)
+            track = self._track_at(grey, sim, face_xywh(face)) if sim is not None else None
+            if track is not None and (best is None or len(track) > len(best)):
+                best = track
+        return best
+
+    def _track_at(self, grey: np.ndarray, sim: np.ndarray, box) -> Track | None:
+        """LK from the reference of the landmarks ``sim`` places in ``grey``. Two starts, the one LK
+        holds more points from kept: the reference brightness matched at the detector's guess (a
+        face in the room's light; the relit reference, a fit of a few basis images, is too smooth
+        for LK there: 8 points or none where the plain one held 31-43 on the tests' small synthetic
+        head), and the reference relit as the frame is lit where the subspace puts the face
+        (:meth:`.face_subspace.FaceSubspace.refine` from the guess, a few % of the face off: a face
+        lit from one side, which the plain reference does not look like - on the real side-lit
+        Yale clip the plain start alone relit the face 4.6 dB below the still prediction)."""
+        track = self._lk_at(grey, sim, box, None)
+        if self.subspace is not None:
+            from relight.colour import decode_srgb8
+
+            refined = self.subspace.refine(decode_srgb8(grey), sim)
+            if refined is not None:
+                reference = self._relit(grey, refined[0])
+                if reference is not None:
+                    other = self._lk_at(grey, refined[0], box, reference)
+                    if other is not None and (track is None or len(other) > len(track)):
+                        track = other
+        return track
+
+    def _lk_at(self, grey: np.ndarray, sim: np.ndarray, box, reference: np.ndarray | None) -> Track | None:
+        """LK from ``reference`` (None: the reference brightness matched) of the landmarks ``sim``
+        places inside ``grey``."""
+        guess = (self.landmarks @ sim[:, :2].T + sim[:, 2]).astype(np.float32)
         h, w = grey.shape
         inside = (guess[:, 0] >= 0) & (guess[:, 0] < w) & (guess[:, 1] >= 0) & (guess[:, 1] < h)
         if inside.sum() < MIN_POINTS:
             return None
         idx = np.flatnonzero(inside)
-        return self.from_reference(grey, guess[idx], idx, reference=self.relit_reference(grey, found.sim))
+        return self.from_reference(grey, guess[idx], idx, box=box, reference=reference)
+
+    def _reanchor(self, grey: np.ndarray, track: Track, predict, refind) -> Track:
+        """``track`` with the landmarks found again (see :meth:`update`) merged in; ``age`` back to
+        0 when any were."""
+        idx = np.arange(len(self.landmarks))
+        guess = np.asarray(predict(idx), dtype=np.float32)
+        h, w = grey.shape
+        inside = (guess[:, 0] >= 0) & (guess[:, 0] < w) & (guess[:, 1] >= 0) & (guess[:, 1] < h)
+        fresh = None
+        if inside.sum() >= MIN_POINTS and refind is not None:
+            fresh = refind(idx[inside], grey)
+        elif inside.sum() >= MIN_POINTS:  # no pose to warp templates with: LK from the reference
+            ref = self.lit_reference
+            if ref is None and self.subspace is not None:
+                sim, _ = cv2.estimateAffinePartial2D(self.landmarks[track.ref_index], track.xy, method=cv2.LMEDS)
+                if sim is not None and np.isfinite(sim).all():
+                    ref = self.relit_reference(grey, sim)
+            fresh = self.from_reference(grey, guess[inside], idx[inside], reference=ref)
+        if fresh is None:
+            return track
+        # Keep the followed points and add (or correct) the ones found again - those that agree
+        # with them, or for new ones with where the pose puts them, within REANCHOR_AGREE px:
+        # matching the flat reference to a turned head can lock a point onto the wrong corner, and
+        # a handful of those would swing the pose.
+        tol = px_at(REANCHOR_AGREE_AT_540, grey.shape[0])
+        merged = dict(zip(track.ref_index.tolist(), track.xy, strict=True))
+        for k, p in zip(fresh.ref_index.tolist(), fresh.xy, strict=True):
+            near = merged.get(k, guess[k])
+            if float(np.hypot(*(p - near))) <= tol:
+                merged[k] = p
+        keys = np.fromiter(merged.keys(), dtype=np.int64)
+        self.age = 0
+        return Track(ref_index=keys, xy=np.array([merged[k] for k in keys], dtype=np.float32))
+
+    def anchor_acquired(self, grey: np.ndarray, predict, refind) -> Track:
+        """The track acquired on this frame (:attr:`acquired`) re-anchored at once with the head
+        pose it gave (``predict``, ``refind`` as for :meth:`update`; ``grey``: this frame's
+        tracking copy): the first re-anchoring made on the frame the face is found, not two
+        frames later (on the tests' shadowed cheek the track then held 42-49 points, against 18-32
+        when LK from the reference alone started it)."""
+        self.track = self._reanchor(grey, self.track, predict, refind)
+        self.anchored = len(self.track)
+        return self.track
 
     def update(self, grey: np.ndarray, predict=None, refind=None) -> Track | None:
         """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
@@ -276,39 +387,15 @@ class FaceTracker:
             if ok.sum() >= MIN_POINTS:
                 track = Track(ref_index=self.track.ref_index[ok], xy=pts[ok].astype(np.float32))
         self.age += 1
+        self.acquired = self.reanchored = False
         if track is not None and predict is not None and (
                 self.age >= REANCHOR_EVERY or len(track) < REANCHOR_BELOW * self.anchored):
-            idx = np.arange(len(self.landmarks))
-            guess = np.asarray(predict(idx), dtype=np.float32)
-            h, w = grey.shape
-            inside = (guess[:, 0] >= 0) & (guess[:, 0] < w) & (guess[:, 1] >= 0) & (guess[:, 1] < h)
-            fresh = None
-            if inside.sum() >= MIN_POINTS and refind is not None:
-                fresh = refind(idx[inside], grey)
-            elif inside.sum() >= MIN_POINTS:  # no pose to warp templates with: LK from the reference
-                ref = self.lit_reference
-                if ref is None and self.finder is not None:
-                    sim, _ = cv2.estimateAffinePartial2D(self.landmarks[track.ref_index], track.xy, method=cv2.LMEDS)
-                    if sim is not None and np.isfinite(sim).all():
-                        ref = self.relit_reference(grey, sim)
-                fresh = self.from_reference(grey, guess[inside], idx[inside], reference=ref)
-            if fresh is not None:
-                # Keep the followed points and add (or correct) the ones found again - those that
-                # agree with them, or for new ones with where the pose puts them, within
-                # REANCHOR_AGREE px: matching the flat reference to a turned head can lock a point
-                # onto the wrong corner, and a handful of those would swing the pose.
-                tol = px_at(REANCHOR_AGREE_AT_540, grey.shape[0])
-                merged = dict(zip(track.ref_index.tolist(), track.xy, strict=True))
-                for k, p in zip(fresh.ref_index.tolist(), fresh.xy, strict=True):
-                    near = merged.get(k, guess[k])
-                    if float(np.hypot(*(p - near))) <= tol:
-                        merged[k] = p
-                keys = np.fromiter(merged.keys(), dtype=np.int64)
-                track = Track(ref_index=keys, xy=np.array([merged[k] for k in keys], dtype=np.float32))
-                self.age = 0
+            track = self._reanchor(grey, track, predict, refind)
+            self.reanchored = self.age == 0
         if track is None:
             track = self.acquire(grey)
             self.age = 0
+            self.acquired = track is not None
         if self.age == 0 and track is not None:
             self.anchored = len(track)
         self.track = track
@@ -317,8 +404,8 @@ class FaceTracker:
 
     def drop(self, *, back_off: bool = True) -> None:
         """Forget the current track: the next frames acquire the face again. ``back_off``: the
-        track was found to be no face (no consistent pose), so the subspace search backs off as
-        after a search that found none; else (a new, unrelated video) it starts afresh."""
+        track was found to be no face (no consistent pose), so the search for a small face backs
+        off as after a search that found none; else (a new, unrelated video) it starts afresh."""
         self.track = None
         self.lit_reference = None
         if back_off:

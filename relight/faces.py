@@ -1,5 +1,7 @@
-"""Face detection shared by the capture (the reference frame's face) and the live side (a face
-entering the frame): OpenCV's frontal-face Haar cascade (Viola-Jones, as the paper)."""
+"""The capture's face detection (the reference frame's face, and a head mesh's front view in the
+studio): OpenCV's frontal-face Haar cascade (Viola-Jones, as the paper) - its box sizes the
+capture's crop and the studio's placement. Live frames are searched with a detector made for
+webcams (:mod:`relight.engine.face_detect`)."""
 
 from __future__ import annotations
 

@@ -23,11 +23,12 @@ SEAM_CODES = 30
 
 
 def _face_box(rgb):
-    from relight.engine.tracking import detect_face_box
+    from relight.engine.face_detect import FaceDetector
+    from relight.engine.tracking import face_xywh
 
-    box = detect_face_box(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
-    assert box is not None, "OpenCV's Haar cascade should find the astronaut's face"
-    return box
+    faces = FaceDetector().detect(rgb)
+    assert faces, "the face detector should find the astronaut's face"
+    return face_xywh(faces[0])
 
 
 @pytest.fixture(scope="module")

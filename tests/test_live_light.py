@@ -1,5 +1,5 @@
-"""The live light: fitted to the live face, found where it is known, bounded on bad frames; face
-acquisition by the bundle's illumination subspace; the real-face clip."""
+"""The live light: fitted to the live face, found where it is known, bounded on bad frames; a side-lit
+face found by the detector and explained by the bundle's illumination subspace; the real-face clip."""
 
 import json
 
@@ -11,8 +11,10 @@ from relight import load_environment
 from relight.colour import decode_srgb8, encode_srgb8
 
 from .tolerances import (
-    FACE_FINDER_PX,
-    FACE_FINDER_SCORE,
+    FACE_DETECT_PX,
+    FACE_DETECT_SCORE,
+    FACE_SUBSPACE_SHARE,
+    FACE_TRACK_PX,
     LIGHT_CLIPPED_REL,
     LIGHT_DIRECTION_DEG,
     LIGHT_FIT_RESIDUAL,
@@ -206,14 +208,22 @@ def test_bad_live_frames_give_bounded_output_and_a_status(small_bundle, small_ca
 
 def test_the_bundle_finds_its_own_face_lit_from_one_side(small_bundle):
     """The face lit from one side, tightly cropped, shifted, scaled and turned on a plain canvas:
-    found by the illumination subspace, placed within a few pixels."""
+    found by the face detector, its keypoints' similarity placing the face within a few pixels,
+    and the bundle's illumination subspace explaining it (the relit reference LK follows)."""
     import relight
-    from relight.engine.acquire import FaceFinder
+    from relight.engine.face_subspace import FaceSubspace
+    from relight.engine.tracking import FaceTracker
 
     b = small_bundle
     r = relight.Relighter(b)
     mask = np.asarray(b.mask)
     ys, xs = np.nonzero(mask)
+    reference = cv2.cvtColor(encode_srgb8(np.clip(np.array(r.relight_light([0.0, 0.2, 0.98])), 0, 1)),
+                             cv2.COLOR_RGB2GRAY)
+    landmarks = np.stack([xs[::97], ys[::97]], axis=1).astype(np.float32)
+    subspace = FaceSubspace.from_relighter(r, mask)
+    tracker = FaceTracker(reference, landmarks, mask, subspace=subspace)
+    assert tracker.ref_face is not None, "the detector should find the bundle's face in its reference"
     face = np.array(r.relight_light([0.6, 0.15, 0.78]))[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
     h, w = face.shape[:2]
     canvas = (int(h * 1.6) // 2 * 2, int(w * 1.8) // 2 * 2)
@@ -221,13 +231,20 @@ def test_the_bundle_finds_its_own_face_lit_from_one_side(small_bundle):
     a[:, 2] += (canvas[1] / 2 - w / 2 + 6, canvas[0] / 2 - h / 2 - 4)
     frame = cv2.warpAffine(np.ascontiguousarray(face), a, (canvas[1], canvas[0]), borderValue=(0.05, 0.05, 0.05))
     grey = cv2.cvtColor(encode_srgb8(np.clip(frame, 0, 1)), cv2.COLOR_RGB2GRAY)
-    finder = FaceFinder.from_relighter(r, mask)
-    got = finder.find(decode_srgb8(grey))
-    assert got is not None and got.score > FACE_FINDER_SCORE
+    faces = tracker.detector.detect(grey)
+    assert len(faces) == 1 and faces[0].score > FACE_DETECT_SCORE
+    sim = tracker.face_similarity(faces[0])
     # reference -> frame: the crop's origin first, then the placement
     pts = np.array([[xs.min() + w * 0.3, ys.min() + h * 0.4], [xs.min() + w * 0.7, ys.min() + h * 0.7]])
     want = (pts - [xs.min(), ys.min()]) @ a[:, :2].T + a[:, 2]
-    assert np.abs(pts @ got.sim[:, :2].T + got.sim[:, 2] - want).max() < FACE_FINDER_PX
+    assert np.abs(pts @ sim[:, :2].T + sim[:, 2] - want).max() < FACE_DETECT_PX * np.hypot(h, w) / 100
+    track = tracker.acquire(grey)  # LK from the reference relit as the frame is lit
+    assert track is not None and len(track) >= 8
+    true = (landmarks[track.ref_index] - [xs.min(), ys.min()]) @ a[:, :2].T + a[:, 2]
+    assert np.median(np.hypot(*(track.xy - true).T)) < FACE_TRACK_PX
+    found, _ = cv2.estimateAffinePartial2D(landmarks[track.ref_index], track.xy, method=cv2.LMEDS)
+    _, share = subspace.relit(decode_srgb8(grey), found)
+    assert share > FACE_SUBSPACE_SHARE
 
 
 def test_a_real_face_lit_from_one_side_is_found_and_relit(shared_data, tmp_path):

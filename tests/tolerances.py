@@ -287,11 +287,19 @@ SPHERE_PROJECTION_DEG = 0.01
 #: from its direction (texels).
 ROTATE_ROUND_TRIP_REL = 0.05
 TEXEL_POSITION = 1.5
-#: The live light's fit on its own model's frame (relative residual); the face finder's score on a
-#: real face, and how far its similarity puts the landmarks (px).
+#: The live light's fit on its own model's frame (relative residual).
 LIGHT_FIT_RESIDUAL = 0.05
-FACE_FINDER_SCORE = 0.8
-FACE_FINDER_PX = 6.0
+#: The face detector on a side-lit face: its least score, how far the similarity of its face to the
+#: reference's puts the face's points (px per 100 px of the face's diagonal: a first guess, within
+#: the reach of LK's pyramid), the least share of the face's variance the bundle's illumination
+#: subspace explains there, and the landmarks' median error once LK has followed them (px).
+FACE_DETECT_SCORE = 0.7
+FACE_DETECT_PX = 8.0
+FACE_SUBSPACE_SHARE = 0.8
+FACE_TRACK_PX = 1.5
+#: A detected face's box centre from the centre of the head's pixels (x; a share of their box's
+#: diagonal: the neck and shoulders widen the head's pixels below the face).
+FACE_DETECT_CENTRE = 0.15
 #: Video written and read back: mean signed and mean absolute difference (8-bit codes: colour
 #: conversion only); a phone's display-rotated video shown upright (mean codes over the inside).
 VIDEO_BIAS_CODES = 0.1

@@ -1,35 +1,22 @@
-"""Finding the bundle's face in a frame under any light: matching in the face's illumination subspace.
+"""The bundle's face under any light: its illumination subspace, and the reference relit as a
+frame shows the face.
 
-A generic face detector (OpenCV's Haar cascade) fails on a tight crop of a face lit from one side:
-half of it is black, and what is left does not look like its training faces. But the bundle *is*
-this person's face, and it is linear in light: every way a light can fall on the face gives an
-image in the span of a few basis images (the illumination cone: Belhumeur and Kriegman 1998; nine
-dimensions hold most of a Lambertian face's, Basri and Jacobs 2003). So the face is where the
-frame is best explained by that span:
-
-* basis: the reference face relit by ``BASIS_LIGHTS`` directional lights over the front
-  hemisphere (and the capture room's light), luminance, in linear light; its ``BASIS_DIM``
-  principal images inside the face's mask, orthonormal and orthogonal to a constant (an offset
-  the live room may add);
-* score at a frame position: the share of the frame patch's variance (about its mean, inside the
-  warped mask) that the basis explains - ``sum_j <B_j, f>^2 / var(f)``, 1 for a perfect fit, a
-  normalised cross-correlation generalised to a subspace; every position at once from
-  ``BASIS_DIM + 2`` correlations (``cv2.matchTemplate``);
-* search: coarse over face sizes (``MIN_FACE`` .. ``MAX_FACE`` of the frame's height, geometric
-  steps) and rolls (``ROLLS``) with the face ``COARSE_ROWS`` pixels high; the best candidates
-  refined at ``FINE_ROWS`` over finer scale and roll steps.
-
-The result is a similarity (reference -> frame) and the fitted light coefficients: the reference
-relit *as the frame is lit* (:meth:`Found.relit`), the template the landmark search then follows
-(instead of the reference under the capture's light, which LK cannot match to a side-lit face).
+The bundle is linear in light: every way a light can fall on the face gives an image in the span
+of a few basis images (the illumination cone: Belhumeur and Kriegman 1998; nine dimensions hold
+most of a Lambertian face's, Basri and Jacobs 2003). :class:`FaceSubspace` holds that span -
+the reference relit by ``BASIS_LIGHTS`` directional lights over the front hemisphere (and the
+capture room's light), luminance, in linear light; its ``BASIS_DIM`` principal images inside the
+face's mask. Where a frame's face is (a similarity from the face detector's keypoints), the
+least-squares combination that explains it is the reference relit *as the frame is lit*
+(:meth:`FaceSubspace.relit`): the template Lucas-Kanade follows into a side-lit face, which it
+cannot match to the reference under the capture's light, and the share of the face's variance
+it explains tells the bundle's person from another face in the frame.
 
 Images: (H, W) float32 linear luminance; the reference's coordinates are those of the image the
 basis was made in (the tracker's copy of the reference frame).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -41,41 +28,22 @@ BASIS_LIGHTS = 24
 BASIS_MIN_Z = 0.05
 #: Principal images kept (besides the constant).
 BASIS_DIM = 7
-#: Face sizes searched, as shares of the frame's height (the face's mask bounding box).
-MIN_FACE = 0.15
-MAX_FACE = 1.2
-SCALE_STEP = 1.15
-#: Rolls searched at the coarse level (degrees); the fine level searches +-FINE_ROLL around the best.
-ROLLS = (-20.0, -10.0, 0.0, 10.0, 20.0)
+#: The detector's similarity refined (:meth:`FaceSubspace.refine`): the template's face height
+#: (px; at least MIN_ROWS), the rolls (degrees) and scales tried around it, and the reach of the
+#: position search (a share of the face's height).
+FINE_ROWS = 48
+MIN_ROWS = 28
 FINE_ROLL = (-6.0, -3.0, 3.0, 6.0)
 FINE_SCALE = (0.92, 0.96, 1.04, 1.08)
-#: Face heights (pixels) of the coarse and the fine template.
-COARSE_ROWS = 28
-FINE_ROWS = 48
-#: Coarse candidates refined (distinct places), and the fine search's reach around each (a share
-#: of the face's height).
-CANDIDATES = 6
 FINE_REACH = 0.12
-#: A match is accepted when the basis explains at least this share of the patch's variance.
-MIN_SCORE = 0.55
-#: Patches with less contrast than this (standard deviation over mean) are not faces (a plain wall).
+#: Patches with less contrast than this (standard deviation over mean) are not faces (a plain
+#: wall), and the floor of a window's mean (linear) in that test: flat black windows never score.
 MIN_CONTRAST = 0.08
-
-
-@dataclass
-class Found:
-    """A face found: ``sim`` (2, 3) reference -> frame similarity, ``score`` (share of variance
-    explained), ``coef`` the basis coefficients (the fitted light) and ``offset`` the patch's mean
-    (the constant the live room adds, which the basis is orthogonal to)."""
-
-    sim: np.ndarray
-    score: float
-    coef: np.ndarray
-    offset: float
+MEAN_FLOOR = 1e-4
 
 
 def _point_lit(relighter, direction) -> np.ndarray:
-    """The reference under one directional light for the finder's basis. A recipe bundle's
+    """The reference under one directional light for the subspace's basis. A recipe bundle's
     exact texel rows cost ~35 ms each at 100k face pixels (four a light: 3 s of start-up for the
     basis): the low-rank part alone serves a subspace of the face's images as well."""
     if relighter.row_cache is None or relighter.exact:
@@ -85,19 +53,15 @@ def _point_lit(relighter, direction) -> np.ndarray:
     return relighter.relight_texels(point_light(direction, relighter.map_size, relighter.texels), direct=0)
 
 
-#: Floor of a window's mean (linear) in the contrast test: flat black windows never score.
-MEAN_FLOOR = 1e-4
-
-
-class FaceFinder:
-    """Searches frames for the face spanned by ``basis`` (m, h, w) float32 (reference crop whose
-    top-left is reference pixel ``origin``), ``mask`` (h, w) bool the face's pixels."""
+class FaceSubspace:
+    """The face spanned by ``basis`` (m, h, w) float32 (reference crop whose top-left is reference
+    pixel ``origin``), ``mask`` (h, w) bool the face's pixels."""
 
     def __init__(self, basis: np.ndarray, mask: np.ndarray, origin=(0, 0)):
         self.basis = np.asarray(basis, dtype=np.float32)
         self.mask = np.asarray(mask, dtype=bool)
         self.origin = np.asarray(origin, dtype=np.float64)
-        ys, xs = np.nonzero(self.mask)
+        ys, _ = np.nonzero(self.mask)
         self.box_h = float(np.ptp(ys) + 1)
         self._templates: dict = {}
 
@@ -188,57 +152,26 @@ class FaceFinder:
         score = np.where(var > floor, expl / np.maximum(var, TINY_SCALE), 0.0)
         return score.astype(np.float32), mean
 
-    # ------------------------------------------------------------------ search
-    def find(self, frame: np.ndarray) -> Found | None:
-        """The face in ``frame`` ((H, W) float32 linear luminance), or None."""
+    # ------------------------------------------------------------------ refining a similarity
+    def refine(self, frame: np.ndarray, sim: np.ndarray) -> tuple[np.ndarray, float] | None:
+        """The reference -> frame similarity near ``sim`` (a face detector's: a few % of the face
+        off) where the subspace explains ``frame`` ((H, W) float32 linear luminance) best, and
+        that share: roll over FINE_ROLL, then scale over FINE_SCALE (coordinate descent), each
+        over the positions within FINE_REACH of the face's height (one correlation each:
+        ``cv2.matchTemplate``). None when the face's template leaves the frame."""
         frame = np.ascontiguousarray(frame, dtype=np.float32)
-        fh, fw = frame.shape
-        # Padded (edges repeated) so that a template's square canvas fits around a face that fills
-        # the frame: a tight crop is the case a generic detector misses.
-        aspect = np.hypot(*self.mask.shape) / self.box_h
-        pad = int(np.ceil(0.5 * aspect * MAX_FACE * fh))
+        m = np.asarray(sim, np.float64)
+        scale = float(np.sqrt(abs(np.linalg.det(m[:, :2]))))
+        if not (np.isfinite(m).all() and scale > 1e-6):
+            return None
+        roll = float(np.degrees(np.arctan2(m[0, 1], m[0, 0])))
+        h, w = self.mask.shape
+        size = self.box_h * scale
+        # Padded (edges repeated) so that the template's square canvas fits around a face that
+        # fills the frame or passes its edge.
+        pad = int(np.ceil((0.5 * np.hypot(h, w) / self.box_h + FINE_REACH) * size * max(FINE_SCALE))) + 2
         frame = cv2.copyMakeBorder(frame, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
-        cands = []
-        size = MIN_FACE * fh
-        while size <= MAX_FACE * fh:
-            r = COARSE_ROWS / size
-            small = cv2.resize(frame, (max(int(round((fw + 2 * pad) * r)), 1), max(int(round((fh + 2 * pad) * r)), 1)),
-                               interpolation=cv2.INTER_AREA if r < 1 else cv2.INTER_LINEAR)
-            for roll in ROLLS:
-                tpl = self._template(COARSE_ROWS, roll)
-                if tpl is None or tpl[1].shape[0] > small.shape[0] or tpl[1].shape[1] > small.shape[1]:
-                    continue
-                score, _ = self._scores(small, tpl)
-                _, best, _, (x, y) = cv2.minMaxLoc(score)
-                cands.append((best, size, roll, (x + tpl[1].shape[1] / 2.0) / r, (y + tpl[1].shape[0] / 2.0) / r))
-            size *= SCALE_STEP
-        if not cands:
-            return None
-        cands.sort(key=lambda c: -c[0])
-        chosen = []
-        for c in cands:  # distinct places
-            if all(np.hypot(c[3] - o[3], c[4] - o[4]) > 0.25 * min(c[1], o[1]) for o in chosen):
-                chosen.append(c)
-            if len(chosen) == CANDIDATES:
-                break
-        # The largest consistent match wins: a face is similar to parts of itself at smaller
-        # scales (an eye and a brow look like a small face), never to something larger.
-        best, rank = None, -1.0
-        for _, size, roll, cx, cy in chosen:
-            got = self._refine(frame, size, roll, cx, cy)
-            if got is None or got.score < MIN_SCORE:
-                continue
-            height = self.box_h * float(np.sqrt(abs(np.linalg.det(got.sim[:, :2]))))
-            if got.score * height > rank:
-                best, rank = got, got.score * height
-        if best is None:
-            return None
-        best.sim[:, 2] -= pad  # padded -> frame coordinates
-        return best
-
-    def _refine(self, frame: np.ndarray, size: float, roll: float, cx: float, cy: float) -> Found | None:
-        """A coarse match refined: roll over FINE_ROLL, then scale over FINE_SCALE (coordinate
-        descent), each time over positions within FINE_REACH of the face's height."""
+        cx, cy = m[:, :2] @ (self.origin + [w / 2.0, h / 2.0]) + m[:, 2] + pad
         best = self._match(frame, size, roll, cx, cy)
         if best is None:
             return None
@@ -246,18 +179,19 @@ class FaceFinder:
             got = self._match(frame, size, roll + dr, cx, cy)
             if got is not None and got[0] > best[0]:
                 best = got
-        roll = best[1]
         for fs in FINE_SCALE:
-            got = self._match(frame, size * fs, roll, cx, cy)
+            got = self._match(frame, size * fs, best[1], cx, cy)
             if got is not None and got[0] > best[0]:
                 best = got
-        return best[2]
+        out = best[2].copy()
+        out[:, 2] -= pad  # padded -> frame coordinates
+        return out, best[0]
 
     def _match(self, frame: np.ndarray, size: float, roll: float, cx: float, cy: float):
-        """(score, roll, :class:`Found`) of the best position of the template of a face ``size``
+        """(score, roll, similarity reference -> frame) of the best position of the template of a face ``size``
         pixels high turned by ``roll`` within FINE_REACH of (cx, cy); None when out of the frame."""
         fh, fw = frame.shape
-        rows = int(round(min(FINE_ROWS, max(size, COARSE_ROWS))))
+        rows = int(round(min(FINE_ROWS, max(size, MIN_ROWS))))
         r = rows / size
         tpl = self._template(rows, roll)
         if tpl is None:
@@ -271,15 +205,13 @@ class FaceFinder:
         if ww < side or wh < side:
             return None
         small = cv2.resize(frame[y0:y1, x0:x1], (ww, wh), interpolation=cv2.INTER_AREA if r < 1 else cv2.INTER_LINEAR)
-        score, mean = self._scores(small, tpl)
+        score, _ = self._scores(small, tpl)
         _, s, _, (x, y) = cv2.minMaxLoc(score)
-        patch = small[y:y + side, x:x + side]
-        coef = np.array([float((b * patch).sum()) for b in basis])
         # reference -> template -> resized window -> frame
         sx, sy = (x1 - x0) / ww, (y1 - y0) / wh
         t_to_f = np.array([[sx, 0.0, x * sx + x0], [0.0, sy, y * sy + y0]])
         sim = np.c_[t_to_f[:, :2] @ ref_to_t[:, :2], t_to_f[:, :2] @ ref_to_t[:, 2] + t_to_f[:, 2]]
-        return float(s), roll, Found(sim=sim, score=float(s), coef=coef, offset=float(mean[y, x]))
+        return float(s), roll, sim
 
     def relit(self, frame: np.ndarray, sim: np.ndarray) -> tuple[np.ndarray, float]:
         """The reference face relit as ``frame`` ((H, W) float32 linear luminance) shows it where
