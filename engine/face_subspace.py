@@ -36,6 +36,8 @@ MIN_ROWS = 28
 FINE_ROLL = (-6.0, -3.0, 3.0, 6.0)
 FINE_SCALE = (0.92, 0.96, 1.04, 1.08)
 FINE_REACH = 0.12
+#: Templates kept (a face height and a roll each; rebuilt past this: ~0.1-0.2 MB each).
+MAX_TEMPLATES = 64
 #: Patches with less contrast than this (standard deviation over mean) are not faces (a plain
 #: wall), and the floor of a window's mean (linear) in that test: flat black windows never score.
 MIN_CONTRAST = 0.08
@@ -131,6 +133,8 @@ class FaceSubspace:
         basis = np.zeros((int(keep.sum()), side, side), np.float32)
         basis[:, m] = q[:, keep].T
         out = (basis, m.astype(np.float32), ref_to_t)
+        if len(self._templates) >= MAX_TEMPLATES:  # (rolls around a detector's guess are any angle)
+            self._templates.clear()
         self._templates[key] = out
         return out
 
