@@ -13,7 +13,7 @@ import numpy as np
 from . import composite
 from .frame_warp import sample_live
 from .gains import ExposureLock, ambient_gain, live_gain
-from .live_light import LightEstimator, LiveLight
+from .live_light import LightEstimator, LiveLight, shared_basis
 from .tracking_image import lit_reference
 
 
@@ -42,9 +42,7 @@ class LiveLightStage:
     def __init__(self, bundle, rig, relighter, tracker, worker, *, live_source: bool):
         self.rig, self.relighter, self.tracker, self.worker = rig, relighter, tracker, worker
         self.live_source = bool(live_source)
-        maps = bundle.pixel_maps(rig.live_pixels, padded=False).astype(np.float32) * \
-            np.float32(relighter.sample_scale)
-        self.estimator = LightEstimator(maps, bundle.texel_dirs, bundle.solid_angle)
+        self.estimator = LightEstimator(basis=shared_basis(bundle, rig.live_pixels, relighter.sample_scale))
         self.last: LiveLight | None = None
         self.now = None
         self.job = None

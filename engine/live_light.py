@@ -110,35 +110,92 @@ def _nnls(a: np.ndarray, y: np.ndarray, prior: np.ndarray, ridge: float = RIDGE)
     return w
 
 
+@dataclass(frozen=True)
+class LightBasis:
+    """What :class:`LightEstimator` fits with - the sampled pixels' maps in the shapes the fit
+    reads and the lobes - made once from a bundle's maps (:meth:`make`) and never changed (its
+    arrays read-only): every estimator on the same bundle and pixels shares one (:func:`shared_basis`).
+    """
+
+    texel_dirs: np.ndarray  # (T, 3) float64 the stored texels' directions
+    lum_maps: np.ndarray  # (P_s, T) float32 the maps' luminance
+    maps_t: np.ndarray  # (T, P_s, 3) float32 texel-major maps (a frame reads the rows of a few texels)
+    lum_t: np.ndarray  # (T, P_s) float32 texel-major luminance
+    lobe_dirs: np.ndarray  # (n, 3) the lobes the bundle can show
+    lobes: np.ndarray  # (T, n) their texel lights
+    lobe_lum: np.ndarray  # (P_s, n) float32 each lobe's luminance on the pixels
+    lobe_rgb: np.ndarray  # (P_s, 3, n) float32 and colour
+    lobe_pinv: np.ndarray  # (n, T) a texel light's nearest lobe weights
+    lobe_cos: np.ndarray  # (T, n) texel-lobe cosines
+    reach: np.ndarray  # (T,) float64 how much each texel lights the face
+
+    @classmethod
+    def make(cls, maps: np.ndarray, texel_dirs: np.ndarray, solid_angle: np.ndarray) -> LightBasis:
+        """From ``maps`` (P_s, 3, T) float32 - the bundle's reflectance maps at the sampled pixels,
+        in capture units (multiplied by its sample_scale) -, ``texel_dirs`` (T, 3) and
+        ``solid_angle`` (T,) of the stored texels."""
+        from relight.directions import fibonacci_sphere
+
+        maps = np.asarray(maps, dtype=np.float32)
+        texel_dirs = np.asarray(texel_dirs, dtype=np.float64)
+        lum_maps = np.einsum("pct,c->pt", maps, LUMINANCE.astype(np.float32))
+        dirs = fibonacci_sphere(LOBES)
+        lobes = lobe_lights(texel_dirs, np.asarray(solid_angle, np.float64), dirs)  # (T, n)
+        reach = (lum_maps @ lobes.astype(np.float32)).max(axis=0)
+        live = reach > RANK_REL * max(float(reach.max(initial=0.0)), TINY_SCALE)  # lobes the bundle can show
+        lobe_dirs, lobes = dirs[live], lobes[:, live]
+        basis = cls(texel_dirs=texel_dirs, lum_maps=lum_maps,
+                    maps_t=np.ascontiguousarray(maps.transpose(2, 0, 1)), lum_t=np.ascontiguousarray(lum_maps.T),
+                    lobe_dirs=lobe_dirs, lobes=lobes, lobe_lum=lum_maps @ lobes.astype(np.float32),
+                    lobe_rgb=np.einsum("pct,tn->pcn", maps, lobes.astype(np.float32)),
+                    lobe_pinv=np.linalg.pinv(lobes), lobe_cos=texel_dirs @ lobe_dirs.T,
+                    reach=lum_maps.mean(axis=0, dtype=np.float64))
+        for value in vars(basis).values():
+            value.flags.writeable = False
+        return basis
+
+
+#: Bases kept per bundle (:func:`shared_basis`): a bundle's frame paths use one set of pixels.
+KEPT_BASES = 2
+
+
+def shared_basis(bundle, pixels: np.ndarray, sample_scale: float) -> LightBasis:
+    """The :class:`LightBasis` of ``bundle``'s head pixels ``pixels`` (an index array) at
+    ``sample_scale``, made on first use and kept with the loaded bundle (at most
+    :data:`KEPT_BASES`): every frame path on a bundle - a service's stream clients and sessions,
+    each made in a request - shares it instead of making its maps again (1.2 s of a small bundle)."""
+    import hashlib
+
+    pixels = np.ascontiguousarray(pixels, dtype=np.int64)
+    key = (hashlib.blake2b(pixels.tobytes(), digest_size=16).digest(), float(sample_scale))
+    kept = bundle.__dict__.setdefault("_light_bases", {})
+    basis = kept.get(key)
+    if basis is None:
+        maps = bundle.pixel_maps(pixels, padded=False).astype(np.float32) * np.float32(sample_scale)
+        basis = LightBasis.make(maps, bundle.texel_dirs, bundle.solid_angle)
+        while len(kept) >= KEPT_BASES:
+            kept.pop(next(iter(kept)))
+        kept[key] = basis
+    return basis
+
+
 class LightEstimator:
     """Fits the live light to sampled face pixels of a bundle (module docstring).
 
     maps : (P_s, 3, T) float32 the bundle's reflectance maps at the sampled pixels (capture units:
     multiplied by the bundle's sample_scale); texel_dirs (T, 3), solid_angle (T,) of the stored
-    texels.
+    texels - or ``basis``, a :class:`LightBasis` made from them (shared: :func:`shared_basis`).
+    The estimator's own state is its robust weights and the smoothed light.
     """
 
-    def __init__(self, maps: np.ndarray, texel_dirs: np.ndarray, solid_angle: np.ndarray):
-        from relight.directions import fibonacci_sphere
-
-        maps = np.asarray(maps, dtype=np.float32)
-        self.texel_dirs = np.asarray(texel_dirs, dtype=np.float64)
-        lum = LUMINANCE.astype(np.float32)
-        self.lum_maps = np.einsum("pct,c->pt", maps, lum)  # (P_s, T)
-        # Texel-major copies: a frame reads the rows of a few texels.
-        self.maps_t = np.ascontiguousarray(maps.transpose(2, 0, 1))  # (T, P_s, 3)
-        self.lum_t = np.ascontiguousarray(self.lum_maps.T)  # (T, P_s)
-        dirs = fibonacci_sphere(LOBES)
-        lobes = lobe_lights(self.texel_dirs, np.asarray(solid_angle, np.float64), dirs)  # (T, n)
-        reach = (self.lum_maps @ lobes.astype(np.float32)).max(axis=0)
-        live = reach > RANK_REL * max(float(reach.max(initial=0.0)), TINY_SCALE)  # lobes the bundle can show
-        self.lobe_dirs, self.lobes = dirs[live], lobes[:, live]
-        self.lobe_lum = self.lum_maps @ self.lobes.astype(np.float32)  # (P_s, n)
-        self.lobe_rgb = np.einsum("pct,tn->pcn", maps, self.lobes.astype(np.float32))  # (P_s, 3, n)
-        self.lobe_pinv = np.linalg.pinv(self.lobes)  # (n, T): a texel light's nearest lobe weights
-        self.lobe_cos = self.texel_dirs @ self.lobe_dirs.T  # (T, n)
-        self.reach = self.lum_maps.mean(axis=0, dtype=np.float64)  # (T,) how much each texel lights the face
-        self.robust = np.ones(maps.shape[0])
+    def __init__(self, maps: np.ndarray | None = None, texel_dirs: np.ndarray | None = None,
+                 solid_angle: np.ndarray | None = None, *, basis: LightBasis | None = None):
+        if basis is None:
+            basis = LightBasis.make(maps, texel_dirs, solid_angle)
+        self.basis = basis
+        for name, value in vars(basis).items():  # (read-only: the fit reads them by these names)
+            setattr(self, name, value)
+        self.robust = np.ones(basis.lum_maps.shape[0])
         self.light = None  # (T, 3) the smoothed light in the texels
         self.t = None
         self.spread = float("nan")

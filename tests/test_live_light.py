@@ -290,3 +290,26 @@ def test_a_real_face_lit_from_one_side_is_found_and_relit(shared_data, tmp_path)
     moved = [encode_srgb8(realface.place(still, m, fill=fill)) for m in data["motion"][:20]]
     still_psnr = realface.clip_psnr(moved, truth, masks)
     assert psnr >= still_psnr - REAL_CLIP_STILL_GAP_DB, (psnr, still_psnr)
+
+
+def test_frame_paths_on_one_bundle_share_one_read_only_basis_and_fit_as_with_their_own(estimator, small_bundle):
+    """The estimator's basis is made once per bundle and pixels (a session's path no longer makes
+    the maps again) and cannot be edited through one estimator; a fit on the shared basis equals
+    a fit on a basis of its own."""
+    from relight.engine.live_light import LightEstimator, shared_basis
+
+    est, _, idx = estimator
+    basis = shared_basis(small_bundle, idx, 1.0)
+    assert shared_basis(small_bundle, idx.copy(), 1.0) is basis
+    assert shared_basis(small_bundle, idx, 2.0) is not basis
+    assert not basis.lobe_lum.flags.writeable and not basis.maps_t.flags.writeable
+    with pytest.raises(ValueError):
+        basis.lobes[0, 0] = 1.0
+    a, b = LightEstimator(basis=basis), LightEstimator(basis=shared_basis(small_bundle, idx, 1.0))
+    live = _live(estimator, _light(estimator, [([0.5, 0.2, 0.8], [1.0, 1.0, 1.0])]))
+    valid = np.ones(len(idx), bool)
+    fa, fb = (e.fit(live, valid, 0.0) for e in (a, b))
+    assert fa.direction == fb.direction and fa.intensity == fb.intensity  # no state shared between them
+    est.reset()
+    fd = est.fit(live, valid, 0.0)
+    assert np.allclose(fd.direction, fa.direction, atol=1e-6) and np.isclose(fd.intensity, fa.intensity, rtol=1e-5)
