@@ -4,6 +4,10 @@ A real ``relight-serve`` process; N websocket clients each send 640x360 JPEG fra
 synthetic live video at a fixed rate for a fixed time, then one client 1280x720 frames (latest
 frame wins on the server: frames the server had no time for are dropped and counted, never
 queued). Each frame is tagged so the client measures its round trip (send -> relit frame back).
+Then single ``POST /v1/relight`` requests (JPEG): a frame with a face and a frame of noise at
+640x360 and at the single client's size, each request on its own (no session), and the clip's
+frames in order under one ``X-Relight-Session`` (its track kept) - medians and p95 of the round
+trip beside the floor measured in the same run (the client's JPEG decode and encode of the frame).
 Reported: errors, frames returned and relit per second, dropped, round-trip p50/p95/p99 per run,
 the share of busy CPU time the hypervisor stole during the run (on a shared VM that, not our
 code, stretches the tail), the server's resident memory at start and end (``/proc``), and the
@@ -117,6 +121,67 @@ def live_jpegs(out: Path, progress: bool, size: tuple[int, int] = (640, 360)) ->
             for f in read_frames(live / "live.mp4")]
 
 
+#: Single requests per case (after POST_WARM_UP unmeasured ones).
+POST_REQUESTS = 20
+POST_WARM_UP = 3
+
+
+def _post_case(client, url: str, body: bytes, n: int, session: str | None = None, bodies=None) -> dict:
+    """Round trips (ms) of ``n`` POSTs of ``body`` (or of ``bodies`` in turn) after the warm-up."""
+    headers = {"content-type": "image/jpeg"}
+    if session is not None:
+        headers["X-Relight-Session"] = session
+    ms, faces, errors = [], 0, 0
+    for k in range(POST_WARM_UP + n):
+        data = bodies[k % len(bodies)] if bodies else body
+        t = time.perf_counter()
+        r = client.post(url, content=data, headers=headers)
+        took = (time.perf_counter() - t) * 1e3
+        if k < POST_WARM_UP:
+            continue
+        errors += r.status_code != 200
+        faces += r.headers.get("x-relight-face") == "found"
+        ms.append(took)
+    a = np.array(ms)
+    return {"requests": n, "median_ms": float(np.median(a)), "p95_ms": float(np.percentile(a, 95)),
+            "faces": faces, "errors": errors}
+
+
+def jpeg_floor_ms(body: bytes, n: int = POST_REQUESTS) -> float:
+    """The floor of one request on this machine: the median ms of decoding ``body`` (JPEG) and
+    encoding it again (quality 85), in this process."""
+    import cv2
+
+    times = []
+    for _ in range(n):
+        t = time.perf_counter()
+        img = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_COLOR)
+        cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        times.append((time.perf_counter() - t) * 1e3)
+    return float(np.median(times))
+
+
+def post_requests(base: str, by_size: dict, n: int = POST_REQUESTS) -> dict:
+    """``POST /v1/relight`` of single frames (module docstring): per size (``by_size``: "WxH" ->
+    the clip's JPEG frames), a frame with a face, a frame of noise - each request on its own -
+    and the frames in order in one session."""
+    import cv2
+    import httpx
+
+    url = f"{base}/v1/relight"
+    doc = {}
+    with httpx.Client(timeout=60) as client:
+        for size, frames in by_size.items():
+            face = frames[0]
+            shape = cv2.imdecode(np.frombuffer(face, np.uint8), cv2.IMREAD_COLOR).shape
+            noise_img = np.random.default_rng(0).integers(0, 256, shape, dtype=np.uint8)
+            noise = cv2.imencode(".jpg", noise_img, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
+            doc[size] = {"face": _post_case(client, url, face, n), "noise": _post_case(client, url, noise, n),
+                         "session": _post_case(client, url, face, n, session=f"bench-{size}", bodies=frames),
+                         "floor_ms": jpeg_floor_ms(face)}
+    return doc
+
+
 def start_server(bundle: Path, port: int, clients: int) -> tuple[subprocess.Popen, float]:
     """``relight serve`` in a fresh process and the seconds until /readyz answers 200."""
     env = dict(os.environ, RELIGHT_LOG_LEVEL="warning")
@@ -189,6 +254,12 @@ def run(out: Path, bundle: Path | None = None, clients: int = CLIENTS, fps: floa
         single = _run(url, single_frames, 1, fps, min(duration, 20.0))
         single["size"] = list(single_size)
         single["relit_fps"] = single["returned"] / min(duration, 20.0)
+        if progress:
+            print("POST /v1/relight: single frames ...", flush=True)
+        sizes = {"640x360": frames}
+        if single_size != (640, 360):
+            sizes["x".join(map(str, single_size))] = single_frames
+        posts = post_requests(base, sizes, 8 if quick else POST_REQUESTS)
         metrics = httpx.get(f"{base}/metrics").text
         alive = httpx.get(f"{base}/readyz").status_code == 200
     finally:
@@ -201,7 +272,7 @@ def run(out: Path, bundle: Path | None = None, clients: int = CLIENTS, fps: floa
         stop_server(proc)
     proc, warm_start = start_server(timed, port, clients)
     stop_server(proc)
-    doc = {"load": load, "single": single, "rss_mb": {"start": rss_start, "end": rss_end},
+    doc = {"load": load, "single": single, "post": posts, "rss_mb": {"start": rss_start, "end": rss_end},
            "start_s": {"first": first_start, "warm": warm_start}, "bundle": str(bundle), "start_bundle": str(timed),
            "ready_after": alive, "server_errors": [ln for ln in metrics.splitlines()
                                                    if ln.startswith("relight_errors_total")]}
@@ -228,6 +299,14 @@ def table(doc: dict) -> str:
                      + ("-" if r.get("cpu_steal") is None else f"{100 * r['cpu_steal']:.0f} %") + " of busy CPU")
         if "relit_fps" in r:
             lines.append(f"        relit frames per second, all clients: {r['relit_fps']:.1f}")
+    for size, cases in doc.get("post", {}).items():
+        parts = []
+        for case in ("face", "noise", "session"):
+            c = cases[case]
+            parts.append(f"{case} {c['median_ms']:.0f} ms (p95 {c['p95_ms']:.0f}, faces {c['faces']}/{c['requests']}"
+                         + (f", errors {c['errors']}" if c["errors"] else "") + ")")
+        lines.append(f"POST /v1/relight {size} JPEG, median round trip: " + ", ".join(parts)
+                     + f"; floor (JPEG decode + encode here) {cases['floor_ms']:.1f} ms")
     st = doc.get("start_s")
     if st:
         lines.append(f"start (process launch -> /readyz 200) of {doc.get('start_bundle', '')}: {st['first']:.2f} s the "

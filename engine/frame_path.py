@@ -526,6 +526,8 @@ class FramePath:
         rgb, t = front.frame, front.t
         box = front.warp.box
         t3 = time.perf_counter()
+        if self.whole_head and self.strength > 0 and self.person.makes_now(rgb, plan.person is not None):
+            self.person.start_matte(rgb)  # (its model beside the live light's fit)
         layer_mode, gain, live_median, tau, eps, waited = self._light(front, plan, defer, tm, ran)
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
         tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited

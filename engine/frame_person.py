@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import head_light
-from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs
+from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs, work_copy
 
 
 class PersonStage:
@@ -18,8 +18,9 @@ class PersonStage:
     :class:`.person.PersonMatte` model, made on first use), ``last`` (work size and
     :class:`PersonMaps` last made), ``seen`` (the last frame the person was relit on: the maps
     serve only while no frame in between left the person out), ``trust_run`` (the matte's trusted
-    remakes in a row), ``job`` (maps being made on the worker), ``env_texels`` (the environment's
-    low frequencies) and ``frames`` (the path's frames counted by :meth:`next_frame`).
+    remakes in a row), ``job`` (maps being made on the worker), ``early`` (the matte model started
+    on this frame's work copy: :meth:`start_matte`), ``env_texels`` (the environment's low
+    frequencies) and ``frames`` (the path's frames counted by :meth:`next_frame`).
     ``live_source``: maps after the first are made on the worker."""
 
     def __init__(self, bundle, rig, compositor, worker, *, live_source: bool):
@@ -31,12 +32,46 @@ class PersonStage:
         self.seen = -2
         self.trust_run = 0
         self.job = None
+        self.early = None  # (frame, work size, work copy, Future of the model's probability)
         self.env_texels = None
         self.frames = 0
 
     def next_frame(self) -> None:
         """Count a frame of the path (every back() call, with or without the person)."""
         self.frames += 1
+        self._drop_early()
+
+    @staticmethod
+    def work_size(frame) -> tuple[int, int]:
+        """The (w, h) the person's maps of ``frame`` are made at (:data:`.person.WORK_ROWS` rows)."""
+        from .person import WORK_ROWS
+
+        h, w = frame.shape[:2]
+        sc = min(1.0, WORK_ROWS / h)
+        return max(1, round(w * sc)), max(1, round(h * sc))
+
+    def makes_now(self, frame, due: bool) -> bool:
+        """Whether :meth:`maps` would make the maps on the frame's own thread: none serve at this
+        frame's work size, or they are due and the path is not a live source."""
+        last = self.last_maps()
+        if last is None or last[0] != self.work_size(frame):
+            return self.job is None or self.job.done()
+        return due and self.job is None and not self.live_source and not self.ready()
+
+    def start_matte(self, frame) -> None:
+        """Start the matte model on ``frame``'s work copy on the worker, while the frame's thread
+        fits the live light (:meth:`maps` made in the frame then takes it: the two cores share a
+        single request's slow stages). Call only when :meth:`makes_now`; dropped unused at the
+        next frame."""
+        work = self.work_size(frame)
+        small = work_copy(frame, work)
+        matte = self._matte()
+        self.early = (frame, work, small, self.worker.submit(matte.probability, small))
+
+    def _drop_early(self) -> None:
+        if self.early is not None:
+            self.early[3].result()  # (the model is one: never two runs at once)
+            self.early = None
 
     def touch(self) -> None:
         """This frame relights the person (with new maps or the last ones, carried)."""
@@ -54,6 +89,7 @@ class PersonStage:
 
     def reset(self) -> None:
         """Forget the maps and the matte's trust (a new, unrelated video follows)."""
+        self._drop_early()
         self.last, self.trust_run = None, 0
 
     def ready(self) -> bool:
@@ -76,24 +112,22 @@ class PersonStage:
         the face's box in it; ``env``, ``strength``, ``fixed_env``, ``env_rotation`` (3x3 or None):
         the path's target; ``texel_light``: a callable giving the live light in use ((T, 3) in
         the bundle's texels)."""
-        from .person import WORK_ROWS
-
-        h, w = frame.shape[:2]
-        sc = min(1.0, WORK_ROWS / h)
-        work = (max(1, round(w * sc)), max(1, round(h * sc)))
+        work = self.work_size(frame)
         target = dict(env=env, strength=strength, fixed_env=fixed_env, texel_light=texel_light,
                       env_rotation=env_rotation)
         last = self.last_maps()
         self.touch()
+        early = self.early if self.early is not None and self.early[0] is frame and self.early[1] == work else None
+        small, prob = (early[2], early[3]) if early is not None else (None, None)
 
         def make():
-            return self.inputs(frame, face_box, coarse, rotation, tau, work, anchor, **target)
+            return self.inputs(frame, face_box, coarse, rotation, tau, work, anchor, small=small, **target)
 
         if last is None or last[0] != work:  # none to go on with: made now, on this thread
             if self.job is not None:  # made for maps no longer in use (another environment, a gap,
                 self.job.result()     # a reset): dropped once done - the model is one, never two at once
                 self.job = None
-            maps = self.took(build_person_maps(self._matte(), make()))
+            maps = self.took(build_person_maps(self._matte(), make(), prob))
         elif self.ready():
             job, self.job = self.job, None
             maps = self.took(job.result())
@@ -102,7 +136,7 @@ class PersonStage:
                 self.job = self.worker.submit(build_person_maps, self._matte(), make())
                 maps = last[1]
             else:
-                maps = self.took(build_person_maps(self._matte(), make()))
+                maps = self.took(build_person_maps(self._matte(), make(), prob))
         else:
             maps = last[1]
         self.last = (work, maps)
@@ -123,9 +157,9 @@ class PersonStage:
         return self.matte
 
     def inputs(self, frame, box, coarse, rotation, tau: float, work, anchor, *, env, strength: float,
-               fixed_env: bool, texel_light, env_rotation=None) -> PersonInputs:
+               fixed_env: bool, texel_light, env_rotation=None, small=None) -> PersonInputs:
         """What the person's maps are made of (:func:`.person_maps.person_inputs`) from this frame,
-        the target and this stage's state."""
+        the target and this stage's state (``small``: the frame's work copy, when made)."""
         if self.env_texels is None:  # the environment's low frequencies
             self.env_texels = environment_texels(env)
         env_texels = self.env_texels
@@ -133,4 +167,4 @@ class PersonStage:
             env_texels = (env_texels[0] @ np.asarray(env_rotation, np.float64).T, env_texels[1])
         return person_inputs(self.rig, self.compositor, frame, box, coarse, rotation, tau, work, anchor,
                              strength=strength, env_texels=env_texels, fixed_env=fixed_env,
-                             texel_dirs=self.texel_dirs, texel_light=texel_light())
+                             texel_dirs=self.texel_dirs, texel_light=texel_light(), small=small)

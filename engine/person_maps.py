@@ -87,12 +87,14 @@ class PersonInputs(NamedTuple):
     anchor: tuple[float, float]
 
 
-def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bool]:
+def build_person_maps(matte_model, inputs: PersonInputs, prob=None) -> tuple[PersonMaps, bool]:
     """The person's :class:`PersonMaps` (``gate`` unset) and whether the matte is trusted around
     the face (:func:`.head_light.matte_trusted`), made from ``inputs`` with ``matte_model``
     (a :class:`.person.PersonMatte`) over the box of the work scale the person and a margin reach
-    (:func:`.head_light.person_crop`: their cost is the person's size, not the frame's). Touches
-    nothing but its arguments and the model: it may run on a worker."""
+    (:func:`.head_light.person_crop`: their cost is the person's size, not the frame's). ``prob``:
+    the model's probability over ``inputs.small`` when already made (a Future of it or the
+    array; None: made here). Touches nothing but its arguments and the model: it may run on a
+    worker."""
     from relight.colour import decode_lut8
 
     from .person import GUIDE_RADIUS
@@ -102,7 +104,10 @@ def build_person_maps(matte_model, inputs: PersonInputs) -> tuple[PersonMaps, bo
     w, h = inputs.size
     fa = inputs.alpha
     face_px = float(np.sqrt(max(float(np.count_nonzero(fa > 0.5)), 1.0)))
-    prob = matte_model.probability(small)
+    if prob is None:
+        prob = matte_model.probability(small)
+    elif hasattr(prob, "result"):
+        prob = prob.result()
     margin = max(int(round(head_light.BACKGROUND_RING * face_px)), 2) + 2 * GUIDE_RADIUS + 2
     cx0, cy0, cx1, cy1 = crop = head_light.person_crop(prob, face_small, (ww, wh), margin)
     cw, ch = cx1 - cx0, cy1 - cy0
@@ -179,8 +184,14 @@ def environment_texels(env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             (texels.reshape(-1, 3) * omega).astype(np.float64))
 
 
+def work_copy(frame, work) -> np.ndarray:
+    """The frame ((H, W, 3) uint8 sRGB or a YuvFrame) at the work scale ``work`` (ww, wh):
+    (wh, ww, 3) uint8 sRGB, area-averaged."""
+    return downscale_area(frame, work) if isinstance(frame, np.ndarray) else frame.small_rgb(work)
+
+
 def person_inputs(rig, compositor, frame, box, coarse, rotation, tau: float, work, anchor, *, strength: float,
-                  env_texels, fixed_env: bool, texel_dirs, texel_light) -> PersonInputs:
+                  env_texels, fixed_env: bool, texel_dirs, texel_light, small=None) -> PersonInputs:
     """What the person's maps are made of (:class:`PersonInputs`), from this frame: one copy of
     the frame at the work scale ``work`` (ww, wh), its face composited by the same kernel as the
     frame's (the face's ratio at that scale; ``compositor``: the path's
@@ -190,12 +201,13 @@ def person_inputs(rig, compositor, frame, box, coarse, rotation, tau: float, wor
     over it; ``rotation``: the head's (3x3); ``anchor``: the head's place (frame px);
     ``env_texels``: the environment's (:func:`environment_texels`), turned with the head when
     ``fixed_env``; ``texel_dirs``, ``texel_light``: (T, 3) the bundle's texel directions and the
-    live light in them."""
+    live light in them; ``small``: the frame's :func:`work_copy` when already made."""
     from relight.spherical_harmonics import lights_sh9
 
     h, w = frame.shape[:2]
     ww, wh = work
-    small = downscale_area(frame, work) if isinstance(frame, np.ndarray) else frame.small_rgb(work)
+    if small is None:
+        small = work_copy(frame, work)
     sx, sy = w / ww, h / wh
     face_small = (max(int(box[0] / sx) - 1, 0), max(int(box[1] / sy) - 1, 0),
                   min(int(np.ceil(box[2] / sx)) + 1, ww), min(int(np.ceil(box[3] / sy)) + 1, wh))

@@ -79,7 +79,9 @@ def add_parser(sub) -> None:
                                      "errors, dropped frames, relit frames per second, round-trip p50/p95/p99 and "
                                      "the hypervisor's steal, server memory before and after; then one client "
                                      "alone sending 1280x720 frames (--single-size); and the start-up time "
-                                     "(launch -> ready) of a first and a second start. Writes bench.json.",
+                                     "(launch -> ready) of a first and a second start; and single POST /v1/relight "
+                                     "requests (a face, noise, a session) beside the JPEG decode + encode floor. "
+                                     "Writes bench.json.",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     sv.add_argument("-o", "--out", type=Path, default=Path("out/bench-serve"), help="output and cache folder")
     sv.add_argument("--bundle", type=Path, default=None, help="bundle to serve (default: a synthetic 640x360 one)")
