@@ -89,13 +89,16 @@ class FramePath:
     requests) makes them in the frame that needs them: runs are repeatable.
     field_rows : the light field's rows (:data:`.field.FIELD_ROWS`): a frame is scaled down by the
     even factor that leaves about this many (:func:`.field.field_factor`).
+    workers : (field worker, maps worker) - :class:`.threads.Worker` s the slow stages run on,
+    shared by several paths (a service's stream clients: one slow stage of each kind runs at a
+    time, whoever's it is, and the frames keep the cores); None: the path's own.
     """
 
     def __init__(self, bundle, env: np.ndarray, *, mode: str = composite.DEFAULT_MODE, strength: float = 1.0,
                  fixed_env: bool = False, focal: float | None = None, exposure: float = 0.0,
                  tolerance: float = DEFAULT_TOLERANCE, relighter=None, reuse_deg: float = REUSE_DEG,
                  region: str = composite.DEFAULT_REGION, rigid_warp: bool = True, live_source: bool = False,
-                 env_turn: float = 0.0, env_spin: float = 0.0, field_rows: int = FIELD_ROWS):
+                 env_turn: float = 0.0, env_spin: float = 0.0, field_rows: int = FIELD_ROWS, workers=None):
         from relight.kernels.relighter import Relighter
 
         limit_threads()
@@ -130,7 +133,8 @@ class FramePath:
         subspace = FaceSubspace.from_relighter(self.relighter, rig.solid_full, scale=rig.ref_track_scale,
                                                room=bundle.ambient_frame() if room is not None else None)
         self.tracker = FaceTracker(rig.track_reference, rig.track_landmarks, rig.track_mask, subspace=subspace)
-        self._field_worker = Worker("relight-field")  # a live source's slow stages, beside its frames
+        field_worker, maps_worker = workers if workers is not None else (Worker("relight-field"), Worker())
+        self._field_worker = field_worker  # a live source's slow stages, beside its frames
         # (after the subspace's basis: the environment's rows, made ahead on the device's queue,
         # would hold its two dozen renders back - 1.5 s of a 720p bundle's start)
         self.set_environment(env)
@@ -145,7 +149,7 @@ class FramePath:
         # live_source: the slow maps - the person's (region person) and the live light's fits -
         # made on one worker thread beside the frames
         self.live_source = bool(live_source)
-        worker = Worker()
+        worker = maps_worker
         self.person = PersonStage(bundle, rig, self.compositor, worker, live_source=self.live_source)
         self.live_light = LiveLightStage(bundle, rig, self.relighter, self.tracker, worker,
                                          live_source=self.live_source)
@@ -199,32 +203,36 @@ class FramePath:
         """Whether the rest of the person is relit with the face (region 'person', mode transfer)."""
         return self.region == "person" and self.mode == "transfer"
 
+    # The setters wait for the slow stages beside a live source's frames (:meth:`join`: they read
+    # the settings) only when a value changes: a caller that sets every frame's settings (the
+    # service does) does not make each frame wait for them.
+    def _setting(self, name: str, value) -> None:
+        if getattr(self, name, None) != value:
+            self.join()
+            setattr(self, name, value)
+
     def set_mode(self, mode: str) -> None:
-        self.join()
         if mode not in composite.MODES:
             raise InputError(f"mode {mode!r}: use one of {', '.join(composite.MODES)}")
-        self.mode = mode
+        self._setting("mode", mode)
 
     def set_strength(self, strength: float) -> None:
-        self.join()
         if not (np.isfinite(strength) and 0.0 <= strength <= 1.0):
             raise InputError(f"strength {strength}: use a number from 0 to 1")
-        self.strength = float(strength)
+        self._setting("strength", float(strength))
 
     def set_exposure(self, ev: float) -> None:
-        self.join()
         lo, hi = EXPOSURE_RANGE_EV
         if not (np.isfinite(ev) and lo <= ev <= hi):
             raise InputError(f"exposure {ev}: use stops (EV) between {lo:g} and {hi:g}")
-        self.exposure = float(2.0 ** ev)
+        self._setting("exposure", float(2.0 ** ev))
 
     def set_env_turn(self, deg: float) -> None:
         """Turn the environment about the vertical by ``deg`` (:data:`relight.directions.ENV_TURN_RANGE_DEG`)."""
-        self.join()
         lo, hi = ENV_TURN_RANGE_DEG
         if not (np.isfinite(deg) and lo <= deg <= hi):
             raise InputError(f"environment turn {deg}: use degrees between {lo:g} and {hi:g}")
-        self.env_turn = float(deg)
+        self._setting("env_turn", float(deg))
 
     def set_env_spin(self, deg_per_s: float) -> None:
         """Spin the environment about the vertical by ``deg_per_s`` degrees per second of the

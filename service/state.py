@@ -87,6 +87,13 @@ class Engine:
         self.path = self.shared.path
         # every kernel built and run once before the first request (none waits for a compile)
         self.warm_up_s = self.path.warm_up()
+        # The stream clients' slow stages share two workers (.engine.threads.Worker: the field's,
+        # the maps'): one of each kind runs at a time, whichever client's it is - per-client
+        # workers ran eight slow stages at once for four clients, and their frames waited for the
+        # cores (measured: 20 relit fps in all at 120 % CPU; one client alone, 29).
+        from ..engine.threads import Worker
+
+        self._workers = (Worker("relight-field"), Worker("relight-maps"))
         self._named: OrderedDict = OrderedDict()  # session id -> (Session, perf_counter of its last use)
         self._lock = asyncio.Lock()
 
@@ -149,8 +156,8 @@ class Engine:
         # a stream is a live source: its person's maps made beside its frames (no device work); a
         # named session's requests make theirs in the request (each answer is its frame's)
         return Session(FramePath(self.bundle, env, mode=self.config.mode, focal=self.config.focal,
-                                 region=self.config.region, relighter=self.path.relighter, live_source=live_source),
-                       env)
+                                 region=self.config.region, relighter=self.path.relighter, live_source=live_source,
+                                 workers=self._workers), env)
 
     def set_uploaded(self, name: str, env: np.ndarray) -> None:
         """An uploaded (validated) environment becomes the current one under ``name``."""

@@ -205,6 +205,44 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
     assert any(not np.array_equal(a, b) for a, b in zip(sync[2:12], live[2:12], strict=True))  # a frame older
 
 
+def test_a_setting_set_again_unchanged_does_not_wait_for_the_slow_stages(small_bundle, clip):
+    """The service sets every frame's settings: a setter whose value does not change leaves the
+    slow stages beside a live source's frames running; one that changes waits for them (they
+    read it). Paths given the same workers (a service's stream clients) share them."""
+    import threading
+    from concurrent.futures import Future
+
+    from relight.engine import frame_path as fpm
+    from relight.engine.threads import Worker
+
+    _, frames = clip
+    workers = (Worker("relight-field"), Worker("relight-maps"))
+    fp = fpm.FramePath(small_bundle, load_environment("builtin:sunset"), region="face", live_source=True,
+                       workers=workers)
+    other = fpm.FramePath(small_bundle, load_environment("builtin:sunset"), region="face", live_source=True,
+                          relighter=fp.relighter, workers=workers)
+    assert fp._field_worker is other._field_worker and fp.person.worker is other.live_light.worker is workers[1]
+    fp.process(frames[0], 0.0)
+    job = Future()  # a field being made beside the frames, not done yet
+    fp._field_job = job
+    done = threading.Event()
+
+    def set_all_again():
+        fp.set_mode(fp.mode)
+        fp.set_strength(fp.strength)
+        fp.set_exposure(0.0)
+        fp.set_env_turn(fp.env_turn)
+        done.set()
+
+    threading.Thread(target=set_all_again, daemon=True).start()
+    assert done.wait(5.0)  # (returned at once: nothing changed)
+    changed = threading.Event()
+    threading.Thread(target=lambda: (fp.set_strength(0.5), changed.set()), daemon=True).start()
+    assert not changed.wait(0.3)  # waits for the field in flight
+    job.set_result(None)
+    assert changed.wait(5.0) and fp.strength == 0.5
+
+
 def _person_grid(rng, shape):
     """A person grid (rho - 1, matte) with a matte edge and a place where nothing changes."""
     grid = np.zeros((*shape, 4), np.float32)
