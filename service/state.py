@@ -19,7 +19,6 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .codec import decode_frame, encode_frame
 from .settings import ServeConfig
 
 #: A single request's session id: this header, or the ``session`` query parameter.
@@ -103,20 +102,16 @@ class Engine:
         async with self._lock:
             return await asyncio.to_thread(self._session)
 
-    async def relight_frame(self, rgb: np.ndarray, *, session: Session | None = None, **settings):
+    async def relight_frame(self, rgb: np.ndarray, *, session: Session | None = None,
+                            started: asyncio.Event | None = None, **settings):
         """(relit frame, FrameInfo) of one frame through ``session``'s path; without a session, a
         single request: the shared path starts afresh (a track, filters and a light of its own -
-        one caller's frames are not another's), so every request is relit as a first frame."""
+        one caller's frames are not another's), so every request is relit as a first frame.
+        ``started`` is set once the frame has the engine (the other clients' frames before it done)."""
         async with self._lock:
+            if started is not None:
+                started.set()
             return await asyncio.to_thread(self._relight, rgb, session=session, **settings)
-
-    async def decode_relight_encode(self, data: bytes, ctype: str, max_pixels: int, settings: dict,
-                                    session: Session | None = None):
-        """(encoded relit frame, FrameInfo) of an encoded frame: decoded off the event loop, relit
-        under the lock, encoded off the event loop (raises ServiceError/RelightError)."""
-        rgb = await asyncio.to_thread(decode_frame, data, ctype, max_pixels)
-        out, info = await self.relight_frame(rgb, session=session, **settings)
-        return await asyncio.to_thread(encode_frame, out, ctype), info
 
     async def named_session(self, name: str) -> Session:
         """The session a client named (made on its first request): its own track, filters and light,

@@ -238,6 +238,49 @@ def test_stream_relights_latest_frames_and_takes_controls(server, frame):
     assert httpx.get(f"{server}/readyz").status_code == 200
 
 
+def test_a_streams_frames_come_back_in_order_through_its_overlapping_steps(server, frame):
+    """A client's frames are decoded, relit and encoded at once (the next decoded while one is
+    relit, the last encoded meanwhile): what comes back is in the order sent, a broken frame in
+    the middle gets its error and the frames after it go on, and every frame is relit or dropped."""
+    import json
+
+    from websockets.sync.client import connect
+
+    url = server.replace("http://", "ws://") + "/v1/stream"
+    png = _png(frame)
+    sent, tags, errors = 12, [], []
+
+    def read(until_error: bool) -> None:
+        try:
+            while True:
+                msg = ws.recv(timeout=5)
+                if isinstance(msg, str):
+                    doc = json.loads(msg)
+                    if "tag" in doc:
+                        tags.append(doc["tag"])
+                    elif "error" in doc:
+                        errors.append(doc["kind"])
+                        if until_error:
+                            return
+        except TimeoutError:
+            pass
+
+    with connect(url, max_size=None, open_timeout=10) as ws:
+        for k in range(sent):
+            ws.send(json.dumps({"tag": k}))
+            ws.send(png if k != 5 else b"\x89PNG" + b"\x00" * 64)
+            if k == 5:
+                read(until_error=True)  # (its error, before a newer frame could replace it)
+            time.sleep(1 / 30)
+        read(until_error=False)
+        ws.send(json.dumps({"stats": True}))
+        doc = json.loads(ws.recv(timeout=30))
+    assert tags == sorted(tags) and len(set(tags)) == len(tags) and tags[-1] == sent - 1, tags
+    assert 5 not in tags and errors == ["undecodable"]
+    assert doc["frames"] == len(tags) and doc["frames"] + doc["dropped"] + 1 == sent
+    assert httpx.get(f"{server}/readyz").status_code == 200
+
+
 def test_stream_limits_clients_and_message_size(server, frame):
     from contextlib import ExitStack
 

@@ -10,6 +10,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from relight.errors import RelightError
 from relight.imageio import image_size
 
+from ..codec import decode_frame, encode_frame
 from ..controls import apply_control, new_settings, parse_control
 from ..dependencies import MetricsDep, SettingsDep
 from ..errors import ServiceError
@@ -20,7 +21,9 @@ router = APIRouter()
 @router.websocket("/v1/stream")
 async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
     """Binary messages: encoded frames in, relit frames out (latest frame wins: a frame that
-    arrives while another waits replaces it and counts as dropped). Text messages: JSON
+    arrives while another waits replaces it and counts as dropped; once a frame has the engine,
+    the next one to arrive is decoded meanwhile, and a relit frame is encoded and sent while the
+    next is relit: a client's frames go through three steps at once, in order). Text messages: JSON
     controls ``{"env": "sunset", "rotation": [yaw, pitch, roll], "strength": 0.8, "mode":
     "paste", "exposure": 0}`` and ``{"stats": true}``; after each relit frame a JSON text
     message ``{"frame", "latency_ms", "dropped", "face", "timings"}``."""
@@ -90,44 +93,103 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
             closed.set()
             wake.set()
 
+    def take():
+        """The newest frame the reader holds, its decode started off the event loop: (Task of
+        (RGB, content type), time it arrived, tag), or None when none waits."""
+        data, t_in, tag = latest["data"], latest["t"], latest["tag"]
+        latest["data"] = None
+        if data is None:
+            return None
+        return asyncio.ensure_future(asyncio.to_thread(decode, data)), t_in, tag
+
+    def decode(data: bytes):
+        ctype = "image/png" if data[:4] == b"\x89PNG" else "image/jpeg"
+        if image_size(data) is None:
+            raise ServiceError(400, "undecodable", "the frame is not a PNG or JPEG image")
+        return decode_frame(data, ctype, config.max_pixels), ctype
+
+    def drop(ahead) -> None:
+        """A frame taken but not relit: its decode cancelled, or its error retrieved (not logged)."""
+        if ahead is not None:
+            if ahead[0].done():
+                if not ahead[0].cancelled():
+                    ahead[0].exception()
+            else:
+                ahead[0].cancel()
+
+    async def send(out, ctype: str, info, t_in: float, tag) -> None:
+        """Encode a relit frame off the event loop and send it with its JSON."""
+        payload = await asyncio.to_thread(encode_frame, out, ctype)
+        try:
+            await ws.send_bytes(payload)
+        except (WebSocketDisconnect, RuntimeError):
+            closed.set()
+            return
+        counts["frames"] += 1
+        metrics.frames.inc()
+        latency = time.perf_counter() - t_in
+        metrics.latency.observe(latency)
+        doc = {"frame": counts["frames"], "latency_ms": round(latency * 1e3, 2), "dropped": counts["dropped"],
+               "face": info.face, "timings": {k: round(v, 2) for k, v in info.timings.items()}}
+        if info.light is not None:
+            doc["light"] = info.light.as_json()
+        if tag is not None:
+            doc["tag"] = tag
+        await send_json(doc)
+
+    async def relit_while_next_decodes(rgb, ahead):
+        """This client's frame relit (under the engine's lock); once it has the engine, the newest
+        frame that arrived is decoded meanwhile, ready for the next turn (returned with the
+        result: (out, info, ahead)). (Not before: a frame taken while the other clients' frames
+        hold the engine would wait two turns, not one - its newer ones dropped.)"""
+        started = asyncio.Event()
+        job = asyncio.ensure_future(engine.relight_frame(rgb, session=session, started=started, **settings))
+        has_engine = asyncio.ensure_future(started.wait())
+        await asyncio.wait({job, has_engine}, return_when=asyncio.FIRST_COMPLETED)
+        has_engine.cancel()
+        while ahead is None and not job.done():
+            arrived = asyncio.ensure_future(wake.wait())
+            await asyncio.wait({job, arrived}, return_when=asyncio.FIRST_COMPLETED)
+            if arrived.done():
+                wake.clear()
+                ahead = take()
+            else:
+                arrived.cancel()
+        try:
+            out, info = await job
+        except BaseException:
+            drop(ahead)
+            raise
+        return out, info, ahead
+
     async def worker():
-        while not closed.is_set():
-            await wake.wait()
-            wake.clear()
-            data, t_in, tag = latest["data"], latest["t"], latest["tag"]
-            latest["data"] = None
-            if data is None:
-                continue
-            try:
-                size = image_size(data)
-                ctype = "image/png" if data[:4] == b"\x89PNG" else "image/jpeg"
-                if size is None:
-                    raise ServiceError(400, "undecodable", "the frame is not a PNG or JPEG image")
-                # Decode, relight and encode in one hop off the event loop (which keeps reading
-                # the other clients' frames meanwhile).
-                payload, info = await engine.decode_relight_encode(data, ctype, config.max_pixels, settings,
-                                                                   session)
-            except (ServiceError, RelightError) as exc:
-                kind = exc.kind if isinstance(exc, ServiceError) else "bad_request"
-                metrics.errors.labels(kind=kind).inc()
-                await send_json({"error": str(exc), "kind": kind})
-                continue
-            try:
-                await ws.send_bytes(payload)
-            except (WebSocketDisconnect, RuntimeError):
-                closed.set()
-                break
-            counts["frames"] += 1
-            metrics.frames.inc()
-            latency = time.perf_counter() - t_in
-            metrics.latency.observe(latency)
-            doc = {"frame": counts["frames"], "latency_ms": round(latency * 1e3, 2), "dropped": counts["dropped"],
-                   "face": info.face, "timings": {k: round(v, 2) for k, v in info.timings.items()}}
-            if info.light is not None:
-                doc["light"] = info.light.as_json()
-            if tag is not None:
-                doc["tag"] = tag
-            await send_json(doc)
+        """Frames through three overlapping steps (each on its own thread): the next frame decoded
+        while this one is relit, and the last relit frame encoded and sent meanwhile; in order."""
+        ahead = sending = None
+        try:
+            while not closed.is_set():
+                if ahead is None:
+                    await wake.wait()
+                    wake.clear()
+                    ahead = take()
+                    if ahead is None:
+                        continue
+                (decoding, t_in, tag), ahead = ahead, None
+                try:
+                    rgb, ctype = await decoding
+                    out, info, ahead = await relit_while_next_decodes(rgb, ahead)
+                except (ServiceError, RelightError) as exc:
+                    kind = exc.kind if isinstance(exc, ServiceError) else "bad_request"
+                    metrics.errors.labels(kind=kind).inc()
+                    await send_json({"error": str(exc), "kind": kind})
+                    continue
+                if sending is not None:
+                    await sending  # (frames leave in order)
+                sending = asyncio.ensure_future(send(out, ctype, info, t_in, tag))
+        finally:
+            if sending is not None:
+                await asyncio.gather(sending, return_exceptions=True)
+            drop(ahead)
 
     try:
         await asyncio.gather(reader(), worker())
