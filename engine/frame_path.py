@@ -534,8 +534,13 @@ class FramePath:
         rgb, t = front.frame, front.t
         box = front.warp.box
         t3 = time.perf_counter()
-        if self.whole_head and self.strength > 0 and self.person.makes_now(rgb, plan.person is not None):
-            self.person.start_matte(rgb)  # (its model beside the live light's fit)
+        if self.whole_head and self.strength > 0 and not self.live_source and \
+                (self.live_light.now is not None or plan.light is not None) and \
+                self.person.makes_now(rgb, plan.person is not None):
+            # its model beside the live light's fit (a file's frames and single requests: a live
+            # source makes its slow stages beside its frames already; before a live light the
+            # person's maps are not made at all)
+            self.person.start_matte(rgb)
         layer_mode, gain, live_median, tau, eps, waited = self._light(front, plan, defer, tm, ran)
         gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
         tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited

@@ -69,9 +69,9 @@ class PersonStage:
         self.early = (frame, work, small, self.worker.submit(matte.probability, small))
 
     def _drop_early(self) -> None:
-        if self.early is not None:
-            self.early[3].result()  # (the model is one: never two runs at once)
-            self.early = None
+        early, self.early = self.early, None
+        if early is not None:
+            early[3].result()  # (the model is one: never two runs at once)
 
     def touch(self) -> None:
         """This frame relights the person (with new maps or the last ones, carried)."""
@@ -117,7 +117,9 @@ class PersonStage:
                       env_rotation=env_rotation)
         last = self.last_maps()
         self.touch()
-        early = self.early if self.early is not None and self.early[0] is frame and self.early[1] == work else None
+        early = self.early
+        if early is not None and (early[0] is not frame or early[1] != work):
+            early = None
         small, prob = (early[2], early[3]) if early is not None else (None, None)
 
         def make():

@@ -119,11 +119,17 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
 
     async def send(out, ctype: str, info, t_in: float, tag) -> None:
         """Encode a relit frame off the event loop and send it with its JSON."""
-        payload = await asyncio.to_thread(encode_frame, out, ctype)
+        try:
+            payload = await asyncio.to_thread(encode_frame, out, ctype)
+        except ServiceError as exc:
+            metrics.errors.labels(kind=exc.kind).inc()
+            await send_json({"error": str(exc), "kind": exc.kind})
+            return
         try:
             await ws.send_bytes(payload)
         except (WebSocketDisconnect, RuntimeError):
             closed.set()
+            wake.set()
             return
         counts["frames"] += 1
         metrics.frames.inc()
@@ -139,32 +145,39 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
 
     async def relit_while_next_decodes(rgb, ahead):
         """This client's frame relit (under the engine's lock); once it has the engine, the newest
-        frame that arrived is decoded meanwhile, ready for the next turn (returned with the
-        result: (out, info, ahead)). (Not before: a frame taken while the other clients' frames
-        hold the engine would wait two turns, not one - its newer ones dropped.)"""
+        frame that arrived is decoded meanwhile, ready for the next turn. Returns (the relight's
+        task, done: its result or its error; ahead - kept either way). (Not before the frame has
+        the engine: a frame taken while the other clients' frames hold it would wait two turns,
+        not one - its newer ones dropped.)"""
         started = asyncio.Event()
         job = asyncio.ensure_future(engine.relight_frame(rgb, session=session, started=started, **settings))
+        # (never cancelled: the path finishes its frame on its thread; an error left is retrieved)
+        job.add_done_callback(lambda t: t.cancelled() or t.exception())
         has_engine = asyncio.ensure_future(started.wait())
-        await asyncio.wait({job, has_engine}, return_when=asyncio.FIRST_COMPLETED)
-        has_engine.cancel()
-        while ahead is None and not job.done():
-            arrived = asyncio.ensure_future(wake.wait())
-            await asyncio.wait({job, arrived}, return_when=asyncio.FIRST_COMPLETED)
-            if arrived.done():
-                wake.clear()
-                ahead = take()
-            else:
-                arrived.cancel()
+        arrived = None
         try:
-            out, info = await job
-        except BaseException:
+            await asyncio.wait({job, has_engine}, return_when=asyncio.FIRST_COMPLETED)
+            while ahead is None and not job.done():
+                arrived = asyncio.ensure_future(wake.wait())
+                done, _ = await asyncio.wait({job, arrived}, return_when=asyncio.FIRST_COMPLETED)
+                if arrived in done:
+                    wake.clear()
+                    ahead = take()
+                arrived.cancel()
+            await asyncio.wait({job})
+        except BaseException:  # (the handler cancelled: the client left)
             drop(ahead)
             raise
-        return out, info, ahead
+        finally:
+            has_engine.cancel()
+            if arrived is not None:
+                arrived.cancel()
+        return job, ahead
 
     async def worker():
         """Frames through three overlapping steps (each on its own thread): the next frame decoded
-        while this one is relit, and the last relit frame encoded and sent meanwhile; in order."""
+        while this one is relit, and the last relit frame encoded and sent meanwhile; in order
+        (an error, too: after the frames before it)."""
         ahead = sending = None
         try:
             while not closed.is_set():
@@ -177,8 +190,12 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
                 (decoding, t_in, tag), ahead = ahead, None
                 try:
                     rgb, ctype = await decoding
-                    out, info, ahead = await relit_while_next_decodes(rgb, ahead)
+                    job, ahead = await relit_while_next_decodes(rgb, ahead)
+                    out, info = job.result()
                 except (ServiceError, RelightError) as exc:
+                    if sending is not None:
+                        await sending  # (the frame before the error leaves first)
+                        sending = None
                     kind = exc.kind if isinstance(exc, ServiceError) else "bad_request"
                     metrics.errors.labels(kind=kind).inc()
                     await send_json({"error": str(exc), "kind": kind})
