@@ -362,7 +362,9 @@ def test_audio_writer_is_atomic_and_checks_its_input(tmp_path):
                                           ({"pitch": -1.0}, "pitch"), ({"shift": 50.0}, "shift"),
                                           ({"ambient": 0.0}, "--ambient"), ({"noise": float("nan")}, "--noise"),
                                           ({"crf": 60}, "--crf"), ({"audio": "beep"}, "--audio"),
-                                          ({"seed": -1}, "--seed")])
+                                          ({"seed": -1}, "--seed"), ({"start_yaw": 50.0}, "--start-yaw"),
+                                          ({"start_pitch": float("nan")}, "--start-pitch"),
+                                          ({"start_yaw": -80.0, "head_mesh": "head.obj"}, "--start-yaw")])
 def test_bad_settings_say_what_to_change(change, word):
     with pytest.raises(InputError, match=word):
         LiveConfig(**change).validate()
@@ -377,7 +379,32 @@ def test_command_line_refuses_capture_flags_with_live(tmp_path, capsys):
     assert main(["synth", str(tmp_path / "o"), "--audio", "noise", "--quiet"]) == 2
     assert "--live" in capsys.readouterr().err
     assert main(["synth", str(tmp_path / "o"), "--live", "--size", "200x101", "--quiet"]) == 2
+    assert main(["synth", str(tmp_path / "o"), "--start-yaw", "20", "--quiet"]) == 2
+    assert "--live" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_clip_starts_from_the_pose_it_is_told_and_eases_into_its_motion(tmp_path):
+    """--start-yaw/--start-pitch: frame 0 is at that pose (the truth's meta says so), the head
+    eases into the same motion the clip has without them (equal from the ease's end), never
+    jumping more than the ease's own steepest step beyond the motion's."""
+    from relight.pipeline.synth.motion import START_EASE_S
+
+    plain = LiveScene(LiveConfig(width=160, height=90, duration=4.0, fps=15, seed=SEED)).rotations
+    told = LiveScene(LiveConfig(width=160, height=90, duration=4.0, fps=15, seed=SEED, start_yaw=40.0,
+                                start_pitch=-25.0)).rotations
+    assert told[0, 0] == 40.0 and told[0, 1] == -25.0 and told[0, 2] == plain[0, 2]  # (the roll is its own)
+    after = int(np.ceil(START_EASE_S * 15))
+    np.testing.assert_array_equal(told[after:], plain[after:])
+    steepest = np.pi / 2 * np.abs(np.array([40.0, -25.0]) - plain[0, :2]) / (START_EASE_S * 15)
+    assert (np.abs(np.diff(told[:, :2], axis=0)).max(axis=0) <= np.abs(np.diff(plain[:, :2], axis=0)).max(axis=0)
+            + steepest + 1e-6).all()
+    out = tmp_path / "turned"
+    assert main(["synth", str(out), "--live", "--size", "160x90", "--duration", "1", "--fps", "5", "--seed",
+                 str(SEED), "--start-yaw", "-30", "--start-pitch", "10", "--audio", "none", "--quiet"]) == 0
+    meta = json.loads((out / "truth" / "meta.json").read_text())
+    assert meta["start_pose"]["yaw"] == -30.0 and meta["start_pose"]["pitch"] == 10.0
+    assert meta["head_rotation"][0][:2] == [-30.0, 10.0] and meta["config"]["start_yaw"] == -30.0
 
 
 @pytest.mark.parametrize("pose", [(0.0, 15.0, 8.0), (0.0, -15.0, -8.0), (30.0, 15.0, -8.0)])

@@ -68,7 +68,16 @@ from relight.video import AUDIO_RATE, VideoWriter
 from .config import MAX_SIZE, MIN_SIZE, SynthConfig, head_info
 from .head import Head
 from .mesh_render import MeshLiveHead
-from .motion import AUDIO_KINDS, NOISE_RMS, TONE_HZ, TONE_PEAK, head_pose_track, make_audio
+from .motion import (
+    AUDIO_KINDS,
+    NOISE_RMS,
+    START_EASE_S,
+    TONE_HZ,
+    TONE_PEAK,
+    head_pose_track,
+    make_audio,
+    start_from,
+)
 from .render import LiveHead
 from .studio import Studio
 
@@ -80,6 +89,10 @@ SHIFT_FRACTION = 0.04
 #: Largest rotation amplitudes (degrees) a height field can show without revealing what it lacks.
 MAX_AMPLITUDE = {"yaw": 45.0, "pitch": 30.0, "roll": 45.0}
 MAX_SHIFT = 5.0
+#: Largest start pose (degrees, yaw and pitch) of a height-field head (its amplitudes' limits) and
+#: of a mesh head (all of it is there: a webcam's turned heads, issue 49's -60..60 yaw).
+START_LIMIT = {"yaw": MAX_AMPLITUDE["yaw"], "pitch": MAX_AMPLITUDE["pitch"]}
+START_LIMIT_MESH = {"yaw": 75.0, "pitch": 45.0}
 #: Frames rendered at once on worker threads (at most one per CPU).
 RENDER_THREADS = 4
 
@@ -89,6 +102,9 @@ class LiveConfig:
     """Settings of one synthetic live video (``relight synth OUT --live``).
 
     yaw, pitch, roll : rotation amplitudes in degrees (the pose stays within +-amplitude).
+    start_yaw, start_pitch : the pose (degrees) the clip starts from, eased into its motion over
+    :data:`.motion.START_EASE_S` (None: the motion's own start); up to :data:`START_LIMIT` (a
+    height-field head) or :data:`START_LIMIT_MESH` (a mesh head).
     shift : translation amplitude, times :data:`SHIFT_FRACTION` of the frame height (x and y).
     ambient, noise : room light strength and sensor noise, times the studio's defaults.
     audio : ``tone`` (440 Hz), ``noise`` (white) or ``none`` (no audio stream).
@@ -102,6 +118,8 @@ class LiveConfig:
     yaw: float = 30.0
     pitch: float = 15.0
     roll: float = 8.0
+    start_yaw: float | None = None
+    start_pitch: float | None = None
     shift: float = 1.0
     ambient: float = 1.0
     noise: float = 1.0
@@ -134,6 +152,13 @@ class LiveConfig:
             if not (np.isfinite(val) and 0.0 <= val <= top):
                 raise InputError(f"{name} amplitude {val}: use 0 to {top:g} degrees (a height-field head "
                                  f"turned further shows the sides it does not have)")
+        limits = START_LIMIT_MESH if self.head_mesh else START_LIMIT
+        for name, top in limits.items():
+            val = getattr(self, f"start_{name}")
+            if val is not None and not (np.isfinite(val) and -top <= val <= top):
+                raise InputError(f"--start-{name} {val}: use -{top:g} to {top:g} degrees"
+                                 + ("" if self.head_mesh else " for the procedural head (a height field turned "
+                                    "further shows the sides it does not have; a --head-mesh head turns further)"))
         if not (np.isfinite(self.shift) and 0.0 <= self.shift <= MAX_SHIFT):
             raise InputError(f"shift {self.shift}: use 0 to {MAX_SHIFT:g} (times {SHIFT_FRACTION:g} of the frame "
                              f"height)")
@@ -211,6 +236,8 @@ class LiveScene:
         self.n = c.frame_count
         self.rotations, self.translations = head_pose_track(
             np.random.default_rng(rng_motion), self.n, c.fps, (c.yaw, c.pitch, c.roll), c.shift_px)
+        if c.start_yaw is not None or c.start_pitch is not None:
+            self.rotations = start_from(self.rotations, c.fps, (c.start_yaw, c.start_pitch, None))
         self.audio = make_audio(c.audio, int(round(self.n / c.fps * AUDIO_RATE)), np.random.default_rng(rng_audio))
         self.pivot = pivot_point(self.head) if self.studio.mesh is None else \
             mesh_pivot(self.head, self.studio.placement.project(self.studio.mesh.vertices))
@@ -229,7 +256,7 @@ class LiveScene:
         # How far the bottom of the neck can rise: it hangs ``drop`` below the pivot, within a head
         # unit of it across and in depth; pitch and roll tilt it (yaw keeps heights), the shift lifts it.
         drop = self.head.mask.shape[0] - self.head.center[1]
-        ang = np.radians(min(c.pitch + c.roll, 90.0))
+        ang = np.radians(min(max(c.pitch, abs(c.start_pitch or 0.0)) + c.roll, 90.0))
         reach = drop * (1.0 - np.cos(ang)) + self.head.scale * np.sin(ang) + c.shift_px
         if self.studio.mesh is not None:
             self._mesh = MeshLiveHead(self.studio.mesh, self.studio.placement, self.head, radiance, self.studio.room,
@@ -311,6 +338,9 @@ class LiveScene:
             "head_translation": [[float(x) for x in row] for row in self.translations],
             "pivot": [float(px), float(-py), float(pz)],
             "amplitudes": {"yaw": c.yaw, "pitch": c.pitch, "roll": c.roll, "shift_px": c.shift_px},
+            "start_pose": {"yaw": c.start_yaw, "pitch": c.start_pitch,
+                           "ease_s": min(START_EASE_S, 0.5 * self.n / c.fps)}
+            if c.start_yaw is not None or c.start_pitch is not None else None,
             "head_center": list(self.head.center),
             "head_scale": self.head.scale,
             "head": head_info(c.head_mesh),

@@ -53,6 +53,27 @@ def head_pose_track(rng: np.random.Generator, n: int, fps: float, amplitudes: tu
     return np.round(rot, 6), np.round(trans, 4)
 
 
+#: A clip told to start from a pose (``relight synth --live --start-yaw/--start-pitch``) eases from
+#: it into its own motion over this many seconds (at most half the clip): a raised cosine, so the
+#: head starts still at that pose and turns on smoothly.
+START_EASE_S = 1.5
+
+
+def start_from(rotations: np.ndarray, fps: float, start: tuple) -> np.ndarray:
+    """``rotations`` (n, 3) [yaw, pitch, roll] degrees with each channel whose ``start`` entry is
+    not None eased from that value at frame 0 into the track (:data:`START_EASE_S`); rounded as
+    :func:`head_pose_track` rounds (the frames are rendered from the values in the truth)."""
+    rot = np.asarray(rotations, dtype=np.float64).copy()
+    n = rot.shape[0]
+    t = np.arange(n) / fps
+    ease = max(min(START_EASE_S, 0.5 * n / fps), EPS_NORM)
+    w = np.where(t < ease, 0.5 * (1.0 + np.cos(np.pi * np.clip(t / ease, 0.0, 1.0))), 0.0)
+    for k, value in enumerate(start):
+        if value is not None:
+            rot[:, k] += (float(value) - rot[0, k]) * w
+    return np.round(rot, 6)
+
+
 def make_audio(kind: str, samples: int, rng: np.random.Generator) -> np.ndarray | None:
     """Mono float32 audio: a 440 Hz tone, seeded white noise, or None; faded in and out."""
     if kind == "none":

@@ -67,6 +67,13 @@ def add_parser(sub) -> None:
                    help="a video of the head turning and moving under room light, with an audio track, and "
                         "per-frame head rotation truth, instead of a capture (uses --size, --seed, --fps, "
                         "--duration, --noise, --ambient, --crf, --audio, --quiet)")
+    p.add_argument("--start-yaw", type=float, default=None, metavar="DEG",
+                   help="--live only: the clip starts with the head turned this far about the vertical "
+                        "(degrees; + turns the nose toward the image's right) and eases into its motion over "
+                        "1.5 s; up to 45 (75 with --head-mesh). The truth's meta.json says so (start_pose)")
+    p.add_argument("--start-pitch", type=float, default=None, metavar="DEG",
+                   help="--live only: the clip starts with the head tilted this far (degrees; + tilts the nose "
+                        "down) and eases into its motion; up to 30 (45 with --head-mesh)")
     p.add_argument("--audio", choices=AUDIO_KINDS, default=live.audio,
                    help="--live only: the audio track, a 440 Hz tone, white noise, or none (no audio stream)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -86,6 +93,8 @@ def _run_synth(args) -> int:
         return _run_synth_live(args)
     if args.audio != "tone":
         raise InputError("--audio applies to --live videos only; add --live or leave --audio out")
+    if args.start_yaw is not None or args.start_pitch is not None:
+        raise InputError("--start-yaw and --start-pitch apply to --live videos only; add --live or leave them out")
     from ..pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig, synthesize
 
     d = SynthConfig()
@@ -118,7 +127,8 @@ def _run_synth_live(args) -> int:
     cfg = LiveConfig(width=args.size[0], height=args.size[1], fps=args.fps,
                      duration=d.duration if args.duration is None else args.duration, seed=args.seed,
                      ambient=args.ambient, noise=args.noise, crf=d.crf if args.crf is None else args.crf,
-                     audio=args.audio, truth_envs=tuple(args.truth_env or ()), **_head_mesh_args(args))
+                     audio=args.audio, truth_envs=tuple(args.truth_env or ()), start_yaw=args.start_yaw,
+                     start_pitch=args.start_pitch, **_head_mesh_args(args))
     res = synthesize_live(args.out, cfg, progress=not args.quiet)
     audio = "no audio" if cfg.audio == "none" else f"{cfg.audio} audio"
     print(f"wrote {res.video} ({res.frame_count} frames, {cfg.width}x{cfg.height} at {cfg.fps:g} fps, {audio}), "
