@@ -386,8 +386,9 @@ def test_command_line_refuses_capture_flags_with_live(tmp_path, capsys):
 
 def test_a_clip_starts_from_the_pose_it_is_told_and_eases_into_its_motion(tmp_path):
     """--start-yaw/--start-pitch: frame 0 is at that pose (the truth's meta says so), the head
-    eases into the same motion the clip has without them (equal from the ease's end), never
-    jumping more than the ease's own steepest step beyond the motion's."""
+    eases into the same motion the clip has without them (equal from the ease's end), staying
+    between the start and that motion, never jumping more than the ease's own steepest step
+    beyond the motion's."""
     from relight.pipeline.synth.motion import START_EASE_S
 
     plain = LiveScene(LiveConfig(width=160, height=90, duration=4.0, fps=15, seed=SEED)).rotations
@@ -396,7 +397,10 @@ def test_a_clip_starts_from_the_pose_it_is_told_and_eases_into_its_motion(tmp_pa
     assert told[0, 0] == 40.0 and told[0, 1] == -25.0 and told[0, 2] == plain[0, 2]  # (the roll is its own)
     after = int(np.ceil(START_EASE_S * 15))
     np.testing.assert_array_equal(told[after:], plain[after:])
-    steepest = np.pi / 2 * np.abs(np.array([40.0, -25.0]) - plain[0, :2]) / (START_EASE_S * 15)
+    start = np.array([40.0, -25.0])
+    lo, hi = np.minimum(start, plain[:after, :2]), np.maximum(start, plain[:after, :2])
+    assert ((told[:after, :2] >= lo - 1e-6) & (told[:after, :2] <= hi + 1e-6)).all()
+    steepest = np.pi / 2 * np.abs(start - plain[:after, :2]).max(axis=0) / (START_EASE_S * 15)
     assert (np.abs(np.diff(told[:, :2], axis=0)).max(axis=0) <= np.abs(np.diff(plain[:, :2], axis=0)).max(axis=0)
             + steepest + 1e-6).all()
     out = tmp_path / "turned"

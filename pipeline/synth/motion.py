@@ -61,7 +61,8 @@ START_EASE_S = 1.5
 
 def start_from(rotations: np.ndarray, fps: float, start: tuple) -> np.ndarray:
     """``rotations`` (n, 3) [yaw, pitch, roll] degrees with each channel whose ``start`` entry is
-    not None eased from that value at frame 0 into the track (:data:`START_EASE_S`); rounded as
+    not None eased from that value at frame 0 into the track (:data:`START_EASE_S`): a blend of
+    the two, so the pose stays between the start and the track (never beyond both); rounded as
     :func:`head_pose_track` rounds (the frames are rendered from the values in the truth)."""
     rot = np.asarray(rotations, dtype=np.float64).copy()
     n = rot.shape[0]
@@ -70,7 +71,7 @@ def start_from(rotations: np.ndarray, fps: float, start: tuple) -> np.ndarray:
     w = np.where(t < ease, 0.5 * (1.0 + np.cos(np.pi * np.clip(t / ease, 0.0, 1.0))), 0.0)
     for k, value in enumerate(start):
         if value is not None:
-            rot[:, k] += (float(value) - rot[0, k]) * w
+            rot[:, k] = w * float(value) + (1.0 - w) * rot[:, k]
     return np.round(rot, 6)
 
 
