@@ -29,7 +29,6 @@ keypoints (6, 2) in frame pixels (x right, y down); keypoints in the model's ord
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +36,8 @@ import cv2
 import numpy as np
 
 from relight.errors import InputError
+
+from .tflite import load_net, manifest
 
 MODEL_DIR = Path(__file__).parent / "models" / "face-detection"
 #: The model's square input (pixels).
@@ -54,7 +55,7 @@ TILE_OVERLAP = 0.25
 
 def model_info() -> dict:
     """The shipped model's manifest (model.json)."""
-    return json.loads((MODEL_DIR / "model.json").read_text())
+    return manifest(MODEL_DIR)
 
 
 def _anchors() -> np.ndarray:
@@ -121,13 +122,7 @@ class FaceDetector:
     it (OpenCV's network keeps its buffers)."""
 
     def __init__(self):
-        info = model_info()
-        path = MODEL_DIR / info["file"]
-        if not path.is_file():
-            raise InputError(f"{path}: the face detection model is missing; reinstall relight")
-        self.net = cv2.dnn.readNetFromTFLite(str(path))
-        self.net.setPreferableBackend(cv2.dnn.DNN_BACKEND_OPENCV)
-        self.net.setPreferableTarget(cv2.dnn.DNN_TARGET_CPU)
+        self.net = load_net(MODEL_DIR, "face detection")
         self.runs = 0  # the model's runs so far (what a search cost)
 
     def _square(self, img: np.ndarray, x0: int, y0: int, side: int):

@@ -14,13 +14,14 @@ Arrays: frames (H, W, 3) uint8 sRGB; the matte (H, W) float32 in [0, 1].
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from relight.errors import InputError
+
+from .tflite import load_net, manifest
 
 MODEL_DIR = Path(__file__).parent / "models" / "selfie-segmentation"
 #: The model's input (width, height).
@@ -35,7 +36,7 @@ GUIDE_EPS = 2e-3
 
 def model_info() -> dict:
     """The shipped model's manifest (model.json)."""
-    return json.loads((MODEL_DIR / "model.json").read_text())
+    return manifest(MODEL_DIR)
 
 
 def _letterbox(rgb: np.ndarray) -> tuple[np.ndarray, tuple[int, int, int, int]]:
@@ -56,13 +57,7 @@ class PersonMatte:
     that uses it (OpenCV's network keeps its buffers)."""
 
     def __init__(self):
-        info = model_info()
-        path = MODEL_DIR / info["file"]
-        if not path.is_file():
-            raise InputError(f"{path}: the person segmentation model is missing; reinstall relight")
-        self.net = cv2.dnn.readNetFromTFLite(str(path))
-        self.net.setPreferableBackend(cv2.dnn.DNN_BACKEND_OPENCV)
-        self.net.setPreferableTarget(cv2.dnn.DNN_TARGET_CPU)
+        self.net = load_net(MODEL_DIR, "person segmentation")
 
     def probability(self, rgb: np.ndarray) -> np.ndarray:
         """The model's person probability over the frame, at the model's scale: (h, w) float32

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from relight.engine import head_light
-from relight.engine.person import MODEL_DIR, PersonMatte, model_info
+from relight.engine.person import PersonMatte
 from relight.errors import InputError
 
 from .tolerances import SMOOTH_BLUR_SHARE
@@ -53,11 +53,16 @@ def clip(tmp_path_factory):
     return frames, sils
 
 
-def test_the_shipped_model_is_the_published_file_with_its_licence():
-    info = model_info()
-    data = (MODEL_DIR / info["file"]).read_bytes()
+@pytest.mark.parametrize("module", ["relight.engine.person", "relight.engine.face_detect"])
+def test_the_shipped_models_are_the_published_files_with_their_licences(module):
+    """The person's segmentation model and the face detector (engine/models/, see NOTICE)."""
+    import importlib
+
+    mod = importlib.import_module(module)
+    info = mod.model_info()
+    data = (mod.MODEL_DIR / info["file"]).read_bytes()
     assert hashlib.sha256(data).hexdigest() == info["sha256"]
-    assert "Apache License" in (MODEL_DIR / info["licence"]).read_text()
+    assert "Apache License" in (mod.MODEL_DIR / info["licence"]).read_text()
     assert "Apache" in info["credit"] and "mediapipe" in info["source"]
 
 
