@@ -65,6 +65,14 @@ SETTLE_ANCHORINGS = 3
 SETTLED_DEG = RELIGHT_DEG
 
 
+def _in_frame(track, ts: float):
+    """A tracking copy's track (its points at the copy's scale ``ts`` of the frame) in the
+    frame's pixels (None stays None)."""
+    if track is None or ts >= 1:
+        return track
+    return type(track)(ref_index=track.ref_index, xy=track.xy / np.float32(ts))
+
+
 class FramePath:
     """Relights faces in frames with one bundle (see the module docstring).
 
@@ -149,9 +157,8 @@ class FramePath:
         # live_source: the slow maps - the person's (region person) and the live light's fits -
         # made on one worker thread beside the frames
         self.live_source = bool(live_source)
-        worker = maps_worker
-        self.person = PersonStage(bundle, rig, self.compositor, worker, live_source=self.live_source)
-        self.live_light = LiveLightStage(bundle, rig, self.relighter, self.tracker, worker,
+        self.person = PersonStage(bundle, rig, self.compositor, maps_worker, live_source=self.live_source)
+        self.live_light = LiveLightStage(bundle, rig, self.relighter, self.tracker, maps_worker,
                                          live_source=self.live_source)
         self.schedule = Scheduler()
         self.field = FieldStage(self.compositor, self.field_rows)
@@ -341,9 +348,7 @@ class FramePath:
         last = est.last
         predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
         refind = (lambda idx, g: self._refind(est, last, ts, g, idx)) if last is not None else None
-        track = self.tracker.update(grey, predict, refind)
-        if track is not None and ts < 1:
-            track = type(track)(ref_index=track.ref_index, xy=track.xy / np.float32(ts))
+        track = _in_frame(self.tracker.update(grey, predict, refind), ts)
         tm["track"] = (time.perf_counter() - t0) * 1e3
         t1 = time.perf_counter()
         pose = est.solve(track.ref_index, track.xy) if track is not None else None
@@ -591,8 +596,7 @@ class FramePath:
         followed = self.tracker.track
         anchored = self.tracker.anchor_acquired(grey, lambda idx: est.project(pose, idx) * ts,
                                                 lambda idx, g: self._refind(est, pose, ts, g, idx))
-        if ts < 1:
-            anchored = type(anchored)(ref_index=anchored.ref_index, xy=anchored.xy / np.float32(ts))
+        anchored = _in_frame(anchored, ts)
         again = est.solve(anchored.ref_index, anchored.xy)
         if again is None:  # the pass undone: the acquisition's points and pose
             est.last, self.tracker.track = pose, followed
