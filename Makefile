@@ -42,8 +42,9 @@ serve: $(STAMP)
 	$(BIN)/relight-serve $(DEMO_BUNDLE) --port $(PORT)
 
 # The suite on two worker processes (pytest-xdist). `make test` leaves out the tests marked
-# slow (whole captures of phone-format videos, the demo, the container's install, the real RTI
-# set: ~4 minutes more); `make test-slow` runs only those, `make test-all` everything. CI runs both.
+# slow (whole captures of phone-format videos and of the real face and RTI sets, the demo, the
+# container's install, the longer browser and command runs: ~13 minutes more); `make test-slow`
+# runs only those, `make test-all` everything. CI runs both.
 PYTEST := $(BIN)/python -m pytest -n 2
 test: $(STAMP)
 	$(PYTEST) -m "not slow"

@@ -15,6 +15,10 @@ from relight.colour import decode_srgb8, encode_srgb8
 from .once import made_once
 from .tolerances import OUTSIDE_FACE_SHARE
 
+# The RTI set's capture (~30 s) and five clips: `make test-slow`, CI (the detector and the tracker
+# keep their own tests in `make test`).
+pytestmark = pytest.mark.slow
+
 skimage_data = pytest.importorskip("skimage.data", reason="scikit-image (a test extra) provides the photo")
 
 FRAMES = 12

@@ -188,12 +188,13 @@ def test_downscaled_capture_meets_the_goals_and_relights_full_size_frames(synth_
     assert np.abs(out.astype(int) - rgb.astype(int)).max() > 20  # relit, not passed through
 
 
-def test_stages_can_be_switched_off(synth_capture, tmp_path):
+def test_stages_can_be_switched_off(small_capture, tmp_path):
     from relight.pipeline.samples import SampleOptions
 
+    synth, _ = small_capture  # (the suite's shared capture: this one's own clip cost 18 s to render)
     opts = CaptureOptions(method="barycentric", map_size=(32, 16),
                           samples=SampleOptions(register=False, subtract_ambient=False, flash_hz=5.0))
-    res = capture(synth_capture.video, tmp_path / "b.bundle", opts, progress=False)
+    res = capture(synth.video, tmp_path / "b.bundle", opts, progress=False)
     b = load_bundle(res.bundle)
     assert b.meta["method"] == "barycentric" and not b.meta["visibility"] and b.map_size == (32, 16)
     assert all(v == [0, 0, 0] for v in res.report["transforms"].values())
@@ -225,6 +226,7 @@ def test_real_rti_set_predicts_held_out_photos(shared_data, tmp_path):
     assert psnr["full"] >= psnr["ptm"] + DOME_MARGIN_OVER_PTM, psnr
 
 
+@pytest.mark.slow  # a capture of a real face set (~19 s): `make test-slow`, CI
 def test_real_face_predicts_held_out_photos(shared_data, tmp_path):
     from relight.bench import accuracy
 
@@ -324,9 +326,9 @@ def test_a_video_without_flashes_says_so(tmp_path):
     assert not (tmp_path / "x.bundle").exists()
 
 
-def test_no_sphere_where_told_gives_a_clear_error(synth_capture, tmp_path, capsys):
+def test_no_sphere_where_told_gives_a_clear_error(small_capture, tmp_path, capsys):
     # A "sphere" placed on the empty wall: no highlight ever appears there.
-    code = main(["capture", str(synth_capture.video), "-o", str(tmp_path / "x.bundle"), "--sphere", "40,40,20",
+    code = main(["capture", str(small_capture[0].video), "-o", str(tmp_path / "x.bundle"), "--sphere", "40,40,20",
                  "--quiet"])
     err = capsys.readouterr().err
     assert code == 2 and "usable flash samples" in err and "Traceback" not in err

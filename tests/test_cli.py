@@ -150,6 +150,7 @@ def test_an_output_that_cannot_be_written_is_one_clear_line(small_bundle, small_
                  str(tmp_path / "x" / "y.png")]) == 0  # (a missing folder is made)
 
 
+@pytest.mark.slow  # a whole capture more (~11 s): `make test-slow`, CI
 def test_files_are_owner_only_for_bundles_and_follow_the_umask_otherwise(small_capture, small_bundle, tmp_path,
                                                                          capsys):
     """A bundle (a person's face) is 0600 unless widened with --file-mode; images, videos and

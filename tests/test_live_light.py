@@ -247,6 +247,7 @@ def test_the_bundle_finds_its_own_face_lit_from_one_side(small_bundle):
     assert share > FACE_SUBSPACE_SHARE
 
 
+@pytest.mark.slow  # a capture of a real face set (~17 s): `make test-slow`, CI
 def test_a_real_face_lit_from_one_side_is_found_and_relit(shared_data, tmp_path):
     """Half-size Extended Yale B subject (yaleB08: its cheeks and jaw at grazing angles in its own
     photos): a clip of its photo under a side light, moving; the face

@@ -17,6 +17,7 @@ import time
 import cv2
 import httpx
 import numpy as np
+import pytest
 
 from relight.colour import LUMINANCE, decode_srgb8
 
@@ -78,6 +79,7 @@ def _right_over_left(pair: tuple[np.ndarray, np.ndarray]) -> float:
     return float(d[changed & right].mean() - d[changed & ~right].mean())
 
 
+@pytest.mark.slow  # relight live and a headless Chromium (~18 s): `make test-slow`, CI
 def test_the_live_page_steers_the_light(chromium, small_bundle, live_clip, tmp_path):
     from relight import load_environment
     from relight.bench.browser import barcoded_y4m, chromium_page

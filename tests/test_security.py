@@ -5,8 +5,7 @@ beyond loopback and checked, and a burst of frames gets 503 + Retry-After instea
 from __future__ import annotations
 
 import asyncio
-import subprocess
-import sys
+import os
 
 import cv2
 import pytest
@@ -95,13 +94,25 @@ def test_a_network_bind_needs_the_token(tokened):
         assert "frames" in ws.recv(timeout=10)
 
 
-def test_relight_serve_refuses_a_network_bind_without_a_token(small_bundle):
+def test_relight_serve_refuses_a_network_bind_without_a_token(small_bundle, capsys, monkeypatch):
+    from relight.cli import serve_main
+
+    import uvicorn
+
+    def served(*args, **kwargs):  # a refusal that failed would serve here: fail, not hang
+        raise AssertionError("relight-serve started serving")
+
+    monkeypatch.setattr(uvicorn, "run", served)
+    for name in [n for n in os.environ if n.startswith("RELIGHT")]:  # (no token from the environment)
+        monkeypatch.delenv(name)
     for extra, says in ((["--host", "0.0.0.0"], "--token"), (["--host", "0.0.0.0", "--token", "short"], "16"),
                         (["--allow-origin", "evil.example"], "scheme://host")):
-        r = subprocess.run([sys.executable, "-c", "import sys; from relight.cli import serve_main; "
-                            "sys.exit(serve_main(sys.argv[1:]))", str(small_bundle.path), *extra],
-                           capture_output=True, text=True, timeout=60, env={"PATH": "/usr/bin:/bin"})
-        assert r.returncode == 2 and says in r.stderr, r.stderr
+        try:
+            code = serve_main([str(small_bundle.path), *extra])
+        except SystemExit as e:
+            code = e.code
+        err = capsys.readouterr().err
+        assert code == 2 and says in err, err
 
 
 def test_a_burst_of_frames_gets_503_with_retry_after_not_a_queue(small_bundle, frame):

@@ -40,7 +40,7 @@ EXPECTED_ERRORS = {
 BUNDLE_CASES = ("sun_1e5", "exposure_extremes")
 #: Single cases left to `make test-slow` for their time (the rest keep every variant's checks in
 #: `make test`).
-SLOW_CASES = {"poles", "degenerate_hull"}
+SLOW_CASES = {"poles", "degenerate_hull", "duplicates", "saturated"}
 
 
 def _case_params():

@@ -47,6 +47,7 @@ def _digest(folder):
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
 
 
+@pytest.mark.slow  # two renders of a clip (~9 s): `make test-slow`, CI
 def test_same_seed_same_truth(tmp_path):
     cfg = SynthConfig(width=192, height=108, duration=2.0, seed=11, truth_envs=("builtin:studio",))
     a = synthesize(tmp_path / "a", cfg, progress=False)

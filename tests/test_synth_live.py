@@ -301,6 +301,7 @@ def test_a_head_turned_toward_a_light_is_lit_more(scene):
     assert np.abs(rolled - again).mean() < RADIANCE_MEAN_REL * np.abs(again).mean()
 
 
+@pytest.mark.slow  # a live clip and its truth rendered by the command (~8 s): `make test-slow`, CI
 def test_live_truth_frames_through_the_command_line(tmp_path):
     """--live --truth-env writes every frame with the person under each environment (the camera's
     exposure, no noise) and the person's pixels; the background is the clip's own, untouched."""

@@ -188,6 +188,7 @@ def test_decoded_frames_do_not_outlive_their_use(tmp_path, monkeypatch):
     assert alive <= 10, f"{alive} decoded frames still alive"
 
 
+@pytest.mark.slow  # capture, filter and live in processes (~10 s): `make test-slow`, CI
 def test_frames_with_side_data_pyav_cannot_name_are_read(frame, small_bundle, tmp_path, capsys):
     """A PNG relight writes (OpenImageIO adds an eXIf chunk: FFmpeg 8's EXIF side data, type 31,
     which PyAV 18's Type enum lacks, as it lacks multi-view HEVC's 28-30) named as a video: the
