@@ -95,9 +95,9 @@ def test_a_network_bind_needs_the_token(tokened):
 
 
 def test_relight_serve_refuses_a_network_bind_without_a_token(small_bundle, capsys, monkeypatch):
-    from relight.cli import serve_main
-
     import uvicorn
+
+    from relight.cli import serve_main
 
     def served(*args, **kwargs):  # a refusal that failed would serve here: fail, not hang
         raise AssertionError("relight-serve started serving")
