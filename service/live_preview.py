@@ -98,11 +98,16 @@ class PreviewServer:
 
     @staticmethod
     def encode(rgb: np.ndarray, ext: str = ".jpg") -> bytes:
+        """(H, W, 3) uint8 RGB as a JPEG (libjpeg-turbo through simplejpeg, as the service's
+        frames: :func:`relight.service.codec.encode_frame`) or, ``ext`` ".png", a PNG."""
         import cv2
 
-        bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
-        params = [cv2.IMWRITE_JPEG_QUALITY, PREVIEW_QUALITY] if ext == ".jpg" else []
-        ok, buf = cv2.imencode(ext, bgr, params)
+        if ext == ".jpg":
+            import simplejpeg
+
+            return simplejpeg.encode_jpeg(np.ascontiguousarray(rgb), quality=PREVIEW_QUALITY, colorspace="RGB",
+                                          colorsubsampling="420", fastdct=False)
+        ok, buf = cv2.imencode(ext, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         return buf.tobytes() if ok else b""
 
     def frame_rgb(self, item) -> np.ndarray:
