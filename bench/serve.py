@@ -149,14 +149,14 @@ def _post_case(client, url: str, body: bytes, n: int, session: str | None = None
 
 def jpeg_floor_ms(body: bytes, n: int = POST_REQUESTS) -> float:
     """The floor of one request on this machine: the median ms of decoding ``body`` (JPEG) and
-    encoding it again (quality 85), in this process."""
-    import cv2
+    encoding it again as the service does (:func:`relight.service.codec.decode_frame`,
+    :func:`~relight.service.codec.encode_frame`), in this process."""
+    from relight.service.codec import MAX_PIXELS, decode_frame, encode_frame
 
     times = []
     for _ in range(n):
         t = time.perf_counter()
-        img = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_COLOR)
-        cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        encode_frame(decode_frame(body, "image/jpeg", MAX_PIXELS), "image/jpeg")
         times.append((time.perf_counter() - t) * 1e3)
     return float(np.median(times))
 
