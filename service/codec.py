@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from relight.imageio import image_size
+from relight.video_yuv import Codes
 
 from .errors import ServiceError
 
@@ -24,10 +25,15 @@ ENV_TYPES = {"image/vnd.radiance": ".hdr", "image/x-exr": ".exr", "image/aces": 
 ENV_MAX_BODY = 64 << 20
 #: JPEG quality of relit frames sent back.
 JPEG_QUALITY = 92
+#: A JPEG's Y'CbCr codes (JFIF: BT.601, full range).
+JPEG_CODES = Codes("bt601", full=True)
 
 
-def decode_frame(data: bytes, content_type: str, max_pixels: int) -> np.ndarray:
-    """An encoded PNG/JPEG -> (H, W, 3) uint8 RGB, validated (raises ServiceError)."""
+def decode_frame(data: bytes, content_type: str, max_pixels: int, *, planes: bool = False):
+    """An encoded PNG/JPEG -> (H, W, 3) uint8 RGB, validated (raises ServiceError). ``planes``: a
+    plain JPEG (no EXIF, Y'CbCr 4:2:0 or 4:2:2, even-sized, whole) comes back in the planes it
+    holds, as a :class:`relight.video_yuv.YuvFrame` (BT.601 full range: the frame path relights it
+    there and :func:`encode_frame` encodes them as they are - no RGB made of the frame)."""
     import cv2
 
     if content_type not in CONTENT_TYPES:
@@ -39,6 +45,10 @@ def decode_frame(data: bytes, content_type: str, max_pixels: int) -> np.ndarray:
     if w <= 0 or h <= 0 or w * h > max_pixels:
         raise ServiceError(413, "too_many_pixels", f"image of {w}x{h} pixels: at most {max_pixels} pixels "
                                                    "(downscale the frame)")
+    if planes and content_type == "image/jpeg":
+        frame = _decode_jpeg_planes(data, (w, h))
+        if frame is not None:
+            return frame
     rgb = _decode_plain_jpeg(data) if content_type == "image/jpeg" else None
     if rgb is not None and rgb.shape[:2] == (h, w):
         return rgb
@@ -64,12 +74,53 @@ def _decode_plain_jpeg(data: bytes) -> np.ndarray | None:
         return None
 
 
-def encode_frame(rgb: np.ndarray, content_type: str) -> bytes:
-    """(H, W, 3) uint8 sRGB RGB -> PNG or JPEG bytes (``content_type``). JPEG: libjpeg-turbo
-    through simplejpeg (quality :data:`JPEG_QUALITY`, 4:2:0, the accurate DCT; 4.0 against
-    OpenCV's 5.0 ms a 1280x720 frame here, with no BGR copy)."""
+def _decode_jpeg_planes(data: bytes, size: tuple[int, int]):
+    """A plain JPEG's Y'CbCr planes as decoded (FFmpeg's MJPEG decoder: a webcam's frames' own),
+    a :class:`relight.video_yuv.YuvFrame`; None - the RGB path - for anything else (EXIF, 4:4:4
+    or grey, an odd size, no end marker: a truncated file is refused there as before)."""
+    import av
+    import simplejpeg
+
+    from relight.video_yuv import YuvFrame
+
+    if b"Exif\x00" in data[:65536] or not data.rstrip(b"\x00").endswith(b"\xff\xd9"):
+        return None
+    try:
+        h, w, colour, sub = simplejpeg.decode_jpeg_header(data)
+    except ValueError:
+        return None
+    if colour != "YCbCr" or sub not in ("420", "422") or (w, h) != size or w % 2 or h % 2:
+        return None
+    try:
+        ctx = av.CodecContext.create("mjpeg", "r")
+        ctx.thread_count = 1
+        frames = ctx.decode(av.Packet(data))
+    except (av.error.FFmpegError, ValueError):
+        return None
+    if len(frames) != 1 or (frames[0].width, frames[0].height) != size:
+        return None
+    return YuvFrame.from_av(frames[0])
+
+
+def encode_frame(frame, content_type: str) -> bytes:
+    """(H, W, 3) uint8 sRGB RGB - or a :class:`relight.video_yuv.YuvFrame` - -> PNG or JPEG
+    bytes (``content_type``). JPEG: libjpeg-turbo through simplejpeg (quality
+    :data:`JPEG_QUALITY`, the accurate DCT): from RGB as 4:2:0 (4.0 against OpenCV's 5.0 ms a
+    1280x720 frame here, with no BGR copy), from a JPEG's own planes (BT.601 full range, 4:2:0 or
+    4:2:2) as they are (2.9 ms); any other frame in planes made RGB first."""
     import cv2
 
+    from relight.video_yuv import YuvFrame
+
+    if isinstance(frame, YuvFrame):
+        if content_type == "image/jpeg" and frame.codes == JPEG_CODES:
+            import simplejpeg
+
+            return simplejpeg.encode_jpeg_yuv_planes(np.ascontiguousarray(frame.y), np.ascontiguousarray(frame.u),
+                                                     np.ascontiguousarray(frame.v), quality=JPEG_QUALITY,
+                                                     fastdct=False)
+        frame = frame.to_rgb()
+    rgb = frame
     if content_type == "image/jpeg":
         import simplejpeg
 

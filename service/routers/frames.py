@@ -61,7 +61,8 @@ async def _relight(request, engine, metrics, config, ctype, env, rot, exposure, 
     import asyncio
 
     body = await read_body(request, config.max_body)
-    rgb = await asyncio.to_thread(decode_frame, body, ctype, config.max_pixels)
+    # (a JPEG relit and encoded in its own planes: codec.decode_frame)
+    rgb = await asyncio.to_thread(lambda: decode_frame(body, ctype, config.max_pixels, planes=True))
     accept = (request.headers.get("accept") or "").lower()
     out_type = "image/jpeg" if "image/jpeg" in accept and "image/png" not in accept else \
         "image/png" if "image/png" in accept and "image/jpeg" not in accept else ctype

@@ -95,7 +95,7 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
 
     def take():
         """The newest frame the reader holds, its decode started off the event loop: (Task of
-        (RGB, content type), time it arrived, tag), or None when none waits."""
+        (the frame - RGB or a JPEG's planes -, content type), time it arrived, tag), or None when none waits."""
         data, t_in, tag = latest["data"], latest["t"], latest["tag"]
         latest["data"] = None
         if data is None:
@@ -106,7 +106,7 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
         ctype = "image/png" if data[:4] == b"\x89PNG" else "image/jpeg"
         if image_size(data) is None:
             raise ServiceError(400, "undecodable", "the frame is not a PNG or JPEG image")
-        return decode_frame(data, ctype, config.max_pixels), ctype
+        return decode_frame(data, ctype, config.max_pixels, planes=True), ctype  # (a JPEG in its planes)
 
     def drop(ahead) -> None:
         """A frame taken but not relit: its decode cancelled, or its error retrieved (not logged)."""
