@@ -224,3 +224,38 @@ def test_gaussian_smooth_follows_a_direct_gaussian():
         assert np.abs(got - want).max() <= SMOOTH_BLUR_SHARE * want.max()
     three = np.dstack([img, 2 * img, 3 * img])
     assert gaussian_smooth(three, 20.0).shape == three.shape
+
+
+def test_the_colour_check_takes_the_wall_and_keeps_grazing_skin_beside_it():
+    """A plain wall (noise of ~1 Delta E) behind a person whose matte also covers a patch of the
+    wall (a shoulder the model imagined): the patch goes (it looks like the wall around it), and
+    skin lit at a grazing angle - a few Delta E from the wall, deep inside the matte - stays (it
+    does not look like that wall: outside its own spread). The blurred rim where the matte passes
+    the outline goes too (within a couple of pixels of the matte's edge the looser test is not used)."""
+    rng = np.random.default_rng(7)
+    h, w = 160, 200
+    wall = np.array([118.0, 118.0, 120.0])
+    img = wall + rng.normal(0.0, 0.7, (h, w, 3))
+    yy, xx = np.mgrid[0:h, 0:w]
+    head = ((xx - 100) / 45.0) ** 2 + ((yy - 80) / 55.0) ** 2 < 1.0
+    img[head] = (150.0, 110.0, 90.0)
+    grazing = head & (xx < 72)  # the back of the skull: darker, near the wall's grey
+    img[grazing] = (124.0, 116.0, 112.0)
+    rgb = np.clip(img, 0, 255).astype(np.uint8)
+    rgb = cv2.GaussianBlur(rgb, (0, 0), 0.8)  # the camera's blur tints the wall at the outline
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+    lab[..., 0] *= 100.0 / 255.0
+    de = np.linalg.norm(lab[grazing & (xx > 60) & (xx < 68)].mean(0) - lab[~head & (xx > 160)].mean(0))
+    assert 3.0 < de < head_light.BACKGROUND_DELTA_E  # the case is there: within the old threshold
+    matte = cv2.GaussianBlur(cv2.dilate(head.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(np.float32),
+                             (0, 0), 1.5)
+    patch = (yy > 125) & (xx > 150) & (xx < 190)  # a shoulder on the wall
+    matte[patch] = 1.0
+    face = np.zeros((h, w), np.float32)
+    face[(np.abs(xx - 110) < 25) & (np.abs(yy - 80) < 30)] = 1.0
+    out = head_light.colour_check(rgb, matte, face, 60.0)
+    assert out[patch & (yy > 130) & (xx > 155) & (xx < 185)].max() < 0.1  # the imagined shoulder is the wall
+    inner = cv2.erode(head.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0  # (4 px inside the outline)
+    assert out[grazing & inner].min() > 0.9  # grazing skin stays the person
+    rim = (cv2.dilate(head.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0) & ~head & (yy < 120)
+    assert out[rim].mean() < 0.5 * matte[rim].mean()  # the rim past the outline mostly goes
