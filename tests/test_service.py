@@ -211,7 +211,10 @@ def test_stream_relights_latest_frames_and_takes_controls(server, frame):
         ws.send(json.dumps({"mode": "ambient"}))
         ws.send(json.dumps({"mode": "glow"}))
         while True:
-            doc = json.loads(ws.recv(timeout=30))
+            msg = ws.recv(timeout=30)
+            if isinstance(msg, bytes):  # a relit frame of the burst still on its way (its steps overlap)
+                continue
+            doc = json.loads(msg)
             if doc.get("kind") == "bad_control":
                 assert "ambient" in doc["error"]
                 break
