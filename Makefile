@@ -43,7 +43,7 @@ serve: $(STAMP)
 
 # The suite on two worker processes (pytest-xdist). `make test` leaves out the tests marked
 # slow (whole captures of phone-format videos and of the real face and RTI sets, the demo, the
-# container's install, the longer browser and command runs: ~13 minutes more); `make test-slow`
+# container's install, the longer browser and command runs: ~10 minutes more); `make test-slow`
 # runs only those, `make test-all` everything. CI runs both.
 PYTEST := $(BIN)/python -m pytest -n 2
 test: $(STAMP)
