@@ -152,10 +152,8 @@ def colour_check(rgb: np.ndarray, matte: np.ndarray, face_alpha: np.ndarray, fac
     if np.count_nonzero(ring) < 16 or not doubt.any():
         return matte
     ring_w = ring.astype(np.float32)
-    den = gaussian_smooth(ring_w, float(grow))
-    inv = np.zeros_like(den)
-    np.divide(np.float32(1.0), den, out=inv, where=den > 1e-6)
-    local = gaussian_smooth(lab * ring_w[..., None], float(grow)) * inv[..., None]  # (normalised_convolution)
+    den, inv = smoothed = smoothed_weight(ring_w, float(grow))
+    local = normalised_convolution(lab, ring_w, float(grow), smoothed)
     d2 = _square_norm3(lab - local)
     # the wall's own spread about its local colour, spread inward as its colour is
     spread2 = gaussian_smooth(d2 * ring_w, float(grow)) * inv
@@ -229,14 +227,22 @@ def gaussian_smooth(img: np.ndarray, sigma: float) -> np.ndarray:
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def normalised_convolution(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
-    """Normalised convolution: the weighted Gaussian average of ``values`` (h, w, C) with
-    ``weight`` (h, w) >= 0, defined everywhere the Gaussian reaches a weighted pixel (0 beyond)."""
-    w = weight.astype(np.float32)
-    num = gaussian_smooth(values * w[..., None], sigma)
-    den = gaussian_smooth(w, sigma)
+def smoothed_weight(weight: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """(den, inv) of a normalised convolution with ``weight`` (h, w) >= 0: its Gaussian
+    smoothing and the inverse of that where it exceeds 1e-6 (0 beyond)."""
+    den = gaussian_smooth(weight.astype(np.float32), sigma)
     inv = np.zeros_like(den)
     np.divide(np.float32(1.0), den, out=inv, where=den > 1e-6)
+    return den, inv
+
+
+def normalised_convolution(values: np.ndarray, weight: np.ndarray, sigma: float, smoothed=None) -> np.ndarray:
+    """Normalised convolution: the weighted Gaussian average of ``values`` (h, w, C) with
+    ``weight`` (h, w) >= 0, defined everywhere the Gaussian reaches a weighted pixel (0 beyond).
+    ``smoothed``: the weight's :func:`smoothed_weight` when already made."""
+    w = weight.astype(np.float32)
+    num = gaussian_smooth(values * w[..., None], sigma)
+    _, inv = smoothed_weight(w, sigma) if smoothed is None else smoothed
     return num * inv[..., None]
 
 

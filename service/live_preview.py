@@ -98,15 +98,14 @@ class PreviewServer:
 
     @staticmethod
     def encode(rgb: np.ndarray, ext: str = ".jpg") -> bytes:
-        """(H, W, 3) uint8 RGB as a JPEG (libjpeg-turbo through simplejpeg, as the service's
-        frames: :func:`relight.service.codec.encode_frame`) or, ``ext`` ".png", a PNG."""
+        """(H, W, 3) uint8 RGB as a JPEG (:func:`relight.service.codec.jpeg_from_rgb`, as the
+        service's frames) or, ``ext`` ".png", a PNG."""
         import cv2
 
         if ext == ".jpg":
-            import simplejpeg
+            from .codec import jpeg_from_rgb
 
-            return simplejpeg.encode_jpeg(np.ascontiguousarray(rgb), quality=PREVIEW_QUALITY, colorspace="RGB",
-                                          colorsubsampling="420", fastdct=False)
+            return jpeg_from_rgb(rgb, PREVIEW_QUALITY)
         ok, buf = cv2.imencode(ext, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         return buf.tobytes() if ok else b""
 
