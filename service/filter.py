@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from relight.errors import InputError
-from relight.video_write import DEFAULT_CRF
+from relight.video_write import DEFAULT_CRF, DEFAULT_PRESET, check_preset
 
 from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION
 from .filter_frames import IMAGE_SUFFIXES as IMAGE_SUFFIXES
@@ -45,7 +45,8 @@ from .frame_pipeline import FramePipeline as FramePipeline
 def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bool = False, strength: float = 1.0,
                exposure: float = 0.0, focal: float | None = None, fps: float = 30.0, crf: int = DEFAULT_CRF,
                region: str = DEFAULT_REGION, env_turn: float = 0.0, env_spin: float = 0.0,
-               report_dir=None, virtual_camera: bool = False, progress: bool = True, frame_path=None,
+               preset: str = DEFAULT_PRESET, report_dir=None, virtual_camera: bool = False, progress: bool = True,
+               frame_path=None,
                start_time: float | None = None) -> FilterResult:
     """Relight the faces of ``inp`` (a video file or a folder of images) into ``out``."""
     from tqdm import tqdm
@@ -54,6 +55,7 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
 
     t_start = time.perf_counter() if start_time is None else start_time
     inp, out = Path(inp), Path(out)
+    check_preset(preset)
     if inp.resolve() == out.resolve():
         raise InputError(f"{out}: the output would overwrite the input; choose another name")
     fp = frame_path or FramePath(bundle, env, mode=mode, strength=strength, fixed_env=fixed_env, focal=focal,
@@ -88,11 +90,11 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
 
     try:
         if inp.is_dir():
-            filter_sequence(inp, out, handle, fps, crf, res, progress, tqdm)
+            filter_sequence(inp, out, handle, fps, crf, res, progress, tqdm, preset)
         elif is_folder_output(out):
             filter_video_frames(inp, out, FramePipeline(fp, record), res, progress, tqdm)
         else:
-            filter_video(inp, out, FramePipeline(fp, record), crf, res, progress, tqdm)
+            filter_video(inp, out, FramePipeline(fp, record), crf, res, progress, tqdm, preset)
     finally:
         if cam is not None:
             cam.close()

@@ -9,17 +9,17 @@ from fractions import Fraction
 
 from relight.errors import InputError
 from relight.imageio import atomic_path
+from relight.video_write import DEFAULT_PRESET, x264_options
 
 #: Output containers and their video codecs.
 VIDEO_CODECS = {".mp4": "libx264", ".mov": "libx264", ".mkv": "libx264", ".avi": "libx264", ".webm": "libvpx-vp9"}
 #: Audio codecs each container takes as they are (others are re-encoded).
 AUDIO_COPY = {".mp4": {"aac", "mp3", "alac", "opus"}, ".mov": {"aac", "mp3", "alac", "pcm_s16le"},
               ".mkv": None, ".webm": {"opus", "vorbis"}, ".avi": {"mp3", "pcm_s16le", "aac"}}
-
-
-def filter_video(inp, out, pipeline, crf, res, progress, tqdm):
-    """Relight the video ``inp`` into the video ``out`` (its suffix picks the codec: VIDEO_CODECS)
-    through ``pipeline`` (a :class:`FramePipeline`), booking the audio's fate in ``res``."""
+def filter_video(inp, out, pipeline, crf, res, progress, tqdm, preset: str = DEFAULT_PRESET):
+    """Relight the video ``inp`` into the video ``out`` (its suffix picks the codec: VIDEO_CODECS;
+    H.264 at x264's ``preset``) through ``pipeline`` (a :class:`FramePipeline`), booking the audio's
+    fate in ``res``."""
     import av
 
     from relight.background import WriterThread, read_ahead
@@ -41,7 +41,7 @@ def filter_video(inp, out, pipeline, crf, res, progress, tqdm):
         ain = src.streams.audio[0] if src.streams.audio else None
         rate = vin.average_rate or vin.guessed_rate or Fraction(30)
         tb = vin.time_base or Fraction(1, 90000)
-        options = {"crf": str(crf), "preset": "superfast"} if VIDEO_CODECS[suffix] == "libx264" else \
+        options = x264_options(crf, preset) if VIDEO_CODECS[suffix] == "libx264" else \
             {"crf": str(crf + 12), "b": "0", "deadline": "realtime", "cpu-used": "8"}
         vout = add_video_stream(dst, VIDEO_CODECS[suffix], rate, (info.width, info.height), tb, options)
         vout.time_base = tb

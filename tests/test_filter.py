@@ -209,6 +209,30 @@ def test_pipelined_filter_is_repeatable_and_close_to_the_serial_path(small_bundl
     assert max(diff) < PIPELINE_VS_SERIAL_CODES
 
 
+def test_filter_preset_is_checked_and_used(small_bundle, clip, tmp_path):
+    """--preset picks the H.264 encoder's settings (realtime by default: x264's ultrafast with
+    CABAC, B-frames and deblocking); a preset x264 lacks is refused with the list, before any
+    frame is read."""
+    from relight.service.filter import run_filter
+    from relight.video_write import DEFAULT_PRESET, X264_PRESETS, check_preset
+
+    assert DEFAULT_PRESET == "realtime" and check_preset("medium") == "medium"
+    with pytest.raises(InputError, match="realtime, ultrafast"):
+        check_preset("turbo")
+    path, frames = clip
+    env = load_environment("builtin:studio")
+    with pytest.raises(InputError, match="preset 'turbo'"):
+        run_filter(path, tmp_path / "x.mp4", small_bundle, env, progress=False, preset="turbo")
+    assert not (tmp_path / "x.mp4").exists()
+    with pytest.raises(SystemExit):
+        main(["filter", str(path), str(tmp_path / "y.mp4"), "--bundle", str(small_bundle.path), "--env",
+              "builtin:studio", "--preset", "turbo"])
+    out = tmp_path / "s.mp4"
+    assert main(["filter", str(path), str(out), "--bundle", str(small_bundle.path), "--env", "builtin:studio",
+                 "--mode", "paste", "--preset", X264_PRESETS[1], "--quiet"]) == 0
+    assert len(list(read_frames(out))) == len(frames)
+
+
 def test_filter_reads_image_sequences_and_writes_png_folders(small_bundle, clip, tmp_path):
     from relight.imageio import write_image
 
