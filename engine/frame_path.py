@@ -141,7 +141,8 @@ class FramePath:
         subspace = FaceSubspace.from_relighter(self.relighter, rig.solid_full, scale=rig.ref_track_scale,
                                                room=bundle.ambient_frame() if room is not None else None)
         self.tracker = FaceTracker(rig.track_reference, rig.track_landmarks, rig.track_mask, subspace=subspace)
-        field_worker, maps_worker = workers if workers is not None else (Worker("relight-field"), Worker())
+        field_worker, maps_worker = workers if workers is not None else \
+            (Worker("relight-field", background=live_source), Worker(background=live_source))
         self._field_worker = field_worker  # a live source's slow stages, beside its frames
         # (after the subspace's basis: the environment's rows, made ahead on the device's queue,
         # would hold its two dozen renders back - 1.5 s of a 720p bundle's start)

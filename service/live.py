@@ -30,6 +30,7 @@ status line, the run's result) and :mod:`live_preview` (the MJPEG page).
 from __future__ import annotations
 
 import os
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -40,6 +41,7 @@ from relight.errors import InputError
 from relight.video import DEFAULT_CRF
 
 from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES
+from ..engine.threads import LIVE_SWITCH_INTERVAL_S
 from .live_camera import CameraReader, LatestFrame
 from .live_controls import Controls, install_signals, key_reader
 from .live_preview import PreviewServer
@@ -187,6 +189,9 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
                                     exc.__traceback__ if exc is not None else None)
 
     clock = threading.Thread(target=clock_run, name="relight-output", daemon=True)
+    # the frames' threads wait less for the interpreter behind the slow stages' Python (restored after)
+    switch_interval = sys.getswitchinterval()
+    sys.setswitchinterval(min(switch_interval, LIVE_SWITCH_INTERVAL_S))
     try:
         if preview:
             pv = PreviewServer(relit_slot, preview_port, controls=controls, status=status, result=res,
@@ -258,6 +263,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
         loop_error.append(exc)
         raise
     finally:
+        sys.setswitchinterval(switch_interval)
         controls.stop.set()
         restore_signals()
         restore_keys()

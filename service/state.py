@@ -92,7 +92,7 @@ class Engine:
         # cores (measured: 20 relit fps in all at 120 % CPU; one client alone, 29).
         from ..engine.threads import Worker
 
-        self._workers = (Worker("relight-field"), Worker("relight-maps"))
+        self._workers = (Worker("relight-field", background=True), Worker("relight-maps", background=True))
         self._named: OrderedDict = OrderedDict()  # session id -> (Session, perf_counter of its last use)
         self._lock = asyncio.Lock()
 

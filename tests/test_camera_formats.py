@@ -5,6 +5,7 @@ RGB is, relit there by ``relight live`` with no RGB round trip of the frame, and
 from __future__ import annotations
 
 import io
+import sys
 
 import numpy as np
 import pytest
@@ -55,8 +56,10 @@ def test_a_camera_in_its_own_format_is_relit_in_its_planes(small_bundle, live_cl
     d = np.abs(kept.to_rgb().astype(int) - frame_to_rgb(decoded))
     assert d.mean() < CAMERA_FORMAT_CODES  # read as its RGB is
     rec = tmp_path / "rec.mp4"
+    switch = sys.getswitchinterval()
     res = run_live(small_bundle, ["builtin:sunset"], camera=str(clip), duration=3.0, focal="ortho", record=rec,
                    status=StatusLine(io.StringIO()))
+    assert sys.getswitchinterval() == switch  # (shortened while the frames ran: restored)
     assert res.camera_format == FORMATS[fmt][2]
     assert res.frames_in > 20 and res.frames_in_planes == res.frames_in  # every frame kept in its planes
     assert res.frames_relit > 10 and res.faces >= 0.8 * res.frames_relit

@@ -118,6 +118,22 @@ def test_no_sink_and_bad_flags_are_refused(small_bundle, live_clip):
         assert r.returncode == 2 and says in r.stderr, r.stderr
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="threads have their own priority on Linux only")
+def test_a_live_sources_slow_stages_run_below_the_frames():
+    """A live source's slow stages (the field, the person's maps, the live light: Worker(background=
+    True)) run at a lower OS priority than the frames' threads, so the cores go to the frames
+    first; a single request's (background=False) at the caller's own."""
+    from relight.engine.threads import BACKGROUND_NICE, Worker
+
+    def nice():
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    mine = nice()
+    assert Worker("t-bg", background=True).submit(nice).result() == min(mine + BACKGROUND_NICE, 19)
+    assert Worker("t-fg").submit(nice).result() == mine
+    assert nice() == mine
+
+
 def test_latest_frame_wins():
     slot = LatestFrame()
     for i in range(5):
