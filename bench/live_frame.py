@@ -22,7 +22,11 @@ Figures of one clip (one head, one environment), over every frame:
 * ``flicker_codes``: :func:`relight.bench.clips.flicker_step`'s mean (the output's change on the
   face minus the input's); ``error_flicker_codes``: the mean change of the error against the
   truth from one frame to the next over the person (what the truth does not do);
-* ``relit_frames``: frames with a face (from the filter's report).
+* ``relit_frames``: frames with a face (from the filter's report);
+* ``live_source``: the silhouette and face PSNR, the change off the person and the flicker of the
+  same clip through a live source's path (:func:`live_source_frames`: ``relight live``'s and the
+  service's streams - the slow stages beside the frames, each taken once made; the filter makes
+  them in the frame): what the live path costs a turning head.
 
 Goals (issue 32): silhouette PSNR >= 30 dB and >= input + 8 dB, outside mean <= 0.5 code and
 99.9th percentile <= 8, seam <= 1.5, flicker <= 1 code. :func:`sheet` draws the before/after
@@ -94,6 +98,32 @@ def filter_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = 
     doc = run_filter_process(live / "live.mp4", dst, bundle, env, report, "--mode", mode, "--region", region)
     doc["frames_dir"] = str(dst)
     return doc
+
+
+def live_source_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = "transfer",
+                       region: str = DEFAULT_REGION) -> Path:
+    """The clip through a live source's path - ``relight live``'s and the service's streams': the
+    slow stages beside the frames, each taken once made (``FramePath(live_source=True)``) - in
+    the filter's two-thread pipeline, into PNG frames (in this process; its jobs overlap the next
+    frames as they would at 30 fps, so the figures vary a little from run to run). Returns the
+    frames' folder."""
+    import shutil
+
+    import relight
+    from relight.engine.frame_path import FramePath
+    from relight.service.filter import run_filter
+
+    dst = out / "live-source-frames"
+    shutil.rmtree(dst, ignore_errors=True)
+    b = relight.load_bundle(bundle)
+    e = relight.load_environment(env)
+    fp = FramePath(b, e, mode=mode, region=region, focal="ortho", live_source=True)
+    run_filter(live / "live.mp4", dst, b, e, mode=mode, region=region, focal="ortho", frame_path=fp, progress=False)
+    return dst
+
+
+#: The figures kept of a live source's run (:func:`live_source_frames`), beside the filter's.
+LIVE_SOURCE_KEYS = ("silhouette_psnr", "face_psnr", "outside_mean_codes", "outside_p999_codes", "flicker_codes")
 
 
 def _rgb(path: Path) -> np.ndarray:
@@ -386,6 +416,9 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
                 print(f"the live frame: {label}, {stem} ...", flush=True)
             rep = filter_frames(bundle, live, env, work, mode=mode, region=region)
             fig = evaluate(bundle, live, stem, Path(rep["frames_dir"]), bundle_mask=mask)
+            src = evaluate(bundle, live, stem, live_source_frames(bundle, live, env, work, mode=mode, region=region),
+                           bundle_mask=mask)
+            fig["live_source"] = {k: src[k] for k in LIVE_SOURCE_KEYS}
             fig.update({"head": label, "seed": seed, "mesh": mesh, "env": stem, "size": list(size),
                         "relit_frames": rep["faces"], "filter_wall_s": rep["wall_s"]})
             fig["sheet"] = str(sheet(live, stem, Path(rep["frames_dir"]), out / f"sheet_{_slug(label)}_{stem}.png",
@@ -418,6 +451,17 @@ def table(doc: dict) -> str:
                      f"{r['outside_p999_codes']:9.1f} {f(r['seam_ratio']):>5s} {f(r['flicker_codes']):>6s} "
                      f"{f(r.get('error_flicker_codes')):>6s} "
                      f"{r['relit_frames']:3d}/{r['frames']:<3d}")
+    if any("live_source" in r for r in doc["rows"]):
+        lines.append("the same through a live source's path (relight live, the service's streams: the slow stages "
+                     "beside the frames, taken once made):")
+        lines.append(f"{'head':30s} {'env':7s} {'silh':>6s} {'(filter)':>8s} {'face':>6s} {'out mean':>8s} "
+                     f"{'out p99.9':>9s} {'flick':>6s}")
+        for r in doc["rows"]:
+            q = r.get("live_source")
+            if q is not None:
+                lines.append(f"{r['head']:30s} {r['env']:7s} {q['silhouette_psnr']:6.2f} {r['silhouette_psnr']:8.2f} "
+                             f"{f(q.get('face_psnr')):>6s} {q['outside_mean_codes']:8.3f} "
+                             f"{q['outside_p999_codes']:9.1f} {f(q['flicker_codes']):>6s}")
     g = doc["goals"]
     lines.append(f"goals: silhouette >= {g['silhouette_psnr']:g} dB and >= input + {g['over_input_db']:g}; outside "
                  f"mean <= {g['outside_mean_codes']:g}, p99.9 <= {g['outside_p999_codes']:g} codes; seam <= "
