@@ -59,6 +59,25 @@ def test_a_small_face_is_found_in_the_squares_and_two_faces_are_two(scene):
     assert len(det.detect(two)) == 2
 
 
+def test_squares_on_two_threads_give_what_one_thread_gives(scene):
+    """A search's squares run on both cores (the later half with the model's second copy): the
+    outputs, and the faces merged from them, are those of every square run in turn on one."""
+    from relight.directions import rotation_matrix
+    from relight.engine.face_detect import TILE_OVERLAP, _starts
+
+    det = FaceDetector()
+    rgb = scene.expose(scene.render(rotation_matrix(-20.0, 5.0, 0.0))[0], None)
+    two = det._squares(rgb, 360)
+    side, step = 360, int(360 * (1.0 - TILE_OVERLAP))
+    one = [det._square(rgb, x0, y0, side) for y0 in _starts(360, side, step) for x0 in _starts(640, side, step)]
+    assert len(two) == len(one) == 3
+    for a, b in zip(two, one, strict=True):
+        for x, y in zip(a, b, strict=True):
+            np.testing.assert_array_equal(x, y)
+    runs = det.runs
+    assert det.detect(rgb) and det.runs - runs == 3
+
+
 def test_the_similarity_of_a_face_to_itself_moved_is_that_move(scene):
     from relight.directions import rotation_matrix
 
