@@ -6,8 +6,9 @@ through OpenCV's TFLite importer.
 Why this one (measured here, issue 49): on synthetic live clips turning +-45 deg in yaw and +-30
 in pitch it found the face on every frame where OpenCV's frontal Haar cascade found 0-89 % per
 10-degree bin; on the ten real Yale faces under each of their 47-49 lights (camera-linear, the
-face lit from one side to the other) every photo, where the cascade missed 10-35 %; a search of a
-640x360 frame costs ~6 ms of one core against the cascade's 24-29. OpenCV's YuNet, the other
+face lit from one side to the other) every photo, where the cascade missed 10-35 %; a run of its
+model costs 4-6 ms of one core (a 16:9 frame takes three, on two threads: 13 ms at 640x360)
+against the cascade's 24-29 ms a search. OpenCV's YuNet, the other
 candidate the issue names, is stored in the model zoo behind Git LFS and in no package this
 machine can install, so its file could not be checked against its published sha256.
 
