@@ -28,8 +28,8 @@ def limit_threads() -> None:
 #: The OS niceness of a live source's slow stages' threads (:class:`Worker` ``background``): the
 #: frames' threads come first on the cores and the slow stages, which the frames do not wait for,
 #: take what is left. Measured with :data:`LIVE_SWITCH_INTERVAL_S` (``relight live``, the 720p
-#: bench clip, three runs each interleaved): latency p95 63 -> 49 ms, dropped 7.0 -> 6.6 %, CPU 155
-#: -> 150 % (docs/performance.md).
+#: bench clip, three fresh runs each, interleaved): latency p95 65.7 -> 57.1 ms, dropped 7.0 -> 6.6
+#: %, CPU 159 -> 150 % (docs/performance.md).
 BACKGROUND_NICE = 10
 #: The interpreter's thread switch interval while a live source runs (seconds; Python's default
 #: 0.005): a frame's thread waiting for the GIL behind a slow stage's Python waits up to this.
