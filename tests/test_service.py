@@ -1,6 +1,7 @@
 """The frame service against a real uvicorn server on loopback."""
 
 import json
+import sys
 import time
 
 import cv2
@@ -37,6 +38,9 @@ def test_health_docs_and_metrics(server):
     page = httpx.get(f"{server}/")
     assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
     assert "/v1/stream" in page.text and "getUserMedia" in page.text
+    from relight.engine.threads import LIVE_SWITCH_INTERVAL_S
+
+    assert sys.getswitchinterval() <= LIVE_SWITCH_INTERVAL_S  # (set while the server runs: its streams' frames first)
 
 
 def test_relight_a_png_and_a_jpeg_frame(server, frame):
