@@ -100,13 +100,13 @@ def filter_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = 
     return doc
 
 
-def live_source_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = "transfer",
+def live_source_frames(bundle, live: Path, env: str, out: Path, *, mode: str = "transfer",
                        region: str = DEFAULT_REGION) -> Path:
     """The clip through a live source's path - ``relight live``'s and the service's streams': the
     slow stages beside the frames, each taken once made (``FramePath(live_source=True)``) - in
     the filter's two-thread pipeline, into PNG frames (in this process; its jobs overlap the next
-    frames as they would at 30 fps, so the figures vary a little from run to run). Returns the
-    frames' folder."""
+    frames as they would at 30 fps, so the figures vary a little from run to run). ``bundle``: the
+    loaded bundle. Returns the frames' folder."""
     import shutil
 
     import relight
@@ -115,10 +115,10 @@ def live_source_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: s
 
     dst = out / "live-source-frames"
     shutil.rmtree(dst, ignore_errors=True)
-    b = relight.load_bundle(bundle)
     e = relight.load_environment(env)
-    fp = FramePath(b, e, mode=mode, region=region, focal="ortho", live_source=True)
-    run_filter(live / "live.mp4", dst, b, e, mode=mode, region=region, focal="ortho", frame_path=fp, progress=False)
+    fp = FramePath(bundle, e, mode=mode, region=region, focal="ortho", live_source=True)
+    run_filter(live / "live.mp4", dst, bundle, e, mode=mode, region=region, focal="ortho", frame_path=fp,
+               progress=False)
     return dst
 
 
@@ -408,7 +408,8 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
         bundle = synth_bundle(out, size, capture_s, progress, seed=seed, head_mesh=mesh)
         live = synth_truth_clip(out, size, tuple(envs), seed=seed, head_mesh=mesh, duration=duration,
                                 progress=progress)
-        mask = np.asarray(relight.load_bundle(bundle).mask)
+        loaded = relight.load_bundle(bundle)
+        mask = np.asarray(loaded.mask)
         for env in envs:
             stem = environment_stem(env)
             work = out / "runs" / f"{live.name}-{stem}-{mode}-{region}"
@@ -416,7 +417,7 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
                 print(f"the live frame: {label}, {stem} ...", flush=True)
             rep = filter_frames(bundle, live, env, work, mode=mode, region=region)
             fig = evaluate(bundle, live, stem, Path(rep["frames_dir"]), bundle_mask=mask)
-            src = evaluate(bundle, live, stem, live_source_frames(bundle, live, env, work, mode=mode, region=region),
+            src = evaluate(bundle, live, stem, live_source_frames(loaded, live, env, work, mode=mode, region=region),
                            bundle_mask=mask)
             fig["live_source"] = {k: src[k] for k in LIVE_SOURCE_KEYS}
             fig.update({"head": label, "seed": seed, "mesh": mesh, "env": stem, "size": list(size),

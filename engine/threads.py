@@ -2,6 +2,8 @@
 for the slow maps (:class:`Worker`)."""
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import cv2
 
 
@@ -34,6 +36,20 @@ BACKGROUND_NICE = 10
 #: The interpreter's thread switch interval while a live source runs (seconds; Python's default
 #: 0.005): a frame's thread waiting for the GIL behind a slow stage's Python waits up to this.
 LIVE_SWITCH_INTERVAL_S = 0.001
+
+
+@contextmanager
+def frames_first(interval_s: float = LIVE_SWITCH_INTERVAL_S):
+    """While the block runs, the interpreter's switch interval at most ``interval_s`` (a live
+    source's frames wait less behind its slow stages' Python); the one before restored after."""
+    import sys
+
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(min(before, interval_s))
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(before)
 
 
 def lower_priority(nice: int = BACKGROUND_NICE) -> bool:

@@ -31,14 +31,13 @@ from __future__ import annotations
 
 import asyncio
 import os
-import sys
 from contextlib import asynccontextmanager
 from pathlib import Path
 
 from fastapi import FastAPI
 from fastapi.responses import JSONResponse
 
-from ..engine.threads import LIVE_SWITCH_INTERVAL_S
+from ..engine.threads import frames_first
 from .codec import MAX_BODY
 from .errors import ServiceError
 from .routers import environment, frames, health, stream, webrtc
@@ -67,13 +66,8 @@ def create_app(config: ServeConfig) -> FastAPI:
             raise
         if config.announce:
             print(config.announce, flush=True)
-        # the streams' frames wait less for the interpreter behind their slow stages' Python
-        switch = sys.getswitchinterval()
-        sys.setswitchinterval(min(switch, LIVE_SWITCH_INTERVAL_S))
-        try:
+        with frames_first():  # the streams' frames wait less behind their slow stages' Python
             yield
-        finally:
-            sys.setswitchinterval(switch)
         await app.state.webrtc.close_all()
 
     app = FastAPI(title="relight", version="0.1.0", lifespan=lifespan,

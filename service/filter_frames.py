@@ -12,7 +12,7 @@ import numpy as np
 
 from relight.errors import InputError, OutputError, os_reason
 from relight.imageio import clean_stale_temps, dir_mode, temp_prefix
-from relight.video_write import DEFAULT_PRESET, check_preset
+from relight.video_write import DEFAULT_PRESET
 
 from .filter_video import VIDEO_CODECS
 
@@ -52,7 +52,7 @@ def filter_sequence(folder, out, handle, fps, crf, res, progress, tqdm, preset: 
     if out.suffix.lower() in VIDEO_CODECS:
         if size[0] % 2 or size[1] % 2:
             raise InputError(f"{folder}: images are {size[0]}x{size[1]}; H.264 needs even sizes (crop them)")
-        with VideoWriter(out, fps, size, crf=crf, preset=check_preset(preset)) as wr:
+        with VideoWriter(out, fps, size, crf=crf, preset=preset) as wr:
             for i, f in enumerate(tqdm(files, desc="filter", unit="frame", disable=not progress)):
                 rgb = first if i == 0 else _read_rgb8(f)
                 if rgb.shape != first.shape:

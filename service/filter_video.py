@@ -16,6 +16,8 @@ VIDEO_CODECS = {".mp4": "libx264", ".mov": "libx264", ".mkv": "libx264", ".avi":
 #: Audio codecs each container takes as they are (others are re-encoded).
 AUDIO_COPY = {".mp4": {"aac", "mp3", "alac", "opus"}, ".mov": {"aac", "mp3", "alac", "pcm_s16le"},
               ".mkv": None, ".webm": {"opus", "vorbis"}, ".avi": {"mp3", "pcm_s16le", "aac"}}
+
+
 def filter_video(inp, out, pipeline, crf, res, progress, tqdm, preset: str = DEFAULT_PRESET):
     """Relight the video ``inp`` into the video ``out`` (its suffix picks the codec: VIDEO_CODECS;
     H.264 at x264's ``preset``) through ``pipeline`` (a :class:`FramePipeline`), booking the audio's

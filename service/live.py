@@ -30,7 +30,6 @@ status line, the run's result) and :mod:`live_preview` (the MJPEG page).
 from __future__ import annotations
 
 import os
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -41,7 +40,7 @@ from relight.errors import InputError
 from relight.video import DEFAULT_CRF
 
 from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES
-from ..engine.threads import LIVE_SWITCH_INTERVAL_S
+from ..engine.threads import frames_first
 from .live_camera import CameraReader, LatestFrame
 from .live_controls import Controls, install_signals, key_reader
 from .live_preview import PreviewServer
@@ -190,89 +189,87 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
 
     clock = threading.Thread(target=clock_run, name="relight-output", daemon=True)
     # the frames' threads wait less for the interpreter behind the slow stages' Python (restored after)
-    switch_interval = sys.getswitchinterval()
-    sys.setswitchinterval(min(switch_interval, LIVE_SWITCH_INTERVAL_S))
-    try:
-        if preview:
-            pv = PreviewServer(relit_slot, preview_port, controls=controls, status=status, result=res,
-                               lights_dir=lights_dir)
-            res.preview = pv.url
-        reader.start()
-        clock.start()
-        if on_ready is not None:
-            on_ready(res)
-        applied = controls.wanted()
-        next_index = 0  # the next camera frame's index
-        drafting = False  # a moved light relit as a draft, until it rests (SETTLE_S)
-        with FramePipeline(fp, record_frame) as pipe:
-            pipe.done = done
-            pipe.wake = reader.slot.wake  # a finished frame ends the wait for the next camera frame
-            while not controls.stop.is_set():
-                if duration is not None and time.perf_counter() - t_start >= duration:
-                    controls.quit("duration")
-                    break
-                if controls.changed.is_set():
-                    controls.changed.clear()
-                    want = controls.wanted()
-                    if want != applied:
-                        src, mode_now, strength_now, ev, turn, spin = want
-                        new_env = controls.environment(src) if src != applied[0] else None
-                        # a key light moved keeps its exposure (the same light)
-                        moved = src.startswith("builtin:key") and applied[0].startswith("builtin:key")
-                        spun = spin != applied[5]  # (a spin counts from when it is set)
+    with frames_first():
+        try:
+            if preview:
+                pv = PreviewServer(relit_slot, preview_port, controls=controls, status=status, result=res,
+                                   lights_dir=lights_dir)
+                res.preview = pv.url
+            reader.start()
+            clock.start()
+            if on_ready is not None:
+                on_ready(res)
+            applied = controls.wanted()
+            next_index = 0  # the next camera frame's index
+            drafting = False  # a moved light relit as a draft, until it rests (SETTLE_S)
+            with FramePipeline(fp, record_frame) as pipe:
+                pipe.done = done
+                pipe.wake = reader.slot.wake  # a finished frame ends the wait for the next camera frame
+                while not controls.stop.is_set():
+                    if duration is not None and time.perf_counter() - t_start >= duration:
+                        controls.quit("duration")
+                        break
+                    if controls.changed.is_set():
+                        controls.changed.clear()
+                        want = controls.wanted()
+                        if want != applied:
+                            src, mode_now, strength_now, ev, turn, spin = want
+                            new_env = controls.environment(src) if src != applied[0] else None
+                            # a key light moved keeps its exposure (the same light)
+                            moved = src.startswith("builtin:key") and applied[0].startswith("builtin:key")
+                            spun = spin != applied[5]  # (a spin counts from when it is set)
 
-                        def change(new_env=new_env, moved=moved, mode_now=mode_now, strength_now=strength_now,
-                                   ev=ev, turn=turn, spin=spin, spun=spun):
-                            if new_env is not None:
-                                fp.set_environment(new_env, moved=moved)
-                            fp.set_mode(mode_now)
-                            fp.set_strength(strength_now)
-                            fp.set_exposure(ev)
-                            fp.set_env_turn(turn)
-                            if spun:
-                                fp.set_env_spin(spin)
+                            def change(new_env=new_env, moved=moved, mode_now=mode_now, strength_now=strength_now,
+                                       ev=ev, turn=turn, spin=spin, spun=spun):
+                                if new_env is not None:
+                                    fp.set_environment(new_env, moved=moved)
+                                fp.set_mode(mode_now)
+                                fp.set_strength(strength_now)
+                                fp.set_exposure(ev)
+                                fp.set_env_turn(turn)
+                                if spun:
+                                    fp.set_env_spin(spin)
 
-                        pipe.apply(change)  # on the second stage's thread, before the next frame's
-                        drafting = drafting or (new_env is not None and moved)
-                        light_mark[:] = [(next_index, controls.changed_at)]
-                        res.switches.append({"t": round(time.perf_counter() - t_start, 3), "env": src,
-                                             "mode": mode_now, "strength": strength_now, "exposure": ev,
-                                             "turn": turn, "spin": spin})
-                        del res.switches[:-MAX_RECORDS]
-                        applied = want
-                if drafting and not controls.changed.is_set() and \
-                        time.perf_counter() - controls.changed_at > SETTLE_S:
-                    pipe.apply(fp.settle)  # the light rests: relit in full from the next frame
-                    drafting = False
-                item = reader.slot.take(timeout=0.1)
-                pipe.poll()
-                if item is None:
-                    if reader.ended.is_set():
-                        if reader.error is not None:
-                            raise InputError(f"camera {reader.name}: {reader.error}") from reader.error
-                        controls.quit("camera ended")
-                else:
-                    res.size = (item.rgb.shape[1], item.rgb.shape[0])
-                    next_index = item.index + 1
-                    pipe.put(item.rgb, item.t, item.index, item.t)
-                if status.due():
-                    res.cpu_percent = status.show(reader.slot.put_count, stage["relit"],
-                                                  reader.slot.dropped, controls)
-            pipe.drain()
-    except BaseException as exc:
-        loop_error.append(exc)
-        raise
-    finally:
-        sys.setswitchinterval(switch_interval)
-        controls.stop.set()
-        restore_signals()
-        restore_keys()
-        reader.stop()
-        if clock.is_alive():
-            clock.join()  # it closes the virtual camera and the recording it opened
-        status.close()
-        if pv is not None:
-            pv.close()
+                            pipe.apply(change)  # on the second stage's thread, before the next frame's
+                            drafting = drafting or (new_env is not None and moved)
+                            light_mark[:] = [(next_index, controls.changed_at)]
+                            res.switches.append({"t": round(time.perf_counter() - t_start, 3), "env": src,
+                                                 "mode": mode_now, "strength": strength_now, "exposure": ev,
+                                                 "turn": turn, "spin": spin})
+                            del res.switches[:-MAX_RECORDS]
+                            applied = want
+                    if drafting and not controls.changed.is_set() and \
+                            time.perf_counter() - controls.changed_at > SETTLE_S:
+                        pipe.apply(fp.settle)  # the light rests: relit in full from the next frame
+                        drafting = False
+                    item = reader.slot.take(timeout=0.1)
+                    pipe.poll()
+                    if item is None:
+                        if reader.ended.is_set():
+                            if reader.error is not None:
+                                raise InputError(f"camera {reader.name}: {reader.error}") from reader.error
+                            controls.quit("camera ended")
+                    else:
+                        res.size = (item.rgb.shape[1], item.rgb.shape[0])
+                        next_index = item.index + 1
+                        pipe.put(item.rgb, item.t, item.index, item.t)
+                    if status.due():
+                        res.cpu_percent = status.show(reader.slot.put_count, stage["relit"],
+                                                      reader.slot.dropped, controls)
+                pipe.drain()
+        except BaseException as exc:
+            loop_error.append(exc)
+            raise
+        finally:
+            controls.stop.set()
+            restore_signals()
+            restore_keys()
+            reader.stop()
+            if clock.is_alive():
+                clock.join()  # it closes the virtual camera and the recording it opened
+            status.close()
+            if pv is not None:
+                pv.close()
     if clock_error:
         raise clock_error[0]
     wall = max(time.perf_counter() - t_start, 1e-6)
