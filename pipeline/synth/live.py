@@ -78,6 +78,7 @@ from .motion import (
     make_audio,
     start_from,
 )
+from .pinhole import DEFAULT_DISTANCE_CM, ORTHOGRAPHIC_META, Pinhole, check_camera
 from .render import LiveHead
 from .studio import Studio
 
@@ -108,6 +109,8 @@ class LiveConfig:
     shift : translation amplitude, times :data:`SHIFT_FRACTION` of the frame height (x and y).
     ambient, noise : room light strength and sensor noise, times the studio's defaults.
     audio : ``tone`` (440 Hz), ``noise`` (white) or ``none`` (no audio stream).
+    fov, distance : a pinhole camera of that horizontal field of view (degrees) at that distance
+    (cm) from the head (:mod:`.pinhole`); ``fov`` None: the orthographic camera (``distance`` unused).
     """
 
     width: int = 960
@@ -134,6 +137,8 @@ class LiveConfig:
     #: Environments to render the person under at every frame's pose (the live frame's truth:
     #: ``truth/live_<stem>/NNNN.png`` and ``truth/silhouette/NNNN.png``); none by default.
     truth_envs: tuple[str, ...] = ()
+    fov: float | None = None
+    distance: float = DEFAULT_DISTANCE_CM
 
     def validate(self) -> LiveConfig:
         """Return self, or raise :class:`InputError` naming the setting to change."""
@@ -171,6 +176,7 @@ class LiveConfig:
             raise InputError(f"--crf {self.crf}: use a whole number from 0 (lossless) to 51")
         if self.audio not in AUDIO_KINDS:
             raise InputError(f"--audio {self.audio!r}: use one of {', '.join(AUDIO_KINDS)}")
+        check_camera(self.fov, self.distance)
         stems = [environment_stem(e) for e in self.truth_envs]
         if len(set(stems)) != len(stems):
             raise InputError(f"--truth-env: environments must have distinct names, got {stems}")
@@ -216,6 +222,16 @@ def mesh_pivot(head: Head, points: np.ndarray) -> np.ndarray:
     return np.array([cx, -cy, 0.5 * (front + float(points[:, 2].min()))], dtype=np.float64)
 
 
+def neck_reach(reach: float, height: int, head_scale: float, camera: Pinhole) -> float:
+    """How far (reference pixels) a height-field head's neck must reach below the frame's
+    ``height`` for a pinhole ``camera`` to see it leave the frame's bottom, where the orthographic
+    camera needs ``reach``: a camera that shows the neck's plane smaller than the reference (a
+    wide lens) needs it longer. The neck is taken a head unit behind the pivot (its farthest)."""
+    s = camera.focal / (camera.distance_px + head_scale)
+    below = height - camera.center[1]  # the frame's bottom below the principal point
+    return reach if s >= 1.0 else (below + reach) / s - below
+
+
 class LiveScene:
     """One live video's scene: the studio's head, wall and sensor, the mesh head, the motion."""
 
@@ -241,6 +257,9 @@ class LiveScene:
         self.audio = make_audio(c.audio, int(round(self.n / c.fps * AUDIO_RATE)), np.random.default_rng(rng_audio))
         self.pivot = pivot_point(self.head) if self.studio.mesh is None else \
             mesh_pivot(self.head, self.studio.placement.project(self.studio.mesh.vertices))
+        #: The frames' camera: a pinhole (``fov``) or None (orthographic).
+        self.camera = None if c.fov is None else Pinhole.from_fov((c.width, c.height), c.fov, c.distance,
+                                                                   self.head.scale, self.pivot[2])
         self.sensor = self.studio.sensor
         self._mesh: LiveHead | MeshLiveHead | None = None
 
@@ -258,11 +277,13 @@ class LiveScene:
         drop = self.head.mask.shape[0] - self.head.center[1]
         ang = np.radians(min(max(c.pitch, abs(c.start_pitch or 0.0)) + c.roll, 90.0))
         reach = drop * (1.0 - np.cos(ang)) + self.head.scale * np.sin(ang) + c.shift_px
+        if self.camera is not None:  # a wide lens shows less of the neck below the pivot: reach farther
+            reach = neck_reach(reach, self.head.mask.shape[0], self.head.scale, self.camera)
         if self.studio.mesh is not None:
             self._mesh = MeshLiveHead(self.studio.mesh, self.studio.placement, self.head, radiance, self.studio.room,
-                                      self.pivot)
+                                      self.pivot, camera=self.camera)
         else:
-            self._mesh = LiveHead(self.head, radiance, self.studio.room, self.pivot, reach_px=reach)
+            self._mesh = LiveHead(self.head, radiance, self.studio.room, self.pivot, reach_px=reach, camera=self.camera)
         self.wall = self.studio._static_layers[0]
         self.timings["mesh"] = time.perf_counter() - t0
 
@@ -344,20 +365,28 @@ class LiveScene:
             "head_center": list(self.head.center),
             "head_scale": self.head.scale,
             "head": head_info(c.head_mesh),
+            "camera": ORTHOGRAPHIC_META if self.camera is None else self.camera.meta(),
             "reference_pose": {"head_rotation": [0.0, 0.0, 0.0], "head_translation": [0.0, 0.0]},
             "sensor": {"read_noise": self.sensor.read_noise, "shot_gain": self.sensor.shot_gain,
                        "exposure_gain": 1.0, "white_balance": [1.0, 1.0, 1.0]},
             "audio": audio,
             "conventions": (
-                "Camera space as in the README: +X right in the image, +Y up, +Z toward the camera, orthographic "
-                "camera looking along -Z. head_rotation is [yaw, pitch, roll] in degrees per frame, relative to "
+                "Camera space as in the README: +X right in the image, +Y up, +Z toward the camera, "
+                + ("orthographic camera looking along -Z" if self.camera is None else
+                   "pinhole camera looking along -Z (camera: its focal length and principal point in pixels, its "
+                   "eye at camera-space (principal column, -principal row, eye_z))")
+                + ". head_rotation is [yaw, pitch, roll] in degrees per frame, relative to "
                 "the reference pose (the head as built, the pose of the static `relight synth` capture's "
                 "reference frame, same seed and size): R = Ry(yaw) Rx(pitch) Rz(roll), right-handed rotations "
                 "about camera +Y, +X, +Z (relight.directions.rotation_matrix). A head point at image column x, "
                 "row y with height h (pixels toward the camera) is P = (x, -y, h); at a frame it moves to "
-                "P' = R (P - C) + C + (tx, -ty, 0) and is seen at column P'x, row -P'y, where C = (pivot[0], "
+                "P' = R (P - C) + C + (tx, -ty, 0), where C = (pivot[0], "
                 "-pivot[1], pivot[2]) with pivot = [column, row, height] in pixels and head_translation = "
-                "[tx, ty] in image pixels (ty down). Frames are instants t = i / fps (no motion blur)."),
+                "[tx, ty] in pixels (ty down) of the reference plane"
+                + (". It is seen at column P'x, row -P'y" if self.camera is None else
+                   ". It is seen at column cx + f (P'x - cx) / (eye_z - P'z), row cy + f (-P'y - cy) / (eye_z - P'z) "
+                   "(f = focal_px, (cx, cy) = principal_point; a head unit, head_scale px, is head_unit_cm)")
+                + ". Frames are instants t = i / fps (no motion blur)."),
         }
 
 

@@ -28,6 +28,7 @@ from relight.spherical_harmonics import SPHERE_POINTS, environment_sh9, sh9_irra
 from ..raster import rasterise
 from .head import Head
 from .mesh_head import HeadMesh, Placement, sample_map
+from .pinhole import Pinhole, image_points
 from .render import IRRADIANCE_FLOOR, MAX_SHADING_RATIO, box_filter_samples, empty_render, screen_box
 
 #: A sample was visible at the reference pose when its depth is within this many pixels of the
@@ -46,23 +47,79 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return a * (1 - fy) + b * fy
 
 
+#: Below this many head units under the eyes a mesh's open boundary is the body's cut (a bust's
+#: bottom, its arms' stumps), continued down by :func:`extend_below`.
+BODY_BELOW_EYES = 1.5
+
+
+def extend_below(points: np.ndarray, faces: np.ndarray, uv: np.ndarray, normals: np.ndarray, row: float,
+                 length: float, albedo: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A bust continued straight down: each open edge of the mesh (an edge of one face) whose two
+    vertices are below image ``row`` (camera-space points (V, 3), ``(x, -row, height)``) gets a
+    wall of two triangles ``length`` pixels down. The walls have their own vertices: normals made
+    level (:func:`wall_normals`) and one colour, the cut's skin (the texture coordinates of the
+    edge vertex whose ``albedo`` is the cut's median colour). A wide lens sees past a scan's cut:
+    the body goes on below it as a person's does, instead of a floating bust. Returns (points,
+    faces, uv, normals), the mesh's first and the walls' after them."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    uniq, count = np.unique(key, axis=0, return_counts=True)
+    edges = uniq[count == 1]
+    low = -points[:, 1] > row
+    edges = edges[low[edges[:, 0]] & low[edges[:, 1]]]
+    if not len(edges):
+        return points, faces, uv, normals
+    # the wall's own vertices: a copy of each edge vertex (the same place: no crack) and one below
+    # it, all with the skin's texture coordinates (the mesh's own at the top would sweep the wall
+    # across the texture's atlas)
+    ends, inverse = np.unique(edges, return_inverse=True)
+    k = len(ends)
+    top = len(points) + inverse.reshape(-1, 2)
+    bottom = top + k
+    a, b, a2, b2 = top[:, 0], top[:, 1], bottom[:, 0], bottom[:, 1]
+    walls = np.concatenate([np.stack([a, b, b2], axis=1), np.stack([a, b2, a2], axis=1)]).astype(faces.dtype)
+    colour = sample_map(albedo, uv[ends])
+    skin = uv[ends][np.argmin(np.abs(colour - np.median(colour, axis=0)).sum(axis=1))]
+    level = wall_normals(normals[ends])
+    return (np.concatenate([points, points[ends], points[ends] - np.array([0.0, float(length), 0.0])]),
+            np.concatenate([faces, walls]), np.concatenate([uv, np.repeat(skin[None], 2 * k, axis=0)]),
+            np.concatenate([normals, level, level]))
+
+
+def wall_normals(n: np.ndarray) -> np.ndarray:
+    """Upright walls' normals (N, 3) below edge vertices of normals ``n``: theirs made level (a
+    scan's cut bends its normals down), toward the camera where level leaves nothing."""
+    level = np.asarray(n, dtype=np.float64) * np.array([1.0, 0.0, 1.0])
+    norm = np.linalg.norm(level, axis=1, keepdims=True)
+    return np.where(norm > 0.1, level / np.maximum(norm, EPS), np.array([0.0, 0.0, 1.0]))
+
+
 class MeshLiveHead:
     """A head mesh that renders at any pose (see the module docstring).
 
     mesh, placement : the studio's (:mod:`.mesh_head`). head : the studio's head at the reference
     pose. radiance : (P, 3) its radiance under the room light at the mask's pixels. room : the
-    room environment (lat-long, linear). pivot : camera-space pivot ``C``.
+    room environment (lat-long, linear). pivot : camera-space pivot ``C``. camera : the frames'
+    :class:`.pinhole.Pinhole` (None: orthographic).
     """
 
     def __init__(self, mesh: HeadMesh, placement: Placement, head: Head, radiance: np.ndarray, room: np.ndarray,
-                 pivot: np.ndarray):
+                 pivot: np.ndarray, *, camera: Pinhole | None = None):
         h_img, w_img = head.mask.shape
         self.size = (w_img, h_img)
+        self.camera = camera
         self.mesh = mesh
         self.pivot = np.asarray(pivot, dtype=np.float64)
-        #: Camera-space points (x, -y, height) of the vertices at the reference pose.
+        #: Camera-space points (x, -y, height) of the vertices at the reference pose, and the
+        #: faces, texture coordinates and normals rendered (the mesh's own, or with a pinhole
+        #: camera the bust continued below the frame: :func:`extend_below`).
         self.points = placement.project(mesh.vertices)
-        self._corners = np.ascontiguousarray(mesh.faces.T)
+        self.faces, self.uv, self.normals = mesh.faces, mesh.uv, mesh.normals
+        if camera is not None:
+            self.points, self.faces, self.uv, self.normals = extend_below(
+                self.points, mesh.faces, mesh.uv, mesh.normals, placement.center[1] + BODY_BELOW_EYES * placement.scale,
+                (h_img + camera.distance_px) / max(camera.magnification, 1e-3), mesh.albedo)
+        self._corners = np.ascontiguousarray(self.faces.T)
         rad = np.zeros((h_img, w_img, 3), dtype=np.float64)
         rad.reshape(-1, 3)[np.flatnonzero(head.mask)] = radiance
         # The reference image (radiance and a weight: 1 on the mask) and its depth buffer.
@@ -101,7 +158,7 @@ class MeshLiveHead:
         """
         rotation = np.asarray(rotation, dtype=np.float64)
         p = self.project(rotation, translation)
-        x_img, y_img = p[:, 0], -p[:, 1]
+        x_img, y_img = image_points(self.camera, p)
         box = screen_box(x_img, y_img, self.size)
         bx0, by0, bx1, by1 = box
         nch = 3 if values is None else values.shape[2]
@@ -116,7 +173,8 @@ class MeshLiveHead:
         _, first = np.unique(cells[win], return_index=True)  # one fragment a sample
         win = win[first]
         cells = cells[win]
-        f = self.mesh.faces[tri[win]]
+        f = self.faces[tri[win]]
+        wall = tri[win] >= len(self.mesh.faces)  # extend_below's: never in the reference's view
         w3 = np.stack([w0[win], w1[win], 1.0 - w0[win] - w1[win]], axis=1).astype(np.float64)
 
         def blend(attr):
@@ -124,11 +182,11 @@ class MeshLiveHead:
 
         ref = blend(self.points)  # where each sample's surface point was at the reference pose
         rx, ry, rz = ref[:, 0], -ref[:, 1], ref[:, 2]
-        seen = (np.abs(_bilinear(self._ref_depth, rx, ry)[:, 0] - rz) < VISIBLE_DEPTH_PX)
+        seen = (np.abs(_bilinear(self._ref_depth, rx, ry)[:, 0] - rz) < VISIBLE_DEPTH_PX) & ~wall
         if values is not None:
             vals = np.where(seen[:, None], _bilinear(values, rx, ry), 0.0)
         else:
-            n_ref = blend(self.mesh.normals)
+            n_ref = blend(self.normals)
             n_ref /= np.maximum(np.linalg.norm(n_ref, axis=1, keepdims=True), EPS)
             # the reference render where it saw the point (its weight channel normalises the
             # bilinear blend at the mask's edge), else the colour map under the diffuse light
@@ -141,7 +199,7 @@ class MeshLiveHead:
             ref_img = _bilinear(ref, rx, ry)
             wgt = ref_img[:, 3:4]
             vals = np.where((seen[:, None] & (wgt > 0.5)), ref_img[:, :3] / np.maximum(wgt, EPS),
-                            sample_map(self.mesh.albedo, blend(self.mesh.uv)) * e_hidden / np.pi)
+                            sample_map(self.mesh.albedo, blend(self.uv)) * e_hidden / np.pi)
             if lit is None:  # the room's light at the reference pose, re-shaded for the turn
                 e_now = np.maximum(sh9_irradiance(self.sh, n_ref @ rotation.T), 0.0)
                 vals = vals * np.minimum(e_now / e_hidden, MAX_SHADING_RATIO)

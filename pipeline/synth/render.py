@@ -14,6 +14,7 @@ from relight.spherical_harmonics import MONOMIALS, SPHERE_POINTS, environment_sh
 
 from ..raster import rasterise
 from .head import Head, height_units, inside
+from .pinhole import Pinhole, image_points
 
 #: Irradiance-ratio guards: the reference irradiance is floored at this share of the brightest
 #: direction's, and the ratio is capped.
@@ -28,13 +29,15 @@ class LiveHead:
     (``np.flatnonzero(head.mask)`` order) at the reference pose; room : the room environment
     (lat-long, linear) whose irradiance re-shades turned normals; pivot : camera-space pivot
     ``C`` (x, -y, z) - see :func:`pivot_point`; reach_px : how far (pixels) the head may move
-    down, to extend the neck below the frame.
+    down, to extend the neck below the frame; camera : the frames' :class:`.pinhole.Pinhole`
+    (None: orthographic).
     """
 
     def __init__(self, head: Head, radiance: np.ndarray, room: np.ndarray, pivot: np.ndarray, *,
-                 reach_px: float):
+                 reach_px: float, camera: Pinhole | None = None):
         h_img, w_img = head.mask.shape
         self.size = (w_img, h_img)
+        self.camera = camera
         self.pivot = np.asarray(pivot, dtype=np.float64)
         x0, y0, x1, _ = head.bbox(pad=2)
         mask = head.mask[y0:, x0:x1]
@@ -139,7 +142,7 @@ class LiveHead:
         rotation = np.asarray(rotation, dtype=np.float64)
         vals = self.colours(rotation) if values is None else np.asarray(values, dtype=FLOAT)
         p = self.project(rotation, translation)
-        x_img, y_img = p[:, 0], -p[:, 1]
+        x_img, y_img = image_points(self.camera, p)
         box = screen_box(x_img, y_img, self.size)
         bx0, by0, bx1, by1 = box
         nch = vals.shape[1]

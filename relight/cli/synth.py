@@ -74,6 +74,12 @@ def add_parser(sub) -> None:
     p.add_argument("--start-pitch", type=float, default=None, metavar="DEG",
                    help="--live only: the clip starts with the head tilted this far (degrees; + tilts the nose "
                         "down) and eases into its motion; up to 30 (45 with --head-mesh)")
+    p.add_argument("--fov", type=float, default=None, metavar="DEG",
+                   help="with --live: a pinhole camera (a webcam's) of this horizontal field of view, in degrees "
+                        "(default: an orthographic camera, as every clip before)")
+    p.add_argument("--distance", type=float, default=live.distance, metavar="CM",
+                   help="with --fov: the camera's distance from the head's middle, in cm (a person's head: "
+                        "22.5 cm crown to chin)")
     p.add_argument("--audio", choices=AUDIO_KINDS, default=live.audio,
                    help="--live only: the audio track, a 440 Hz tone, white noise, or none (no audio stream)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -88,6 +94,7 @@ def _head_mesh_args(args) -> dict:
 
 def _run_synth(args) -> int:
     from ..errors import InputError
+    from ..pipeline.synth.live import LiveConfig
 
     if args.live:
         return _run_synth_live(args)
@@ -95,6 +102,9 @@ def _run_synth(args) -> int:
         raise InputError("--audio applies to --live videos only; add --live or leave --audio out")
     if args.start_yaw is not None or args.start_pitch is not None:
         raise InputError("--start-yaw and --start-pitch apply to --live videos only; add --live or leave them out")
+    if args.fov is not None or args.distance != LiveConfig().distance:
+        raise InputError("--fov and --distance apply to --live videos only (a capture's camera is orthographic); "
+                         "add --live or leave them out")
     from ..pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig, synthesize
 
     d = SynthConfig()
@@ -121,6 +131,9 @@ def _run_synth_live(args) -> int:
                                             ("--head-motion", args.head_motion != s.head_motion),
                                             ("--camera-drift", args.camera_drift),
                                             ("--sparse-sides", args.sparse_sides)) if used]
+    if args.fov is None and args.distance != d.distance:
+        raise InputError("--distance places a pinhole camera: give its field of view with --fov, or leave "
+                         "--distance out")
     if capture_only:
         raise InputError(f"{', '.join(capture_only)} apply to captures, not --live videos; leave them out "
                          f"(a live video's light is the room's alone)")
@@ -128,7 +141,7 @@ def _run_synth_live(args) -> int:
                      duration=d.duration if args.duration is None else args.duration, seed=args.seed,
                      ambient=args.ambient, noise=args.noise, crf=d.crf if args.crf is None else args.crf,
                      audio=args.audio, truth_envs=tuple(args.truth_env or ()), start_yaw=args.start_yaw,
-                     start_pitch=args.start_pitch, **_head_mesh_args(args))
+                     start_pitch=args.start_pitch, fov=args.fov, distance=args.distance, **_head_mesh_args(args))
     res = synthesize_live(args.out, cfg, progress=not args.quiet)
     audio = "no audio" if cfg.audio == "none" else f"{cfg.audio} audio"
     print(f"wrote {res.video} ({res.frame_count} frames, {cfg.width}x{cfg.height} at {cfg.fps:g} fps, {audio}), "
