@@ -33,13 +33,14 @@ from relight.numerics import EPS_VALUE
 
 from . import composite
 from .field import FIELD_ROWS
+from .focal import FocalSearch
 from .frame_data import FrameInfo, Front
 from .frame_field import FieldStage
 from .frame_light import LiveLightStage, sync_relight
 from .frame_person import PersonStage
 from .frame_warp import face_warp, regularised_points
 from .gains import ambient_gain, paste_gain
-from .pose import OneEuroFilter, PoseEstimator
+from .pose import OneEuroFilter, PoseEstimator, camera_matrix
 from .refind import refind_landmarks
 from .rig import FaceRig
 from .schedule import RELIGHT_DEG, Head, Plan, Scheduler, face_brightness, thumbnail
@@ -135,6 +136,9 @@ class FramePath:
         self._track_gain = 1.0  # the last tracking copy's brightening (.tracking_image.track_exposure)
         self.rig = rig = FaceRig.build(bundle, self.relighter, focal)
         self.focal = rig.focal
+        # No focal length told: the frames' own is searched for over the first seconds (.focal).
+        self.auto_focal = focal is None
+        self._focal_search: FocalSearch | None = None
         room = bundle.room_light
         from .face_subspace import FaceSubspace
 
@@ -269,7 +273,26 @@ class FramePath:
         if est is None:
             est = PoseEstimator(self.rig.model, size, self.focal)
             self._estimators = {size: est}
+            self._focal_search = FocalSearch(self.rig.model, size, est.k[0, 0]) if self.auto_focal else None
         return est
+
+    @property
+    def frames_focal(self) -> float | None:
+        """The focal length (px) the frames' poses are solved with now (None before a frame): the
+        one told, the default guess, or the one found (:mod:`.focal`)."""
+        return next((float(e.k[0, 0]) for e in self._estimators.values()), None)
+
+    def _search_focal(self, est: PoseEstimator, ref_idx: np.ndarray, xy: np.ndarray) -> None:
+        """A posed frame's points to the focal search; one step of it (the estimator switched to the
+        focal length found, its pose solved afresh on the next frame)."""
+        search = self._focal_search
+        if search is None or search.done:
+            return
+        search.observe(ref_idx, xy)
+        found = search.step()
+        if found is not None:
+            est.k = camera_matrix(est.frame_size, found)
+            est.last = None
 
     def reset(self) -> None:
         """Forget the track and the filters (a new, unrelated video follows)."""
@@ -284,6 +307,9 @@ class FramePath:
         self.field.reset()
         for est in self._estimators.values():
             est.last = None
+        if self.auto_focal:  # another video: another camera, searched for afresh
+            self._estimators = {}
+            self._focal_search = None
 
     def warm_up(self, size: tuple[int, int] | None = None, planes: bool = True) -> float:
         """Run every kernel and model the frames will (and make PoCL compile each for its work-group
@@ -377,6 +403,7 @@ class FramePath:
         # of bent by every point's error).
         xy = regularised_points(est.project(pose, ref_idx).astype(np.float32), track.xy[keep], size)
         self._settle_pose(last, pose)
+        self._search_focal(est, ref_idx, track.xy[keep])
         angles = self.angle_filter(pose.angles, t)
         rotation = rotation_matrix(*angles)
         info.face, info.angles, info.raw_angles = True, tuple(float(a) for a in angles), pose.angles

@@ -54,6 +54,18 @@ def largest_component(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return keep.astype(bool) & mask, filled.astype(bool)
 
 
+def reference_focal(meta: dict, ref_size: tuple[int, int]) -> float:
+    """The focal length (px) a bundle's reference frame is lifted with: the capture's camera
+    (``camera_focal`` in its meta, px of the reference frame) or, without one, the long focal
+    length that models an orthographic camera (:data:`.pose.ORTHOGRAPHIC_FOCAL`)."""
+    from .pose import ORTHOGRAPHIC_FOCAL
+
+    f = meta.get("camera_focal") if isinstance(meta, dict) else None
+    if isinstance(f, int | float) and not isinstance(f, bool) and np.isfinite(f) and f > 0:
+        return float(f)
+    return ORTHOGRAPHIC_FOCAL * max(ref_size)
+
+
 @dataclass(frozen=True)
 class FaceRig:
     """What the per-frame path needs of a bundle, prepared once (:meth:`build`) and never changed:
@@ -136,13 +148,18 @@ class FaceRig:
 
         _, (iy, ix) = distance_transform_edt(~mask_crop, return_indices=True)
         depth_filled = depth[iy, ix]
-        if focal == "ortho":
-            # One long focal length for the reference and every frame (a crop or a resized copy of
-            # an orthographic view must not get a different perspective than the reference).
-            from .pose import ORTHOGRAPHIC_FOCAL
+        from .pose import ORTHOGRAPHIC_FOCAL
 
+        if focal == "ortho":
+            # One long focal length for every frame (a crop or a resized copy of an orthographic
+            # view must not get a different perspective than the reference).
             focal = ORTHOGRAPHIC_FOCAL * max(r.ref_size)
-        k_ref = camera_matrix(r.ref_size, focal)
+        # The reference is lifted with the capture's own camera, not the frames': the one its
+        # sphere's light directions assumed (``relight capture --focal``, in the bundle's meta),
+        # else orthographic as the capture modelled it. (Lifted with the frames' focal length, an
+        # orthographic capture's head off the frame's centre is modelled seen from its side: its
+        # pose through a webcam was off by the view's angle, 5-9 deg on the perspective studio.)
+        k_ref = camera_matrix(r.ref_size, reference_focal(bundle.meta, r.ref_size))
         pts = np.concatenate([landmarks, ring])
         crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
         model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)

@@ -35,7 +35,11 @@ def prepare_video(path, opts: CaptureOptions, progress: Progress, timings: dict)
     if ing.face_box is not None:
         fx, fy, fw, fh = ing.face_box
         face_local = (fx - x0, fy - y0, fw, fh)
-    scale = {"capture_scale": ing.scale, "source_size": list(ing.source_size or ing.size)}
+    # the capture's camera as the sphere's directions assumed it: a focal length in pixels of the
+    # working frame (--focal), or None - orthographic (the rig lifts the reference the same way)
+    focal = opts.samples.focal
+    scale = {"capture_scale": ing.scale, "source_size": list(ing.source_size or ing.size),
+             "camera_focal": None if focal is None else float(focal) * ing.scale}
     report = {
         "flash_frames": [int(f) for f in smp.flash.flash_frames],
         "flash_peaks": [int(f) for f in smp.flash.peaks],

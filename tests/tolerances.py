@@ -408,6 +408,8 @@ EDGE_MIN_FOUND_OCCLUDED = 0.8
 #: there (the bundle's prediction replaces what the live light does not predict; measured 22 %).
 SHADOW_CODES_GAIN = 0.55
 SHADOW_KEPT_SHARE = 0.25
+#: ... after this many frames (the live light's first fits settling on the shadowed frames).
+SHADOW_SETTLE_FRAMES = 10
 
 # The key light (test_key_light.py).
 #: Chromaticity (r, g over r+g+b) of a colour temperature against colour-science's: Kang 2002's
@@ -448,3 +450,6 @@ FIELD_SAMPLE_CODES = 1.5
 #: against swscale's conversion of the decoded frame: mean absolute difference (8-bit codes; the
 #: same conversion, its chroma filter aside).
 CAMERA_FORMAT_CODES = 1.0
+#: The focal length found (engine.focal) from a known rigid model seen through a pinhole: within
+#: this share of the true one (the candidates are 1.25x apart, the parabola refines between them).
+FOCAL_FOUND_REL = 0.12

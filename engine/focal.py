@@ -1,0 +1,130 @@
+"""The frames' focal length found from the head itself: no focal length to guess (issue 49).
+
+A webcam's field of view is not told (60-80 degrees across, and a flat photo moved about is an
+orthographic view), yet the pose depends on it: a head off the frame's centre is seen from the
+side by ``atan(offset / f)``, and its near parts are magnified more than its far ones by the
+head's depth over the distance. With the wrong focal length a rigid model explains the tracked
+points worse. So while the first seconds are tracked with the default guess
+(:data:`.pose.DEFAULT_FOCAL`), every :data:`SAMPLE_EVERY`-th posed frame's inlier points are kept
+(:data:`SAMPLES` of them); then each candidate focal length (:data:`CANDIDATES` x the frame's
+larger side, the last the long one that models an orthographic camera) is scored by how well the
+best rigid pose at that focal length explains each kept frame's points - the mean over the frames
+of the RMS reprojection error, each point's error capped at :data:`ERROR_CAP_PX` (a point LK lost
+must not decide) - one candidate a frame, so no frame waits for the search. The lowest score
+wins, refined by a parabola through it and its neighbours in log focal length; the estimator
+switches to it when it explains the points better than the guess by :data:`MIN_GAIN`.
+
+Measured on the perspective studio (an orthographic capture's bundle, 640x360 clips of 50, 65
+and 80 degrees at 60 cm: docs/performance.md): the score's minimum lies 0-25 % short of the true
+focal length (the bundle's depth is not the head's), where the pose's error is as low as at the
+true one; on an orthographic clip it lies at 1.5-2x the frame's side, where a long one is right.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .pose import ORTHOGRAPHIC_FOCAL, camera_matrix
+
+#: Candidate focal lengths, times the frame's larger side (fields of view of 122 to 14 degrees
+#: across a 16:9 frame, then the orthographic model's long focal length).
+CANDIDATES = (0.45, 0.55, 0.65, 0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, ORTHOGRAPHIC_FOCAL)
+#: A posed frame's points are kept every this many posed frames, this many frames in all (3 s at 30 fps).
+SAMPLE_EVERY = 3
+SAMPLES = 30
+#: Fewest inlier points a kept frame has.
+MIN_POINTS = 12
+#: A point's reprojection error is capped at this many pixels at 540 rows in the score.
+ERROR_CAP_PX = 3.0
+#: The estimate replaces the guess when its score is this share lower (else the guess is as good).
+MIN_GAIN = 0.02
+
+
+def score(model: np.ndarray, samples: list, size: tuple[int, int], focal: float) -> float:
+    """The mean over ``samples`` ((ref_index, xy) pairs) of the RMS error (px, each point capped)
+    of the rigid pose (EPnP then Levenberg-Marquardt) of the ``model``'s points at ``focal``."""
+    k = camera_matrix(size, focal)
+    cap = ERROR_CAP_PX * size[1] / 540.0
+    rms = []
+    for idx, xy in samples:
+        obj = model[idx].reshape(-1, 1, 3)
+        img = np.asarray(xy, np.float64).reshape(-1, 1, 2)
+        try:
+            ok, rvec, tvec = cv2.solvePnP(obj, img, k, None, flags=cv2.SOLVEPNP_EPNP)
+            if not ok:
+                continue
+            rvec, tvec = cv2.solvePnPRefineLM(obj, img, k, None, rvec, tvec)
+            proj, _ = cv2.projectPoints(obj, rvec, tvec, k, None)
+        except cv2.error:
+            continue
+        err = np.minimum(np.linalg.norm((proj - img).reshape(-1, 2), axis=1), cap)
+        if np.isfinite(err).all():
+            rms.append(float(np.sqrt(np.mean(err * err))))
+    return float(np.mean(rms)) if rms else float("inf")
+
+
+def best_focal(scores: np.ndarray, focals: np.ndarray) -> float:
+    """The focal length at the lowest of ``scores`` (one per ``focals``, increasing), refined by
+    a parabola through it and its neighbours in log focal length (kept inside them)."""
+    i = int(np.argmin(scores))
+    if i == 0 or i == len(scores) - 1 or not np.isfinite(scores[i - 1:i + 2]).all():
+        return float(focals[i])
+    x = np.log(focals[i - 1:i + 2])
+    y = scores[i - 1:i + 2]
+    # the vertex of the parabola through three points
+    d = (x[0] - x[1]) * (x[0] - x[2]) * (x[1] - x[2])
+    a = (x[2] * (y[1] - y[0]) + x[1] * (y[0] - y[2]) + x[0] * (y[2] - y[1])) / d
+    b = (x[2] ** 2 * (y[0] - y[1]) + x[1] ** 2 * (y[2] - y[0]) + x[0] ** 2 * (y[1] - y[2])) / d
+    if not (a > 0):
+        return float(focals[i])
+    return float(np.exp(np.clip(-b / (2 * a), x[0], x[2])))
+
+
+class FocalSearch:
+    """The search over one frame size's tracked frames (see the module docstring): :meth:`observe`
+    each posed frame; :meth:`step` scores one candidate a frame once the samples are in, and
+    returns the focal length (px) to switch to once, when it is found (else None)."""
+
+    def __init__(self, model: np.ndarray, size: tuple[int, int], guess: float):
+        self.model = np.asarray(model, np.float64)
+        self.size = tuple(size)
+        self.guess = float(guess)
+        self.focals = np.asarray(CANDIDATES, np.float64) * max(self.size)
+        self.samples: list = []
+        self._posed = 0
+        self._scores: list[float] = []
+        self._guess_score: float | None = None
+        #: The focal length found (px), or None while searching.
+        self.found: float | None = None
+        self.done = False
+
+    def observe(self, ref_index: np.ndarray, xy: np.ndarray) -> None:
+        """A posed frame's inlier points (model indices, (N, 2) frame px)."""
+        if self.done or len(self.samples) >= SAMPLES or len(ref_index) < MIN_POINTS:
+            return
+        if self._posed % SAMPLE_EVERY == 0:
+            self.samples.append((np.array(ref_index), np.array(xy, np.float64)))
+        self._posed += 1
+
+    def step(self) -> float | None:
+        """One candidate scored (the guess first); at the last, the focal length to use when it
+        beats the guess by MIN_GAIN (the search is then done), else None."""
+        if self.done or len(self.samples) < SAMPLES:
+            return None
+        if self._guess_score is None:
+            self._guess_score = score(self.model, self.samples, self.size, self.guess)
+            return None
+        if len(self._scores) < len(self.focals):
+            self._scores.append(score(self.model, self.samples, self.size, float(self.focals[len(self._scores)])))
+            if len(self._scores) < len(self.focals):
+                return None
+        self.done = True
+        scores = np.asarray(self._scores)
+        focal = best_focal(scores, self.focals)
+        best = score(self.model, self.samples, self.size, focal) if focal not in self.focals else float(scores.min())
+        self.samples = []
+        if not (best < (1.0 - MIN_GAIN) * self._guess_score):
+            return None
+        self.found = focal
+        return focal

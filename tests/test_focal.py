@@ -1,0 +1,120 @@
+"""The frames' focal length found from the tracked head (engine.focal, issue 49): a rigid model
+seen through a known pinhole is scored lowest at that pinhole's focal length, the search takes
+one candidate a frame and switches only when it explains the points better, and a path that is
+told no focal length searches while one that is told keeps it."""
+
+import numpy as np
+import pytest
+
+from relight.directions import rotation_matrix
+from relight.engine.focal import CANDIDATES, SAMPLE_EVERY, SAMPLES, FocalSearch, best_focal, score
+from relight.engine.pose import DEFAULT_FOCAL, camera_matrix, lift_landmarks
+
+from .tolerances import FOCAL_FOUND_REL
+
+SIZE = (640, 360)
+
+
+def _head(seed: int, n: int = 80):
+    """A rigid landmark model (a bump 90 px high over a 200 px face, lifted orthographically) and
+    ``seen(angles, shift, focal) -> (n, 2)``: its points turned about their centre, moved in the
+    image plane and seen through a pinhole of ``focal`` px at 2 faces' widths (plus 0.3 px noise)."""
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform([220, 80], [420, 300], size=(n, 2))
+    depth = 90 * np.exp(-((pts[:, 0] - 320) ** 2 + (pts[:, 1] - 190) ** 2) / 9000.0)
+    model = lift_landmarks(pts, depth, camera_matrix(SIZE, "ortho"))
+    flip = np.diag([1.0, -1.0, -1.0])
+    centre = model.mean(axis=0)
+    local = (model - centre) * np.array([1.0, 1.0, 1.0])
+
+    def seen(angles, shift, focal):
+        k = camera_matrix(SIZE, focal)
+        d = 400.0 * focal / max(SIZE) * 1.6  # the head's distance: its image ~200 px wide at any focal
+        moved = local @ (flip @ rotation_matrix(*angles) @ flip).T
+        moved = moved * (d / np.ptp(model[:, 0]) * 200.0 / d)  # model px -> a 200 px-wide face at d
+        cam = moved + np.array([shift[0] * d / focal, shift[1] * d / focal, d])
+        proj = cam @ k.T
+        return proj[:, :2] / proj[:, 2:] + rng.normal(0.0, 0.3, (n, 2))
+
+    return model, seen
+
+
+def _samples(seen, focal, frames=SAMPLES):
+    rng = np.random.default_rng(7)
+    out = []
+    for i in range(frames):
+        angles = (25.0 * np.sin(i / 5.0), 12.0 * np.sin(i / 7.0), 5.0 * np.sin(i / 9.0))
+        shift = (60.0 * np.sin(i / 6.0) - 40.0, 30.0 * np.cos(i / 8.0))
+        out.append((np.arange(80), seen(angles, shift, focal)))
+    rng.shuffle(out)
+    return out
+
+
+@pytest.mark.parametrize("true_share", [0.55, 0.8, 1.2])
+def test_the_score_is_lowest_near_the_true_focal(true_share):
+    model, seen = _head(1)
+    f_true = true_share * max(SIZE)
+    samples = _samples(seen, f_true)
+    focals = np.asarray(CANDIDATES) * max(SIZE)
+    scores = np.array([score(model, samples, SIZE, f) for f in focals])
+    found = best_focal(scores, focals)
+    assert abs(found / f_true - 1.0) < FOCAL_FOUND_REL, (found, f_true, scores.round(3))
+
+
+def test_the_parabola_refines_between_neighbours_and_stays_there():
+    focals = np.array([100.0, 200.0, 400.0, 800.0])
+    x = np.log(focals)
+    at = np.exp(np.log(280.0))
+    scores = (x - np.log(at)) ** 2 + 1.0
+    assert best_focal(scores, focals) == pytest.approx(280.0, rel=1e-6)
+    assert best_focal(np.array([1.0, 2.0, 3.0, 4.0]), focals) == 100.0  # at the end: the candidate
+    assert best_focal(np.array([3.0, 1.0, 1.0, 3.0]), focals) in (200.0, pytest.approx(np.exp(x[1:3].mean())))
+
+
+def test_the_search_takes_a_candidate_a_frame_and_switches_once():
+    model, seen = _head(2)
+    f_true = 0.55 * max(SIZE)
+    guess = DEFAULT_FOCAL * max(SIZE)
+    search = FocalSearch(model, SIZE, guess)
+    frames = _samples(seen, f_true, SAMPLES * SAMPLE_EVERY)
+    results, scoring = [], 0
+    for idx, xy in frames:
+        search.observe(idx, xy)
+        scoring += len(search.samples) == SAMPLES  # (this frame's step scores)
+        results.append(search.step())
+    assert len(search.samples) == SAMPLES and all(r is None for r in results)  # sampling, then scoring
+    while not search.done:
+        results.append(search.step())
+        scoring += 1
+    assert scoring == len(CANDIDATES) + 1  # the guess, then one candidate a frame
+    found = [r for r in results if r is not None]
+    assert len(found) == 1 and abs(found[0] / f_true - 1.0) < FOCAL_FOUND_REL
+    assert search.step() is None and search.samples == []  # done: nothing more, nothing kept
+
+
+def test_a_search_that_cannot_beat_the_guess_keeps_it():
+    model, seen = _head(3)
+    guess = 0.8 * max(SIZE)
+    search = FocalSearch(model, SIZE, guess)
+    for idx, xy in _samples(seen, guess, SAMPLES * SAMPLE_EVERY):
+        search.observe(idx, xy)
+    while not search.done:
+        assert search.step() is None
+    assert search.found is None
+
+
+def test_a_path_told_its_focal_keeps_it_and_one_told_none_searches(small_bundle):
+    from relight import load_environment
+    from relight.engine.frame_path import FramePath
+
+    env = load_environment("builtin:sunset")
+    told = FramePath(small_bundle, env, focal=500.0)
+    free = FramePath(small_bundle, env)
+    frame = np.ascontiguousarray(small_bundle.background)
+    for fp in (told, free):
+        fp.process(frame, 0.0)
+    h, w = frame.shape[:2]
+    assert told.frames_focal == 500.0 and told._focal_search is None
+    assert free.frames_focal == pytest.approx(DEFAULT_FOCAL * max(w, h)) and free._focal_search is not None
+    free.reset()
+    assert free.frames_focal is None  # another video: searched for afresh
