@@ -39,15 +39,18 @@ def synth_bundle(out: Path, size: tuple[int, int], duration: float, progress: bo
 
 
 def synth_live(out: Path, size: tuple[int, int], duration: float, progress: bool, seed: int = 0,
-               head_mesh: str | None = None) -> Path:
+               head_mesh: str | None = None, fov: float | None = None) -> Path:
+    """A live clip of head ``seed`` (or ``head_mesh``) at ``size`` (cached); ``fov``: through a
+    pinhole of that field of view at the default distance (``relight synth --fov``)."""
     from relight.pipeline.synth.live import LiveConfig, synthesize_live
 
-    folder = out / (f"live-{size[0]}x{size[1]}-{duration:g}s" + (f"-seed{seed}" if seed else "") + head_tag(head_mesh))
+    folder = out / (f"live-{size[0]}x{size[1]}-{duration:g}s" + (f"-seed{seed}" if seed else "") + head_tag(head_mesh)
+                    + (f"-fov{fov:g}" if fov is not None else ""))
     if not (folder / "truth" / "meta.json").exists():
         if progress:
             print(f"synthesising a {size[0]}x{size[1]} live video ...", flush=True)
         synthesize_live(folder, LiveConfig(width=size[0], height=size[1], duration=duration, seed=seed,
-                                           head_mesh=head_mesh), progress=progress)
+                                           head_mesh=head_mesh, fov=fov), progress=progress)
     return folder
 
 
@@ -69,13 +72,16 @@ def flicker_step(inp0: np.ndarray, out0: np.ndarray, inp1: np.ndarray, out1: np.
     return float(do - di)
 
 
-def run_filter_process(inp: Path, dst: Path, bundle: Path, env: str, report: Path, *extra: str) -> dict:
-    """``relight filter INP DST --bundle BUNDLE --env ENV --focal ortho --quiet --report REPORT`` and
-    ``extra`` flags in a fresh process (the synthetic and the real-face clips are orthographic
-    views): its ``report.json`` with ``wall_s`` added (seconds, start-up included). Raises
+def run_filter_process(inp: Path, dst: Path, bundle: Path, env: str, report: Path, *extra: str,
+                       focal: str | None = "ortho") -> dict:
+    """``relight filter INP DST --bundle BUNDLE --env ENV --focal FOCAL --quiet --report REPORT``
+    and ``extra`` flags in a fresh process (``focal``: "ortho" by default - the synthetic studio's
+    and the real-face clips are orthographic views -, a number of pixels, or None: no --focal, the
+    path finds it): its ``report.json`` with ``wall_s`` added (seconds, start-up included). Raises
     RuntimeError with the end of its error output when it fails."""
+    told = [] if focal is None else ["--focal", str(focal)]
     cmd = [sys.executable, "-m", "relight", "filter", str(inp), str(dst), "--bundle", str(bundle), "--env", env,
-           *extra, "--focal", "ortho", "--quiet", "--report", str(report)]
+           *extra, *told, "--quiet", "--report", str(report)]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:

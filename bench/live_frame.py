@@ -66,27 +66,29 @@ CROP_UNITS = 0.36
 
 def synth_truth_clip(out: Path, size: tuple[int, int], envs: tuple[str, ...], *, seed: int = 0,
                      head_mesh: str | None = None, duration: float = CLIP_S, progress: bool = False,
-                     **mesh_maps) -> Path:
-    """A live clip with its truth under ``envs`` (cached by its settings)."""
+                     fov: float | None = None, **mesh_maps) -> Path:
+    """A live clip with its truth under ``envs`` (cached by its settings; ``fov``: through a
+    pinhole of that field of view)."""
     from relight.pipeline.synth.live import LiveConfig, synthesize_live
 
     from .clips import head_tag
 
     tag = f"truth-{size[0]}x{size[1]}-{duration:g}s-seed{seed}{head_tag(head_mesh)}-" + \
-        "-".join(e.removeprefix("builtin:") for e in envs)
+        "-".join(e.removeprefix("builtin:") for e in envs) + (f"-fov{fov:g}" if fov is not None else "")
     folder = out / "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in tag)
     if not (folder / "truth" / "meta.json").exists():
         if progress:
             print(f"synthesising {folder.name} (the live frame's truth: ~1 s a frame) ...", flush=True)
         synthesize_live(folder, LiveConfig(width=size[0], height=size[1], duration=duration, fps=CLIP_FPS, seed=seed,
-                                           head_mesh=head_mesh, truth_envs=tuple(envs), **mesh_maps),
+                                           head_mesh=head_mesh, truth_envs=tuple(envs), fov=fov, **mesh_maps),
                         progress=progress)
     return folder
 
 
 def filter_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = "transfer",
-                  region: str = DEFAULT_REGION) -> dict:
-    """``relight filter`` of the clip into PNG frames, in a fresh process: (its report, wall s)."""
+                  region: str = DEFAULT_REGION, focal: str | None = "ortho") -> dict:
+    """``relight filter`` of the clip into PNG frames, in a fresh process (``--focal focal``; None:
+    found by the path): (its report, wall s)."""
     dst = out / "frames"
     report = out / "report"
     if dst.exists():
@@ -95,7 +97,8 @@ def filter_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = 
         shutil.rmtree(dst)
     from .clips import run_filter_process
 
-    doc = run_filter_process(live / "live.mp4", dst, bundle, env, report, "--mode", mode, "--region", region)
+    doc = run_filter_process(live / "live.mp4", dst, bundle, env, report, "--mode", mode, "--region", region,
+                             focal=focal)
     doc["frames_dir"] = str(dst)
     return doc
 

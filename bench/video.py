@@ -14,7 +14,9 @@ of the same head (same seed and size). Measured:
 * the live frame against its truth (:mod:`relight.bench.live_frame`): ``relight filter`` into
   PNG frames of clips whose every frame is also rendered under the target light - the person's
   PSNR, the background's change, the seam, flicker - on the procedural and the scanned head and on
-  heads not developed on, with before/after sheets (``live-frame/sheet_*.png``).
+  heads not developed on, with before/after sheets (``live-frame/sheet_*.png``);
+* through a webcam's pinhole (:mod:`relight.bench.perspective`): the pose and the live frame on
+  clips of 50, 65 and 80 degrees across, the focal length known and found.
 
 Writes ``bench.json``, ``video_pose.png`` (estimated vs true angles over time) and
 ``video_frames.png`` (input / output pairs to look at).
@@ -331,8 +333,10 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = ENV,
             doc["speed"].append(row)
     # The live frame against its truth (every frame rendered under the target light): the person
     # relit, the background untouched, no seam - on the heads developed on and unseen ones.
-    from . import live_frame
+    from . import live_frame, perspective
 
+    doc["perspective"] = perspective.run(out / "perspective", quick=quick, progress=progress, mode=mode,
+                                         region=region)
     doc["live_frame"] = live_frame.run(out / "live-frame", quick=quick, progress=progress, mode=mode,
                                        region=region)
     if progress:
@@ -435,6 +439,11 @@ def table(doc: dict) -> str:
         from . import live_frame
 
         lines.append(live_frame.table(doc["live_frame"]))
+    if doc.get("perspective"):
+        from . import perspective
+
+        lines.append("through a webcam's pinhole (an orthographic capture's bundle; the focal length known, found):")
+        lines.append(perspective.table(doc["perspective"]))
     for key in ("filter", "filter_720"):
         f = doc.get(key)
         if f:

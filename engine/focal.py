@@ -10,9 +10,10 @@ points worse. So while the first seconds are tracked with the default guess
 larger side, the last the long one that models an orthographic camera) is scored by how well the
 best rigid pose at that focal length explains each kept frame's points - the mean over the frames
 of the RMS reprojection error, each point's error capped at :data:`ERROR_CAP_PX` (a point LK lost
-must not decide) - one candidate a frame, so no frame waits for the search. The lowest score
-wins, refined by a parabola through it and its neighbours in log focal length; the estimator
-switches to it when it explains the points better than the guess by :data:`MIN_GAIN`.
+must not decide) - in the frame for a file, on a worker beside a live source's frames (no frame
+waits for it). The lowest score wins, refined by a parabola through it and its neighbours in log
+focal length; the estimator switches to it when it explains the points better than the guess by
+:data:`MIN_GAIN`.
 
 Measured on the perspective studio (an orthographic capture's bundle, 640x360 clips of 50, 65
 and 80 degrees at 60 cm: docs/performance.md): the score's minimum lies 0-25 % short of the true
@@ -30,9 +31,11 @@ from .pose import ORTHOGRAPHIC_FOCAL, camera_matrix
 #: Candidate focal lengths, times the frame's larger side (fields of view of 122 to 14 degrees
 #: across a 16:9 frame, then the orthographic model's long focal length).
 CANDIDATES = (0.45, 0.55, 0.65, 0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, ORTHOGRAPHIC_FOCAL)
-#: A posed frame's points are kept every this many posed frames, this many frames in all (3 s at 30 fps).
-SAMPLE_EVERY = 3
-SAMPLES = 30
+#: A posed frame's points are kept every this many posed frames, this many frames in all (1.3 s
+#: at 30 fps), at most this many points each (spread over the face's).
+SAMPLE_EVERY = 2
+SAMPLES = 20
+MAX_POINTS = 40
 #: Fewest inlier points a kept frame has.
 MIN_POINTS = 12
 #: A point's reprojection error is capped at this many pixels at 540 rows in the score.
@@ -83,8 +86,8 @@ def best_focal(scores: np.ndarray, focals: np.ndarray) -> float:
 
 class FocalSearch:
     """The search over one frame size's tracked frames (see the module docstring): :meth:`observe`
-    each posed frame; :meth:`step` scores one candidate a frame once the samples are in, and
-    returns the focal length (px) to switch to once, when it is found (else None)."""
+    each posed frame until :attr:`ready`, then :meth:`run` once - in the frame for a file, on a
+    worker beside a live source's frames (:data:`MAX_POINTS` points a frame, ~0.2 s of CPU in all)."""
 
     def __init__(self, model: np.ndarray, size: tuple[int, int], guess: float):
         self.model = np.asarray(model, np.float64)
@@ -93,38 +96,36 @@ class FocalSearch:
         self.focals = np.asarray(CANDIDATES, np.float64) * max(self.size)
         self.samples: list = []
         self._posed = 0
-        self._scores: list[float] = []
-        self._guess_score: float | None = None
-        #: The focal length found (px), or None while searching.
+        #: The focal length found (px; None: none found, or not yet), and whether the search ran.
         self.found: float | None = None
+        self.started = False
         self.done = False
 
+    @property
+    def ready(self) -> bool:
+        """The samples are in and the search has not started."""
+        return not self.started and len(self.samples) >= SAMPLES
+
     def observe(self, ref_index: np.ndarray, xy: np.ndarray) -> None:
-        """A posed frame's inlier points (model indices, (N, 2) frame px)."""
-        if self.done or len(self.samples) >= SAMPLES or len(ref_index) < MIN_POINTS:
+        """A posed frame's inlier points (model indices, (N, 2) frame px): every SAMPLE_EVERY-th
+        kept, at most MAX_POINTS of them spread over the list."""
+        if self.started or len(self.samples) >= SAMPLES or len(ref_index) < MIN_POINTS:
             return
         if self._posed % SAMPLE_EVERY == 0:
-            self.samples.append((np.array(ref_index), np.array(xy, np.float64)))
+            pick = np.unique(np.linspace(0, len(ref_index) - 1, min(len(ref_index), MAX_POINTS)).round().astype(int))
+            self.samples.append((np.array(ref_index)[pick], np.array(xy, np.float64)[pick]))
         self._posed += 1
 
-    def step(self) -> float | None:
-        """One candidate scored (the guess first); at the last, the focal length to use when it
-        beats the guess by MIN_GAIN (the search is then done), else None."""
-        if self.done or len(self.samples) < SAMPLES:
-            return None
-        if self._guess_score is None:
-            self._guess_score = score(self.model, self.samples, self.size, self.guess)
-            return None
-        if len(self._scores) < len(self.focals):
-            self._scores.append(score(self.model, self.samples, self.size, float(self.focals[len(self._scores)])))
-            if len(self._scores) < len(self.focals):
-                return None
-        self.done = True
-        scores = np.asarray(self._scores)
+    def run(self) -> float | None:
+        """Score the guess and every candidate; the focal length to switch to when it explains the
+        points MIN_GAIN better than the guess (also :attr:`found`), else None."""
+        self.started = True
+        samples, self.samples = self.samples, []
+        guess = score(self.model, samples, self.size, self.guess)
+        scores = np.array([score(self.model, samples, self.size, float(f)) for f in self.focals])
         focal = best_focal(scores, self.focals)
-        best = score(self.model, self.samples, self.size, focal) if focal not in self.focals else float(scores.min())
-        self.samples = []
-        if not (best < (1.0 - MIN_GAIN) * self._guess_score):
-            return None
-        self.found = focal
-        return focal
+        best = float(scores.min()) if focal in self.focals else score(self.model, samples, self.size, focal)
+        if best < (1.0 - MIN_GAIN) * guess:
+            self.found = focal
+        self.done = True
+        return self.found

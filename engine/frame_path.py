@@ -139,6 +139,7 @@ class FramePath:
         # No focal length told: the frames' own is searched for over the first seconds (.focal).
         self.auto_focal = focal is None
         self._focal_search: FocalSearch | None = None
+        self._focal_job = None  # (a live source's search on the maps' worker)
         room = bundle.room_light
         from .face_subspace import FaceSubspace
 
@@ -148,6 +149,7 @@ class FramePath:
         field_worker, maps_worker = workers if workers is not None else \
             (Worker("relight-field", background=live_source), Worker(background=live_source))
         self._field_worker = field_worker  # a live source's slow stages, beside its frames
+        self._maps_worker = maps_worker
         # (after the subspace's basis: the environment's rows, made ahead on the device's queue,
         # would hold its two dozen renders back - 1.5 s of a 720p bundle's start)
         self.set_environment(env)
@@ -274,6 +276,7 @@ class FramePath:
             est = PoseEstimator(self.rig.model, size, self.focal)
             self._estimators = {size: est}
             self._focal_search = FocalSearch(self.rig.model, size, est.k[0, 0]) if self.auto_focal else None
+            self._focal_job = None  # (another size's search: its result is not this one's)
         return est
 
     @property
@@ -282,14 +285,30 @@ class FramePath:
         one told, the default guess, or the one found (:mod:`.focal`)."""
         return next((float(e.k[0, 0]) for e in self._estimators.values()), None)
 
+    @property
+    def focal_found(self) -> bool:
+        """Whether the frames' focal length was found (:mod:`.focal`) rather than told or guessed."""
+        return self._focal_search is not None and self._focal_search.found is not None
+
     def _search_focal(self, est: PoseEstimator, ref_idx: np.ndarray, xy: np.ndarray) -> None:
-        """A posed frame's points to the focal search; one step of it (the estimator switched to the
-        focal length found, its pose solved afresh on the next frame)."""
+        """A posed frame's points to the focal search; the search run once its samples are in - in
+        the frame for a file, on the maps' worker for a live source - and the estimator switched to
+        the focal length it found (its pose solved afresh on the next frame)."""
         search = self._focal_search
-        if search is None or search.done:
+        if search is None or search.done and self._focal_job is None:
             return
-        search.observe(ref_idx, xy)
-        found = search.step()
+        if self._focal_job is not None:
+            if not self._focal_job.done():
+                return
+            found, self._focal_job = self._focal_job.result(), None
+        else:
+            search.observe(ref_idx, xy)
+            if not search.ready:
+                return
+            if self.live_source:
+                self._focal_job = self._maps_worker.submit(search.run)
+                return
+            found = search.run()
         if found is not None:
             est.k = camera_matrix(est.frame_size, found)
             est.last = None
@@ -308,8 +327,9 @@ class FramePath:
         for est in self._estimators.values():
             est.last = None
         if self.auto_focal:  # another video: another camera, searched for afresh
-            self._estimators = {}
-            self._focal_search = None
+            if self._focal_job is not None:
+                self._focal_job.result()
+            self._estimators, self._focal_search, self._focal_job = {}, None, None
 
     def warm_up(self, size: tuple[int, int] | None = None, planes: bool = True) -> float:
         """Run every kernel and model the frames will (and make PoCL compile each for its work-group

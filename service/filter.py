@@ -101,6 +101,7 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
     if res.frames == 0:
         raise InputError(f"{inp}: no frames could be read")
     res.timings_ms = {k: timing_stats(v) for k, v in stages.items()}
+    res.focal_px, res.focal_found = fp.frames_focal, fp.focal_found
     res.wall_s = time.perf_counter() - t_start
     if res.faces == 0:
         res.notes.append("no face was found in any frame: the output is the input, unchanged")

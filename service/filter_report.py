@@ -26,6 +26,10 @@ class FilterResult:
     wall_s: float = 0.0
     start_s: float = 0.0
     notes: list = field(default_factory=list)
+    #: The focal length (px) the frames' poses were solved with at the end: the one told, the
+    #: default guess, or the one found (engine.focal); ``focal_found``: whether it was found.
+    focal_px: float | None = None
+    focal_found: bool = False
 
     def summary(self) -> str:
         t = self.timings_ms.get("total", {})
@@ -72,6 +76,7 @@ def write_report(folder: Path, res: FilterResult, inp: Path) -> Path:
                                     "the face's), pixels fitted, status (ok | dark | clipped | few pixels)",
            "head_rotation_convention": "yaw, pitch, roll in degrees, R = Ry(yaw) Rx(pitch) Rz(roll) about camera "
                                        "+Y, +X, +Z (relight camera space), relative to the bundle's reference pose",
+           "focal_px": res.focal_px, "focal_found": res.focal_found,
            "timings_ms": res.timings_ms, "wall_s": res.wall_s, "start_s": res.start_s, "notes": res.notes}
     path = folder / "report.json"
     with atomic_path(path) as tmp:

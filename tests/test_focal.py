@@ -1,13 +1,14 @@
 """The frames' focal length found from the tracked head (engine.focal, issue 49): a rigid model
-seen through a known pinhole is scored lowest at that pinhole's focal length, the search takes
-one candidate a frame and switches only when it explains the points better, and a path that is
-told no focal length searches while one that is told keeps it."""
+seen through a known pinhole is scored lowest at that pinhole's focal length, the search samples
+its frames, runs once and switches only when it explains the points better, and a path that is
+told no focal length searches (in the frame for a file, on a worker for a live source) while one
+that is told keeps it."""
 
 import numpy as np
 import pytest
 
 from relight.directions import rotation_matrix
-from relight.engine.focal import CANDIDATES, SAMPLE_EVERY, SAMPLES, FocalSearch, best_focal, score
+from relight.engine.focal import CANDIDATES, MAX_POINTS, SAMPLE_EVERY, SAMPLES, FocalSearch, best_focal, score
 from relight.engine.pose import DEFAULT_FOCAL, camera_matrix, lift_landmarks
 
 from .tolerances import FOCAL_FOUND_REL
@@ -71,25 +72,20 @@ def test_the_parabola_refines_between_neighbours_and_stays_there():
     assert best_focal(np.array([3.0, 1.0, 1.0, 3.0]), focals) in (200.0, pytest.approx(np.exp(x[1:3].mean())))
 
 
-def test_the_search_takes_a_candidate_a_frame_and_switches_once():
+def test_the_search_samples_then_runs_once_and_switches():
     model, seen = _head(2)
     f_true = 0.55 * max(SIZE)
-    guess = DEFAULT_FOCAL * max(SIZE)
-    search = FocalSearch(model, SIZE, guess)
-    frames = _samples(seen, f_true, SAMPLES * SAMPLE_EVERY)
-    results, scoring = [], 0
-    for idx, xy in frames:
-        search.observe(idx, xy)
-        scoring += len(search.samples) == SAMPLES  # (this frame's step scores)
-        results.append(search.step())
-    assert len(search.samples) == SAMPLES and all(r is None for r in results)  # sampling, then scoring
-    while not search.done:
-        results.append(search.step())
-        scoring += 1
-    assert scoring == len(CANDIDATES) + 1  # the guess, then one candidate a frame
-    found = [r for r in results if r is not None]
-    assert len(found) == 1 and abs(found[0] / f_true - 1.0) < FOCAL_FOUND_REL
-    assert search.step() is None and search.samples == []  # done: nothing more, nothing kept
+    search = FocalSearch(model, SIZE, DEFAULT_FOCAL * max(SIZE))
+    frames = iter(_samples(seen, f_true, SAMPLES * SAMPLE_EVERY))
+    posed = 0
+    while not search.ready:
+        search.observe(*next(frames))
+        posed += 1
+    assert posed == (SAMPLES - 1) * SAMPLE_EVERY + 1  # every SAMPLE_EVERY-th posed frame kept
+    assert all(len(i) <= MAX_POINTS for i, _ in search.samples)
+    found = search.run()
+    assert search.done and not search.ready and search.samples == []  # run once, nothing kept
+    assert found == search.found and abs(found / f_true - 1.0) < FOCAL_FOUND_REL
 
 
 def test_a_search_that_cannot_beat_the_guess_keeps_it():
@@ -98,9 +94,7 @@ def test_a_search_that_cannot_beat_the_guess_keeps_it():
     search = FocalSearch(model, SIZE, guess)
     for idx, xy in _samples(seen, guess, SAMPLES * SAMPLE_EVERY):
         search.observe(idx, xy)
-    while not search.done:
-        assert search.step() is None
-    assert search.found is None
+    assert search.run() is None and search.found is None and search.done
 
 
 def test_a_path_told_its_focal_keeps_it_and_one_told_none_searches(small_bundle):

@@ -101,10 +101,12 @@ def parse_strength(text: str) -> float:
 
 
 def focal_default() -> str:
-    """What --focal defaults to, in words: the frame path's guess (:data:`relight.engine.pose.DEFAULT_FOCAL`)."""
+    """What --focal defaults to, in words: found from the tracked head (:mod:`relight.engine.focal`),
+    starting from the frame path's guess (:data:`relight.engine.pose.DEFAULT_FOCAL`)."""
     from ..engine.pose import DEFAULT_FOCAL
 
-    return f"{DEFAULT_FOCAL:g} x the frame's larger side"
+    return (f"found from the head over its first ~1.5 s of frames, {DEFAULT_FOCAL:g} x the frame's larger side "
+            "until then")
 
 
 def parse_focal(text: str):
