@@ -16,7 +16,10 @@ of the same head (same seed and size). Measured:
   PSNR, the background's change, the seam, flicker - on the procedural and the scanned head and on
   heads not developed on, with before/after sheets (``live-frame/sheet_*.png``);
 * through a webcam's pinhole (:mod:`relight.bench.perspective`): the pose and the live frame on
-  clips of 50, 65 and 80 degrees across, the focal length known and found.
+  clips of 50, 65 and 80 degrees across, the focal length known and found;
+* a turned head's first frame (:mod:`relight.bench.first_frame`): found by the Haar cascade, the
+  detector and the path at every start pose of -60..60 deg yaw and -30..30 pitch, at 640x360,
+  1280x720 and 1920x1080 (``first-frame/first_frame.png``).
 
 Writes ``bench.json``, ``video_pose.png`` (estimated vs true angles over time) and
 ``video_frames.png`` (input / output pairs to look at).
@@ -333,8 +336,9 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = ENV,
             doc["speed"].append(row)
     # The live frame against its truth (every frame rendered under the target light): the person
     # relit, the background untouched, no seam - on the heads developed on and unseen ones.
-    from . import live_frame, perspective
+    from . import first_frame, live_frame, perspective
 
+    doc["first_frame"] = first_frame.run(out / "first-frame", quick=quick, progress=progress)
     doc["perspective"] = perspective.run(out / "perspective", quick=quick, progress=progress, mode=mode,
                                          region=region)
     doc["live_frame"] = live_frame.run(out / "live-frame", quick=quick, progress=progress, mode=mode,
@@ -439,6 +443,12 @@ def table(doc: dict) -> str:
         from . import live_frame
 
         lines.append(live_frame.table(doc["live_frame"]))
+    if doc.get("first_frame"):
+        from . import first_frame
+
+        lines.append("a turned head's first frame (the scanned head, its start pose at every 15 deg; "
+                     "first-frame/first_frame.png):")
+        lines.append(first_frame.table(doc["first_frame"]))
     if doc.get("perspective"):
         from . import perspective
 

@@ -112,3 +112,40 @@ def test_a_path_told_its_focal_keeps_it_and_one_told_none_searches(small_bundle)
     assert free.frames_focal == pytest.approx(DEFAULT_FOCAL * max(w, h)) and free._focal_search is not None
     free.reset()
     assert free.frames_focal is None  # another video: searched for afresh
+
+
+def test_the_reference_is_lifted_with_the_captures_camera():
+    """A bundle's reference frame is lifted with the capture's own focal length (meta camera_focal,
+    from relight capture --focal), else orthographically as its sphere assumed - never with the
+    frames'."""
+    from relight.engine.pose import ORTHOGRAPHIC_FOCAL
+    from relight.engine.rig import reference_focal
+
+    assert reference_focal({"camera_focal": 812.5}, (640, 360)) == 812.5
+    for meta in ({}, {"camera_focal": None}, {"camera_focal": -3.0}, {"camera_focal": float("nan")},
+                 {"camera_focal": True}, {"camera_focal": "wide"}, None):
+        assert reference_focal(meta, (640, 360)) == ORTHOGRAPHIC_FOCAL * 640
+
+
+@pytest.mark.parametrize("live_source", [False, True])
+def test_a_path_searches_in_the_frame_for_a_file_and_on_a_worker_for_a_live_source(small_bundle, live_clip,
+                                                                                   live_source):
+    from relight import load_environment
+    from relight.engine.frame_path import FramePath
+    from relight.video import read_frames
+
+    frames = list(read_frames(live_clip))
+    fp = FramePath(small_bundle, load_environment("builtin:sunset"), live_source=live_source)
+    posed = 0
+    for i, f in enumerate(frames + frames[::-1]):
+        _, info = fp.process(f, i / 30)
+        posed += bool(info.face)
+        search = fp._focal_search
+        if not live_source:  # a file: run in the frame its samples came in (repeatable)
+            assert fp._focal_job is None and search.started == search.done
+        if search.done and fp._focal_job is None:
+            break
+    fp.join()
+    assert search.done and posed < len(frames) * 2
+    assert fp.frames_focal == (search.found if search.found is not None else search.guess)
+    assert fp.focal_found == (search.found is not None)
