@@ -116,6 +116,7 @@ class FramePath:
         # The relit reference frame, filled in place by the relight of each frame (its out=).
         self.relit_frame = np.zeros_like(self.relighter.frame)
         self._field_job = None  # (the Future of _field_work in flight: the setters below join it)
+        self._focal_job = None  # (a live source's focal search on the maps' worker: .focal)
         self.set_mode(mode)
         self.set_strength(strength)
         self.set_exposure(exposure)
@@ -139,7 +140,6 @@ class FramePath:
         # No focal length told: the frames' own is searched for over the first seconds (.focal).
         self.auto_focal = focal is None
         self._focal_search: FocalSearch | None = None
-        self._focal_job = None  # (a live source's search on the maps' worker)
         room = bundle.room_light
         from .face_subspace import FaceSubspace
 
@@ -539,9 +539,12 @@ class FramePath:
     def join(self) -> None:
         """Wait for the slow stages a live source runs beside its frames (the field, then the
         person's maps and the live light's fit) and take what they made: after it the path's
-        state is its own thread's (a setting changed, a reset, a test comparing frames)."""
+        state is its own thread's (a setting changed, a reset, a test comparing frames); and for
+        the focal search on the maps' worker (its result is taken on the next frame)."""
         if self._field_job is not None:
             self._take_field(None, wait=True)
+        if self._focal_job is not None:
+            self._focal_job.result()
 
     def _plan(self, head: Head, turn) -> tuple[Plan, bool]:
         """The scheduler's plan for this frame (:meth:`.schedule.Scheduler.plan`) from what the path
