@@ -453,3 +453,6 @@ CAMERA_FORMAT_CODES = 1.0
 #: The focal length found (engine.focal) from a known rigid model seen through a pinhole: within
 #: this share of the true one (the candidates are 1.25x apart, the parabola refines between them).
 FOCAL_FOUND_REL = 0.12
+#: A beard the capture did not have, relit: its luminance below this share of the cheeks' above it
+#: (the input's is ~0.45; a beard taken for a shadow and filled with the bundle's skin would be ~1).
+BEARD_DARKER_SHARE = 0.85
