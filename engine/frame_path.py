@@ -295,7 +295,7 @@ class FramePath:
         the frame for a file, on the maps' worker for a live source - and the estimator switched to
         the focal length it found (its pose solved afresh on the next frame)."""
         search = self._focal_search
-        if search is None or search.done and self._focal_job is None:
+        if search is None or (search.done and self._focal_job is None):
             return
         if self._focal_job is not None:
             if not self._focal_job.done():
