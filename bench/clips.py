@@ -90,3 +90,14 @@ def run_filter_process(inp: Path, dst: Path, bundle: Path, env: str, report: Pat
     doc = json.loads((Path(report) / "report.json").read_text())
     doc["wall_s"] = time.perf_counter() - t0
     return doc
+
+
+def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
+    """Degrees between estimated and true head rotations, for the frames with an estimate
+    (``estimates``: {frame index as text: (yaw, pitch, roll)}; ``truth``: the clip's meta's
+    head_rotation)."""
+    from relight.directions import rotation_matrix
+    from relight.kernels.relighter import rotation_angle_deg
+
+    return np.asarray([rotation_angle_deg(rotation_matrix(*truth[int(k)]), rotation_matrix(*angles))
+                       for k, angles in estimates.items()])

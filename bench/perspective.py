@@ -43,7 +43,7 @@ def pose_run(bundle, clip: Path, focal) -> dict:
     from relight.engine.frame_path import FramePath
     from relight.video import read_frames
 
-    from .video import rotation_errors
+    from .clips import rotation_errors
 
     meta = json.loads((clip / "truth" / "meta.json").read_text())
     fps = float(meta["fps"])

@@ -39,7 +39,7 @@ from relight.engine.composite import DEFAULT_MODE, DEFAULT_REGION
 
 from . import floor
 from .clips import CAPTURE_HZ as CLIP_CAPTURE_HZ
-from .clips import flicker_step, synth_bundle, synth_live  # noqa: F401 (used by the other benches)
+from .clips import flicker_step, rotation_errors, synth_bundle, synth_live  # noqa: F401 (used by the other benches)
 from .machine import cpu_jiffies, steal_share
 
 STAGES = ("track", "pose", "relight", "light", "warp", "composite", "total")
@@ -72,15 +72,6 @@ ENV = "builtin:sunset"
 
 #: The scanned head shipped with relight, measured beside the procedural one (issue 31).
 SCAN = "builtin:lee-perry-smith"
-
-
-def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
-    """Degrees between estimated and true head rotations, for the frames with an estimate."""
-    from relight.directions import rotation_matrix
-    from relight.kernels.relighter import rotation_angle_deg
-
-    return np.asarray([rotation_angle_deg(rotation_matrix(*truth[int(k)]), rotation_matrix(*angles))
-                       for k, angles in estimates.items()])
 
 
 def _frames(live: Path, planes: bool) -> list:

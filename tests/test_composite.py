@@ -179,7 +179,7 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
     monkeypatch.setattr(frame_light.LiveLightStage, "fit", fit)
     outs = []
     for live in (False, True):
-        fp = fpm.FramePath(small_bundle, env, region="person", live_source=live)
+        fp = fpm.FramePath(small_bundle, env, region="person", live_source=live, focal="ortho")
         run = []
         for i, f in enumerate(frames[:12]):
             run.append(fp.process(f, i / 30))

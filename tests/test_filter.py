@@ -52,7 +52,8 @@ def test_a_frame_kept_in_its_planes_is_relit_in_them(clip, small_bundle):
     d = np.abs(small.astype(int) - cv2.resize(rgb[0], (w // 2, h // 2), interpolation=cv2.INTER_AREA))
     assert d.mean() < YUV_SMALL_MEAN_CODES
     for region in ("face", "person"):
-        fp = FramePath(small_bundle, load_environment("builtin:sunset"), region=region)
+        # (the studio's frames are orthographic: told so, as every test of a path on them)
+        fp = FramePath(small_bundle, load_environment("builtin:sunset"), region=region, focal="ortho")
         a = [fp.process(f, i / 30) for i, f in enumerate(rgb)]
         fp.reset()
         b = [fp.process(f, i / 30) for i, f in enumerate(yf)]
@@ -194,11 +195,11 @@ def test_pipelined_filter_is_repeatable_and_close_to_the_serial_path(small_bundl
     runs = []
     for k in range(2):
         out = tmp_path / f"p{k}.mp4"
-        res = run_filter(path, out, small_bundle, env, progress=False, crf=0)
+        res = run_filter(path, out, small_bundle, env, progress=False, crf=0, focal="ortho")
         assert res.frames == len(frames)
         runs.append(list(read_frames(out)))
     assert all(np.array_equal(a, b) for a, b in zip(*runs, strict=True))
-    fp = FramePath(small_bundle, env)
+    fp = FramePath(small_bundle, env, focal="ortho")
     serial = [fp.process(f, i / 30.0)[0] for i, f in enumerate(frames)]
     # crf 0: lossless but in YUV 4:2:0 - compare through the same encode
     ser_path = tmp_path / "serial.mp4"
@@ -347,7 +348,7 @@ def test_frames_of_another_size_than_the_bundle_are_relit(small_bundle, clip):
     from relight.engine.frame_path import FramePath
 
     _, frames = clip
-    fp = FramePath(small_bundle, load_environment("builtin:studio"))
+    fp = FramePath(small_bundle, load_environment("builtin:studio"), focal="ortho")  # (the studio's camera)
     found = 0
     for i, f in enumerate(frames[:12]):
         big = cv2.resize(f, (f.shape[1] * 3 // 2, f.shape[0] * 3 // 2), interpolation=cv2.INTER_LINEAR)
