@@ -127,7 +127,8 @@ def test_the_reference_is_lifted_with_the_captures_camera():
         assert reference_focal(meta, (640, 360)) == ORTHOGRAPHIC_FOCAL * 640
 
 
-@pytest.mark.parametrize("live_source", [False, True])
+@pytest.mark.parametrize("live_source", [False, pytest.param(True, marks=pytest.mark.slow(
+    reason="the worker's run of the same search (~5 s): make test-slow"))])
 def test_a_path_searches_in_the_frame_for_a_file_and_on_a_worker_for_a_live_source(small_bundle, live_clip,
                                                                                    live_source):
     from relight import load_environment

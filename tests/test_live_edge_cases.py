@@ -282,7 +282,8 @@ def test_a_beard_the_capture_did_not_have(path, frames, head, small_bundle):
             assert ratio(out) < BEARD_DARKER_SHARE
 
 
-@pytest.mark.parametrize("cut", [0.35, 0.7])
+@pytest.mark.parametrize("cut", [0.35, pytest.param(0.7, marks=pytest.mark.slow(reason="two thirds cut (~5 s): "
+                                                                                    "make test-slow"))])
 def test_a_face_cut_by_the_frames_edge(path, frames, head, small_bundle, cut):
     """The head moved left until the frame's edge cuts ``cut`` of its face away (issue 49): every
     frame is relit or passed through with a status, nothing changes off the (moved) person, and

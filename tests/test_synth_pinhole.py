@@ -22,9 +22,13 @@ SIZE, SEED = (320, 180), 5
 
 @pytest.fixture(scope="module")
 def scenes():
-    """The same head through the orthographic camera and a 50-degree pinhole at 60 cm."""
-    ortho = LiveScene(LiveConfig(width=SIZE[0], height=SIZE[1], duration=1.0, seed=SEED))
+    """The head through a 50-degree pinhole at 60 cm, and a renderer of the same mesh through the
+    orthographic camera (the scene's mesh with its camera taken away: one studio built, not two)."""
+    import copy
+
     pin = LiveScene(LiveConfig(width=SIZE[0], height=SIZE[1], duration=1.0, seed=SEED, fov=50.0, distance=60.0))
+    ortho = copy.copy(pin.mesh)
+    ortho.camera = None
     return ortho, pin
 
 
@@ -72,7 +76,11 @@ def test_a_pinhole_clip_shows_the_head_where_the_formula_puts_it(scenes):
     # the reference head's width (its middle rows: the neck reaches the frame's bottom) magnified
     # between what a head unit behind the pivot and one in front of it are
     rows = slice(int(0.2 * SIZE[1]), int(0.6 * SIZE[1]))
-    widths = [np.ptp(np.nonzero(sc.render(np.eye(3))[1][rows].max(axis=0) > 0.5)[0]) for sc in (ortho, pin)]
+    covers = [np.zeros(SIZE[::-1]) for _ in range(2)]
+    for cover, mesh in zip(covers, (ortho, pin.mesh), strict=True):
+        (x0, y0, x1, y1), _, cov = mesh.render(np.eye(3))
+        cover[y0:y1, x0:x1] = cov
+    widths = [np.ptp(np.nonzero(c[rows].max(axis=0) > 0.5)[0]) for c in covers]
     unit = head.scale
     assert cam.focal / (cam.distance_px + unit) < widths[1] / widths[0] < cam.focal / (cam.distance_px - unit)
     assert widths[1] > widths[0] + 4  # a 50-degree lens at 60 cm: larger than the orthographic reference
