@@ -30,6 +30,7 @@ from . import bench, capture, demo, filter, live, presets, render, serve, synth
 from .common import (
     COMMANDS,
     VERBOSE_HELP,
+    DefaultsUnlessNone,
     negative_values_joined,
     parse_args,
     run_command,
@@ -86,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
 def serve_main(argv: list[str] | None = None) -> int:
     """The ``relight-serve`` command (the same as ``relight serve``)."""
     p = argparse.ArgumentParser(prog="relight-serve", description="Serve relighting of video frames over HTTP.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                formatter_class=DefaultsUnlessNone)
     serve.add_arguments(p)
     p.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
     args = parse_args(p, argv)

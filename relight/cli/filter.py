@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -12,6 +11,7 @@ from .common import (
     ENV_SPIN_HELP,
     ENV_TURN_HELP,
     REGION_HELP,
+    DefaultsUnlessNone,
     focal_default,
     parse_focal,
     parse_strength,
@@ -28,7 +28,7 @@ def add_parser(sub) -> None:
                     "images with a reflectance bundle: the head is tracked, its rotation turns the environment "
                     "the other way, and the relit light is warped onto the face. Audio and timestamps are "
                     "kept; OUT appears only when complete. Frames without a face pass through unchanged.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=DefaultsUnlessNone)
     p.add_argument("input", type=Path, metavar="IN", help="video file, or a folder of images (a sequence)")
     p.add_argument("output", type=Path, metavar="OUT",
                    help="video to write (.mp4/.mov/.mkv/.avi: H.264, .webm: VP9), or a folder for PNG frames")

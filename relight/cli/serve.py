@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import argparse
 import os
 import re
 from pathlib import Path
 
-from .common import COMMANDS, ENV_KINDS, REGION_HELP, focal_default, parse_focal
+from .common import COMMANDS, ENV_KINDS, REGION_HELP, DefaultsUnlessNone, focal_default, parse_focal
 
 
 def add_arguments(p) -> None:
@@ -71,7 +70,7 @@ def add_parser(sub) -> None:
     sp = sub.add_parser("serve", help=COMMANDS["serve"],
                         description="Keep a bundle loaded and relight frames sent over HTTP (POST /v1/relight); "
                                     "health at /livez and /readyz, Prometheus metrics at /metrics, OpenAPI at /docs.",
-                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                        formatter_class=DefaultsUnlessNone)
     add_arguments(sp)
     sp.set_defaults(func=serve_command)
 
