@@ -5,7 +5,7 @@ frame 0: the room's light, the sensor's noise) at each of :data:`SIZES`, and on 
 * ``haar``: OpenCV's frontal Haar cascade (what found faces before issue 48's detector) - a box
   whose centre is on the head;
 * ``detector``: the path's detector (:class:`relight.engine.face_detect.FaceDetector`) - the
-  same test - and its ms a search (one core);
+  same test - and the CPU ms of a search (both of its threads: the later squares run on a second);
 * ``path``: a fresh per-frame path (``FramePath``, reset before each frame, ``--focal ortho``:
   the studio's camera) relit the frame: a face tracked and posed on its first frame, and the
   pose's error against the truth (deg).

@@ -16,9 +16,10 @@ focal length; the estimator switches to it when it explains the points better th
 :data:`MIN_GAIN`.
 
 Measured on the perspective studio (an orthographic capture's bundle, 640x360 clips of 50, 65
-and 80 degrees at 60 cm: docs/performance.md): the score's minimum lies 0-25 % short of the true
-focal length (the bundle's depth is not the head's), where the pose's error is as low as at the
-true one; on an orthographic clip it lies at 1.5-2x the frame's side, where a long one is right.
+and 80 degrees at 60 cm: docs/performance.md): the score's minimum lies 21-28 % short of the
+true focal length (the bundle's depth is not the head's), where the pose's median error is as low
+as at the true one (its p95 up to 0.9 deg higher); on an orthographic clip it lies at 1.9-2.9x
+the frame's side, where a long one is right.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ import numpy as np
 
 from .pose import ORTHOGRAPHIC_FOCAL, camera_matrix
 
-#: Candidate focal lengths, times the frame's larger side (fields of view of 122 to 14 degrees
-#: across a 16:9 frame, then the orthographic model's long focal length).
+#: Candidate focal lengths, times the frame's larger side (fields of view of 96 to 14 degrees
+#: across it, then the orthographic model's long focal length).
 CANDIDATES = (0.45, 0.55, 0.65, 0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, ORTHOGRAPHIC_FOCAL)
 #: A posed frame's points are kept every this many posed frames, this many frames in all (1.3 s
 #: at 30 fps), at most this many points each (spread over the face's).

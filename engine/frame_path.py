@@ -326,9 +326,7 @@ class FramePath:
         self.field.reset()
         for est in self._estimators.values():
             est.last = None
-        if self.auto_focal:  # another video: another camera, searched for afresh
-            if self._focal_job is not None:
-                self._focal_job.result()
+        if self.auto_focal:  # another video: another camera, searched for afresh (join waited for its job)
             self._estimators, self._focal_search, self._focal_job = {}, None, None
 
     def warm_up(self, size: tuple[int, int] | None = None, planes: bool = True) -> float:

@@ -19,7 +19,7 @@ from relight.video_yuv import downscale_area
 
 from . import composite
 from .live_light import SAMPLES
-from .pose import camera_matrix, lift_landmarks
+from .pose import ORTHOGRAPHIC_FOCAL, camera_matrix, lift_landmarks
 from .refind import REFIND_STEP
 from .tracking import MAX_TRACKED, thin_points
 from .tracking_image import TRACK_ROWS, aligned_box
@@ -58,8 +58,6 @@ def reference_focal(meta: dict, ref_size: tuple[int, int]) -> float:
     """The focal length (px) a bundle's reference frame is lifted with: the capture's camera
     (``camera_focal`` in its meta, px of the reference frame) or, without one, the long focal
     length that models an orthographic camera (:data:`.pose.ORTHOGRAPHIC_FOCAL`)."""
-    from .pose import ORTHOGRAPHIC_FOCAL
-
     f = meta.get("camera_focal") if isinstance(meta, dict) else None
     if isinstance(f, int | float) and not isinstance(f, bool) and np.isfinite(f) and f > 0:
         return float(f)
@@ -148,8 +146,6 @@ class FaceRig:
 
         _, (iy, ix) = distance_transform_edt(~mask_crop, return_indices=True)
         depth_filled = depth[iy, ix]
-        from .pose import ORTHOGRAPHIC_FOCAL
-
         if focal == "ortho":
             # One long focal length for every frame (a crop or a resized copy of an orthographic
             # view must not get a different perspective than the reference).
