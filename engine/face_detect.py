@@ -45,6 +45,13 @@ MODEL_DIR = Path(__file__).parent / "models" / "face-detection"
 INPUT = 128
 #: The keypoints' order in the model's output.
 KEYPOINTS = ("right_eye", "left_eye", "nose_tip", "mouth", "right_ear", "left_ear")
+#: The keypoints a first head pose is solved from (:meth:`relight.engine.pose.PoseEstimator.few_points_pose`):
+#: the eyes, the nose's tip and the mouth. The ears are left out: the model places a hidden ear
+#: where it guesses, and the reference's may lie off the bundle's face, where its depth is the
+#: nearest face pixel's (measured on the scanned head at yaw -45..45, pitch -30..30: the first
+#: pose 2-18 deg off with these four, 2-25 with all six, and with all six the search that follows
+#: lost it at four of the 35 poses).
+POSE_KEYPOINTS = (0, 1, 2, 3)
 #: A detection's least score (MediaPipe's own threshold for this model).
 MIN_SCORE = 0.5
 #: Detections overlapping the best one by more than this (intersection over union) are merged into it.

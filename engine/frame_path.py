@@ -41,7 +41,7 @@ from .frame_person import PersonStage
 from .frame_warp import face_warp, regularised_points
 from .gains import ambient_gain, paste_gain
 from .pose import OneEuroFilter, PoseEstimator, camera_matrix
-from .refind import refind_landmarks
+from .refind import posed_track, refind_landmarks
 from .rig import FaceRig
 from .schedule import RELIGHT_DEG, Head, Plan, Scheduler, face_brightness, thumbnail
 from .threads import Worker, limit_threads
@@ -146,6 +146,10 @@ class FramePath:
         subspace = FaceSubspace.from_relighter(self.relighter, rig.solid_full, scale=rig.ref_track_scale,
                                                room=bundle.ambient_frame() if room is not None else None)
         self.tracker = FaceTracker(rig.track_reference, rig.track_landmarks, rig.track_mask, subspace=subspace)
+        # The reference face's keypoints lifted: a turned face's first pose (:func:`.refind.posed_track`).
+        ref_face = self.tracker.ref_face
+        self._keypoint_model = rig.lift(ref_face.keypoints / np.float32(rig.ref_track_scale)) \
+            if ref_face is not None else None
         field_worker, maps_worker = workers if workers is not None else \
             (Worker("relight-field", background=live_source), Worker(background=live_source))
         self._field_worker = field_worker  # a live source's slow stages, beside its frames
@@ -393,7 +397,9 @@ class FramePath:
         last = est.last
         predict = (lambda idx: est.project(last, idx) * ts) if last is not None else None
         refind = (lambda idx, g: self._refind(est, last, ts, g, idx)) if last is not None else None
-        track = _in_frame(self.tracker.update(grey, predict, refind), ts)
+        posed = (lambda face, g: posed_track(self.rig, self._tracking_reference(), est, self._keypoint_model, face,
+                                             ts, g)) if self._keypoint_model is not None else None
+        track = _in_frame(self.tracker.update(grey, predict, refind, posed), ts)
         tm["track"] = (time.perf_counter() - t0) * 1e3
         t1 = time.perf_counter()
         pose = est.solve(track.ref_index, track.xy) if track is not None else None
@@ -670,11 +676,15 @@ class FramePath:
         self._settling -= 1
         self.angle_filter.reset()
 
+    def _tracking_reference(self) -> np.ndarray:
+        """What the landmarks are matched against: the tracker's live-lit reference when there is
+        one, else its reference."""
+        return self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
+
     def _refind(self, est, pose, ts, grey, idx):
         """The landmarks ``idx`` found again in ``grey`` (:func:`.refind.refind_landmarks`, against
-        the tracker's live-lit reference when there is one): a Track, or None."""
-        ref = self.tracker.lit_reference if self.tracker.lit_reference is not None else self.tracker.reference
-        return refind_landmarks(self.rig, ref, est, pose, ts, grey, idx)
+        :meth:`_tracking_reference`): a Track, or None."""
+        return refind_landmarks(self.rig, self._tracking_reference(), est, pose, ts, grey, idx)
 
     def commit_reference(self) -> None:
         """Hand the tracker the live-lit reference a deferred :meth:`back` made (between frames,

@@ -149,6 +149,33 @@ class PoseEstimator:
         self.last = pose
         return pose
 
+    def from_scratch(self, ref_index: np.ndarray, xy: np.ndarray) -> Pose | None:
+        """The pose of these points by RANSAC then LM alone - no warm start, :attr:`last` left
+        as it is (a candidate's pose, compared before one is taken)."""
+        if len(ref_index) < MIN_INLIERS:
+            return None
+        img = np.asarray(xy, dtype=np.float64).reshape(-1, 1, 2)
+        return self._ransac(self.model[ref_index], img, px_at(RANSAC_PX_AT_540, self.frame_size[1]))
+
+    def few_points_pose(self, points: np.ndarray, xy: np.ndarray) -> Pose | None:
+        """A rough pose from a few model-space points (K, 3) (K >= 4, :func:`lift_landmarks`) seen
+        at ``xy`` (K, 2) frame px - the detector's keypoints: SQPnP (the global minimum of the
+        algebraic error, no start needed) then LM on all of them (too few to vote out an
+        outlier). :attr:`last` is left as it is. None when it fails or puts the points behind the
+        camera."""
+        obj = np.asarray(points, np.float64).reshape(-1, 3)
+        img = np.asarray(xy, np.float64).reshape(-1, 1, 2)
+        if len(obj) < 4 or len(obj) != len(img) or not (np.isfinite(obj).all() and np.isfinite(img).all()):
+            return None
+        try:
+            ok, rvec, tvec = cv2.solvePnP(obj.reshape(-1, 1, 3), img, self.k, None, flags=cv2.SOLVEPNP_SQPNP)
+            if not ok:
+                return None
+            rvec, tvec = cv2.solvePnPRefineLM(obj.reshape(-1, 1, 3), img, self.k, None, rvec, tvec)
+        except cv2.error:
+            return None
+        return self._finish(obj, img, rvec, tvec, np.arange(len(obj)))
+
     def refine(self, ref_index: np.ndarray, xy: np.ndarray) -> Pose | None:
         """The last pose refined by Levenberg-Marquardt on these points (a pose's inliers: no
         RANSAC); None (the last pose kept) when it does not converge on most of them."""

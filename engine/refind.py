@@ -2,7 +2,8 @@
 head pose puts them (:func:`refind_landmarks`, the tracker's ``refind``: see
 :meth:`relight.engine.tracking.FaceTracker.update`), and the matching's parts - the batched
 normalised cross-correlation (:func:`normalised_correlation`) and its sub-pixel peak
-(:func:`parabola_peaks`).
+(:func:`parabola_peaks`) - and a face's start from the head pose its detected keypoints give
+(:func:`posed_track`: the tracker's ``posed``).
 
 Images are (H, W) uint8 grey codes at the tracking scale (:mod:`.tracking_image`); points are
 (N, 2) float32 pixels (x right, y down).
@@ -14,6 +15,8 @@ import numpy as np
 
 from relight.numerics import EPS_VALUE
 
+from .face_detect import POSE_KEYPOINTS
+from .pose import MIN_INLIERS
 from .tracking import MIN_POINTS, Track
 
 #: Re-anchoring (:func:`refind_landmarks`): template side and search radius (px at the tracking
@@ -26,6 +29,19 @@ REFIND_TEMPLATE = 13
 REFIND_RADIUS = 4
 REFIND_MIN_STD = 4.0
 REFIND_MIN_NCC = 0.6
+#: A face found anew from its keypoints' head pose (:func:`posed_track`): the landmarks searched
+#: within this share of the detected face's box diagonal (at most ACQUIRE_RADIUS_MAX px at the
+#: tracking scale, at least REFIND_RADIUS) of where that pose puts them. Measured on the scanned
+#: head at yaw -45..45 and pitch -30..30 (35 poses, 640x360): the keypoints' pose puts the
+#: landmarks a median 3.4 % of the diagonal from where the pose found with them puts them, 10 %
+#: at the 90th percentile; the RANSAC pose that follows needs only a share of them found.
+ACQUIRE_RADIUS_SHARE = (0.1, 0.05)
+ACQUIRE_RADIUS_MAX = 16
+#: ... and the pose found with them is kept when it explains at least this many (twice the fewest
+#: a pose is solved from, :data:`.pose.MIN_INLIERS`): measured on the same head over yaw -60..60
+#: and pitch -30..30, the starts that explained 8-14 landmarks were 5-67 deg off, those with 17 or
+#: more 1.4-7 deg (the goal's poses, |yaw| <= 45 and |pitch| <= 15, 21-100).
+POSED_MIN_POINTS = 2 * MIN_INLIERS
 #: Finite-difference step (reference px) of the pose's local affine at a landmark (the rig's
 #: ``refind_model``: :class:`relight.engine.rig.FaceRig`), and the least area that affine may keep
 #: (a landmark the turned head shows at a fifth of its area is grazing: its template would be a
@@ -84,7 +100,7 @@ def normalised_correlation(windows: np.ndarray, templates: np.ndarray) -> tuple[
     return np.clip(r, -1.0, 1.0), np.sqrt(t_norm2 / area)
 
 
-def refind_landmarks(rig, reference, est, pose, ts, grey, idx):
+def refind_landmarks(rig, reference, est, pose, ts, grey, idx, radius: int = REFIND_RADIUS):
     """A Track of the landmarks ``idx`` found again in ``grey`` (the tracking image, ``ts`` its
     scale of the frame), or None. ``rig``: the path's :class:`relight.engine.rig.FaceRig`;
     ``reference``: the tracker's reference (the live-lit one when there is one); ``est``: the
@@ -103,7 +119,7 @@ def refind_landmarks(rig, reference, est, pose, ts, grey, idx):
     d = REFIND_STEP
     P = est.project_points(pose, rig.refind_model[np.concatenate([idx, idx + m_all, idx + 2 * m_all])]) * ts
     c, jx, jy = P[:n], (P[n:2 * n] - P[:n]) / (d * rs), (P[2 * n:] - P[:n]) / (d * rs)
-    T, R = REFIND_TEMPLATE, REFIND_RADIUS
+    T, R = REFIND_TEMPLATE, int(radius)
     h = (T - 1) / 2.0
     H, W = grey.shape
     # All landmarks at once (NumPy and one cv2.remap): per landmark, OpenCV's warpAffine,
@@ -145,3 +161,33 @@ def refind_landmarks(rig, reference, est, pose, ts, grey, idx):
     dy = parabola_peaks(rk[ar, py - 1, px], rk[ar, py, px], rk[ar, py + 1, px])
     xy = np.stack([gx[sel[k]] + px + dx + h, gy[sel[k]] + py + dy + h], axis=1).astype(np.float32)
     return Track(ref_index=idx[sel[k]], xy=xy)
+
+
+def posed_track(rig, reference, est, keypoint_model, face, ts, grey):
+    """A Track of the landmarks of a detected ``face`` (:class:`.face_detect.Face` in ``grey``,
+    the tracking image at ``ts`` of the frame) found from a head pose - the start a head turned
+    beyond what a similarity of the frontal reference follows needs - or None.
+
+    The pose of the face's :data:`.face_detect.POSE_KEYPOINTS` against the reference's
+    (``keypoint_model``: (6, 3), the reference face's keypoints lifted, :meth:`.rig.FaceRig.lift`;
+    :meth:`.pose.PoseEstimator.few_points_pose`) is a rough one; every landmark is searched by
+    :func:`refind_landmarks` (templates the pose turns) within :data:`ACQUIRE_RADIUS_SHARE` of the
+    face's size of where it puts them, and the pose of those (RANSAC,
+    :meth:`.pose.PoseEstimator.from_scratch`) keeps its inliers - at least
+    :data:`POSED_MIN_POINTS`, else None. ``est.last`` is not touched."""
+    k = list(POSE_KEYPOINTS)
+    first = est.few_points_pose(keypoint_model[k], np.asarray(face.keypoints, np.float64)[k] / ts)
+    if first is None:
+        return None
+    pose = first
+    for share in ACQUIRE_RADIUS_SHARE:
+        radius = int(np.clip(round(share * face.size), REFIND_RADIUS, ACQUIRE_RADIUS_MAX))
+        found = refind_landmarks(rig, reference, est, pose, ts, grey, np.arange(rig.n_landmarks), radius)
+        if found is None:
+            return None
+        pose = est.from_scratch(found.ref_index, found.xy / np.float32(ts))
+        if pose is None:
+            return None
+    if pose.inliers.size < POSED_MIN_POINTS:
+        return None
+    return Track(ref_index=found.ref_index[pose.inliers], xy=found.xy[pose.inliers])

@@ -82,6 +82,8 @@ class FaceRig:
     ring_index: np.ndarray  # indices of the ring's points in control_ref
     model: np.ndarray  # (N, 3) the control points lifted with the bundle's depth (the pose's model)
     refind_model: np.ndarray  # (3N, 3) model, then each point moved REFIND_STEP px right, then down
+    depth_crop: np.ndarray  # (ch, cw) float32: the bundle's depth (px toward the camera), off the face the nearest face pixel's
+    k_ref: np.ndarray  # (3, 3) the reference's camera (the one it is lifted with: reference_focal)
     ref_track_scale: float  # the tracking copy's scale of the reference
     track_reference: np.ndarray  # the reference grey at the tracking scale
     track_landmarks: np.ndarray  # (L, 2) the landmarks at the tracking scale
@@ -110,6 +112,14 @@ class FaceRig:
     live_normal: np.ndarray  # (S, 3) their normals
     live_full: np.ndarray  # (S,) their relit frame pixels
     live_box: tuple  # (x0, y0, x1, y1) reference box around them
+
+    def lift(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) model points (the pose's model space) of any reference pixels ``points`` (N, 2),
+        lifted as the control points are (the depth read bilinearly, clamped to the crop)."""
+        pts = np.asarray(points, np.float32).reshape(-1, 2)
+        h, w = self.depth_crop.shape
+        xy = np.clip(pts - np.array(self.origin, np.float32), 0, [w - 1, h - 1])
+        return lift_landmarks(pts, _bilinear(self.depth_crop, xy), self.k_ref)
 
     @classmethod
     def build(cls, bundle, relighter, focal=None) -> FaceRig:
@@ -164,6 +174,7 @@ class FaceRig:
         steps = np.concatenate([pts + [REFIND_STEP, 0.0], pts + [0.0, REFIND_STEP]])
         steps_xy = np.clip(steps - np.array([x0, y0], np.float32), 0, [w - 1, h - 1]).astype(np.float32)
         r.refind_model = np.concatenate([model, lift_landmarks(steps, _bilinear(depth_filled, steps_xy), k_ref)])
+        r.depth_crop, r.k_ref = depth_filled, k_ref
         r.n_landmarks = len(landmarks)
         r.ring_index = np.arange(len(landmarks), len(pts))
         r.control_ref = pts

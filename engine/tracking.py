@@ -8,8 +8,11 @@ landmark's 3D position (for the head pose) and its reference position (for the w
   reference's face to a face's guesses every landmark; pyramidal Lucas-Kanade from the
   reference brightness matched there, and from the reference relit as the frame is lit where the
   bundle's illumination subspace puts the face (:mod:`.face_subspace`), refines it -
-  forward-backward checked, the start that holds more points kept. Of several faces the one LK
-  follows the most landmarks of is taken (the bundle's person). No face, or too few points
+  forward-backward checked, the start that holds more points kept. With the caller's
+  ``posed`` start (the path's: a head pose from the face's keypoints, the landmarks searched by
+  templates the pose turns - a head turned 45 deg, which a similarity of the frontal reference
+  does not follow) a third start, kept when it holds more points. Of several faces the one
+  followed the most landmarks of is taken (the bundle's person). No face, or too few points
   survive: no track (the caller passes the frame through).
 * Track: pyramidal LK from the previous frame, forward-backward checked.
 * Re-anchor: every ``REANCHOR_EVERY`` frames, or when the points thin out, the landmarks are
@@ -264,16 +267,17 @@ class FaceTracker:
             return None
         return Track(ref_index=idx[ok], xy=pts[ok].astype(np.float32))
 
-    def acquire(self, grey: np.ndarray) -> Track | None:
+    def acquire(self, grey: np.ndarray, posed=None) -> Track | None:
         """Find the face from scratch (see the module docstring): the detector's faces -> the
-        similarity of their keypoints -> LK from the reference relit as the frame is lit. The
+        similarity of their keypoints -> LK from the reference relit as the frame is lit, and
+        ``posed(face, grey) -> Track or None`` when given (see :meth:`update`). The
         squares for a small face are searched only when the whole frame shows none and no
         search backs off (:data:`SEARCH_BACKOFF_MAX`)."""
         small = self.search_wait == 0
         if not small:
             self.search_wait -= 1
         faces = self.detector.detect(grey, small=small)
-        track = self._from_faces(grey, faces[:CANDIDATE_FACES]) if faces else None
+        track = self._from_faces(grey, faces[:CANDIDATE_FACES], posed) if faces else None
         if track is None:
             if small:
                 self._back_off()
@@ -292,14 +296,18 @@ class FaceTracker:
         s = w / max(rw, 1)
         return np.array([[s, 0.0, x - s * rx], [0.0, s, y - s * ry]])
 
-    def _from_faces(self, grey: np.ndarray, faces: list[Face]) -> Track | None:
-        """The track of the face among ``faces`` that LK follows the most landmarks of from the
+    def _from_faces(self, grey: np.ndarray, faces: list[Face], posed=None) -> Track | None:
+        """The track of the face among ``faces`` that the most landmarks are followed of from the
         reference: the bundle's person (another face does not look like its reference, and the
-        subspace of a few smooth basis images explains any face about as well)."""
+        subspace of a few smooth basis images explains any face about as well). Per face, the
+        similarity's start (:meth:`_track_at`) and ``posed``'s, the one holding more points."""
         best = None
         for face in faces:
             sim = self.face_similarity(face)
             track = self._track_at(grey, sim, face_xywh(face)) if sim is not None else None
+            other = posed(face, grey) if posed is not None else None
+            if other is not None and (track is None or len(other) > len(track)):
+                track = other
             if track is not None and (best is None or len(track) > len(best)):
                 best = track
         return best
@@ -384,12 +392,14 @@ class FaceTracker:
         self.anchored = len(self.track)
         return self.track
 
-    def update(self, grey: np.ndarray, predict=None, refind=None) -> Track | None:
+    def update(self, grey: np.ndarray, predict=None, refind=None, posed=None) -> Track | None:
         """This frame's track (None: no face). ``predict(ref_index) -> (M, 2)`` gives where the
         current pose puts landmarks (used to re-anchor); without it tracks are only followed.
         ``refind(ref_index, grey) -> Track or None``: the landmarks searched again with templates
         warped by the current pose (:func:`relight.engine.refind.refind_landmarks`); when
-        given, re-anchoring uses it instead of LK from the reference."""
+        given, re-anchoring uses it instead of LK from the reference. ``posed(face, grey) -> Track
+        or None``: a face's start from a head pose (see the module docstring), tried at
+        acquisition beside the similarity's."""
         grey = np.ascontiguousarray(grey)
         track = None
         if self.track is not None and self.prev is not None and self.prev.shape == grey.shape:
@@ -403,7 +413,7 @@ class FaceTracker:
             track = self._reanchor(grey, track, predict, refind)
             self.reanchored = self.age == 0
         if track is None:
-            track = self.acquire(grey)
+            track = self.acquire(grey, posed)
             self.age = 0
             self.acquired = track is not None
         if self.age == 0 and track is not None:
