@@ -82,7 +82,7 @@ class FaceRig:
     ring_index: np.ndarray  # indices of the ring's points in control_ref
     model: np.ndarray  # (N, 3) the control points lifted with the bundle's depth (the pose's model)
     refind_model: np.ndarray  # (3N, 3) model, then each point moved REFIND_STEP px right, then down
-    depth_crop: np.ndarray  # (ch, cw) float32: the bundle's depth (px toward the camera), off the face the nearest face pixel's
+    depth_crop: np.ndarray  # (ch, cw) float32 depth (px toward the camera; off the face the nearest face px's)
     k_ref: np.ndarray  # (3, 3) the reference's camera (the one it is lifted with: reference_focal)
     ref_track_scale: float  # the tracking copy's scale of the reference
     track_reference: np.ndarray  # the reference grey at the tracking scale

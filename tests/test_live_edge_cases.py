@@ -118,6 +118,29 @@ def test_a_hand_over_the_face_and_glasses(path, frames, head, kind, small_bundle
         assert found.index(True) <= 5 and np.mean(found) >= EDGE_MIN_FOUND_OCCLUDED
 
 
+def test_a_hand_over_the_whole_face_then_leaving(path, frames, head, small_bundle):
+    """A skin-coloured hand covers the whole face for 10 frames, then leaves (issue 49): while it
+    covers it nothing but the hand and the person may change, and the face is found again within
+    3 frames of being back in view."""
+    lm = np.asarray(small_bundle.landmarks, np.float32).reshape(-1, 2)
+    x0, y0 = lm.min(axis=0)
+    x1, y1 = lm.max(axis=0)
+    hand = np.zeros(frames[0].shape[:2], np.uint8)
+    cv2.ellipse(hand, (int((x0 + x1) / 2), int((y0 + y1) / 2)), (int((x1 - x0) * 0.75), int((y1 - y0) * 0.75)),
+                0, 0, 360, 1, -1)
+    seq = []
+    for i, f in enumerate(frames[:36]):
+        f = f.copy()
+        if 8 <= i < 18:
+            f[hand > 0] = (205, 150, 120)
+        seq.append(f)
+    outs, infos = _run(path, seq, head | (cv2.dilate(hand, np.ones((5, 5), np.uint8)) > 0))
+    assert all(i.face for i in infos[:8])
+    assert not any(i.face for i in infos[9:18])  # (the first covered frame may still hold the last pose)
+    back = [i.face for i in infos[18:]]
+    assert back.index(True) <= 2 and np.mean(back) >= EDGE_MIN_FOUND
+
+
 def _rims(frame, small_bundle):
     """The frame with dark glasses' rims drawn over the eyes, and the rims' pixels."""
     lm = np.asarray(small_bundle.landmarks, np.float32).reshape(-1, 2)
