@@ -4,8 +4,10 @@ frame 0: the room's light, the sensor's noise) at each of :data:`SIZES`, and on 
 
 * ``haar``: OpenCV's frontal Haar cascade (what found faces before issue 48's detector) - a box
   whose centre is on the head;
-* ``detector``: the path's detector (:class:`relight.engine.face_detect.FaceDetector`) - the
-  same test - and the CPU ms of a search (both of its threads: the later squares run on a second);
+* ``detector``: the path's detector (:class:`relight.engine.face_detect.FaceDetector`) on the
+  frame's tracking image, as the path searches (at most 270 rows, whatever the frame's size) -
+  the same test - and the CPU ms of a search (both of its threads: the later squares run on a
+  second);
 * ``path``: a fresh per-frame path (``FramePath``, reset before each frame, ``--focal ortho``:
   the studio's camera) relit the frame: a face tracked and posed on its first frame, and the
   pose's error against the truth (deg).
@@ -47,6 +49,7 @@ def run(out: Path, *, quick: bool = False, progress: bool = True) -> dict:
     from relight.directions import rotation_matrix
     from relight.engine.face_detect import FaceDetector
     from relight.engine.frame_path import FramePath
+    from relight.engine.tracking_image import tracking_image
     from relight.imageio import atomic_path
     from relight.kernels.relighter import rotation_angle_deg
     from relight.pipeline.synth.live import LiveConfig, LiveScene
@@ -73,10 +76,13 @@ def run(out: Path, *, quick: bool = False, progress: bool = True) -> dict:
                 grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
                 boxes = haar.detectMultiScale(grey, scaleFactor=1.1, minNeighbors=5, minSize=(h // 8, h // 8))
                 found_haar = any(_on_head((x, y, x + bw, y + bh), coverage) for x, y, bw, bh in boxes)
+                # the search as the path runs it: on the tracking image (at most TRACK_ROWS rows,
+                # made for every frame anyway), whatever the frame's size
+                grey, ts, _ = tracking_image(rgb)
                 t0 = time.process_time()
-                faces = detector.detect(rgb)
+                faces = detector.detect(grey)
                 search_ms = (time.process_time() - t0) * 1e3
-                found_det = any(_on_head(f.box, coverage) for f in faces)
+                found_det = any(_on_head(f.box / ts, coverage) for f in faces)
                 fp.reset()
                 _, info = fp.process(rgb, 0.0)
                 err = rotation_angle_deg(r, rotation_matrix(*info.angles)) if info.face else None
