@@ -204,6 +204,11 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     if opts.refine_sphere:
         local = sphere.refine_circle(dark_sphere, local)
     circle = (local[0] + sx0, local[1] + sy0, local[2])
+    focal = None if opts.focal is None else opts.focal * ing.scale  # pixels of the working frame
+    # Through a pinhole the ball is a cone of rays: its outline's centre and radius are not the
+    # ball's off the axis (sphere.refine_cone; the circle's approximation when it is not found).
+    cone = None if focal is None else \
+        sphere.refine_cone(dark_sphere, local, focal=focal, principal=(ing.size[0] / 2 - sx0, ing.size[1] / 2 - sy0))
     for f in fl.flash_frames:
         f = int(f)
         if fl.level[f] < SAMPLE_LEVEL:
@@ -214,8 +219,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
             rejected[f"highlight_{hl.reason}"] = rejected.get(f"highlight_{hl.reason}", 0) + 1
             continue
         xy = (hl.xy[0] + sx0, hl.xy[1] + sy0)
-        focal = None if opts.focal is None else opts.focal * ing.scale  # pixels of the working frame
-        light_dirs[f] = sphere.light_direction(xy, circle, focal=focal, image_size=ing.size)
+        light_dirs[f] = sphere.light_direction(xy, circle, focal=focal, image_size=ing.size, cone=cone)
     timings["sphere"] = time.perf_counter() - t0
 
     # ---- one sample per flash: its well-lit frames, registered, ambient removed, level-weighted

@@ -1,8 +1,9 @@
 """Everything in the synthetic frame that is not the head: the wall and the mirror sphere.
 
-The mirror sphere (orthographic view) reflects the room and, during a flash, shows the flash
-as a small disc whose light the lens spreads into a saturated blob (glare), as phone
-cameras do; its centre obeys the mirror law exactly.
+The mirror sphere (an orthographic view, or a pinhole's: :class:`MirrorSphere` ``camera``)
+reflects the room and, during a flash, shows the flash as a small disc whose light the lens
+spreads into a saturated blob (glare), as phone cameras do; its centre obeys the mirror law
+exactly.
 """
 
 from __future__ import annotations
@@ -31,35 +32,75 @@ def sphere_placement(width: int, height: int) -> tuple[float, float, float]:
     return 0.80 * width, 0.64 * height, 0.10 * height
 
 
+#: A pinhole's sphere (:class:`MirrorSphere` ``camera``): its outline, an ellipse a little wider
+#: than the disc of radius ``r`` off the axis, is rendered within this many ``r`` of its centre.
+PINHOLE_REACH = 1.3
+
+
 @dataclass(frozen=True)
 class MirrorSphere:
-    """A chrome ball of radius ``r`` pixels centred at (cx, cy)."""
+    """A chrome ball of radius ``r`` pixels centred at (cx, cy) - seen by an orthographic camera,
+    or with ``camera`` (a :class:`.pinhole.Pinhole`) through that pinhole: then a ball whose centre
+    lies on the ray through (cx, cy) at the camera's ``distance_px`` from the eye, of radius
+    ``r * distance_px / focal`` (its outline ~``r`` px across; an ellipse off the axis), each
+    sub-sample's view ray from the eye."""
 
     cx: float
     cy: float
     r: float
     glare_sigma: float
+    camera: object = None
 
     @property
     def bbox(self) -> tuple[int, int, int, int]:
         """(x0, y0, x1, y1) region holding the sphere and its glare."""
         pad = int(np.ceil(4 * self.glare_sigma)) + 2
-        return (int(np.floor(self.cx - self.r)) - pad, int(np.floor(self.cy - self.r)) - pad,
-                int(np.ceil(self.cx + self.r)) + pad + 1, int(np.ceil(self.cy + self.r)) + pad + 1)
+        reach = self.r if self.camera is None else PINHOLE_REACH * self.r
+        return (int(np.floor(self.cx - reach)) - pad, int(np.floor(self.cy - reach)) - pad,
+                int(np.ceil(self.cx + reach)) + pad + 1, int(np.ceil(self.cy + reach)) + pad + 1)
+
+    def _ball(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """(the eye (3,), the ball's centre (3,), its radius) in the pinhole's camera space."""
+        cam = self.camera
+        ppx, ppy = cam.center
+        eye = np.array([ppx, -ppy, cam.eye_z])
+        ray = np.array([(self.cx - ppx) / cam.focal, -(self.cy - ppy) / cam.focal, -1.0])
+        ray /= np.linalg.norm(ray)
+        return eye, eye + cam.distance_px * ray, self.r * cam.distance_px / cam.focal
+
+    def _reflections(self, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(inside (len(ys), len(xs)) bool, the view ray's reflection (..., 3), unit) at the image
+        points of columns ``xs`` and rows ``ys``: where the ray from the camera through each meets
+        the ball, the direction a light must come from to be seen there."""
+        if self.camera is None:
+            nx = (xs[None, :] - self.cx) / self.r
+            ny = -(ys[:, None] - self.cy) / self.r
+            rr = nx**2 + ny**2
+            nz = np.sqrt(np.clip(1.0 - rr, 0.0, 1.0))
+            # Reflection of the view ray (0, 0, 1) about n: 2 nz n - v.
+            return rr < 1.0, np.stack(np.broadcast_arrays(2 * nz * nx, 2 * nz * ny, 2 * nz * nz - 1.0), axis=-1)
+        cam = self.camera
+        eye, centre, radius = self._ball()
+        ppx, ppy = cam.center
+        d = np.stack(np.broadcast_arrays((xs[None, :] - ppx) / cam.focal, -(ys[:, None] - ppy) / cam.focal,
+                                         -np.ones((1, 1))), axis=-1)
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        oc = eye - centre
+        b = d @ oc
+        disc = b * b - (oc @ oc - radius * radius)
+        inside = disc > 0.0
+        t = -b - np.sqrt(np.maximum(disc, 0.0))
+        n = (eye + t[..., None] * d - centre) / radius
+        refl = d - 2.0 * (n * d).sum(axis=-1, keepdims=True) * n
+        refl /= np.maximum(np.linalg.norm(refl, axis=-1, keepdims=True), EPS_NORM)
+        return inside, refl
 
     def _subsamples(self):
         x0, y0, x1, y1 = self.bbox
         k = SPHERE_SUPERSAMPLE
         xs = x0 + (np.arange((x1 - x0) * k) + 0.5) / k - 0.5
         ys = y0 + (np.arange((y1 - y0) * k) + 0.5) / k - 0.5
-        nx = (xs[None, :] - self.cx) / self.r
-        ny = -(ys[:, None] - self.cy) / self.r
-        rr = nx**2 + ny**2
-        inside = rr < 1.0
-        nz = np.sqrt(np.clip(1.0 - rr, 0.0, 1.0))
-        # Reflection of the view ray (0, 0, 1) about n: 2 nz n - v.
-        refl = np.stack(np.broadcast_arrays(2 * nz * nx, 2 * nz * ny, 2 * nz * nz - 1.0), axis=-1)
-        return inside, refl
+        return self._reflections(xs, ys)
 
     def _box(self, a: np.ndarray) -> np.ndarray:
         k = SPHERE_SUPERSAMPLE
@@ -87,23 +128,32 @@ class MirrorSphere:
         d = d / np.linalg.norm(d)
         x0, y0, x1, y1 = self.bbox
         img = np.zeros((y1 - y0, x1 - x0), dtype=np.float64)
-        half = d + np.array([0.0, 0.0, 1.0])
+        if self.camera is None:
+            to_camera, centre, radius = np.array([0.0, 0.0, 1.0]), None, self.r
+        else:
+            eye, centre, radius = self._ball()
+            to_camera = (eye - centre) / np.linalg.norm(eye - centre)
+        half = d + to_camera
         if np.linalg.norm(half) < EPS_NORM:
             return np.zeros((*img.shape, 3), dtype=FLOAT)
         # Where to look: around the mirror point of the half vector (the sub-samples below do
         # their own reflection, so the result does not rest on this guess).
         n = half / np.linalg.norm(half)
-        gx, gy = int(round(self.cx + self.r * n[0])), int(round(self.cy - self.r * n[1]))
+        if centre is None:
+            gx, gy = int(round(self.cx + self.r * n[0])), int(round(self.cy - self.r * n[1]))
+            win = int(np.ceil(self.r * np.radians(FLASH_RADIUS_DEG))) + 2
+        else:
+            from .pinhole import image_points
+
+            px_, py_ = image_points(self.camera, (centre + radius * n)[None])
+            gx, gy = int(round(float(px_[0]))), int(round(float(py_[0])))
+            win = int(np.ceil(PINHOLE_REACH * self.r * np.radians(FLASH_RADIUS_DEG))) + 2
         k = FLASH_SUPERSAMPLE
-        win = int(np.ceil(self.r * np.radians(FLASH_RADIUS_DEG))) + 2
         xs = gx - win + (np.arange((2 * win + 1) * k) + 0.5) / k - 0.5
         ys = gy - win + (np.arange((2 * win + 1) * k) + 0.5) / k - 0.5
-        nx = (xs[None, :] - self.cx) / self.r
-        ny = -(ys[:, None] - self.cy) / self.r
-        rr = nx**2 + ny**2
-        nz = np.sqrt(np.clip(1.0 - rr, 0.0, 1.0))
-        cosang = (2 * nz * nx) * d[0] + (2 * nz * ny) * d[1] + (2 * nz * nz - 1.0) * d[2]
-        row, col = np.nonzero((rr < 1.0) & (cosang > np.cos(np.radians(FLASH_RADIUS_DEG))))
+        inside, refl = self._reflections(xs, ys)
+        cosang = refl[..., 0] * d[0] + refl[..., 1] * d[1] + refl[..., 2] * d[2]
+        row, col = np.nonzero(inside & (cosang > np.cos(np.radians(FLASH_RADIUS_DEG))))
         if row.size == 0:
             return np.zeros((*img.shape, 3), dtype=FLOAT)
         radiance = strength * np.pi / (2 * np.pi * (1 - np.cos(np.radians(FLASH_RADIUS_DEG))))
