@@ -109,7 +109,8 @@ def refind_landmarks(rig, reference, est, pose, ts, grey, idx, radius: int = REF
     Each landmark's template is cut from ``reference`` through the local affine map the head
     ``pose`` gives there (finite differences of the lifted model), so a turned head's landmark
     looks as the frame shows it; it is searched
-    within ``REFIND_RADIUS`` px of where the pose puts it by normalised cross-correlation
+    within ``radius`` px (at the tracking scale; :data:`REFIND_RADIUS` by default) of where the
+    pose puts it by normalised cross-correlation
     (gain and offset free), the peak refined to sub-pixel by a parabola per axis. Templates
     without contrast, matches below ``REFIND_MIN_NCC`` and peaks on the search border
     (the landmark is farther) are left out."""

@@ -62,6 +62,14 @@ SEARCH_BACKOFF_MAX = 8
 #: clips in their room's light 39-52 of 120 plain, none relit; the ten side-lit Yale clips none
 #: plain, 63-92 relit.
 PLAIN_START_SHARE = 0.25
+#: The posed start (the caller's ``posed``: a head pose from the face's keypoints, 11-17 ms a face
+#: on this machine - two RANSACs and two wide template searches) is tried only when the
+#: similarity's start holds less than this share of the landmarks: a face turned little, which
+#: that start follows, does not pay for it (a single request is a first frame). Measured on the
+#: scanned head's first frames at 640x360: the similarity's start held 63-114 of its 120 landmarks
+#: at the five poses within 15 deg of the front where it held 60 or more, and posed them 0.1-3.3
+#: deg off (the posed start 0.1-2.8); at 30-45 deg of yaw it held 8-46 or none.
+POSED_BELOW_SHARE = 0.5
 #: Faces (best first) tried when the detector finds several (the one LK follows the most landmarks of is taken).
 CANDIDATE_FACES = 3
 #: A point found again by re-anchoring replaces the followed one (or joins, when it was lost) only
@@ -300,12 +308,14 @@ class FaceTracker:
         """The track of the face among ``faces`` that the most landmarks are followed of from the
         reference: the bundle's person (another face does not look like its reference, and the
         subspace of a few smooth basis images explains any face about as well). Per face, the
-        similarity's start (:meth:`_track_at`) and ``posed``'s, the one holding more points."""
+        similarity's start (:meth:`_track_at`) and - when that holds less than
+        :data:`POSED_BELOW_SHARE` of the landmarks - ``posed``'s, the one holding more points."""
         best = None
         for face in faces:
             sim = self.face_similarity(face)
             track = self._track_at(grey, sim, face_xywh(face)) if sim is not None else None
-            other = posed(face, grey) if posed is not None else None
+            tried = posed is not None and (track is None or len(track) < POSED_BELOW_SHARE * len(self.landmarks))
+            other = posed(face, grey) if tried else None
             if other is not None and (track is None or len(other) > len(track)):
                 track = other
             if track is not None and (best is None or len(track) > len(best)):

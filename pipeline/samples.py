@@ -207,7 +207,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     focal = None if opts.focal is None else opts.focal * ing.scale  # pixels of the working frame
     # Through a pinhole the ball is a cone of rays: its outline's centre and radius are not the
     # ball's off the axis (sphere.refine_cone; the circle's approximation when it is not found).
-    cone = None if focal is None else \
+    cone = None if focal is None or not opts.refine_sphere else \
         sphere.refine_cone(dark_sphere, local, focal=focal, principal=(ing.size[0] / 2 - sx0, ing.size[1] / 2 - sy0))
     for f in fl.flash_frames:
         f = int(f)

@@ -39,6 +39,11 @@ MIN_HIGHLIGHT = 0.15
 PAPER_THRESHOLD = 0.85
 BLOB_THRESHOLD = 0.05
 SATURATED = 0.95
+#: A ball's cone (:func:`refine_cone`) is kept when its outline's edge points lie this close to it
+#: (their median angular distance from the cone, as a share of its angular radius). Measured: 0.001-
+#: 0.002 through 50-80 degree lenses (balls of 36 and 108 px); 0.11-0.12 where the edge search
+#: missed the outline (a 100-120 degree lens stretches it past the circle's guess).
+CONE_MAX_SPREAD = 0.02
 #: Radial edge search for the outline refinement: relative radius range and samples per ray.
 EDGE_RANGE = (0.75, 1.25)
 EDGE_RAYS = 360
@@ -156,9 +161,13 @@ def refine_cone(image: np.ndarray, guess: tuple[float, float, float], *, focal: 
     all at one angle from its axis (robust least squares). A circle fitted in the image is the
     cone's trace only on the axis; off it, its centre and radius are not the sphere's (measured
     with a ball at 0.8 of the width through a 65-degree lens: directions 2-8 deg off with the
-    circle, 0.1-0.2 with the cone). None when the outline is not found or the fit fails."""
+    circle, 0.1-0.2 with the cone). None when the outline is not found, the fit fails or its edge
+    points do not lie on one cone (:data:`CONE_MAX_SPREAD`; the caller keeps the circle's
+    approximation: a lens wider than ~90 degrees stretches the outline past the edge search)."""
+    if not (np.isfinite(focal) and focal > 0 and guess[2] > 0):
+        return None
     found = _edge_points(image, guess)
-    if found is None or not (np.isfinite(focal) and focal > 0):
+    if found is None:
         return None
     u = _rays(*found, focal, principal)
     c0 = _rays(np.array([guess[0]]), np.array([guess[1]]), focal, principal)[0]
@@ -177,9 +186,14 @@ def refine_cone(image: np.ndarray, guess: tuple[float, float, float], *, focal: 
 
     scale = max(a0, EPS) / guess[2]  # radians per pixel at the outline: soft L1 beyond ~0.3 px
     fit = least_squares(resid, x0=[0.0, 0.0, a0], loss="soft_l1", f_scale=0.3 * scale)
-    if not (fit.success and np.isfinite(fit.x).all() and 0.0 < fit.x[2] < 0.5 * np.pi):
+    c = axis(fit.x)
+    spread = float(np.median(np.abs(resid(fit.x)))) / max(float(fit.x[2]), EPS)
+    # as refine_circle: a fit that left its guess by a fifth of the ball is not this ball's outline
+    moved = float(np.arccos(np.clip(c @ c0, -1.0, 1.0)))
+    if not (fit.success and np.isfinite(fit.x).all() and 0.0 < fit.x[2] < 0.5 * np.pi
+            and abs(fit.x[2] - a0) < 0.2 * a0 and moved < 0.2 * a0 and spread < CONE_MAX_SPREAD):
         return None
-    return Cone(axis=axis(fit.x), alpha=float(fit.x[2]))
+    return Cone(axis=c, alpha=float(fit.x[2]))
 
 
 @dataclass(frozen=True)

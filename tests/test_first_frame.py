@@ -6,8 +6,8 @@ through with a status.
 
 The turned heads need a bundle captured at a webcam's size (a 4 s 640x360 capture, ~20 s to
 make: make test-slow); the small 320x180 bundle's face (~60 px) holds too few landmarks for a
-45-degree turn. make test checks the pieces on it: the few-points pose's geometry, a mild turn's
-posed start and the profile."""
+45-degree turn. make test checks the pieces: the few-points pose's geometry, the rig's lift (the
+keypoints' model is made as the landmarks' is) and the profile."""
 
 from __future__ import annotations
 
@@ -110,3 +110,12 @@ def test_few_points_give_the_pose_that_projected_them():
         assert est.last is None  # a candidate's pose: the estimator's own is left alone
     assert est.few_points_pose(pts[:3], xy[:3]) is None
     assert est.few_points_pose(pts[:4], np.full((4, 2), np.nan)) is None
+
+
+def test_the_rig_lifts_any_reference_point_as_it_lifted_its_control_points(frame_path):
+    """FaceRig.lift (the detector's keypoints on the reference, lifted for the first pose) gives
+    the control points' own model back: the same depth, the same camera, the same pixels."""
+    rig = frame_path.rig
+    assert np.allclose(rig.lift(rig.control_ref), rig.model, rtol=0, atol=1e-3)
+    assert frame_path._keypoint_model is not None and frame_path._keypoint_model.shape == (6, 3)
+    assert np.isfinite(frame_path._keypoint_model).all()

@@ -119,3 +119,24 @@ def test_the_pinhole_sphere_shows_the_flash_where_the_mirror_law_puts_it():
         ys, xs = np.mgrid[y0:y1, x0:x1]
         assert abs((img * xs).sum() / img.sum() - px[0]) < SPHERE_FIT_PX
         assert abs((img * ys).sum() / img.sum() - py[0]) < SPHERE_FIT_PX
+
+
+def test_a_lens_too_wide_for_the_edge_search_gives_no_cone():
+    """Through a 110-degree lens the ball at 0.8 of the width is stretched past the circle's edge
+    search: refine_cone says so (None: the caller keeps the circle's approximation) instead of
+    fitting a cone to edges that are not the ball's (measured: 23-47 deg off before the check)."""
+    from relight.pipeline.sphere import refine_cone
+    from relight.pipeline.synth.pinhole import Pinhole
+    from relight.pipeline.synth.scene import sphere_placement
+
+    w, h = 640, 360
+    cam = Pinhole.from_fov((w, h), 110.0, 60.0, head_scale=0.3 * h, pivot_z=0.0)
+    cx, cy, r = sphere_placement(w, h)
+    sphere = MirrorSphere(cx, cy, r, glare_sigma=1.0, camera=cam)
+    x0, y0, _, _ = sphere.bbox
+    _, cover = sphere.ambient_layer(np.full((32, 64, 3), 0.5, np.float32))
+    dark = (0.05 + 0.3 * cover).astype(np.float32)
+    assert cover.max() > 0.99 and cover[0].max() == 0 and cover[:, 0].max() == 0  # all of it in its box
+    local = refine_circle(dark, (cx - x0, cy - y0, r))
+    assert refine_cone(dark, local, focal=cam.focal, principal=(w / 2 - x0, h / 2 - y0)) is None
+    assert refine_cone(dark, (local[0], local[1], 0.0), focal=cam.focal, principal=(0.0, 0.0)) is None

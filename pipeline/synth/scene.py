@@ -32,9 +32,9 @@ def sphere_placement(width: int, height: int) -> tuple[float, float, float]:
     return 0.80 * width, 0.64 * height, 0.10 * height
 
 
-#: A pinhole's sphere (:class:`MirrorSphere` ``camera``): its outline, an ellipse a little wider
-#: than the disc of radius ``r`` off the axis, is rendered within this many ``r`` of its centre.
-PINHOLE_REACH = 1.3
+#: A pinhole's sphere (:class:`MirrorSphere` ``camera``): its outline (an ellipse off the axis,
+#: stretched away from it) is found by projecting this many of its rays.
+OUTLINE_RAYS = 64
 
 
 @dataclass(frozen=True)
@@ -42,8 +42,8 @@ class MirrorSphere:
     """A chrome ball of radius ``r`` pixels centred at (cx, cy) - seen by an orthographic camera,
     or with ``camera`` (a :class:`.pinhole.Pinhole`) through that pinhole: then a ball whose centre
     lies on the ray through (cx, cy) at the camera's ``distance_px`` from the eye, of radius
-    ``r * distance_px / focal`` (its outline ~``r`` px across; an ellipse off the axis), each
-    sub-sample's view ray from the eye."""
+    ``r * distance_px / focal`` (its outline ~``r`` px in radius on the axis; an ellipse off it),
+    each sub-sample's view ray from the eye."""
 
     cx: float
     cy: float
@@ -55,9 +55,31 @@ class MirrorSphere:
     def bbox(self) -> tuple[int, int, int, int]:
         """(x0, y0, x1, y1) region holding the sphere and its glare."""
         pad = int(np.ceil(4 * self.glare_sigma)) + 2
-        reach = self.r if self.camera is None else PINHOLE_REACH * self.r
-        return (int(np.floor(self.cx - reach)) - pad, int(np.floor(self.cy - reach)) - pad,
-                int(np.ceil(self.cx + reach)) + pad + 1, int(np.ceil(self.cy + reach)) + pad + 1)
+        if self.camera is None:
+            lo_x, lo_y, hi_x, hi_y = self.cx - self.r, self.cy - self.r, self.cx + self.r, self.cy + self.r
+        else:
+            xs, ys = self._outline()
+            lo_x, lo_y, hi_x, hi_y = xs.min(), ys.min(), xs.max(), ys.max()
+        return (int(np.floor(lo_x)) - pad, int(np.floor(lo_y)) - pad,
+                int(np.ceil(hi_x)) + pad + 1, int(np.ceil(hi_y)) + pad + 1)
+
+    def _outline(self) -> tuple[np.ndarray, np.ndarray]:
+        """A pinhole's ball: image columns and rows of :data:`OUTLINE_RAYS` points of its outline
+        (the rays from the eye that graze it)."""
+        from .pinhole import image_points
+
+        eye, centre, radius = self._ball()
+        axis = centre - eye
+        dist = float(np.linalg.norm(axis))
+        axis /= dist
+        e1 = np.cross(axis, [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(axis, e1)
+        sin_a = radius / dist
+        cos_a = np.sqrt(max(1.0 - sin_a * sin_a, 0.0))
+        t = np.linspace(0.0, 2.0 * np.pi, OUTLINE_RAYS, endpoint=False)[:, None]
+        rays = cos_a * axis + sin_a * (np.cos(t) * e1 + np.sin(t) * e2)
+        return image_points(self.camera, eye + dist * cos_a * rays)
 
     def _ball(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(the eye (3,), the ball's centre (3,), its radius) in the pinhole's camera space."""
@@ -147,7 +169,9 @@ class MirrorSphere:
 
             px_, py_ = image_points(self.camera, (centre + radius * n)[None])
             gx, gy = int(round(float(px_[0]))), int(round(float(py_[0])))
-            win = int(np.ceil(PINHOLE_REACH * self.r * np.radians(FLASH_RADIUS_DEG))) + 2
+            xs_, ys_ = self._outline()  # the flash's spot is as stretched as the outline
+            reach = 0.5 * max(np.ptp(xs_), np.ptp(ys_))
+            win = int(np.ceil(reach * np.radians(FLASH_RADIUS_DEG))) + 2
         k = FLASH_SUPERSAMPLE
         xs = gx - win + (np.arange((2 * win + 1) * k) + 0.5) / k - 0.5
         ys = gy - win + (np.arange((2 * win + 1) * k) + 0.5) / k - 0.5
