@@ -10,6 +10,9 @@ end (px, and as a share of the true one), the per-frame path's median ms; and th
 against its truth (:mod:`.live_frame`: silhouette and face PSNR, off the person's p99.9) through
 ``relight filter`` of a :data:`~.live_frame.CLIP_S` s truth clip under :data:`ENV`.
 
+And the capture's mirror sphere through 50-100 degree lenses (:func:`sphere_run`): each flash's
+direction as ``relight capture --focal`` reads it, against the outline's circle alone.
+
 Goals (issue 49): with the focal length unknown, head pose <= 2 deg median and <= 4 deg p95, and
 the live frame within 1 dB of the same clip with the focal length known; ``--focal ortho`` on an
 orthographic clip unchanged.
@@ -111,10 +114,69 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
                                           "relit_frames": rep["faces"], "frames": rep["frames"],
                                           "focal_px": rep.get("focal_px")}
         rows.append(row)
-    doc = {"rows": rows, "goals": GOALS, "env": ENV, "mode": mode, "region": region}
+    doc = {"rows": rows, "goals": GOALS, "env": ENV, "mode": mode, "region": region,
+           "sphere": sphere_run(size, (65.0,) if quick else (50.0, 65.0, 80.0, 100.0))}
     with atomic_path(out / "perspective.json") as tmp:
         Path(tmp).write_text(json.dumps(doc, indent=1))
     return doc
+
+
+#: The sphere's directions (:func:`sphere_run`): the flashes' directions, toward the light.
+SPHERE_LIGHTS = ((0.1, 0.2, 1.0), (0.7, -0.3, 0.6), (-0.5, 0.6, 0.62), (0.9, 0.1, 0.3), (-0.8, -0.2, 0.5),
+                 (0.3, 0.8, 0.5), (-0.2, -0.7, 0.7))
+
+
+def sphere_run(size=SIZE, fovs=(50.0, 65.0, 80.0, 100.0)) -> list:
+    """The capture's mirror sphere (where the studio puts it) through pinholes of ``fovs``: each
+    flash's direction as ``relight capture --focal`` reads it - the ball's cone fitted to its
+    outline (:func:`relight.pipeline.sphere.refine_cone`) - and as the outline's circle alone
+    gives it (before issue 49), against the truth: mean and max error (deg) of
+    :data:`SPHERE_LIGHTS`; and whether a cone was fitted (a lens too wide for the edge search
+    keeps the circle)."""
+    from relight.directions import angle_between_deg
+    from relight.pipeline.sphere import find_highlight, light_direction, refine_circle, refine_cone
+    from relight.pipeline.synth.pinhole import Pinhole
+    from relight.pipeline.synth.scene import MirrorSphere, sphere_placement
+
+    w, h = size
+    rows = []
+    for fov in fovs:
+        cam = Pinhole.from_fov((w, h), fov, 60.0, head_scale=0.3 * h, pivot_z=0.0)
+        cx, cy, r = sphere_placement(w, h)
+        ball = MirrorSphere(cx, cy, r, glare_sigma=1.0, camera=cam)
+        x0, y0, _, _ = ball.bbox
+        _, cover = ball.ambient_layer(np.full((32, 64, 3), 0.5, np.float32))
+        dark = (0.05 + 0.3 * cover).astype(np.float32)
+        local = refine_circle(dark, (cx - x0, cy - y0, r))
+        cone = refine_cone(dark, local, focal=cam.focal, principal=(w / 2 - x0, h / 2 - y0))
+        circle = (local[0] + x0, local[1] + y0, local[2])
+        errs = {"cone": [], "circle": []}
+        for d in SPHERE_LIGHTS:
+            d = np.asarray(d, np.float64) / np.linalg.norm(d)
+            hl = find_highlight(np.clip(dark + ball.flash_layer(d)[..., 0], 0, 1), dark, local)
+            if hl.xy is None:
+                continue
+            xy = (hl.xy[0] + x0, hl.xy[1] + y0)
+            for key, c in (("cone", cone), ("circle", None)):
+                got = light_direction(xy, circle, focal=cam.focal, image_size=(w, h), cone=c)
+                errs[key].append(float(angle_between_deg(got, d)))
+        rows.append({"fov": fov, "focal_px": cam.focal, "cone_fitted": cone is not None,
+                     "highlights": len(errs["cone"]), "lights": len(SPHERE_LIGHTS),
+                     **{f"{k}_mean_deg": float(np.mean(v)) if v else None for k, v in errs.items()},
+                     **{f"{k}_max_deg": float(np.max(v)) if v else None for k, v in errs.items()}})
+    return rows
+
+
+def sphere_table(rows: list) -> str:
+    lines = ["| lens | cone fitted | highlights found | directions with the cone: mean / max (deg) "
+             "| with the outline's circle (before) |", "|---|---|---|---|---|"]
+    for r in rows:
+        def f(k):
+            return "-" if r[k] is None else f"{r[k]:.2f}"
+        lines.append(f"| {r['fov']:g} deg | {'yes' if r['cone_fitted'] else 'no'} | {r['highlights']} of "
+                     f"{r['lights']} | {f('cone_mean_deg')} / {f('cone_max_deg')} | "
+                     f"{f('circle_mean_deg')} / {f('circle_max_deg')} |")
+    return "\n".join(lines)
 
 
 def table(doc: dict) -> str:
@@ -133,4 +195,7 @@ def table(doc: dict) -> str:
                          f"{f(p['p95_deg'])} | {f(p['after_median_deg'])} / {f(p['after_p95_deg'])} | "
                          f"{f(p['focal_px'], '{:.0f}')} px{share} | {f(lf['silhouette_psnr'])} / "
                          f"{f(lf['face_psnr'])} | {f(lf['outside_p999_codes'], '{:.0f}')} |")
+    if doc.get("sphere"):
+        lines += ["", "The capture's mirror sphere through each lens (`relight capture --focal`):", "",
+                  sphere_table(doc["sphere"])]
     return "\n".join(lines)

@@ -140,3 +140,14 @@ def test_a_lens_too_wide_for_the_edge_search_gives_no_cone():
     local = refine_circle(dark, (cx - x0, cy - y0, r))
     assert refine_cone(dark, local, focal=cam.focal, principal=(w / 2 - x0, h / 2 - y0)) is None
     assert refine_cone(dark, (local[0], local[1], 0.0), focal=cam.focal, principal=(0.0, 0.0)) is None
+
+
+def test_the_benchmark_of_the_sphere_through_a_pinhole():
+    """relight bench video's sphere rows (bench.perspective.sphere_run): at 65 deg the cone's
+    directions are within the tolerance and the circle's (before) are not; the table says both."""
+    from relight.bench.perspective import sphere_run, sphere_table
+
+    (row,) = sphere_run((640, 360), (65.0,))
+    assert row["cone_fitted"] and row["highlights"] == row["lights"]
+    assert row["cone_max_deg"] < SPHERE_PINHOLE_DEG < row["circle_max_deg"]
+    assert sphere_table([row]).splitlines()[2].startswith("| 65 deg | yes | 7 of 7 | ")
