@@ -170,12 +170,13 @@ def sphere_run(size=SIZE, fovs=(50.0, 65.0, 80.0, 100.0)) -> list:
 def sphere_table(rows: list) -> str:
     lines = ["| lens | cone fitted | highlights found | directions with the cone: mean / max (deg) "
              "| with the outline's circle (before) |", "|---|---|---|---|---|"]
+    def f(r, k):
+        return "-" if r[k] is None else f"{r[k]:.2f}"
+
     for r in rows:
-        def f(k):
-            return "-" if r[k] is None else f"{r[k]:.2f}"
         lines.append(f"| {r['fov']:g} deg | {'yes' if r['cone_fitted'] else 'no'} | {r['highlights']} of "
-                     f"{r['lights']} | {f('cone_mean_deg')} / {f('cone_max_deg')} | "
-                     f"{f('circle_mean_deg')} / {f('circle_max_deg')} |")
+                     f"{r['lights']} | {f(r, 'cone_mean_deg')} / {f(r, 'cone_max_deg')} | "
+                     f"{f(r, 'circle_mean_deg')} / {f(r, 'circle_max_deg')} |")
     return "\n".join(lines)
 
 
