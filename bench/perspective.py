@@ -126,6 +126,25 @@ SPHERE_LIGHTS = ((0.1, 0.2, 1.0), (0.7, -0.3, 0.6), (-0.5, 0.6, 0.62), (0.9, 0.1
                  (0.3, 0.8, 0.5), (-0.2, -0.7, 0.7))
 
 
+def pinhole_ball(size, fov: float):
+    """The capture's mirror sphere where the studio puts it, seen through a pinhole of ``fov``
+    degrees at a call's distance: (the :class:`~relight.pipeline.synth.scene.MirrorSphere`, its
+    coverage and its no-flash image over its box - the ball at 0.35 over a wall at 0.05 -, its
+    outline's refined circle and the principal point, both in the box's pixels)."""
+    from relight.pipeline.sphere import refine_circle
+    from relight.pipeline.synth.pinhole import Pinhole
+    from relight.pipeline.synth.scene import MirrorSphere, sphere_placement
+
+    w, h = size
+    cam = Pinhole.from_fov((w, h), fov, 60.0, head_scale=0.3 * h, pivot_z=0.0)
+    cx, cy, r = sphere_placement(w, h)
+    ball = MirrorSphere(cx, cy, r, glare_sigma=1.0, camera=cam)
+    x0, y0, _, _ = ball.bbox
+    _, cover = ball.ambient_layer(np.full((32, 64, 3), 0.5, np.float32))
+    dark = (0.05 + 0.3 * cover).astype(np.float32)
+    return ball, cover, dark, refine_circle(dark, (cx - x0, cy - y0, r)), (w / 2 - x0, h / 2 - y0)
+
+
 def sphere_run(size=SIZE, fovs=(50.0, 65.0, 80.0, 100.0)) -> list:
     """The capture's mirror sphere (where the studio puts it) through pinholes of ``fovs``: each
     flash's direction as ``relight capture --focal`` reads it - the ball's cone fitted to its
@@ -134,21 +153,15 @@ def sphere_run(size=SIZE, fovs=(50.0, 65.0, 80.0, 100.0)) -> list:
     :data:`SPHERE_LIGHTS`; and whether a cone was fitted (a lens too wide for the edge search
     keeps the circle)."""
     from relight.directions import angle_between_deg
-    from relight.pipeline.sphere import find_highlight, light_direction, refine_circle, refine_cone
-    from relight.pipeline.synth.pinhole import Pinhole
-    from relight.pipeline.synth.scene import MirrorSphere, sphere_placement
+    from relight.pipeline.sphere import find_highlight, light_direction, refine_cone
 
     w, h = size
     rows = []
     for fov in fovs:
-        cam = Pinhole.from_fov((w, h), fov, 60.0, head_scale=0.3 * h, pivot_z=0.0)
-        cx, cy, r = sphere_placement(w, h)
-        ball = MirrorSphere(cx, cy, r, glare_sigma=1.0, camera=cam)
+        ball, _, dark, local, principal = pinhole_ball(size, fov)
+        cam = ball.camera
         x0, y0, _, _ = ball.bbox
-        _, cover = ball.ambient_layer(np.full((32, 64, 3), 0.5, np.float32))
-        dark = (0.05 + 0.3 * cover).astype(np.float32)
-        local = refine_circle(dark, (cx - x0, cy - y0, r))
-        cone = refine_cone(dark, local, focal=cam.focal, principal=(w / 2 - x0, h / 2 - y0))
+        cone = refine_cone(dark, local, focal=cam.focal, principal=principal)
         circle = (local[0] + x0, local[1] + y0, local[2])
         errs = {"cone": [], "circle": []}
         for d in SPHERE_LIGHTS:

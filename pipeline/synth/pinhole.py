@@ -100,6 +100,14 @@ class Pinhole:
         cx, cy = self.center
         return cx + s * (p[:, 0] - cx), cy + s * (-p[:, 1] - cy)
 
+    def view_rays(self, xs, ys) -> np.ndarray:
+        """Unit rays (..., 3) from the eye through image columns ``xs`` and rows ``ys`` (broadcast
+        together): the directions :meth:`image_points` inverts."""
+        x, y = np.broadcast_arrays(np.asarray(xs, np.float64), np.asarray(ys, np.float64))
+        cx, cy = self.center
+        d = np.stack([(x - cx) / self.focal, -(y - cy) / self.focal, -np.ones_like(x)], axis=-1)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
     def meta(self) -> dict:
         """The camera as the live clip's truth records it (``meta.json``'s ``camera``)."""
         return {"model": "pinhole", "fov_deg": self.fov_deg, "focal_px": self.focal,

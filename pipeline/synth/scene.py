@@ -86,9 +86,7 @@ class MirrorSphere:
         cam = self.camera
         ppx, ppy = cam.center
         eye = np.array([ppx, -ppy, cam.eye_z])
-        ray = np.array([(self.cx - ppx) / cam.focal, -(self.cy - ppy) / cam.focal, -1.0])
-        ray /= np.linalg.norm(ray)
-        return eye, eye + cam.distance_px * ray, self.r * cam.distance_px / cam.focal
+        return eye, eye + cam.distance_px * cam.view_rays(self.cx, self.cy), self.r * cam.distance_px / cam.focal
 
     def _reflections(self, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(inside (len(ys), len(xs)) bool, the view ray's reflection (..., 3), unit) at the image
@@ -101,12 +99,8 @@ class MirrorSphere:
             nz = np.sqrt(np.clip(1.0 - rr, 0.0, 1.0))
             # Reflection of the view ray (0, 0, 1) about n: 2 nz n - v.
             return rr < 1.0, np.stack(np.broadcast_arrays(2 * nz * nx, 2 * nz * ny, 2 * nz * nz - 1.0), axis=-1)
-        cam = self.camera
         eye, centre, radius = self._ball()
-        ppx, ppy = cam.center
-        d = np.stack(np.broadcast_arrays((xs[None, :] - ppx) / cam.focal, -(ys[:, None] - ppy) / cam.focal,
-                                         -np.ones((1, 1))), axis=-1)
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        d = self.camera.view_rays(xs[None, :], ys[:, None])
         oc = eye - centre
         b = d @ oc
         disc = b * b - (oc @ oc - radius * radius)
