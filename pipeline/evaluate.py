@@ -47,15 +47,13 @@ def evaluate_capture(report: dict, bundle, truth_dir) -> dict:
     s = float(bundle.meta.get("capture_scale", 1.0))
     ys, xs = np.nonzero(mask)
     pts = np.stack([xs, ys, np.ones(xs.size)], axis=1)[:: max(xs.size // 2000, 1)]
-    c_true = meta["head_center"]
     ref = int(report["reference_frame"])
-    t_ref_inv = np.linalg.inv(_h(rigid_matrix(*meta["head_motion"][ref], c_true)))
+    at_ref, moved = _true_motion(meta, pts, truth_dir, ref)
     c_est = np.asarray(report["transform_center"], dtype=np.float64) / s
     errs = []
     for f, mot in report["transforms"].items():
-        true = _h(rigid_matrix(*meta["head_motion"][int(f)], c_true)) @ t_ref_inv
         est = _h(rigid_matrix(mot[0] / s, mot[1] / s, mot[2], c_est))
-        d = (pts @ true.T - pts @ est.T)[:, :2]
+        d = moved(int(f)) - (at_ref @ est.T)[:, :2]
         errs.append(np.mean(np.sum(d * d, axis=1)))
     out["registration_rms_px"] = float(np.sqrt(np.mean(errs)))
     ang = [float(angle_between_deg(d, meta["light_dirs"][f])) for f, d in report["light_dirs"].items()
@@ -89,6 +87,38 @@ def evaluate_capture(report: dict, bundle, truth_dir) -> dict:
             out[f"relit_psnr_{env}"] = relit_psnr(bundle, truth_dir.parent / relit[env], f"builtin:{env}",
                                                   truth_dir / "mask.png")
     return out
+
+
+def _true_motion(meta: dict, pts: np.ndarray, truth_dir: Path, ref: int):
+    """Points of the head in the capture's reference frame ``ref`` and where they are at any
+    frame: ((N, 3) homogeneous image points, a function of the frame returning (N, 2)), from the
+    truth's reference pixels ``pts`` (N, 3: column, row, 1). Orthographic: ``pts`` taken as the
+    reference frame's, moved by the frames' image-plane motions (``head_motion`` about
+    ``head_center``) relative to its. Through a pinhole (``camera``): each pixel lifted to its
+    surface point (``depth.exr``: its height), moved in space by each frame's roll and shift
+    about ``pivot`` and projected - a face's parts move by their own depth's scale."""
+    cam = meta.get("camera", {"model": "orthographic"})
+    if cam["model"] != "pinhole":
+        c_true = meta["head_center"]
+        t_ref_inv = np.linalg.inv(_h(rigid_matrix(*meta["head_motion"][ref], c_true)))
+        return pts, lambda f: (pts @ (_h(rigid_matrix(*meta["head_motion"][f], c_true)) @ t_ref_inv).T)[:, :2]
+    f_px, (cx, cy), eye_z = float(cam["focal_px"]), cam["principal_point"], float(cam["eye_z"])
+    height = read_image(truth_dir / "depth.exr")
+    height = height[..., 0] if height.ndim == 3 else height
+    z = height[pts[:, 1].astype(int), pts[:, 0].astype(int)].astype(np.float64)
+    scale = (eye_z - z) / f_px  # camera-space units a pixel at that depth
+    points = np.stack([cx + (pts[:, 0] - cx) * scale, -(cy + (pts[:, 1] - cy) * scale), z], axis=1)
+    pivot = np.array([meta["pivot"][0], -meta["pivot"][1], meta["pivot"][2]], dtype=np.float64)
+
+    def at(f: int) -> np.ndarray:
+        tx, ty, rot = meta["head_motion"][f]
+        a = np.radians(rot)
+        r = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        q = (points - pivot) @ r.T + pivot + np.array([tx, -ty, 0.0])
+        k = f_px / np.maximum(eye_z - q[:, 2], EPS_VALUE)
+        return np.stack([cx + k * (q[:, 0] - cx), cy + k * (-q[:, 1] - cy)], axis=1)
+
+    return np.concatenate([at(ref), np.ones((len(pts), 1))], axis=1), at
 
 
 #: The truth environments a capture's relit result is measured under (a broad and a low sun).

@@ -11,6 +11,8 @@ import numpy as np
 from relight.envmap import environment_stem
 from relight.errors import InputError
 
+from .pinhole import DEFAULT_DISTANCE_CM, check_camera
+
 #: The environments a capture's truth is rendered under unless told otherwise.
 DEFAULT_TRUTH_ENVS = ("builtin:studio", "builtin:sunset", "builtin:window", "builtin:uniform")
 #: Frame sizes a capture may have (width, height).
@@ -43,6 +45,10 @@ class SynthConfig:
     head_normal_map: str | None = None
     head_specular_map: str | None = None
     head_texture_flip: bool = False
+    #: A pinhole camera of that horizontal field of view (degrees) at that distance (cm) from the
+    #: head (:mod:`.pinhole`, :mod:`.pinhole_view`); ``fov`` None: the orthographic camera.
+    fov: float | None = None
+    distance: float = DEFAULT_DISTANCE_CM
 
     def validate(self) -> SynthConfig:
         """Return self, or raise :class:`InputError` naming the setting to change."""
@@ -67,6 +73,7 @@ class SynthConfig:
             raise InputError("give at least one truth environment")
         if self.head_mesh is None and any((self.head_texture, self.head_normal_map, self.head_specular_map)):
             raise InputError("--head-texture, --head-normal-map and --head-specular-map go with --head-mesh FILE")
+        check_camera(self.fov, self.distance)
         stems = [environment_stem(e) for e in self.truth_envs]
         if len(set(stems)) != len(stems):
             raise InputError(f"truth environments must have distinct names, got {stems}")

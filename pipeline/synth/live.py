@@ -14,7 +14,7 @@ column ``x``, row ``y`` with height ``h`` (pixels toward the camera) is the came
 (:func:`relight.directions.rotation_matrix`: degrees, right-handed rotations about camera +Y,
 +X, +Z) and is seen at column ``P'x``, row ``-P'y``. ``[tx, ty]`` is in image pixels (``ty``
 down). The pivot ``C`` is the head centre (:attr:`.head.Head.center`, between the eyes in the
-image) at a depth of :data:`PIVOT_DEPTH` head units (half the crown-to-chin height = ``0.5 *
+image) at a depth of :data:`.pivot.PIVOT_DEPTH` head units (half the crown-to-chin height = ``0.5 *
 Head.scale`` pixels) behind the face's frontmost point - about the middle of the skull, where
 a neck turns a head. The reference pose (``R = I``, no translation) is the head as built: the
 pose of the static capture's reference frame.
@@ -66,7 +66,6 @@ from relight.spherical_harmonics import environment_sh9
 from relight.video import AUDIO_RATE, VideoWriter
 
 from .config import MAX_SIZE, MIN_SIZE, SynthConfig, head_info
-from .head import Head
 from .mesh_render import MeshLiveHead
 from .motion import (
     AUDIO_KINDS,
@@ -79,12 +78,11 @@ from .motion import (
     start_from,
 )
 from .pinhole import DEFAULT_DISTANCE_CM, ORTHOGRAPHIC_META, Pinhole, check_camera
+from .pivot import mesh_pivot, neck_reach, pivot_point
 from .render import LiveHead
 from .studio import Studio
 
 LIVE_FORMAT_VERSION = 1
-#: Pivot depth behind the face's frontmost point, in head units (``Head.scale`` pixels each).
-PIVOT_DEPTH = 0.5
 #: ``shift = 1`` moves the head up to this fraction of the frame height each way (x and y).
 SHIFT_FRACTION = 0.04
 #: Largest rotation amplitudes (degrees) a height field can show without revealing what it lacks.
@@ -204,32 +202,6 @@ class LiveResult:
     mask: Path
     frame_count: int
     timings: dict = field(default_factory=dict)
-
-
-def pivot_point(head: Head) -> np.ndarray:
-    """Camera-space pivot ``C`` = (cx, -cy, z): the head centre, :data:`PIVOT_DEPTH` head units
-    behind the face's frontmost point."""
-    cx, cy = head.center
-    z = float(head.height[head.mask].max()) - PIVOT_DEPTH * head.scale
-    return np.array([cx, -cy, z], dtype=np.float64)
-
-
-def mesh_pivot(head: Head, points: np.ndarray) -> np.ndarray:
-    """Camera-space pivot of a head mesh: the head centre, halfway in depth between the face's
-    frontmost point and the mesh's back (a real head's middle, where the neck turns it)."""
-    cx, cy = head.center
-    front = float(head.height[head.mask].max())
-    return np.array([cx, -cy, 0.5 * (front + float(points[:, 2].min()))], dtype=np.float64)
-
-
-def neck_reach(reach: float, height: int, head_scale: float, camera: Pinhole) -> float:
-    """How far (reference pixels) a height-field head's neck must reach below the frame's
-    ``height`` for a pinhole ``camera`` to see it leave the frame's bottom, where the orthographic
-    camera needs ``reach``: a camera that shows the neck's plane smaller than the reference (a
-    wide lens) needs it longer. The neck is taken a head unit behind the pivot (its farthest)."""
-    s = camera.focal / (camera.distance_px + head_scale)
-    below = height - camera.center[1]  # the frame's bottom below the principal point
-    return reach if s >= 1.0 else (below + reach) / s - below
 
 
 class LiveScene:

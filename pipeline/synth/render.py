@@ -28,7 +28,7 @@ class LiveHead:
     head : the studio's head; radiance : (P, 3) linear radiance at the head's mask pixels
     (``np.flatnonzero(head.mask)`` order) at the reference pose; room : the room environment
     (lat-long, linear) whose irradiance re-shades turned normals; pivot : camera-space pivot
-    ``C`` (x, -y, z) - see :func:`pivot_point`; reach_px : how far (pixels) the head may move
+    ``C`` (x, -y, z) - see :func:`.pivot.pivot_point`; reach_px : how far (pixels) the head may move
     down, to extend the neck below the frame; camera : the frames' :class:`.pinhole.Pinhole`
     (None: orthographic).
     """

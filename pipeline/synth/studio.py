@@ -32,7 +32,7 @@ from relight.envmap import Lights, environment_stem, environment_to_lights, load
 from relight.errors import InputError
 from relight.imageio import atomic_path, write_image
 from relight.kernels.shading import LightShader
-from relight.numerics import FLOAT, px_at, require_finite
+from relight.numerics import EPS_NORM, FLOAT, px_at, require_finite
 from relight.video import VideoWriter
 
 from ..geometry import height_field_mesh
@@ -43,6 +43,9 @@ from .config import SynthConfig as SynthConfig
 from .config import SynthResult as SynthResult
 from .config import head_info
 from .head import Head, build_head
+from .pinhole import ORTHOGRAPHIC_META, Pinhole
+from .pinhole_view import capture_mesh, posed_layer, reference_view
+from .pivot import mesh_pivot, neck_reach, pivot_point
 from .scene import WALL_FLASH, MirrorSphere, sphere_placement, wall
 
 AMBIENT_ENV = "builtin:room"
@@ -113,8 +116,17 @@ class Studio:
                                                          c.fps, c.camera_drift)
         self.sensor = Sensor().scaled(c.noise)
 
+        #: The camera: None (orthographic, the head image moved in the image plane) or a pinhole
+        #: (``fov``: the head a mesh moved in space and seen through it, :mod:`.pinhole_view`).
+        self.camera: Pinhole | None = None
+        self.pivot: np.ndarray | None = None
+        if c.fov is not None:
+            self.pivot = pivot_point(self.head) if self.mesh is None else \
+                mesh_pivot(self.head, self.placement.project(self.mesh.vertices))
+            self.camera = Pinhole.from_fov((c.width, c.height), c.fov, c.distance, self.head.scale, self.pivot[2])
+        self._head_mesh = None
         cx, cy, r = sphere_placement(c.width, c.height)
-        self.sphere = MirrorSphere(cx, cy, r, glare_sigma=max(0.8, px_at(1.2, c.height)))
+        self.sphere = MirrorSphere(cx, cy, r, glare_sigma=max(0.8, px_at(1.2, c.height)), camera=self.camera)
         self.room = load_environment(AMBIENT_ENV) * np.float32(c.ambient)
         self.wall_albedo = wall(c.width, c.height, np.random.default_rng(rng_scene))
 
@@ -129,8 +141,8 @@ class Studio:
         self._edge_src = flat_pos[(iy * c.width + ix)[edge]]
         # Frames move the head within this crop (its bounding box plus the largest motion).
         reach = px_at(rig.MAX_SHIFT_PX_AT_540, c.height) * max(c.head_motion, 1.0)
-        x0, y0, x1, y1 = self.head.bbox(pad=int(np.ceil(reach + np.radians(rig.MAX_ROT_DEG * max(c.head_motion, 1.0))
-                                                        * max(c.width, c.height))) + 4)
+        self._reach = reach + np.radians(rig.MAX_ROT_DEG * max(c.head_motion, 1.0)) * max(c.width, c.height)
+        x0, y0, x1, y1 = self.head.bbox(pad=int(np.ceil(self._reach)) + 4)
         self._crop = (x0, y0, x1, y1)
         cw = x1 - x0
 
@@ -280,6 +292,11 @@ class Studio:
         region[:] = s_rad + (1.0 - s_cov[..., None]) * region
         for k, f in lit:
             region += np.float32(f) * self._flash_layer(k)
+        if self.camera is not None:  # the head moved in space, seen through the pinhole
+            (hx0, hy0, hx1, hy1), moved, cov = posed_layer(self.head_mesh, self.head_image(head), self.motion[frame])
+            dst = out[hy0:hy1, hx0:hx1]
+            dst[:] = moved + (1.0 - cov[..., None]) * dst
+            return out
         # The head: premultiplied by coverage, moved by this frame's rigid motion.
         hx0, hy0, hx1, hy1 = self._crop
         rgba = self._crop_rgba.copy()
@@ -294,6 +311,35 @@ class Studio:
         dst = out[hy0:hy1, hx0:hx1]
         dst[:] = moved[..., :3] + (1.0 - moved[..., 3:]) * dst
         return out
+
+    @property
+    def head_mesh(self):
+        """The head as a mesh that renders through :attr:`camera` (:func:`.pinhole_view.capture_mesh`),
+        built on first use (it needs :meth:`ambient_head`)."""
+        if self._head_mesh is None:
+            c = self.config
+            reach = self._reach if self.camera is None else \
+                neck_reach(self._reach, c.height, self.head.scale, self.camera)
+            self._head_mesh = capture_mesh(self.head, self.ambient_head(), self.room, self.pivot_or_default,
+                                           reach_px=reach, camera=self.camera, mesh=self.mesh,
+                                           placement=self.placement)
+        return self._head_mesh
+
+    @property
+    def pivot_or_default(self) -> np.ndarray:
+        """The head's pivot (:mod:`.pivot`): the pinhole's, or where it would be (orthographic)."""
+        if self.pivot is not None:
+            return self.pivot
+        return pivot_point(self.head) if self.mesh is None else \
+            mesh_pivot(self.head, self.placement.project(self.mesh.vertices))
+
+    def pinhole_truth(self, images: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
+        """Reference-pose images (the orthographic reference's pixels, (H, W) or (H, W, C)) as
+        the capture's reference frame shows them through the pinhole
+        (:func:`.pinhole_view.reference_view`: 0 off the head), and the head's mask there."""
+        if self.camera is None:
+            raise InputError("an orthographic capture's truth is its reference images as they are")
+        return reference_view(self.head_mesh, images, self.head.mask)
 
     def camera_frame(self, frame: int, *, noisy: bool = True, flash: np.ndarray | None = None) -> np.ndarray:
         """(H, W, 3) uint8 sRGB frame as the phone records it (``flash``: see :meth:`render_frame`)."""
@@ -354,8 +400,29 @@ class Studio:
                               "ambient off; frame = sRGB(clip(gain * white_balance * scene + noise))",
                 "depth": "height toward the camera in pixels (orthographic camera), 0 off the mask",
                 "mesh": "head.ply vertices are (column, -row, height) in pixels",
-            },
-        }
+            } | ({} if self.camera is None else PINHOLE_CONVENTIONS),
+            "camera": ORTHOGRAPHIC_META if self.camera is None else self.camera.meta(),
+        } | ({} if self.pivot is None else {"pivot": [float(self.pivot[0]), float(-self.pivot[1]),
+                                                      float(self.pivot[2])]})
+
+
+#: A capture through a pinhole (``fov``): the conventions that differ from the orthographic one's.
+PINHOLE_CONVENTIONS = {
+    "head_motion": "[tx, ty, rot_deg] per frame, a motion of the head in space: a head point P = (x, -y, h) "
+                   "(column x, row y, height h of the orthographic reference, pixels) moves to "
+                   "Rz(rot) (P - C) + C + (tx, -ty, 0), C = (pivot[0], -pivot[1], pivot[2]), rot counter-clockwise "
+                   "on screen, and is seen through the pinhole (camera): column cx + f (P'x - cx) / (eye_z - P'z), "
+                   "row cy + f (-P'y - cy) / (eye_z - P'z)",
+    "truth_images": "relit_*, olat_*, normals, albedo, depth and mask are the reference pose through the pinhole: "
+                    "each pixel the mean over its samples on the head (2x2 a pixel), the mask where at least half "
+                    "of them are",
+    "depth": "height toward the camera (camera-space Z, pixels of the orthographic reference) of the surface "
+             "seen at each pixel through the pinhole, 0 off the mask",
+    "mesh": "head.ply vertices are camera-space points (column, -row, height) of the orthographic reference, in "
+            "pixels: project them through the camera to meet the images",
+    "sphere": "the ball's centre lies on the ray through image point (sphere[0], sphere[1]) at the camera's "
+              "distance_px from the eye, its radius sphere[2] * distance_px / focal_px",
+}
 
 
 def _union(group: list[Lights]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -408,17 +475,24 @@ def synthesize(out: str | Path, config: SynthConfig | None = None, *, progress: 
 
     t0 = time.perf_counter()
     head = studio.head
-    for name, rad in renders.items():
-        if name == "ambient":
-            continue
-        fname = f"{name}.exr" if name.startswith("olat_") else f"relit_{name}.exr"
-        write_image(truth / fname, studio.head_image(rad) * head.mask[..., None])
+    names = [name for name in renders if name != "ambient"]
+    if studio.camera is None:
+        lit = [studio.head_image(renders[name]) * head.mask[..., None] for name in names]
+        mask, normals, albedo = head.mask, head.normal, head.albedo
+        depth = np.where(head.mask, head.height, 0.0).astype(FLOAT)
+    else:  # the reference frame's view through the pinhole
+        seen, mask = studio.pinhole_truth([studio.head_image(renders[name]) for name in names]
+                                          + [head.normal, head.height, head.albedo])
+        *lit, normals, depth, albedo = seen
+        normals = normals / np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), EPS_NORM)
+    for name, img in zip(names, lit, strict=True):
+        write_image(truth / (f"{name}.exr" if name.startswith("olat_") else f"relit_{name}.exr"), img)
     no_flash = np.zeros_like(renders["ambient"])
     write_image(truth / "ambient.exr", studio.render_frame(studio.reference_frame, flash=no_flash))
-    write_image(truth / "mask.png", head.mask.astype(np.uint8) * 255)
-    write_image(truth / "normals.exr", head.normal)
-    write_image(truth / "depth.exr", np.where(head.mask, head.height, 0.0).astype(FLOAT))
-    write_image(truth / "albedo.exr", head.albedo)
+    write_image(truth / "mask.png", mask.astype(np.uint8) * 255)
+    write_image(truth / "normals.exr", normals.astype(FLOAT))
+    write_image(truth / "depth.exr", depth)
+    write_image(truth / "albedo.exr", albedo)
     with atomic_path(truth / "head.ply") as tmp:
         if studio.mesh is not None:  # the mesh itself, posed as the reference frame shows it
             import trimesh
@@ -460,7 +534,10 @@ def synthesize(out: str | Path, config: SynthConfig | None = None, *, progress: 
 def cached_synthesis(out: str | Path, config: SynthConfig, *, label: str, progress: bool = True) -> Path:
     """``out/synth-<hash of the settings>``: synthesised the first time, reused while its truth
     is there (the benchmarks' cache; any change of a setting makes a new folder)."""
-    key = hashlib.sha1(json.dumps(asdict(config), sort_keys=True).encode()).hexdigest()[:10]
+    settings = asdict(config)
+    if config.fov is None:  # an orthographic capture keeps the folder it had before the camera's settings
+        del settings["fov"], settings["distance"]
+    key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:10]
     cap = Path(out) / f"synth-{key}"
     if not (cap / "truth" / "meta.json").exists():
         if progress:

@@ -75,8 +75,9 @@ def add_parser(sub) -> None:
                    help="--live only: the clip starts with the head tilted this far (degrees; + tilts the nose "
                         "down) and eases into its motion; up to 30 (45 with --head-mesh)")
     p.add_argument("--fov", type=float, default=None, metavar="DEG",
-                   help="with --live: a pinhole camera (a webcam's) of this horizontal field of view, in degrees "
-                        "(default: an orthographic camera, as every clip before)")
+                   help="a pinhole camera (a phone's or a webcam's) of this horizontal field of view, in degrees, "
+                        "for the capture or the --live video; the truth's meta.json holds it (camera) and its images "
+                        "go through it (default: an orthographic camera, as every clip before)")
     p.add_argument("--distance", type=float, default=live.distance, metavar="CM",
                    help="with --fov: the camera's distance from the head's middle, in cm (a person's head: "
                         "22.5 cm crown to chin)")
@@ -102,9 +103,9 @@ def _run_synth(args) -> int:
         raise InputError("--audio applies to --live videos only; add --live or leave --audio out")
     if args.start_yaw is not None or args.start_pitch is not None:
         raise InputError("--start-yaw and --start-pitch apply to --live videos only; add --live or leave them out")
-    if args.fov is not None or args.distance != LiveConfig().distance:
-        raise InputError("--fov and --distance apply to --live videos only (a capture's camera is orthographic); "
-                         "add --live or leave them out")
+    if args.fov is None and args.distance != LiveConfig().distance:
+        raise InputError("--distance places a pinhole camera: give its field of view with --fov, or leave "
+                         "--distance out")
     from ..pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig, synthesize
 
     d = SynthConfig()
@@ -113,7 +114,8 @@ def _run_synth(args) -> int:
                       head_motion=args.head_motion, ambient=args.ambient, noise=args.noise,
                       camera_drift=args.camera_drift, sparse_sides=args.sparse_sides,
                       truth_envs=tuple(args.truth_env or DEFAULT_TRUTH_ENVS),
-                      crf=d.crf if args.crf is None else args.crf, **_head_mesh_args(args))
+                      crf=d.crf if args.crf is None else args.crf, fov=args.fov, distance=args.distance,
+                      **_head_mesh_args(args))
     res = synthesize(args.out, cfg, progress=not args.quiet)
     print(f"wrote {res.video} ({res.frame_count} frames, {res.flash_frames} flash frames) and {res.truth}/")
     print("timings: " + ", ".join(f"{k} {v:.1f}s" for k, v in res.timings.items()))
