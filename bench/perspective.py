@@ -148,12 +148,13 @@ def pinhole_ball(size, fov: float):
 def sphere_run(size=SIZE, fovs=(50.0, 65.0, 80.0, 100.0)) -> list:
     """The capture's mirror sphere (where the studio puts it) through pinholes of ``fovs``: each
     flash's direction as ``relight capture --focal`` reads it - the ball's cone fitted to its
-    outline (:func:`relight.pipeline.sphere.refine_cone`) - and as the outline's circle alone
-    gives it (before issue 49), against the truth: mean and max error (deg) of
-    :data:`SPHERE_LIGHTS`; and whether a cone was fitted (a lens too wide for the edge search
-    keeps the circle)."""
+    outline (:func:`relight.pipeline.sphere.refine_cone`) -, as the outline's circle alone
+    gives it (before issue 49) and as ``--focal auto`` reads it (the focal length found from the
+    outline, :func:`relight.pipeline.sphere.find_focal`, and its cone), against the truth: mean
+    and max error (deg) of :data:`SPHERE_LIGHTS`; whether a cone was fitted (a lens too wide for
+    the edge search keeps the circle) and the focal length found (px; None: orthographic)."""
     from relight.directions import angle_between_deg
-    from relight.pipeline.sphere import find_highlight, light_direction, refine_cone
+    from relight.pipeline.sphere import find_focal, find_highlight, light_direction, refine_cone
 
     w, h = size
     rows = []
@@ -163,7 +164,10 @@ def sphere_run(size=SIZE, fovs=(50.0, 65.0, 80.0, 100.0)) -> list:
         x0, y0, _, _ = ball.bbox
         cone = refine_cone(dark, local, focal=cam.focal, principal=principal)
         circle = (local[0] + x0, local[1] + y0, local[2])
-        errs = {"cone": [], "circle": []}
+        found = find_focal(dark, local, principal=principal, size=size)
+        f_auto = None if found is None else found.focal
+        cone_auto = None if f_auto is None else refine_cone(dark, local, focal=f_auto, principal=principal)
+        errs = {"cone": [], "circle": [], "auto": []}
         for d in SPHERE_LIGHTS:
             d = np.asarray(d, np.float64) / np.linalg.norm(d)
             hl = find_highlight(np.clip(dark + ball.flash_layer(d)[..., 0], 0, 1), dark, local)
@@ -173,7 +177,9 @@ def sphere_run(size=SIZE, fovs=(50.0, 65.0, 80.0, 100.0)) -> list:
             for key, c in (("cone", cone), ("circle", None)):
                 got = light_direction(xy, circle, focal=cam.focal, image_size=(w, h), cone=c)
                 errs[key].append(float(angle_between_deg(got, d)))
-        rows.append({"fov": fov, "focal_px": cam.focal, "cone_fitted": cone is not None,
+            got = light_direction(xy, circle, focal=f_auto, image_size=(w, h), cone=cone_auto)
+            errs["auto"].append(float(angle_between_deg(got, d)))
+        rows.append({"fov": fov, "focal_px": cam.focal, "cone_fitted": cone is not None, "focal_found_px": f_auto,
                      "highlights": len(errs["cone"]), "lights": len(SPHERE_LIGHTS),
                      **{f"{k}_mean_deg": float(np.mean(v)) if v else None for k, v in errs.items()},
                      **{f"{k}_max_deg": float(np.max(v)) if v else None for k, v in errs.items()}})
@@ -182,14 +188,17 @@ def sphere_run(size=SIZE, fovs=(50.0, 65.0, 80.0, 100.0)) -> list:
 
 def sphere_table(rows: list) -> str:
     lines = ["| lens | cone fitted | highlights found | directions with the cone: mean / max (deg) "
-             "| with the outline's circle (before) |", "|---|---|---|---|---|"]
+             "| with the outline's circle (before) | focal found / true | `--focal auto`: mean / max |",
+             "|---|---|---|---|---|---|---|"]
     def f(r, k):
-        return "-" if r[k] is None else f"{r[k]:.2f}"
+        return "-" if r.get(k) is None else f"{r[k]:.2f}"
 
     for r in rows:
+        found = "orthographic" if r.get("focal_found_px") is None else f"{r['focal_found_px'] / r['focal_px']:.3f}"
         lines.append(f"| {r['fov']:g} deg | {'yes' if r['cone_fitted'] else 'no'} | {r['highlights']} of "
                      f"{r['lights']} | {f(r, 'cone_mean_deg')} / {f(r, 'cone_max_deg')} | "
-                     f"{f(r, 'circle_mean_deg')} / {f(r, 'circle_max_deg')} |")
+                     f"{f(r, 'circle_mean_deg')} / {f(r, 'circle_max_deg')} | {found} | "
+                     f"{f(r, 'auto_mean_deg')} / {f(r, 'auto_max_deg')} |")
     return "\n".join(lines)
 
 

@@ -44,7 +44,9 @@ class SampleOptions:
     flash_threshold: float = flash_stage.DEFAULT_THRESHOLD
     flash_min_share: float = flash_stage.DEFAULT_MIN_SHARE
     sphere: tuple[float, float, float] | None = None
-    focal: float | None = None
+    #: The capture's camera for the sphere: "auto" (its focal length found from the ball's outline:
+    #: :func:`.sphere.find_focal`), a focal length in pixels of the video's frames, or None (orthographic).
+    focal: float | str | None = "auto"
     highlight: str = "blob"
     register: bool = True
     subtract_ambient: bool = True
@@ -76,6 +78,8 @@ class Samples:
     light_dirs: dict
     pulse_frames: list
     rejected: dict = field(default_factory=dict)
+    #: The camera the light directions were read with (:func:`sphere_camera`).
+    camera: dict = field(default_factory=lambda: {"focal_px": None, "source": "orthographic"})
     timings: dict = field(default_factory=dict)
     track_quality: dict = field(default_factory=dict)
 
@@ -204,11 +208,13 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     if opts.refine_sphere:
         local = sphere.refine_circle(dark_sphere, local)
     circle = (local[0] + sx0, local[1] + sy0, local[2])
-    focal = None if opts.focal is None else opts.focal * ing.scale  # pixels of the working frame
+    principal = (ing.size[0] / 2 - sx0, ing.size[1] / 2 - sy0)
+    camera = sphere_camera(opts, ing.scale, ing.size, dark_sphere, local, principal)
+    focal = camera["focal_px"]  # pixels of the working frame, or None
     # Through a pinhole the ball is a cone of rays: its outline's centre and radius are not the
     # ball's off the axis (sphere.refine_cone; the circle's approximation when it is not found).
     cone = None if focal is None or not opts.refine_sphere else \
-        sphere.refine_cone(dark_sphere, local, focal=focal, principal=(ing.size[0] / 2 - sx0, ing.size[1] / 2 - sy0))
+        sphere.refine_cone(dark_sphere, local, focal=focal, principal=principal)
     for f in fl.flash_frames:
         f = int(f)
         if fl.level[f] < SAMPLE_LEVEL:
@@ -283,4 +289,28 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
                    reference=ing.crops[ref].rgb(), origin=(x0, y0), frame_size=ing.size, reference_frame=ref,
                    flash=fl, motions=all_motions, motion_center=center, circle=circle,
                    light_dirs={int(f): d for f, d in light_dirs.items()}, pulse_frames=pulse_frames,
-                   rejected=rejected, timings=timings, track_quality=quality)
+                   rejected=rejected, timings=timings, track_quality=quality, camera=camera)
+
+
+def sphere_camera(opts: SampleOptions, scale: float, size: tuple[int, int], dark_sphere: np.ndarray, local, principal
+                  ) -> dict:
+    """The capture's camera as the sphere's directions take it (the report's ``camera``):
+    ``focal_px`` in pixels of the working frame (the video's times ``scale``) or None
+    (orthographic), and ``source``: "told" (``opts.focal`` px of the video), "orthographic" (told
+    None) or "sphere" (``"auto"``: :func:`.sphere.find_focal` on the averaged no-flash ball
+    ``dark_sphere`` around the circle ``local``, the principal point ``principal`` in its pixels,
+    with the outline's misfits; None when the outline says nothing of it)."""
+    f = opts.focal
+    if f is None:
+        return {"focal_px": None, "source": "orthographic"}
+    if isinstance(f, str):
+        if f != "auto":
+            raise InputError(f"focal {f!r}: give a focal length in pixels, 'auto' or None (orthographic)")
+        found = sphere.find_focal(dark_sphere, local, principal=principal, size=size) if opts.refine_sphere else None
+        if found is None:
+            return {"focal_px": None, "source": "sphere", "note": "the ball's outline was not found"}
+        return {"focal_px": found.focal, "source": "sphere", "outline_misfit_px": round(found.misfit_px, 4),
+                "orthographic_misfit_px": round(found.orthographic_misfit_px, 4)}
+    if not (np.isfinite(f) and f > 0):
+        raise InputError(f"focal {f}: give a positive focal length in pixels")
+    return {"focal_px": float(f) * scale, "source": "told"}

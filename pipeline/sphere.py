@@ -44,6 +44,15 @@ SATURATED = 0.95
 #: 0.002 through 50-80 degree lenses (balls of 36 and 108 px); 0.11-0.12 where the edge search
 #: missed the outline (a 100-120 degree lens stretches it past the circle's guess).
 CONE_MAX_SPREAD = 0.02
+#: ``--focal auto`` (:func:`find_focal`): focal lengths tried, times the frame's larger side (a
+#: 118-degree lens to a 7-degree one), how many (evenly in log), and the share of the orthographic
+#: circle's outline misfit the best cone must reach to be kept. Measured on the studio's ball at
+#: 0.8 of a 640x360 frame's width: misfits 0.09-0.10 px at the true focal length of 50, 65 and 80
+#: degree lenses against 0.54-1.80 px for the circle (0.17-0.05 of it); through an orthographic
+#: camera the misfit falls toward the circle's as the focal length grows (no minimum).
+FOCAL_RANGE = (0.3, 8.0)
+FOCAL_STEPS = 29
+FOCAL_MIN_GAIN = 0.5
 #: Radial edge search for the outline refinement: relative radius range and samples per ray.
 EDGE_RANGE = (0.75, 1.25)
 EDGE_RAYS = 360
@@ -169,7 +178,16 @@ def refine_cone(image: np.ndarray, guess: tuple[float, float, float], *, focal: 
     found = _edge_points(image, guess)
     if found is None:
         return None
-    u = _rays(*found, focal, principal)
+    fit = _fit_cone(found, focal, principal, guess)
+    return None if fit is None or fit[1] >= CONE_MAX_SPREAD else fit[0]
+
+
+def _fit_cone(points, focal: float, principal, guess) -> tuple[Cone, float, float] | None:
+    """The :class:`Cone` through a pinhole of ``focal`` px whose edge rays (from image ``points``
+    (xs, ys)) lie closest to it (robust least squares from ``guess``'s circle), its spread (the
+    edge rays' median angular distance from it over its angular radius) and that distance in
+    pixels of the outline; None when the fit fails or leaves its guess by a fifth of the ball."""
+    u = _rays(*points, focal, principal)
     c0 = _rays(np.array([guess[0]]), np.array([guess[1]]), focal, principal)[0]
     a0 = float(np.mean(np.arccos(np.clip(u @ c0, -1.0, 1.0))))
     # the axis as two angles about the guess's ray: c = normalise(c0 + a e1 + b e2)
@@ -187,13 +205,86 @@ def refine_cone(image: np.ndarray, guess: tuple[float, float, float], *, focal: 
     scale = max(a0, EPS) / guess[2]  # radians per pixel at the outline: soft L1 beyond ~0.3 px
     fit = least_squares(resid, x0=[0.0, 0.0, a0], loss="soft_l1", f_scale=0.3 * scale)
     c = axis(fit.x)
-    spread = float(np.median(np.abs(resid(fit.x)))) / max(float(fit.x[2]), EPS)
+    alpha = float(fit.x[2])
+    off = float(np.median(np.abs(resid(fit.x))))
     # as refine_circle: a fit that left its guess by a fifth of the ball is not this ball's outline
     moved = float(np.arccos(np.clip(c @ c0, -1.0, 1.0)))
-    if not (fit.success and np.isfinite(fit.x).all() and 0.0 < fit.x[2] < 0.5 * np.pi
-            and abs(fit.x[2] - a0) < 0.2 * a0 and moved < 0.2 * a0 and spread < CONE_MAX_SPREAD):
+    if not (fit.success and np.isfinite(fit.x).all() and 0.0 < alpha < 0.5 * np.pi
+            and abs(alpha - a0) < 0.2 * a0 and moved < 0.2 * a0):
         return None
-    return Cone(axis=c, alpha=float(fit.x[2]))
+    return Cone(axis=c, alpha=alpha), off / alpha, off / alpha * guess[2]
+
+
+def _circle_misfit(points, guess) -> float:
+    """The edge points' median distance (px) from their robust circle: the orthographic ball's
+    outline misfit (the cone's as the focal length grows without bound)."""
+    px, py = points
+
+    def resid(p):
+        return np.hypot(px - p[0], py - p[1]) - p[2]
+
+    fit = least_squares(resid, x0=list(guess), loss="soft_l1", f_scale=0.3)
+    return float(np.median(np.abs(resid(fit.x))))
+
+
+@dataclass(frozen=True)
+class FocalFound:
+    """What :func:`find_focal` read from a ball's outline: the focal length (px of the image; None:
+    the orthographic camera explains it as well) and the outline's misfit (px, the edge points'
+    median distance) at it and with the orthographic camera's circle."""
+
+    focal: float | None
+    misfit_px: float
+    orthographic_misfit_px: float
+
+
+def find_focal(image: np.ndarray, guess: tuple[float, float, float], *, principal, size: tuple[int, int]
+               ) -> FocalFound | None:
+    """The camera's focal length from the ball's outline, when not told (``relight capture``'s
+    ``--focal auto``). Through a pinhole a ball off the axis is an ellipse stretched toward the
+    principal point (``principal``, (x, y) in ``image``'s pixels) by an amount the focal length
+    sets; only the right focal length puts all the outline's edge rays on one cone. So each focal
+    length of :data:`FOCAL_RANGE` x the frame's larger side (``size`` (w, h)), :data:`FOCAL_STEPS`
+    of them spaced evenly in log, is scored by the edge points' distance from their best cone
+    (:func:`_fit_cone`), the lowest refined by a parabola through it and its neighbours in log
+    focal length; it is kept when its misfit is at most :data:`FOCAL_MIN_GAIN` of the orthographic
+    camera's (a ball near the axis, or an orthographic view, says nothing of the focal length:
+    then None). None when the outline is not found."""
+    if not guess[2] > 0:
+        return None
+    found = _edge_points(image, guess)
+    if found is None:
+        return None
+    ortho = _circle_misfit(found, guess)
+    focals = max(size) * np.geomspace(*FOCAL_RANGE, FOCAL_STEPS)
+    misfit = np.full(focals.size, np.inf)
+    for i, f in enumerate(focals):
+        fit = _fit_cone(found, float(f), principal, guess)
+        if fit is not None:
+            misfit[i] = fit[2]
+    i = int(np.argmin(misfit))
+    if not np.isfinite(misfit[i]) or i == focals.size - 1:
+        return FocalFound(None, ortho, ortho)
+    best, f_best = float(misfit[i]), float(focals[i])
+    if 0 < i and np.isfinite(misfit[i - 1:i + 2]).all():
+        f_vertex = _parabola_vertex(np.log(focals[i - 1:i + 2]), misfit[i - 1:i + 2])
+        fit = None if f_vertex is None else _fit_cone(found, float(np.exp(f_vertex)), principal, guess)
+        if fit is not None and fit[2] <= best:
+            best, f_best = fit[2], float(np.exp(f_vertex))
+    if not best <= FOCAL_MIN_GAIN * ortho:
+        return FocalFound(None, best, ortho)
+    return FocalFound(f_best, best, ortho)
+
+
+def _parabola_vertex(x: np.ndarray, y: np.ndarray) -> float | None:
+    """The x of the vertex of the parabola through three points (x increasing), kept inside them;
+    None when it opens downward."""
+    d = (x[0] - x[1]) * (x[0] - x[2]) * (x[1] - x[2])
+    a = (x[2] * (y[1] - y[0]) + x[1] * (y[0] - y[2]) + x[0] * (y[2] - y[1])) / d
+    b = (x[2] ** 2 * (y[0] - y[1]) + x[1] ** 2 * (y[2] - y[0]) + x[0] ** 2 * (y[1] - y[2])) / d
+    if not a > 0:
+        return None
+    return float(np.clip(-b / (2 * a), x[0], x[2]))
 
 
 @dataclass(frozen=True)

@@ -35,11 +35,12 @@ def prepare_video(path, opts: CaptureOptions, progress: Progress, timings: dict)
     if ing.face_box is not None:
         fx, fy, fw, fh = ing.face_box
         face_local = (fx - x0, fy - y0, fw, fh)
-    # the capture's camera as the sphere's directions assumed it: a focal length in pixels of the
-    # working frame (--focal), or None - orthographic (the rig lifts the reference the same way)
-    focal = opts.samples.focal
+    # the capture's camera as the sphere's directions took it: a focal length in pixels of the
+    # working frame (--focal, or found from the ball), or None - orthographic (the rig lifts the
+    # reference the same way)
+    focal = smp.camera["focal_px"]
     scale = {"capture_scale": ing.scale, "source_size": list(ing.source_size or ing.size),
-             "camera_focal": None if focal is None else float(focal) * ing.scale}
+             "camera_focal": None if focal is None else float(focal)}
     report = {
         "flash_frames": [int(f) for f in smp.flash.flash_frames],
         "flash_peaks": [int(f) for f in smp.flash.peaks],
@@ -53,6 +54,7 @@ def prepare_video(path, opts: CaptureOptions, progress: Progress, timings: dict)
         "rejected": dict(smp.rejected),
         "sphere": list(smp.circle) if smp.circle else None,
         "sphere_source": ing.sphere_source,
+        "camera": dict(smp.camera),
         "face_box": list(ing.face_box) if ing.face_box else None,
         "face_source": ing.face_source,
         "notes": list(ing.notes),

@@ -7,7 +7,15 @@ from relight.directions import angle_between_deg, sphere_point_for_light
 from relight.pipeline.sphere import find_highlight, light_direction, refine_circle
 from relight.pipeline.synth.scene import MirrorSphere
 
-from .tolerances import SPHERE_FIT_PX, SPHERE_LIGHT_DEG, SPHERE_PINHOLE_DEG, SPHERE_PROJECTION_DEG
+from .tolerances import (
+    FOCAL_FOUND_REL,
+    OUTLINE_MISFIT_PX,
+    SPHERE_AUTO_DEG,
+    SPHERE_FIT_PX,
+    SPHERE_LIGHT_DEG,
+    SPHERE_PINHOLE_DEG,
+    SPHERE_PROJECTION_DEG,
+)
 
 
 def _disc(shape, cx, cy, r, inside=0.1, outside=0.4, ss=8):
@@ -82,6 +90,29 @@ def test_a_sphere_through_a_webcams_pinhole_gives_the_flash_direction(fov):
     assert row["cone_fitted"] and row["highlights"] == row["lights"]
     assert row["cone_max_deg"] < SPHERE_PINHOLE_DEG < row["circle_max_deg"]
     assert sphere_table([row]).splitlines()[2].startswith(f"| {fov:g} deg | yes | 7 of 7 | ")
+    # not told the focal length (--focal auto): found from the outline, the directions read with it
+    assert row["focal_found_px"] == pytest.approx(row["focal_px"], rel=FOCAL_FOUND_REL)
+    assert row["auto_max_deg"] < SPHERE_AUTO_DEG
+
+
+def test_an_orthographic_ball_says_nothing_of_a_focal_length():
+    """find_focal on the orthographic studio's ball (and on a pinhole's ball at the principal
+    point, where any focal length makes a circle): no focal length (None: orthographic), the
+    outline close to its circle; a ball not found: None."""
+    from relight.pipeline.sphere import find_focal
+    from relight.pipeline.synth.pinhole import Pinhole
+
+    cam = Pinhole.from_fov((640, 360), 65.0, 60.0, head_scale=108.0, pivot_z=0.0)
+    for ball in (MirrorSphere(64.0, 64.0, 36.0, glare_sigma=1.0),
+                 MirrorSphere(320.0, 180.0, 36.0, glare_sigma=1.0, camera=cam)):
+        x0, y0, _, _ = ball.bbox
+        _, cover = ball.ambient_layer(np.full((32, 64, 3), 0.5, np.float32))
+        dark = (0.05 + 0.3 * cover).astype(np.float32)
+        local = refine_circle(dark, (ball.cx - x0, ball.cy - y0, ball.r))
+        found = find_focal(dark, local, principal=(320.0 - x0, 180.0 - y0), size=(640, 360))
+        assert found is not None and found.focal is None
+        assert found.orthographic_misfit_px < OUTLINE_MISFIT_PX
+    assert find_focal(np.zeros((40, 40), np.float32), (20.0, 20.0, 10.0), principal=(0, 0), size=(640, 360)) is None
 
 
 def test_the_pinhole_sphere_shows_the_flash_where_the_mirror_law_puts_it():

@@ -466,6 +466,14 @@ FEW_POINTS_POSE_DEG = 1.0
 #: A flash's direction from a ball seen through a pinhole, its cone fitted (refine_cone), deg:
 #: measured 0.03-0.21 at 640x360 through 50-80 degree lenses.
 SPHERE_PINHOLE_DEG = 0.5
+#: ``--focal auto``: the focal length found from a ball's outline (find_focal), relative to the
+#: true one (measured 0.977-1.024 at 640x360-1920x1080 through 40-80 degree lenses), and the
+#: flashes' directions read with it, deg (measured at most 0.56).
+FOCAL_FOUND_REL = 0.05
+#: A ball's outline: its edge points' median distance (px) from their circle or cone (measured
+#: 0.08-0.10 on the studio's balls, with and without noise).
+OUTLINE_MISFIT_PX = 0.2
+SPHERE_AUTO_DEG = 1.0
 #: The small test capture's (320x180, its ball 18 px across) light directions against the truth,
 #: mean deg: the orthographic capture measures 1.05 there (LIGHT_DIR_MEAN_DEG is the 480x270 one's goal).
 SMALL_CAPTURE_LIGHT_DIR_MEAN_DEG = 1.2

@@ -6,7 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
-from .common import COMMANDS, parse_size
+from .common import COMMANDS, parse_focal, parse_size
 
 
 def _box(text: str) -> tuple[int, int, int, int]:
@@ -17,6 +17,17 @@ def _box(text: str) -> tuple[int, int, int, int]:
     if len(vals) != 4 or vals[2] <= 0 or vals[3] <= 0:
         raise argparse.ArgumentTypeError(f"{text!r}: write the box as x,y,w,h with positive w and h")
     return vals
+
+
+def _capture_focal(text: str):
+    """--focal: 'auto', 'ortho' (None: orthographic) or a focal length in pixels."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        f = parse_focal(text)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{exc}, or 'auto' (found from the mirror sphere)") from None
+    return None if f == "ortho" else f
 
 
 def _circle(text: str) -> tuple[float, float, float]:
@@ -72,8 +83,11 @@ def add_parser(sub) -> None:
     p.add_argument("--flash-hz", type=float, help="flash rate in Hz (estimated from the video when not given)")
     p.add_argument("--flash-threshold", type=float, default=SampleOptions.flash_threshold,
                    help="least brightness (linear, 0-1) a flash must add to the face over the dark frames")
-    p.add_argument("--focal", type=float, help="camera focal length in pixels for a perspective sphere "
-                   "(orthographic when not given)")
+    p.add_argument("--focal", type=_capture_focal, default=SampleOptions.focal, metavar="PX|auto|ortho",
+                   help="the capture camera's focal length in pixels of the video's frames (the mirror sphere is "
+                        "read through that pinhole); 'auto' (default): found from the ball's outline, which a "
+                        "pinhole stretches off its axis - orthographic when the outline says nothing of it (a ball "
+                        "near the frame's centre); 'ortho': an orthographic camera (before issue 49, the default)")
     p.add_argument("--highlight", default=SampleOptions.highlight, choices=("blob", "paper"),
                    help="highlight position: whole blob (default) or the paper's 0.85 threshold")
     p.add_argument("--no-registration", action="store_true", help="leave out head-motion registration")
