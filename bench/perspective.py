@@ -11,7 +11,8 @@ against its truth (:mod:`.live_frame`: silhouette and face PSNR, off the person'
 ``relight filter`` of a :data:`~.live_frame.CLIP_S` s truth clip under :data:`ENV`.
 
 And the capture's mirror sphere through 50-100 degree lenses (:func:`sphere_run`): each flash's
-direction as ``relight capture --focal`` reads it, against the outline's circle alone.
+direction as ``relight capture --focal`` reads it, against the outline's circle alone; and the
+whole capture through each lens (:func:`capture_run`): ``--focal ortho``, told and ``auto``.
 
 Goals (issue 49): with the focal length unknown, head pose <= 2 deg median and <= 4 deg p95, and
 the live frame within 1 dB of the same clip with the focal length known; ``--focal ortho`` on an
@@ -115,7 +116,8 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
                                           "focal_px": rep.get("focal_px")}
         rows.append(row)
     doc = {"rows": rows, "goals": GOALS, "env": ENV, "mode": mode, "region": region,
-           "sphere": sphere_run(size, (65.0,) if quick else (50.0, 65.0, 80.0, 100.0))}
+           "sphere": sphere_run(size, (65.0,) if quick else (50.0, 65.0, 80.0, 100.0)),
+           "captures": capture_run(out, size, capture_s, fovs, progress)}
     with atomic_path(out / "perspective.json") as tmp:
         Path(tmp).write_text(json.dumps(doc, indent=1))
     return doc
@@ -202,6 +204,58 @@ def sphere_table(rows: list) -> str:
     return "\n".join(lines)
 
 
+#: The capture's camera readings compared (:func:`capture_run`): relight capture's --focal.
+CAPTURE_FOCALS = ("ortho", "told", "auto")
+
+
+def capture_run(out: Path, size=SIZE, duration: float = CAPTURE_S, fovs=FOVS, progress: bool = True) -> list:
+    """The capture itself through a pinhole (``relight synth --fov`` without ``--live``): each
+    studio capture of ``fovs`` (None: orthographic; ``duration`` s at ``size``, 4 Hz flash)
+    captured with ``--focal ortho`` (every capture before issue 49), told the true focal length
+    and ``--focal auto`` (the default: found from the ball), against the studio's truth
+    (:func:`relight.pipeline.evaluate.evaluate_capture`: light directions, normals, relit PSNR)."""
+    from relight import load_bundle
+    from relight.pipeline.capture import capture
+    from relight.pipeline.capture_types import CaptureOptions
+    from relight.pipeline.evaluate import evaluate_capture
+    from relight.pipeline.samples import SampleOptions
+    from relight.pipeline.synth.studio import SynthConfig, cached_synthesis
+
+    rows = []
+    for fov in fovs:
+        name = "orthographic" if fov is None else f"{fov:g} deg"
+        cap = cached_synthesis(out, SynthConfig(width=size[0], height=size[1], duration=duration, flash_hz=4.0,
+                                                fov=fov), label=f"a {name} capture", progress=progress)
+        f_true = json.loads((cap / "truth" / "meta.json").read_text())["camera"].get("focal_px")
+        for label in CAPTURE_FOCALS:
+            if label == "told" and f_true is None:
+                continue
+            focal = {"ortho": None, "told": f_true, "auto": "auto"}[label]
+            if progress:
+                print(f"capturing the {name} capture, --focal {label} ...", flush=True)
+            res = capture(cap / "capture.mp4", cap / f"focal-{label}.bundle",
+                          CaptureOptions(samples=SampleOptions(focal=focal)), progress=False)
+            m = evaluate_capture(res.report, load_bundle(res.bundle), cap / "truth")
+            used = res.report["camera"]["focal_px"]
+            rows.append({"camera": name, "fov": fov, "focal": label, "focal_true_px": f_true, "focal_px": used,
+                         "focal_share": None if used is None or f_true is None else used / f_true,
+                         **{k: m[k] for k in ("light_dir_mean_deg", "light_dir_p95_deg", "normal_median_deg",
+                                              "relit_psnr_window", "relit_psnr_sunset", "registration_rms_px")}})
+    return rows
+
+
+def capture_table(rows: list) -> str:
+    lines = ["| camera | `--focal` | focal used (share of true) | light directions: mean / p95 (deg) "
+             "| normals: median (deg) | relit window / sunset (dB) |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        used = "orthographic" if r["focal_px"] is None else \
+            f"{r['focal_px']:.0f} px" + ("" if r["focal_share"] is None else f" ({r['focal_share']:.3f})")
+        lines.append(f"| {r['camera']} | {r['focal']} | {used} | {r['light_dir_mean_deg']:.2f} / "
+                     f"{r['light_dir_p95_deg']:.2f} | {r['normal_median_deg']:.2f} | {r['relit_psnr_window']:.2f} / "
+                     f"{r['relit_psnr_sunset']:.2f} |")
+    return "\n".join(lines)
+
+
 def table(doc: dict) -> str:
     """The document as a Markdown table."""
     def f(v, fmt="{:.2f}"):
@@ -221,4 +275,7 @@ def table(doc: dict) -> str:
     if doc.get("sphere"):
         lines += ["", "The capture's mirror sphere through each lens (`relight capture --focal`):", "",
                   sphere_table(doc["sphere"])]
+    if doc.get("captures"):
+        lines += ["", "The capture through each lens (`relight synth --fov`, `relight capture --focal`):", "",
+                  capture_table(doc["captures"])]
     return "\n".join(lines)
