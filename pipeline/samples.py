@@ -210,7 +210,7 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
     circle = (local[0] + sx0, local[1] + sy0, local[2])
     principal = (ing.size[0] / 2 - sx0, ing.size[1] / 2 - sy0)
     camera = sphere_camera(opts, ing.scale, ing.size, dark_sphere, local, principal)
-    focal = camera["focal_px"]  # pixels of the working frame, or None
+    focal = None if camera["focal_px"] is None else camera["focal_px"] * ing.scale  # px of the working frame
     # Through a pinhole the ball is a cone of rays: its outline's centre and radius are not the
     # ball's off the axis (sphere.refine_cone; the circle's approximation when it is not found).
     cone = None if focal is None or not opts.refine_sphere else \
@@ -295,11 +295,12 @@ def collect_samples(ing: Ingested, opts: SampleOptions | None = None, *,
 def sphere_camera(opts: SampleOptions, scale: float, size: tuple[int, int], dark_sphere: np.ndarray, local, principal
                   ) -> dict:
     """The capture's camera as the sphere's directions take it (the report's ``camera``):
-    ``focal_px`` in pixels of the working frame (the video's times ``scale``) or None
-    (orthographic), and ``source``: "told" (``opts.focal`` px of the video), "orthographic" (told
-    None) or "sphere" (``"auto"``: :func:`.sphere.find_focal` on the averaged no-flash ball
-    ``dark_sphere`` around the circle ``local``, the principal point ``principal`` in its pixels,
-    with the outline's misfits; None when the outline says nothing of it)."""
+    ``focal_px`` in pixels of the video's frames (the working frame's, of ``size``, are the
+    video's times ``scale``) or None (orthographic), and ``source``: "told" (``opts.focal``),
+    "orthographic" (told None) or "sphere" (``"auto"``: :func:`.sphere.find_focal` on the
+    averaged no-flash ball ``dark_sphere`` around the circle ``local``, the principal point
+    ``principal`` in its pixels, with the outline's misfits in the working frame's pixels; None
+    when the outline says nothing of it)."""
     f = opts.focal
     if f is None:
         return {"focal_px": None, "source": "orthographic"}
@@ -309,8 +310,9 @@ def sphere_camera(opts: SampleOptions, scale: float, size: tuple[int, int], dark
         found = sphere.find_focal(dark_sphere, local, principal=principal, size=size) if opts.refine_sphere else None
         if found is None:
             return {"focal_px": None, "source": "sphere", "note": "the ball's outline was not found"}
-        return {"focal_px": found.focal, "source": "sphere", "outline_misfit_px": round(found.misfit_px, 4),
+        return {"focal_px": None if found.focal is None else found.focal / scale, "source": "sphere",
+                "outline_misfit_px": round(found.misfit_px, 4),
                 "orthographic_misfit_px": round(found.orthographic_misfit_px, 4)}
     if not (np.isfinite(f) and f > 0):
         raise InputError(f"focal {f}: give a positive focal length in pixels")
-    return {"focal_px": float(f) * scale, "source": "told"}
+    return {"focal_px": float(f), "source": "told"}

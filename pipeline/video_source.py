@@ -38,9 +38,9 @@ def prepare_video(path, opts: CaptureOptions, progress: Progress, timings: dict)
     # the capture's camera as the sphere's directions took it: a focal length in pixels of the
     # working frame (--focal, or found from the ball), or None - orthographic (the rig lifts the
     # reference the same way)
-    focal = smp.camera["focal_px"]
+    focal = smp.camera["focal_px"]  # px of the video's frames
     scale = {"capture_scale": ing.scale, "source_size": list(ing.source_size or ing.size),
-             "camera_focal": None if focal is None else float(focal)}
+             "camera_focal": None if focal is None else float(focal) * ing.scale}
     report = {
         "flash_frames": [int(f) for f in smp.flash.flash_frames],
         "flash_peaks": [int(f) for f in smp.flash.peaks],
