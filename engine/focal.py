@@ -15,11 +15,19 @@ waits for it). The lowest score wins, refined by a parabola through it and its n
 focal length; the estimator switches to it when it explains the points better than the guess by
 :data:`MIN_GAIN`.
 
+The model scored is the head's own shape (:attr:`.rig.FaceRig.shape_model`): an orthographic
+capture's reference lifted straight, not through the long pinhole the pose's model is lifted
+with - that lift makes near points smaller than far ones by their depth over its focal length, a
+perspective of its own the search took for the frames' (with exact points of the studio's
+80-degree clip: 0.91 of the true focal length, 1.00 straight).
+
 Measured on the perspective studio (an orthographic capture's bundle, 640x360 clips of 50, 65
-and 80 degrees at 60 cm: docs/performance.md): the score's minimum lies 21-28 % short of the
-true focal length (the bundle's depth is not the head's), where the pose's median error is as low
-as at the true one (its p95 up to 0.9 deg higher); on an orthographic clip it lies at 1.9-2.9x
-the frame's side, where a long one is right.
+and 80 degrees at 60 cm: docs/performance.md): the score's minimum lies 14-17 % short of the
+true focal length (21-28 % before the straight lift): the tracked points themselves lean that
+way - at the true focal length, the points the path tracks put the minimum at 0.75-0.77 of it
+where the exact points put it at 0.95 (the bundle's depth is not the head's), and tracked at a
+shorter one they lean further. On an orthographic clip the minimum lies at 3-5x the frame's
+side, where a long one is right.
 """
 
 from __future__ import annotations
@@ -29,9 +37,10 @@ import numpy as np
 
 from .pose import ORTHOGRAPHIC_FOCAL, camera_matrix
 
-#: Candidate focal lengths, times the frame's larger side (fields of view of 96 to 14 degrees
-#: across it, then the orthographic model's long focal length).
-CANDIDATES = (0.45, 0.55, 0.65, 0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, ORTHOGRAPHIC_FOCAL)
+#: Candidate focal lengths, times the frame's larger side (fields of view of 107 to 14 degrees
+#: across it, then the orthographic model's long focal length; the widest below the studio's
+#: 80-degree webcam's minimum, so the parabola refines it).
+CANDIDATES = (0.37, 0.45, 0.55, 0.65, 0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, ORTHOGRAPHIC_FOCAL)
 #: A posed frame's points are kept every this many posed frames, this many frames in all (1.3 s
 #: at 30 fps), at most this many points each (spread over the face's).
 SAMPLE_EVERY = 2

@@ -279,7 +279,7 @@ class FramePath:
         if est is None:
             est = PoseEstimator(self.rig.model, size, self.focal)
             self._estimators = {size: est}
-            self._focal_search = FocalSearch(self.rig.model, size, est.k[0, 0]) if self.auto_focal else None
+            self._focal_search = FocalSearch(self.rig.shape_model, size, est.k[0, 0]) if self.auto_focal else None
             self._focal_job = None  # (another size's search: its result is not this one's)
         return est
 

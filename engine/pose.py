@@ -82,6 +82,19 @@ def lift_landmarks(landmarks: np.ndarray, depth_at: np.ndarray, k_ref: np.ndarra
     return np.stack([x, y, z], axis=1)
 
 
+def lift_straight(landmarks: np.ndarray, depth_at: np.ndarray, k_ref: np.ndarray) -> np.ndarray:
+    """(N, 3) float64 model points of reference pixels ``landmarks`` (N, 2) with depths
+    ``depth_at`` (N,) seen by an orthographic camera: the head's own shape (a model unit is one
+    reference pixel across and in depth), placed one focal length of ``k_ref`` away as
+    :func:`lift_landmarks` places it. That lift sees the reference through a pinhole (a long one
+    for an orthographic capture), so its near points come out smaller than its far ones by their
+    depth over that focal length - 2 % for a face through :data:`ORTHOGRAPHIC_FOCAL`: a
+    perspective of its own, which the focal search (:mod:`.focal`) would take for the frames'."""
+    f, cx, cy = k_ref[0, 0], k_ref[0, 2], k_ref[1, 2]
+    z = np.maximum(f - np.asarray(depth_at, dtype=np.float64), 0.05 * f)
+    return np.stack([landmarks[:, 0] - cx, landmarks[:, 1] - cy, z], axis=1).astype(np.float64)
+
+
 @dataclass
 class Pose:
     """A frame's head pose: R (3x3, relight camera space, reference -> frame), the OpenCV

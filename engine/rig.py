@@ -19,7 +19,7 @@ from relight.video_yuv import downscale_area
 
 from . import composite
 from .live_light import SAMPLES
-from .pose import ORTHOGRAPHIC_FOCAL, camera_matrix, lift_landmarks
+from .pose import ORTHOGRAPHIC_FOCAL, camera_matrix, lift_landmarks, lift_straight
 from .refind import REFIND_STEP
 from .tracking import MAX_TRACKED, thin_points
 from .tracking_image import TRACK_ROWS, aligned_box
@@ -81,6 +81,9 @@ class FaceRig:
     n_landmarks: int  # how many of control_ref are landmarks
     ring_index: np.ndarray  # indices of the ring's points in control_ref
     model: np.ndarray  # (N, 3) the control points lifted with the bundle's depth (the pose's model)
+    #: (N, 3) the control points' shape as the capture's camera saw it - an orthographic capture's
+    #: lifted straight (:func:`.pose.lift_straight`), a pinhole's as ``model`` - the focal search's model
+    shape_model: np.ndarray
     refind_model: np.ndarray  # (3N, 3) model, then each point moved REFIND_STEP px right, then down
     depth_crop: np.ndarray  # (ch, cw) float32 depth (px toward the camera; off the face the nearest face px's)
     k_ref: np.ndarray  # (3, 3) the reference's camera (the one it is lifted with: reference_focal)
@@ -179,6 +182,8 @@ class FaceRig:
         r.ring_index = np.arange(len(landmarks), len(pts))
         r.control_ref = pts
         r.model = model
+        orthographic = reference_focal(bundle.meta, r.ref_size) == ORTHOGRAPHIC_FOCAL * max(r.ref_size)
+        r.shape_model = lift_straight(pts, _bilinear(depth_filled, crop_xy), k_ref) if orthographic else model
         full_mask = np.zeros((ref_h, ref_w), dtype=bool)
         full_mask[y0:y0 + h, x0:x0 + w] = mask_crop
         # Tracking runs on frames scaled to at most TRACK_ROWS rows (LK's cost is its pyramids

@@ -8,10 +8,10 @@ from relight.pipeline.sphere import find_highlight, light_direction, refine_circ
 from relight.pipeline.synth.scene import MirrorSphere
 
 from .tolerances import (
-    FOCAL_FOUND_REL,
     OUTLINE_MISFIT_PX,
     SPHERE_AUTO_DEG,
     SPHERE_FIT_PX,
+    SPHERE_FOCAL_REL,
     SPHERE_LIGHT_DEG,
     SPHERE_PINHOLE_DEG,
     SPHERE_PROJECTION_DEG,
@@ -91,7 +91,7 @@ def test_a_sphere_through_a_webcams_pinhole_gives_the_flash_direction(fov):
     assert row["cone_max_deg"] < SPHERE_PINHOLE_DEG < row["circle_max_deg"]
     assert sphere_table([row]).splitlines()[2].startswith(f"| {fov:g} deg | yes | 7 of 7 | ")
     # not told the focal length (--focal auto): found from the outline, the directions read with it
-    assert row["focal_found_px"] == pytest.approx(row["focal_px"], rel=FOCAL_FOUND_REL)
+    assert row["focal_found_px"] == pytest.approx(row["focal_px"], rel=SPHERE_FOCAL_REL)
     assert row["auto_max_deg"] < SPHERE_AUTO_DEG
 
 

@@ -110,7 +110,7 @@ def test_relight_capture_finds_the_focal_length_from_the_ball(tmp_path):
     from relight.pipeline.evaluate import evaluate_capture
     from relight.pipeline.synth.studio import synthesize
 
-    from .tolerances import FOCAL_FOUND_REL, LIGHT_DIR_MEAN_DEG, LIGHT_DIR_P95_DEG, REGISTRATION_RMS_PX
+    from .tolerances import LIGHT_DIR_MEAN_DEG, LIGHT_DIR_P95_DEG, REGISTRATION_RMS_PX, SPHERE_FOCAL_REL
 
     synth = synthesize(tmp_path / "pin", SynthConfig(width=640, height=360, duration=6.0, seed=3, fov=65.0,
                                                      truth_envs=("builtin:window",)), progress=False)
@@ -124,7 +124,7 @@ def test_relight_capture_finds_the_focal_length_from_the_ball(tmp_path):
         figures[label] = (rep["camera"], bundle.meta["camera_focal"], evaluate_capture(rep, bundle, synth.truth))
     camera, recorded, m = figures["auto"]
     assert camera["source"] == "sphere"
-    assert camera["focal_px"] == pytest.approx(meta["camera"]["focal_px"], rel=FOCAL_FOUND_REL)
+    assert camera["focal_px"] == pytest.approx(meta["camera"]["focal_px"], rel=SPHERE_FOCAL_REL)
     assert recorded == pytest.approx(camera["focal_px"])  # the frames not downscaled: the same pixels
     assert m["light_dir_mean_deg"] <= LIGHT_DIR_MEAN_DEG and m["light_dir_p95_deg"] <= LIGHT_DIR_P95_DEG, m
     assert m["registration_rms_px"] <= REGISTRATION_RMS_PX, m

@@ -453,6 +453,9 @@ CAMERA_FORMAT_CODES = 1.0
 #: The focal length found (engine.focal) from a known rigid model seen through a pinhole: within
 #: this share of the true one (the candidates are 1.25x apart, the parabola refines between them).
 FOCAL_FOUND_REL = 0.12
+#: The same from exact points of the head's own shape (no noise: the parabola's error alone;
+#: measured 1.013 of the truth, and 0.94 with the shape lifted through a long pinhole).
+FOCAL_EXACT_REL = 0.025
 #: A beard the capture did not have, relit: its luminance below this share of the cheeks' above it
 #: (the input's is ~0.45; a beard taken for a shadow and filled with the bundle's skin would be ~1).
 BEARD_DARKER_SHARE = 0.85
@@ -469,7 +472,7 @@ SPHERE_PINHOLE_DEG = 0.5
 #: ``--focal auto``: the focal length found from a ball's outline (find_focal), relative to the
 #: true one (measured 0.977-1.024 at 640x360-1920x1080 through 40-80 degree lenses), and the
 #: flashes' directions read with it, deg (measured at most 0.56).
-FOCAL_FOUND_REL = 0.05
+SPHERE_FOCAL_REL = 0.05
 #: A ball's outline: its edge points' median distance (px) from their circle or cone (measured
 #: 0.08-0.10 on the studio's balls, with and without noise).
 OUTLINE_MISFIT_PX = 0.2
