@@ -54,14 +54,21 @@ def largest_component(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return keep.astype(bool) & mask, filled.astype(bool)
 
 
-def reference_focal(meta: dict, ref_size: tuple[int, int]) -> float:
-    """The focal length (px) a bundle's reference frame is lifted with: the capture's camera
-    (``camera_focal`` in its meta, px of the reference frame) or, without one, the long focal
-    length that models an orthographic camera (:data:`.pose.ORTHOGRAPHIC_FOCAL`)."""
+def capture_focal(meta: dict) -> float | None:
+    """The capture's camera as a bundle's meta records it (``camera_focal``, px of the reference
+    frame), or None: orthographic (none recorded, or not a positive finite number)."""
     f = meta.get("camera_focal") if isinstance(meta, dict) else None
     if isinstance(f, int | float) and not isinstance(f, bool) and np.isfinite(f) and f > 0:
         return float(f)
-    return ORTHOGRAPHIC_FOCAL * max(ref_size)
+    return None
+
+
+def reference_focal(meta: dict, ref_size: tuple[int, int]) -> float:
+    """The focal length (px) a bundle's reference frame is lifted with: the capture's camera
+    (:func:`capture_focal`) or, without one, the long focal length that models an orthographic
+    camera (:data:`.pose.ORTHOGRAPHIC_FOCAL`)."""
+    f = capture_focal(meta)
+    return ORTHOGRAPHIC_FOCAL * max(ref_size) if f is None else f
 
 
 @dataclass(frozen=True)
@@ -171,7 +178,8 @@ class FaceRig:
         k_ref = camera_matrix(r.ref_size, reference_focal(bundle.meta, r.ref_size))
         pts = np.concatenate([landmarks, ring])
         crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
-        model = lift_landmarks(pts, _bilinear(depth_filled, crop_xy), k_ref)
+        depth_at = _bilinear(depth_filled, crop_xy)
+        model = lift_landmarks(pts, depth_at, k_ref)
         # Each control point and its neighbours REFIND_STEP px right and down, lifted the same way:
         # the pose's local affine at a landmark (:func:`.refind.refind_landmarks`) by finite differences.
         steps = np.concatenate([pts + [REFIND_STEP, 0.0], pts + [0.0, REFIND_STEP]])
@@ -182,8 +190,7 @@ class FaceRig:
         r.ring_index = np.arange(len(landmarks), len(pts))
         r.control_ref = pts
         r.model = model
-        orthographic = reference_focal(bundle.meta, r.ref_size) == ORTHOGRAPHIC_FOCAL * max(r.ref_size)
-        r.shape_model = lift_straight(pts, _bilinear(depth_filled, crop_xy), k_ref) if orthographic else model
+        r.shape_model = lift_straight(pts, depth_at, k_ref) if capture_focal(bundle.meta) is None else model
         full_mask = np.zeros((ref_h, ref_w), dtype=bool)
         full_mask[y0:y0 + h, x0:x0 + w] = mask_crop
         # Tracking runs on frames scaled to at most TRACK_ROWS rows (LK's cost is its pyramids

@@ -102,21 +102,23 @@ def _true_motion(meta: dict, pts: np.ndarray, truth_dir: Path, ref: int):
         c_true = meta["head_center"]
         t_ref_inv = np.linalg.inv(_h(rigid_matrix(*meta["head_motion"][ref], c_true)))
         return pts, lambda f: (pts @ (_h(rigid_matrix(*meta["head_motion"][f], c_true)) @ t_ref_inv).T)[:, :2]
-    f_px, (cx, cy), eye_z = float(cam["focal_px"]), cam["principal_point"], float(cam["eye_z"])
+    from .synth.pinhole import Pinhole
+    from .synth.pinhole_view import motion_pose
+
+    camera = Pinhole(focal=float(cam["focal_px"]), center=tuple(cam["principal_point"]), eye_z=float(cam["eye_z"]),
+                     fov_deg=float(cam["fov_deg"]), distance_cm=float(cam["distance_cm"]),
+                     distance_px=float(cam["distance_px"]))
+    (cx, cy), eye_z = camera.center, camera.eye_z
     height = read_image(truth_dir / "depth.exr")
     height = height[..., 0] if height.ndim == 3 else height
     z = height[pts[:, 1].astype(int), pts[:, 0].astype(int)].astype(np.float64)
-    scale = (eye_z - z) / f_px  # camera-space units a pixel at that depth
+    scale = (eye_z - z) / camera.focal  # camera-space units a pixel at that depth (image_points inverted)
     points = np.stack([cx + (pts[:, 0] - cx) * scale, -(cy + (pts[:, 1] - cy) * scale), z], axis=1)
     pivot = np.array([meta["pivot"][0], -meta["pivot"][1], meta["pivot"][2]], dtype=np.float64)
 
     def at(f: int) -> np.ndarray:
-        tx, ty, rot = meta["head_motion"][f]
-        a = np.radians(rot)
-        r = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-        q = (points - pivot) @ r.T + pivot + np.array([tx, -ty, 0.0])
-        k = f_px / np.maximum(eye_z - q[:, 2], EPS_VALUE)
-        return np.stack([cx + k * (q[:, 0] - cx), cy + k * (-q[:, 1] - cy)], axis=1)
+        r, (tx, ty) = motion_pose(meta["head_motion"][f])
+        return np.stack(camera.image_points((points - pivot) @ r.T + pivot + np.array([tx, -ty, 0.0])), axis=1)
 
     return np.concatenate([at(ref), np.ones((len(pts), 1))], axis=1), at
 

@@ -307,7 +307,9 @@ def sphere_camera(opts: SampleOptions, scale: float, size: tuple[int, int], dark
     if isinstance(f, str):
         if f != "auto":
             raise InputError(f"focal {f!r}: give a focal length in pixels, 'auto' or None (orthographic)")
-        found = sphere.find_focal(dark_sphere, local, principal=principal, size=size) if opts.refine_sphere else None
+        if not opts.refine_sphere:
+            return {"focal_px": None, "source": "sphere", "note": "the ball's outline is not refined: no focal length"}
+        found = sphere.find_focal(dark_sphere, local, principal=principal, size=size)
         if found is None:
             return {"focal_px": None, "source": "sphere", "note": "the ball's outline was not found"}
         return {"focal_px": None if found.focal is None else found.focal / scale, "source": "sphere",

@@ -35,10 +35,10 @@ def prepare_video(path, opts: CaptureOptions, progress: Progress, timings: dict)
     if ing.face_box is not None:
         fx, fy, fw, fh = ing.face_box
         face_local = (fx - x0, fy - y0, fw, fh)
-    # the capture's camera as the sphere's directions took it: a focal length in pixels of the
-    # working frame (--focal, or found from the ball), or None - orthographic (the rig lifts the
-    # reference the same way)
-    focal = smp.camera["focal_px"]  # px of the video's frames
+    # the capture's camera as the sphere's directions took it (--focal, or found from the ball): a
+    # focal length in px of the video's frames, recorded in px of the working frame, or None -
+    # orthographic (the rig lifts the reference the same way)
+    focal = smp.camera["focal_px"]
     scale = {"capture_scale": ing.scale, "source_size": list(ing.source_size or ing.size),
              "camera_focal": None if focal is None else float(focal) * ing.scale}
     report = {

@@ -37,7 +37,7 @@ def test_the_mesh_moves_the_head_as_the_image_plane_warp_does():
     studio's warp shows (the pinhole path's convention: roll counter-clockwise on screen, ty down);
     the roll or the shift the other way does not."""
     studio = Studio(SynthConfig(**SMALL, head_motion=3.0))
-    mesh = capture_mesh(studio.head, studio.ambient_head(), studio.room, studio.pivot_or_default,
+    mesh = capture_mesh(studio.head, studio.ambient_head(), studio.room, studio.pivot,
                         reach_px=studio._reach, camera=None)
     image = studio.head_image(studio.ambient_head())
     motion = np.array([5.0, -4.0, 4.0])

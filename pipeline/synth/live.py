@@ -78,7 +78,7 @@ from .motion import (
     start_from,
 )
 from .pinhole import DEFAULT_DISTANCE_CM, ORTHOGRAPHIC_META, Pinhole, check_camera
-from .pivot import mesh_pivot, neck_reach, pivot_point
+from .pivot import neck_reach
 from .render import LiveHead
 from .studio import Studio
 
@@ -227,8 +227,7 @@ class LiveScene:
         if c.start_yaw is not None or c.start_pitch is not None:
             self.rotations = start_from(self.rotations, c.fps, (c.start_yaw, c.start_pitch, None))
         self.audio = make_audio(c.audio, int(round(self.n / c.fps * AUDIO_RATE)), np.random.default_rng(rng_audio))
-        self.pivot = pivot_point(self.head) if self.studio.mesh is None else \
-            mesh_pivot(self.head, self.studio.placement.project(self.studio.mesh.vertices))
+        self.pivot = self.studio.pivot
         #: The frames' camera: a pinhole (``fov``) or None (orthographic).
         self.camera = None if c.fov is None else Pinhole.from_fov((c.width, c.height), c.fov, c.distance,
                                                                    self.head.scale, self.pivot[2])

@@ -118,12 +118,11 @@ class Studio:
 
         #: The camera: None (orthographic, the head image moved in the image plane) or a pinhole
         #: (``fov``: the head a mesh moved in space and seen through it, :mod:`.pinhole_view`).
-        self.camera: Pinhole | None = None
-        self.pivot: np.ndarray | None = None
-        if c.fov is not None:
-            self.pivot = pivot_point(self.head) if self.mesh is None else \
-                mesh_pivot(self.head, self.placement.project(self.mesh.vertices))
-            self.camera = Pinhole.from_fov((c.width, c.height), c.fov, c.distance, self.head.scale, self.pivot[2])
+        #: The head's pivot (:mod:`.pivot`: where a neck turns it), camera-space (x, -y, z).
+        self.pivot = pivot_point(self.head) if self.mesh is None else \
+            mesh_pivot(self.head, self.placement.project(self.mesh.vertices))
+        self.camera: Pinhole | None = None if c.fov is None else \
+            Pinhole.from_fov((c.width, c.height), c.fov, c.distance, self.head.scale, self.pivot[2])
         self._head_mesh = None
         cx, cy, r = sphere_placement(c.width, c.height)
         self.sphere = MirrorSphere(cx, cy, r, glare_sigma=max(0.8, px_at(1.2, c.height)), camera=self.camera)
@@ -320,18 +319,10 @@ class Studio:
             c = self.config
             reach = self._reach if self.camera is None else \
                 neck_reach(self._reach, c.height, self.head.scale, self.camera)
-            self._head_mesh = capture_mesh(self.head, self.ambient_head(), self.room, self.pivot_or_default,
+            self._head_mesh = capture_mesh(self.head, self.ambient_head(), self.room, self.pivot,
                                            reach_px=reach, camera=self.camera, mesh=self.mesh,
                                            placement=self.placement)
         return self._head_mesh
-
-    @property
-    def pivot_or_default(self) -> np.ndarray:
-        """The head's pivot (:mod:`.pivot`): the pinhole's, or where it would be (orthographic)."""
-        if self.pivot is not None:
-            return self.pivot
-        return pivot_point(self.head) if self.mesh is None else \
-            mesh_pivot(self.head, self.placement.project(self.mesh.vertices))
 
     def pinhole_truth(self, images: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
         """Reference-pose images (the orthographic reference's pixels, (H, W) or (H, W, C)) as
@@ -402,8 +393,8 @@ class Studio:
                 "mesh": "head.ply vertices are (column, -row, height) in pixels",
             } | ({} if self.camera is None else PINHOLE_CONVENTIONS),
             "camera": ORTHOGRAPHIC_META if self.camera is None else self.camera.meta(),
-        } | ({} if self.pivot is None else {"pivot": [float(self.pivot[0]), float(-self.pivot[1]),
-                                                      float(self.pivot[2])]})
+        } | ({} if self.camera is None else {"pivot": [float(self.pivot[0]), float(-self.pivot[1]),
+                                                       float(self.pivot[2])]})
 
 
 #: A capture through a pinhole (``fov``): the conventions that differ from the orthographic one's.
