@@ -90,8 +90,7 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	@rm -rf $(LINT_TREE) && mkdir -p $(LINT_TREE)/relight
 	@for f in relight/*.py; do ln -s ../../../$$f $(LINT_TREE)/relight/; done
-	@ln -s ../../../relight/cli $(LINT_TREE)/relight/cli
-	@for d in pipeline kernels engine service bench; do ln -s ../../../$$d $(LINT_TREE)/relight/$$d; done
+	@for d in cli pipeline kernels engine service apps bench; do ln -s ../../../$$d $(LINT_TREE)/relight/$$d; done
 	cd $(LINT_TREE) && PYTHONPATH=. ../../$(BIN)/lint-imports ../../pyproject.toml
 
 clean:

@@ -43,17 +43,14 @@ import json
 import time
 from pathlib import Path
 
-# ``NAME as NAME``: re-exported for the tests, the command line and the other benches.
 from .accuracy_bundles import build_variants
-from .accuracy_metrics import env_metrics as env_metrics
-from .accuracy_metrics import masked_ssim as masked_ssim
-from .accuracy_real import FACE_HOLDOUT as FACE_HOLDOUT
-from .accuracy_real import FACES_TRANSFER as FACES_TRANSFER
-from .accuracy_real import QUICK_FACES, evaluate_dome, evaluate_face, face_subjects
-from .accuracy_real import scaled_rti as scaled_rti
-from .accuracy_real import split_rti as split_rti
+from .accuracy_real import (
+    QUICK_FACES,
+    evaluate_dome,
+    evaluate_face,
+    face_subjects,
+)
 from .accuracy_report import pareto_plot, report_markdown, summarise, summarise_faces
-from .accuracy_report import table as table
 from .accuracy_synthetic import OLAT_GRID, QUICK_SCENES, SCENES, environments, evaluate_scene, slug, synthesize_scene
 from .variants import VARIANTS
 

@@ -26,7 +26,7 @@ def scaled_rti(folder: Path, out: Path, factor: int) -> Path:
     average)."""
     import cv2
 
-    from relight.pipeline.capture import AMBIENT_NAMES, read_lp
+    from relight.pipeline.image_set import AMBIENT_NAMES, read_lp
 
     out.mkdir(parents=True, exist_ok=True)
     names = [n for n, _ in read_lp(folder / "dirs.lp")]
@@ -51,7 +51,7 @@ def evaluate_dome(dome: Path, test: Path, out: Path, progress: bool, *, scale: i
     import relight
     from relight.colour import linear_to_srgb
     from relight.imageio import read_image
-    from relight.pipeline.capture import read_lp
+    from relight.pipeline.image_set import read_lp
 
     if scale > 1:
         dome = scaled_rti(dome, out / "dome-small" / "Dome", scale)
@@ -89,7 +89,7 @@ def split_rti(folder: Path, out: Path, every: int = FACE_HOLDOUT) -> list[tuple[
     Returns the held-out (name, direction) pairs."""
     import os
 
-    from relight.pipeline.capture import AMBIENT_NAMES, read_lp
+    from relight.pipeline.image_set import AMBIENT_NAMES, read_lp
 
     entries = read_lp(folder / "dirs.lp")
     held = [e for i, e in enumerate(entries) if i % every == 0]
@@ -113,7 +113,7 @@ def evaluate_face(folder: Path, out: Path, progress: bool, *, variants=None, tra
     (0-1, no gain) over the face (``mask.png``, else the whole crop): PSNR and SSIM."""
     import relight
     from relight.colour import linear_to_srgb
-    from relight.pipeline.capture import read_lp, read_set_image
+    from relight.pipeline.image_set import read_lp, read_set_image
 
     train = out / "train" / folder.name
     held = split_rti(folder, train)

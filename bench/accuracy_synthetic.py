@@ -57,7 +57,8 @@ def environments(out: Path) -> dict[str, tuple[str, str]]:
 
 
 def synthesize_scene(out: Path, scene: dict, envs: dict, progress: bool):
-    from relight.pipeline.synth.studio import SynthConfig, cached_synthesis
+    from relight.pipeline.synth.config import SynthConfig
+    from relight.pipeline.synth.studio import cached_synthesis
 
     cfg = SynthConfig(**{k: v for k, v in scene.items() if k != "name"},
                       truth_envs=tuple(src for src, _ in envs.values()))
@@ -118,7 +119,7 @@ def olat_errors(relighter, truth: np.ndarray, pix: np.ndarray, keep: np.ndarray,
 def relight_ms(relighter, env: np.ndarray) -> float:
     """Median ms of a default-path relight call, the head turning a little every call."""
     from relight.directions import rotation_matrix
-    from relight.kernels.relighter import frozen
+    from relight.kernels.relight_inputs import frozen
 
     env, out = frozen(env), np.zeros_like(relighter.frame)  # the hot path: no hashing, no new array
     relighter.relight(env, rotation_matrix(1.0, 0.0, 0.0), out=out)

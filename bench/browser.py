@@ -209,7 +209,7 @@ def run_browser_bench(bundle: Path, clip: Path, *, seconds: float = 20.0, transp
                       focal="ortho", out_json: Path | None = None) -> list[dict]:
     """Serve ``bundle``, play ``clip`` as Chromium's webcam, measure each transport in turn."""
     from relight.service.settings import ServeConfig
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     from .server import running_app
 

@@ -113,7 +113,8 @@ def _reencoded(video: Path, mbps: float, progress: bool) -> Path:
 def run(out: Path, quick: bool = False, progress: bool = True, *, growth: bool = False,
         only: list[str] | None = None) -> dict:
     from relight.errors import InputError
-    from relight.pipeline.synth.studio import SynthConfig, cached_synthesis
+    from relight.pipeline.synth.config import SynthConfig
+    from relight.pipeline.synth.studio import cached_synthesis
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

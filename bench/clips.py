@@ -21,7 +21,8 @@ def synth_bundle(out: Path, size: tuple[int, int], duration: float, progress: bo
     """A bundle captured from a static studio capture of head ``seed`` (or the mesh
     ``head_mesh``) at ``size`` (cached)."""
     from relight.pipeline.capture import capture
-    from relight.pipeline.synth.studio import SynthConfig, synthesize
+    from relight.pipeline.synth.config import SynthConfig
+    from relight.pipeline.synth.studio import synthesize
 
     tag = f"{size[0]}x{size[1]}-{duration:g}s-{flash_hz:g}hz" + (f"-seed{seed}" if seed else "") + head_tag(head_mesh)
     cap = out / f"capture-{tag}"
@@ -97,7 +98,7 @@ def rotation_errors(estimates: dict, truth: list) -> np.ndarray:
     (``estimates``: {frame index as text: (yaw, pitch, roll)}; ``truth``: the clip's meta's
     head_rotation)."""
     from relight.directions import rotation_matrix
-    from relight.kernels.relighter import rotation_angle_deg
+    from relight.kernels.relight_inputs import rotation_angle_deg
 
     return np.asarray([rotation_angle_deg(rotation_matrix(*truth[int(k)]), rotation_matrix(*angles))
                        for k, angles in estimates.items()])

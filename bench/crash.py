@@ -88,14 +88,14 @@ def _outcome(path: Path, previous: bytes, whole) -> str:
 def _bundle_whole(path: Path) -> None:
     from relight import load_bundle
 
-    from .fuzz import use_bundle
+    from .fuzz_targets import use_bundle
 
     use_bundle(load_bundle(path))
 
 
 def _video_whole(frames: int):
     def check(path: Path) -> None:
-        from relight.video import probe_video, read_frames
+        from relight.video_read import probe_video, read_frames
 
         probe_video(path)
         n = sum(1 for _ in read_frames(path))
@@ -216,15 +216,16 @@ def _face_inputs(work: Path, progress: bool) -> tuple[Path, Path, int]:
     photos at half size for the filter (the synthetic studio's without ../shared)."""
     import cv2
 
-    from relight.video import VideoWriter
+    from relight.video_write import VideoWriter
 
-    from .fuzz import real_face_frames, shared_data
+    from .fuzz import shared_data
+    from .fuzz_seeds import real_face_frames
 
     shared = shared_data()
     images = work / "yale4"
     if not images.exists():
         if shared is not None:
-            from .accuracy import scaled_rti
+            from .accuracy_real import scaled_rti
             scaled_rti(shared / "faces-yale" / "yaleB01", images, 4)
         else:
             raise RuntimeError("relight bench crash needs ../shared/data (the real faces)")

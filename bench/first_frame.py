@@ -51,7 +51,7 @@ def run(out: Path, *, quick: bool = False, progress: bool = True) -> dict:
     from relight.engine.frame_path import FramePath
     from relight.engine.tracking_image import tracking_image
     from relight.imageio import atomic_path
-    from relight.kernels.relighter import rotation_angle_deg
+    from relight.kernels.relight_inputs import rotation_angle_deg
     from relight.pipeline.synth.live import LiveConfig, LiveScene
 
     from .clips import synth_bundle

@@ -39,14 +39,9 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-# ``NAME as NAME``: re-exported for the tests, the command line and the crash bench.
 from .fuzz_mutations import apply_mutations, mutations
-from .fuzz_seeds import make_seeds as make_seeds
-from .fuzz_seeds import real_face_frames as real_face_frames
 from .fuzz_seeds import shared_data
 from .fuzz_targets import TARGETS, Scratch, expected_refusal
-from .fuzz_targets import craft_bundle as craft_bundle
-from .fuzz_targets import use_bundle as use_bundle
 
 #: Inputs per target: CI's bounded pass, the bench's default; ``--examples`` sets any other.
 QUICK_EXAMPLES = 40

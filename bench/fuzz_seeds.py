@@ -24,7 +24,7 @@ def real_face_frames(n: int, size: tuple[int, int]) -> list[np.ndarray]:
         imgs = [cv2.imread(str(f), cv2.IMREAD_COLOR) for f in files]
     else:  # the synthetic studio's head (a live clip's first frames)
         from relight.pipeline.synth.live import LiveConfig, synthesize_live
-        from relight.video import read_frames
+        from relight.video_read import read_frames
 
         folder = Path(tempfile.mkdtemp(prefix="relight-fuzz-live-"))
         try:
@@ -47,7 +47,8 @@ def seed_bundle(work: Path) -> bytes:
             src = scaled_rti(shared / "faces-yale" / "yaleB01", work / "yale4", 4)
             capture(src, path, images=True, progress=False)
         else:  # the synthetic studio's
-            from relight.pipeline.synth.studio import SynthConfig, synthesize
+            from relight.pipeline.synth.config import SynthConfig
+            from relight.pipeline.synth.studio import synthesize
             res = synthesize(work / "studio", SynthConfig(width=320, height=180, duration=6.0, seed=3), progress=False)
             capture(res.video, path, progress=False)
     return path.read_bytes()

@@ -158,7 +158,7 @@ def craft_bundle(seed: bytes, which, value) -> bytes:
 
 
 def _lp_target(work: Path, scratch: Scratch) -> Target:
-    from relight.pipeline.capture import read_lp
+    from relight.pipeline.image_set import read_lp
 
     seeds = seed_lp(work)
 
@@ -264,7 +264,7 @@ def _control_target(work: Path, scratch: Scratch) -> Target:
 
 
 def _video_target(work: Path, scratch: Scratch) -> Target:
-    from relight.video import MAX_VIDEO_DIM, probe_video, read_frames
+    from relight.video_read import MAX_VIDEO_DIM, probe_video, read_frames
 
     seeds = seed_videos(work)
     ext = {b"ftypisom": ".mp4", b"ftypqt  ": ".mov"}

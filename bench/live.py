@@ -96,7 +96,8 @@ def _one_run(bundle, clip: Path, seconds: float, record, viewed: bool) -> dict:
 
     import httpx
 
-    from relight.service.live import StatusLine, run_live
+    from relight.apps.live import run_live
+    from relight.apps.live_status import StatusLine
 
     ready: dict = {}
     stop = threading.Event()
@@ -157,7 +158,8 @@ def _drag_run(bundle, clip: Path, seconds: float) -> dict:
     import httpx
     import numpy as np
 
-    from relight.service.live import StatusLine, run_live
+    from relight.apps.live import run_live
+    from relight.apps.live_status import StatusLine
 
     ready: dict = {}
     got: dict = {}

@@ -113,8 +113,8 @@ def live_source_frames(bundle, live: Path, env: str, out: Path, *, mode: str = "
     import shutil
 
     import relight
+    from relight.apps.filter import run_filter
     from relight.engine.frame_path import FramePath
-    from relight.service.filter import run_filter
 
     dst = out / "live-source-frames"
     shutil.rmtree(dst, ignore_errors=True)
@@ -206,7 +206,7 @@ def load_truth(live: Path, env_stem: str, *, bundle_mask: np.ndarray | None = No
     """The :class:`TruthClip` of ``live`` under the truth light ``env_stem``."""
     from relight.bench.realface import clip_psnr
     from relight.colour import decode_srgb8
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
     pattern = meta["files"]["live_truth"][env_stem]
@@ -333,7 +333,7 @@ def _crop_boxes(live: Path, frame: int) -> dict:
 def sheet(live: Path, env_stem: str, frames_dir: Path, path: Path, title: str, frames=None) -> Path:
     """A before/after sheet: for each chosen frame, input | output | truth | error x4, then crops
     (input / output / truth) at the hairline, ears, jaw and neck."""
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
     n = int(meta["frame_count"])

@@ -45,7 +45,7 @@ def pose_run(bundle, clip: Path, focal) -> dict:
     errors against the truth, the frame the focal search switched at, the focal used at the end."""
     import relight
     from relight.engine.frame_path import FramePath
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     from .clips import rotation_errors
 
@@ -219,7 +219,8 @@ def capture_run(out: Path, size=SIZE, duration: float = CAPTURE_S, fovs=FOVS, pr
     from relight.pipeline.capture_types import CaptureOptions
     from relight.pipeline.evaluate import evaluate_capture
     from relight.pipeline.samples import SampleOptions
-    from relight.pipeline.synth.studio import SynthConfig, cached_synthesis
+    from relight.pipeline.synth.config import SynthConfig
+    from relight.pipeline.synth.studio import cached_synthesis
 
     rows = []
     for fov in fovs:

@@ -82,10 +82,10 @@ def make_clip(folder: Path, out: Path, transfer: str) -> dict:
     """The clip of one subject (see the module docstring): ``out/clip.mp4`` (H.264, sRGB),
     ``out/truth.npz`` (the truth frames under B, linear, and the face masks). Returns a dict of
     what was made."""
-    from relight.bench.accuracy import FACE_HOLDOUT
+    from relight.bench.accuracy_real import FACE_HOLDOUT
     from relight.colour import encode_srgb8
-    from relight.pipeline.capture import read_lp, read_set_image
-    from relight.video import VideoWriter
+    from relight.pipeline.image_set import read_lp, read_set_image
+    from relight.video_write import VideoWriter
 
     entries = read_lp(folder / "dirs.lp")
     train = [e for i, e in enumerate(entries) if i % FACE_HOLDOUT != 0]
@@ -148,10 +148,11 @@ def evaluate_subject(folder: Path, out: Path, *, transfer: str, progress: bool =
     """The real-face video benchmark for one subject (module docstring): PSNR of each mode, the
     unchanged input and the still prediction; frames with a face; the filter's light estimates."""
     import relight
-    from relight.bench.accuracy import split_rti
+    from relight.bench.accuracy_real import split_rti
     from relight.colour import encode_srgb8
-    from relight.pipeline.capture import CaptureOptions, capture
-    from relight.video import read_frames
+    from relight.pipeline.capture import capture
+    from relight.pipeline.capture_types import CaptureOptions
+    from relight.video_read import read_frames
 
     out.mkdir(parents=True, exist_ok=True)
     train = out / "train"

@@ -127,7 +127,8 @@ def _scenario(out: Path, quick: bool, progress: bool):
     """(bundle path, truth folder, {name: env source}) for the benchmark capture (cached)."""
     from relight.envmap import load_environment
     from relight.imageio import write_image
-    from relight.pipeline.synth.studio import SynthConfig, cached_synthesis
+    from relight.pipeline.synth.config import SynthConfig
+    from relight.pipeline.synth.studio import cached_synthesis
 
     out.mkdir(parents=True, exist_ok=True)
     front_studio = out / "front_studio.exr"
@@ -220,7 +221,8 @@ def _psnr(pred, truth, mask):
 
 def _bench_env(name, env, exact, compacts, rots, mask, truth, p, probe, quick) -> dict:
     """Every path on one environment."""
-    from relight.kernels.relighter import LANES, exact_light_blocks, frozen
+    from relight.kernels.relight_inputs import frozen
+    from relight.kernels.relight_packing import LANES, exact_light_blocks
 
     per100k = 1e5 / p
     env = frozen(env)  # as the frame path passes it (no hashing per call); the calls fill `out` in place
@@ -252,7 +254,8 @@ def _bench_env(name, env, exact, compacts, rots, mask, truth, p, probe, quick) -
 
 
 def _bench_compact(tol, rl, env, e_img, rots, mask, truth, p, probe, quick) -> dict:
-    from relight.kernels.relighter import LANES, frozen
+    from relight.kernels.relight_inputs import frozen
+    from relight.kernels.relight_packing import LANES
     from relight.numerics import read_halves
 
     per100k = 1e5 / p

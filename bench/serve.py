@@ -112,7 +112,7 @@ def live_jpegs(out: Path, progress: bool, size: tuple[int, int] = (640, 360)) ->
     """JPEG frames (quality 85) of a 4 s synthetic live clip at ``size`` (cached in ``out``)."""
     import cv2
 
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     from .video import synth_live
 

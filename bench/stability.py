@@ -36,19 +36,17 @@ import numpy as np
 from relight.errors import InputError
 from relight.kernels import reflectance, triangulation
 
-# ``NAME as NAME``: re-exported for the tests.
-from .stability_cases import CASES as CASES
-from .stability_cases import Head, make_head
-from .stability_reference import VARIANTS as VARIANTS
+from .stability_cases import CASES, Head, make_head
 from .stability_reference import (
+    VARIANTS,
     MapProblem,
     RenderProblem,
     builder_maps,
     production_maps,
+    relative_error,
     render_production,
     render_reference,
 )
-from .stability_reference import relative_error as relative_error
 
 #: Expected bound of the baseline case's error: float16 storage rounds to 2^-11 (4.9e-4)
 #: relative, the OpenCL kernel adds at most 1e-4 (float32 and a fast arctangent in visibility).
@@ -78,8 +76,11 @@ class BundleCache:
         return self.bundles[variant]
 
     def _build(self, variant: str):
-        from relight.kernels.bundle import load_bundle, write_bundle
-        from relight.pipeline.capture import CaptureOptions, Prepared, Progress, finish
+        from relight.kernels.bundle import load_bundle
+        from relight.kernels.bundle_format import write_bundle
+        from relight.pipeline.bundle_arrays import finish
+        from relight.pipeline.capture_progress import Progress
+        from relight.pipeline.capture_types import CaptureOptions, Prepared
 
         head = self.head
         base = head.baseline()

@@ -36,7 +36,7 @@ class Head:
     mask: np.ndarray        # (h, w) bool
     normals: np.ndarray     # (P, 3) float64
     albedo: np.ndarray      # (P, 3) float64
-    horizon: np.ndarray     # (P, HORIZON_DIRS) float32, from capture.horizon_for
+    horizon: np.ndarray     # (P, HORIZON_DIRS) float32, from reflectance_maps.horizon_for
     _baseline: list = field(default_factory=list, repr=False)
 
     def baseline(self) -> MapProblem:
@@ -48,7 +48,7 @@ class Head:
 
 def make_head(seed: int = SEED) -> Head:
     """The bump-on-a-slope head of about 120 pixels, its analytic normals and its horizon table."""
-    from relight.pipeline.capture import horizon_for
+    from relight.pipeline.reflectance_maps import horizon_for
 
     h, w = HEAD_SHAPE
     y, x = np.mgrid[0:h, 0:w].astype(np.float64)

@@ -34,7 +34,7 @@ import numpy as np
 
 from relight.errors import InputError
 from relight.kernels import interpolation, reflectance, triangulation
-from relight.kernels.bundle import storage_scale
+from relight.kernels.bundle_format import storage_scale
 from relight.numerics import flush_subnormal_halves
 from relight.pipeline import methods
 
@@ -107,11 +107,12 @@ class RenderProblem:
 def builder_maps(variant: str, problem: MapProblem, tri: triangulation.Triangulation, *,
                  half: bool) -> tuple[np.ndarray, float]:
     """(maps (P, 3, T_pad), scale) as :func:`relight.pipeline.capture.reflectance_maps` - the
-    maps stage of ``capture.finish`` - returns them (``tri``: the problem's
+    maps stage of ``bundle_arrays.finish`` - returns them (``tri``: the problem's
     :func:`~relight.kernels.triangulation.triangulate`): the OpenCL kernel's float16 output with
     ``half`` (production) or its float32 output; a fitted method's float32. The maps hold the
     samples divided by ``scale``."""
-    from relight.pipeline.capture import CaptureOptions, reflectance_maps
+    from relight.pipeline.capture_types import CaptureOptions
+    from relight.pipeline.reflectance_maps import reflectance_maps
 
     opts = VARIANTS[variant]
     o = CaptureOptions(method=opts["method"], visibility=opts["visibility"], adaptation=opts["adaptation"],
@@ -124,7 +125,7 @@ def builder_maps(variant: str, problem: MapProblem, tri: triangulation.Triangula
 
 
 def production_maps(variant: str, problem: MapProblem, tri: triangulation.Triangulation) -> np.ndarray:
-    """(P, 3, T_pad) float64: the maps as ``capture.finish`` stores them (float16, subnormals
+    """(P, 3, T_pad) float64: the maps as ``bundle_arrays.finish`` stores them (float16, subnormals
     flushed) times the bundle's ``sample_scale`` - what the renderer reads."""
     maps, scale = builder_maps(variant, problem, tri, half=True)
     return flush_subnormal_halves(maps.astype(np.float16, copy=False)).astype(np.float64) * scale

@@ -78,7 +78,7 @@ def _frames(live: Path, planes: bool) -> list:
     """The clip's frames: (H, W, 3) uint8 sRGB, or (``planes``) kept in the decoder's planes as
     ``relight live``'s camera reader keeps them (:class:`relight.video_yuv.YuvFrame`)."""
     if not planes:
-        from relight.video import read_frames
+        from relight.video_read import read_frames
 
         return list(read_frames(live / "live.mp4"))
     from relight.video_read import read_frames_raw
@@ -147,7 +147,7 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str, planes: bool 
     steal = steal_share(jiffies0, cpu_jiffies())
     # The same frames through the two-stage pipeline `relight filter` runs (front of frame N+1
     # beside back of frame N on two threads): frames per second it sustains.
-    from relight.service.filter import FramePipeline
+    from relight.engine.frame_pipeline import FramePipeline
 
     fp.reset()
     t_pipe = time.perf_counter()
@@ -271,7 +271,8 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = ENV,
         mode: str = DEFAULT_MODE, faces: Path | None = None, region: str = DEFAULT_REGION) -> dict:
     """The whole benchmark: the synthetic clips (pose, speed, flicker), a `relight filter` run,
     and the real faces (``faces``: one RTI set per subject; quick: ``QUICK_FACES``)."""
-    from relight.bench.accuracy import FACES_TRANSFER, QUICK_FACES, face_subjects
+    from relight.bench.accuracy import QUICK_FACES, face_subjects
+    from relight.bench.accuracy_real import FACES_TRANSFER
     from relight.bench.realface import evaluate_subject
 
     out = Path(out)

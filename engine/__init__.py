@@ -3,5 +3,6 @@ light, relight, warp, composite (:class:`relight.engine.frame_path.FramePath`, t
 object; the stages are modules of pure functions and small classes beside it).
 
 Layers: the engine stands on ``relight.kernels`` (the OpenCL relighting and compositing) and the
-core; ``relight.service`` (the HTTP service, ``relight filter``, ``relight live``) stands on it.
+core; ``relight.service`` (the HTTP, websocket and WebRTC service) and ``relight.apps``
+(``relight filter``, ``relight live``) stand on it.
 """

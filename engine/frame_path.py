@@ -190,7 +190,7 @@ class FramePath:
         frames; the last ones serve a frame or two) instead of in the next frame, and the face
         is relit as a draft (the low-rank part alone: no texel row made while the light moves)
         until :meth:`settle`."""
-        from relight.kernels.relighter import frozen
+        from relight.kernels.relight_inputs import frozen
 
         self.join()
         env = frozen(env)
@@ -556,7 +556,7 @@ class FramePath:
         beside the frames, waiting), the settings the field was made with; and whether it answers
         a change the user asked for (a setting, the light, the exposure: shown on this frame, its
         field made in it, never beside the frames)."""
-        from relight.kernels.relighter import rotation_angle_deg
+        from relight.kernels.relight_inputs import rotation_angle_deg
 
         last = self._relit_key
         key_changed = last is None or last[0] is not self.env or last[1] != self.exposure or \
@@ -668,7 +668,7 @@ class FramePath:
         each re-anchoring's pose."""
         if not (self._settling and self.tracker.reanchored):
             return
-        from relight.kernels.relighter import rotation_angle_deg
+        from relight.kernels.relight_inputs import rotation_angle_deg
 
         if last is not None and rotation_angle_deg(last.rotation, pose.rotation) < SETTLED_DEG:
             self._settling = 0

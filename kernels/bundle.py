@@ -15,17 +15,13 @@ import numpy as np
 from relight.directions import equirect_solid_angles
 from relight.errors import InputError
 
-# The format's names, re-exported: writers and readers import them from here.
-from .bundle_format import BUNDLE_MODE as BUNDLE_MODE
-from .bundle_format import MAPS_ONLY, RECIPE, decode_background, read_bundle_file
-from .bundle_format import VERSION as VERSION
-from .bundle_format import encode_background as encode_background
-from .bundle_format import storage_scale as storage_scale
-from .bundle_format import write_bundle as write_bundle
-
-# The format's padding rule, re-exported (defined in layout.py, a leaf below the maths).
-from .layout import TEXEL_ALIGN as TEXEL_ALIGN
-from .layout import padded_texels as padded_texels
+from .bundle_format import (
+    MAPS_ONLY,
+    RECIPE,
+    decode_background,
+    read_bundle_file,
+)
+from .layout import padded_texels
 
 #: Maps made from a recipe bundle for all its pixels are kept by the Bundle up to this size.
 KEEP_MADE_MAPS_BYTES = 512 << 20

@@ -1,9 +1,9 @@
 """The bundle format's array layout: how many texel slots a pixel's maps take.
 
-Part of the format that :mod:`relight.kernels.bundle` owns (it re-exports both names; readers
-take them from there). It sits in this leaf module only because the maths that fills
-the arrays (:mod:`relight.kernels.maps`, :mod:`relight.kernels.interpolation`) runs below the
-bundle: the bundle makes a recipe bundle's maps through them, so they cannot import it.
+Part of the bundle's format (:mod:`relight.kernels.bundle_format`). It sits in this leaf module
+only because the maths that fills the arrays (:mod:`relight.kernels.maps`,
+:mod:`relight.kernels.interpolation`) runs below the bundle: the bundle makes a recipe bundle's
+maps through them, so they cannot import it.
 """
 
 from __future__ import annotations

@@ -28,13 +28,17 @@ from relight.errors import InputError
 from relight.numerics import EPS_NORM
 
 from . import texel_lights, transport
-from .bundle import padded_texels
-from .relight_inputs import check_light, check_rotation
-from .relight_inputs import frozen as frozen
-from .relight_inputs import rotation_angle_deg as rotation_angle_deg
-from .relight_packing import LANES as LANES
-from .relight_packing import compact_coefficients, exact_maps, pack_basis, read_transport, unpack_basis
-from .relight_packing import exact_light_blocks as exact_light_blocks
+from .layout import padded_texels
+from .relight_inputs import check_light, check_rotation, rotation_angle_deg
+from .relight_packing import (
+    LANES,
+    compact_coefficients,
+    exact_light_blocks,
+    exact_maps,
+    pack_basis,
+    read_transport,
+    unpack_basis,
+)
 from .row_cache import (
     PREFETCH_PITCH_DEG,
     PREFETCH_STEP_DEG,

@@ -20,12 +20,9 @@ import numpy as np
 from relight.errors import InputError
 from relight.numerics import EPS_NORM
 
-from .heightfield import (  # noqa: F401  (re-exported: the synth and the tests use them from here)
-    NO_SURFACE,
+from .heightfield import (
     HorizonTable,
     MarchSettings,
-    grid_directions,
-    horizon_numpy,
     tile_maxima,
     visibility_numpy,
 )

@@ -19,18 +19,11 @@ import numpy as np
 from relight.errors import InputError, NumericalError
 from relight.numerics import flush_subnormal_halves, half_ceil, read_halves
 
-# The environment's side, re-exported for scripts that imported it from here before it moved
-# (issue 33); relight's own modules import it from texel_lights, its owner.
-from .texel_lights import DIRECT_TEXELS as DIRECT_TEXELS
-from .texel_lights import LIGHT_GRID as LIGHT_GRID
-from .texel_lights import EnvLights as EnvLights
-from .texel_lights import environment_lights as environment_lights
-from .texel_lights import hull_cone as hull_cone
-from .texel_lights import point_light as point_light
-from .texel_lights import splat as splat
-from .texel_lights import split_direct as split_direct
-from .texel_lights import texel_light as texel_light
-from .texel_lights import validation_environments as validation_environments
+from .texel_lights import (
+    DIRECT_TEXELS,
+    split_direct,
+    validation_environments,
+)
 
 #: Pixels per block of the compact transport's layout (one work item each).
 PIXEL_BLOCK = 16
@@ -186,7 +179,7 @@ def dequantise_basis(q: np.ndarray, scale: np.ndarray, q4: np.ndarray | None = N
                      scale4: np.ndarray | None = None) -> np.ndarray:
     """float16 blocked basis images (P / 16, 3, Kp, 16) (ranks zero padded to a multiple of 16)
     of :func:`quantise_basis` storage."""
-    from .bundle import padded_texels
+    from .layout import padded_texels
 
     nb, _, k8, blk = q.shape
     k4 = 0 if q4 is None else q4.shape[2]
@@ -376,7 +369,7 @@ def _stored_transport(v_all: np.ndarray, u: np.ndarray, k: int, sig2, resid, tot
     basis u (T, >= k): basis images in 8 and 4 bits, and each rank's error with their rounding noise
     (resid (ranks, E) the truncation's residual energy, total (E,) each validation relight's
     energy, coef (ranks, 3, E) its coefficients; see :func:`factorize`)."""
-    from .bundle import padded_texels
+    from .layout import padded_texels
 
     p = v_all.shape[0]
     kp = padded_texels(k)

@@ -86,7 +86,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
                                                     recipe_out=made, recipe_only=not opts.keep_maps)
     recipe = made.get("recipe")
     from relight.kernels import transport
-    from relight.kernels.bundle import encode_background
+    from relight.kernels.bundle_format import encode_background
 
     rows = None
     if maps is None:

@@ -20,22 +20,14 @@ import time
 import cv2
 import numpy as np
 
-from relight.kernels.bundle import BUNDLE_MODE, write_bundle
+from relight.kernels.bundle_format import BUNDLE_MODE, write_bundle
 
-# `NAME as NAME`: also taken from here by the benchmarks (where they lived before the split).
-from .bundle_arrays import finish as finish
-from .capture_progress import Progress as Progress
-from .capture_progress import StageTimings
-from .capture_types import CaptureOptions as CaptureOptions
-from .capture_types import CaptureResult
-from .capture_types import Prepared as Prepared
-from .image_set import AMBIENT_NAMES as AMBIENT_NAMES
-from .image_set import prepare_images as prepare_images
-from .image_set import read_lp as read_lp
-from .image_set import read_set_image as read_set_image
-from .reflectance_maps import horizon_for as horizon_for
-from .reflectance_maps import reflectance_maps as reflectance_maps
-from .video_source import prepare_video as prepare_video
+# `NAME`: also taken from here by the benchmarks (where they lived before the split).
+from .bundle_arrays import finish
+from .capture_progress import Progress, StageTimings
+from .capture_types import CaptureOptions, CaptureResult
+from .image_set import prepare_images
+from .video_source import prepare_video
 
 
 def expected_bundle_bytes(n_samples: int, n_pixels: int, opts: CaptureOptions) -> int:

@@ -16,8 +16,9 @@ import numpy as np
 from relight import faces
 from relight.colour import decode_srgb8
 from relight.errors import InputError
-from relight.video import crop_frame, frame_to_rgb, probe_video, read_frames_raw, whole_frame
 from relight.video_colour import PLANAR_FORMATS, VideoColour, luma_table, video_colour
+from relight.video_frame import crop_frame, frame_to_rgb, whole_frame
+from relight.video_read import probe_video, read_frames_raw
 
 from . import sphere
 
@@ -48,7 +49,7 @@ class Ingested:
 
     frame_mean : (N,) mean linear luminance of each whole frame (0-1).
     crop : (x, y, w, h) of the stored face region; crops[i] its pixels as a
-    :class:`relight.video.FrameCrop` (native YUV planes; ``.rgb()`` / ``.luma()`` convert).
+    :class:`relight.video_frame.FrameCrop` (native YUV planes; ``.rgb()`` / ``.luma()`` convert).
     sphere_box / sphere_crops : the same for the mirror sphere (None without a sphere).
     colour : how the stream's codes become linear light (:mod:`relight.video_colour`).
     scale : stored pixels per pixel of the video (< 1 when downscaled for ``face_pixels``); every

@@ -112,7 +112,7 @@ def fit_and_evaluate(method: str, dirs: np.ndarray, samples: np.ndarray, texel_d
 
 def _pixel_major(maps: np.ndarray) -> np.ndarray:
     """(T, P, 3) -> (P, 3, T_pad) float32, zero padded."""
-    from relight.kernels.bundle import padded_texels
+    from relight.kernels.layout import padded_texels
 
     t, p = maps.shape[:2]
     out = np.zeros((p, 3, padded_texels(t)), dtype=np.float32)

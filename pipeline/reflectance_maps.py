@@ -9,7 +9,7 @@ import numpy as np
 
 from relight.errors import InputError
 from relight.kernels import interpolation, reflectance
-from relight.kernels.bundle import storage_scale
+from relight.kernels.bundle_format import storage_scale
 from relight.kernels.heightfield import HORIZON_DIRS
 
 from . import methods

@@ -15,7 +15,7 @@ from .samples import collect_samples
 
 def prepare_video(path, opts: CaptureOptions, progress: Progress, timings: dict) -> Prepared:
     """Stages 1-3 on a capture video."""
-    from relight.video import probe_video
+    from relight.video_read import probe_video
 
     t0 = time.perf_counter()
     expected = probe_video(path).frame_count

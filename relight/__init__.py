@@ -7,9 +7,11 @@ Public API (stable names)::
     r = relight.Relighter(bundle, tolerance=0.01, exact=False)
     img = r.relight(env, rotation=None)         # (H, W, 3) float32 linear, face inside bundle.mask
 
-Architecture: ``relight.pipeline`` (offline capture -> reflectance bundle, and the synthetic
-capture studio), ``relight.kernels`` (OpenCL C kernels on PoCL + host wrappers),
-``relight.service`` (online relighting). Conventions are in :mod:`relight.directions`.
+Architecture (docs/developing.md): ``relight.pipeline`` (offline capture -> reflectance bundle,
+and the synthetic capture studio), ``relight.kernels`` (OpenCL C kernels on PoCL + host
+wrappers), ``relight.engine`` (the per-frame engine), ``relight.service`` (the HTTP service),
+``relight.apps`` (``relight filter``, ``relight live``), ``relight.cli`` (the command line).
+Conventions are in :mod:`relight.directions`.
 """
 
 from .envmap import load_environment

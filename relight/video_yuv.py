@@ -1,8 +1,8 @@
 """A decoded video frame kept in its Y'CbCr planes, converted only where it is touched.
 
 Converting a whole 1280x720 frame to RGB costs 11.7 ms of CPU here and back to Y'CbCr for the
-encoder 8.7 ms (swscale with :func:`relight.video.sws_flags`, as :func:`relight.video.frame_to_rgb`
-and :func:`relight.video.to_yuv` do) - more than the per-frame path's own work. :class:`YuvFrame`
+encoder 8.7 ms (swscale with :func:`relight.video_frame.sws_flags`, as :func:`relight.video_frame.frame_to_rgb`
+and :func:`relight.video_write.to_yuv` do) - more than the per-frame path's own work. :class:`YuvFrame`
 keeps the decoder's planes: the tracker gets a small grey image made from them, the light field a
 small copy of a box (:meth:`YuvFrame.small_box`), the live light a few samples
 (:func:`sample_codes`), and the light field is applied in the planes themselves
@@ -224,7 +224,7 @@ class YuvFrame:
         return (_TO_RGB, _TO_YCBCR) if self.codes == BT709 else self.codes.maps()
 
     def to_rgb(self) -> np.ndarray:
-        """The whole frame as (H, W, 3) uint8 sRGB codes (what :func:`relight.video.frame_to_rgb` gives)."""
+        """The whole frame as (H, W, 3) uint8 sRGB codes (what :func:`relight.video_frame.frame_to_rgb` gives)."""
         from .video_frame import sws_flags
 
         cs, rng = self.codes.av_tags

@@ -1,1 +1,2 @@
-"""Online side: relighting incoming frames with a loaded reflectance bundle."""
+"""The frame service: frames relit over HTTP, websocket and WebRTC with a loaded bundle (FastAPI;
+``relight serve`` / ``relight-serve``), and its browser page."""

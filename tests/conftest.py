@@ -37,7 +37,7 @@ def chromium() -> str:
 @pytest.fixture(scope="session")
 def small_capture(tmp_path_factory):
     """A 6-second 320x180 synthetic capture with a point environment among the truth envs."""
-    from relight.pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig
+    from relight.pipeline.synth.config import DEFAULT_TRUTH_ENVS, SynthConfig
 
     cfg = SynthConfig(width=320, height=180, duration=6.0, seed=3,
                       truth_envs=DEFAULT_TRUTH_ENVS + ("builtin:point:0.8,0.1,0.6",))
@@ -74,7 +74,7 @@ def frame(small_capture):
     """A no-flash frame of ``small_capture`` (RGB uint8): what the service tests send."""
     import json
 
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     res, _ = small_capture
     meta = json.loads((res.truth / "meta.json").read_text())
@@ -95,7 +95,8 @@ def clip(small_capture, tmp_path_factory):
 
     import numpy as np
 
-    from relight.video import VideoWriter, read_frames
+    from relight.video_read import read_frames
+    from relight.video_write import VideoWriter
 
     res, cfg = small_capture
     meta = json.loads((res.truth / "meta.json").read_text())

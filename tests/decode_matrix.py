@@ -20,7 +20,8 @@ import numpy as np
 from relight import load_bundle
 from relight.pipeline.capture import capture
 from relight.pipeline.evaluate import RELIT_ENVS, evaluate_capture
-from relight.pipeline.synth.studio import SynthConfig, synthesize
+from relight.pipeline.synth.config import SynthConfig
+from relight.pipeline.synth.studio import synthesize
 from relight.video_colour import VideoColour
 
 from .phone_video import encode_like_phone

@@ -35,7 +35,8 @@ def made_once(tmp_path_factory, name: str, make: Callable[[Path], None]) -> Path
 
 def synthesized(tmp_path_factory, name: str, cfg):
     """The SynthResult of ``synthesize(cfg)``, made once per run (see :func:`made_once`)."""
-    from relight.pipeline.synth.studio import SynthResult, synthesize
+    from relight.pipeline.synth.config import SynthResult
+    from relight.pipeline.synth.studio import synthesize
 
     def make(folder: Path):
         res = synthesize(folder / "synth", cfg, progress=False)

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from relight.colour import decode_srgb8
-from relight.video import read_frames
 from relight.video_colour import VideoColour
+from relight.video_read import read_frames
 
 #: FFmpeg's enum values for the tags written.
 _MATRIX_TAG = {"bt709": 1, "bt601": 6, "bt2020": 9}
@@ -98,7 +98,7 @@ def encode_like_phone(src, dst, colour: VideoColour, *, codec: str = "libx265", 
     """
     import av
 
-    from relight.video import probe_video
+    from relight.video_read import probe_video
 
     info = probe_video(src)
     fps = fps or info.fps

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from relight.bench import accuracy
+from relight.bench import accuracy, accuracy_metrics, accuracy_report
 
 from .tolerances import (
     EXTRAPOLATION_GAIN,
@@ -28,7 +28,7 @@ def test_env_metrics_psnr_of_a_known_error():
     checker = (np.add.outer(np.arange(16), np.arange(16)) % 2 == 0)[..., None]
     truth[mask] = np.where(checker, 0.625, 0.375)[mask]
     pred[mask] = 1.0
-    m = accuracy.env_metrics(pred, truth, mask)
+    m = accuracy_metrics.env_metrics(pred, truth, mask)
     assert m["gain"] == pytest.approx(0.5, rel=F64_EXACT)
     assert m["psnr"] == pytest.approx(13.979400086720377, rel=F64_EXACT)  # 10 * log10(25)
 
@@ -40,10 +40,10 @@ def test_env_metrics_fit_one_gain_and_follow_the_error():
     truth = rng.uniform(0.1, 2.0, (40, 50, 3)).astype(np.float32)
     mask = np.zeros((40, 50), bool)
     mask[5:35, 5:45] = True
-    same = accuracy.env_metrics(2.0 * truth, truth, mask)  # twice as bright: the gain takes it out
+    same = accuracy_metrics.env_metrics(2.0 * truth, truth, mask)  # twice as bright: the gain takes it out
     assert same["gain"] == pytest.approx(0.5) and same["psnr"] > 100 and same["ssim"] == pytest.approx(1.0)
     noisy = truth + rng.normal(0, 0.02, truth.shape).astype(np.float32)
-    m = accuracy.env_metrics(noisy, truth, mask)
+    m = accuracy_metrics.env_metrics(noisy, truth, mask)
     # references: the gain by NumPy's least squares, the PSNR by scikit-image (peak: the truth's
     # largest value in the mask, as the benchmark defines it)
     a, b = noisy[mask].astype(np.float64).ravel(), truth[mask].astype(np.float64).ravel()
@@ -51,7 +51,7 @@ def test_env_metrics_fit_one_gain_and_follow_the_error():
     want = peak_signal_noise_ratio(b, g * a, data_range=b.max())
     assert m["gain"] == pytest.approx(g, rel=F64_CLOSE)
     assert m["psnr"] == pytest.approx(want, rel=F64_CLOSE) and 0.5 < m["ssim"] < 1.0
-    worse = accuracy.env_metrics(truth + rng.normal(0, 0.1, truth.shape).astype(np.float32), truth, mask)
+    worse = accuracy_metrics.env_metrics(truth + rng.normal(0, 0.1, truth.shape).astype(np.float32), truth, mask)
     assert worse["psnr"] < m["psnr"] - 10 and worse["ssim"] < m["ssim"]
 
 
@@ -65,7 +65,7 @@ def test_masked_ssim_is_scikit_images_inside_the_mask():
     inner[5:-5, 5:-5] = True  # scikit-image's mean leaves out the 11x11 window's half width
     want = structural_similarity(a, b, channel_axis=2, data_range=1.0, gaussian_weights=True, sigma=1.5,
                                  use_sample_covariance=False)
-    assert accuracy.masked_ssim(b, a, inner) == pytest.approx(want, rel=F64_CLOSE)
+    assert accuracy_metrics.masked_ssim(b, a, inner) == pytest.approx(want, rel=F64_CLOSE)
 
 
 def test_sparse_sides_thin_the_samples_at_wide_azimuths():
@@ -116,4 +116,4 @@ def test_variants_and_scene_evaluation(small_capture, tmp_path):
     doc["summary"] = accuracy.summarise(doc)
     md = accuracy.report_markdown(doc)
     assert "| full |" in md and "heat_small.png" in md and "not measured" in md
-    assert "stability: 1 case x variant runs, non-finite: 0" in accuracy.table(doc)
+    assert "stability: 1 case x variant runs, non-finite: 0" in accuracy_report.table(doc)

@@ -12,7 +12,7 @@ import pytest
 
 from relight.bench import live_frame
 from relight.imageio import write_image
-from relight.video import read_frames
+from relight.video_read import read_frames
 
 SIZE, FPS = (160, 90), 5
 #: The reference silhouette moved with the true pose covers each frame's silhouette (the two

@@ -24,7 +24,7 @@ MEASURE_S = 4.0
 
 @pytest.fixture(scope="module")
 def y4m_clip(live_clip, tmp_path_factory):
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     return barcoded_y4m(list(read_frames(live_clip)), tmp_path_factory.mktemp("y4m") / "live.y4m")
 
@@ -80,7 +80,7 @@ def test_bar_codes_survive_the_relight(small_bundle, live_clip, tmp_path):
     import relight
     from relight.bench.browser import CODE_BITS, CODE_BLOCK
     from relight.engine.frame_path import FramePath
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     frames = list(read_frames(live_clip))[:8]
     y4m = barcoded_y4m(frames, tmp_path / "c.y4m")

@@ -21,7 +21,7 @@ def _camera_clip(src, folder, fmt: str):
     """``src``'s first 45 frames re-written as a camera in ``fmt`` would deliver them."""
     import av
 
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     codec, pix_fmt, _ = FORMATS[fmt]
     path = folder / f"camera-{fmt}.{'mkv' if codec == 'mjpeg' else 'nut'}"
@@ -43,9 +43,10 @@ def _camera_clip(src, folder, fmt: str):
 
 @pytest.mark.parametrize("fmt", list(FORMATS))
 def test_a_camera_in_its_own_format_is_relit_in_its_planes(small_bundle, live_clip, tmp_path, fmt):
-    from relight.service.live import StatusLine, run_live
-    from relight.video import frame_to_rgb, probe_video, read_frames
-    from relight.video_read import read_frames_raw
+    from relight.apps.live import run_live
+    from relight.apps.live_status import StatusLine
+    from relight.video_frame import frame_to_rgb
+    from relight.video_read import probe_video, read_frames, read_frames_raw
     from relight.video_yuv import YuvFrame
 
     clip = _camera_clip(live_clip, tmp_path, fmt)

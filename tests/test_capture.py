@@ -15,7 +15,7 @@ from relight.pipeline.capture import capture
 from relight.pipeline.capture_types import CaptureOptions
 from relight.pipeline.evaluate import evaluate_capture
 from relight.pipeline.image_set import read_lp
-from relight.video import VideoWriter
+from relight.video_write import VideoWriter
 
 from .once import synthesized
 from .tolerances import (
@@ -46,7 +46,7 @@ from .tolerances import (
 
 @pytest.fixture(scope="module")
 def synth_capture(tmp_path_factory):
-    from relight.pipeline.synth.studio import SynthConfig
+    from relight.pipeline.synth.config import SynthConfig
 
     return synthesized(tmp_path_factory, "capture-480x270",
                        SynthConfig(width=480, height=270, duration=8.0, seed=4, truth_envs=("builtin:studio",)))
@@ -103,8 +103,8 @@ def test_iphone_hdr_portrait_video_captures_as_well(synth_capture, tmp_path):
     curve, portrait frames turned in the file plus a display rotation - meets the plain capture's
     goals against the same truth (light directions within a stated margin for the second lossy
     encode)."""
-    from relight.video import probe_video
     from relight.video_colour import VideoColour
+    from relight.video_read import probe_video
 
     from .phone_video import encode_like_phone
 
@@ -119,7 +119,8 @@ def test_iphone_hdr_portrait_video_captures_as_well(synth_capture, tmp_path):
 
 @pytest.fixture(scope="module")
 def synth_capture_60fps(tmp_path_factory):
-    from relight.pipeline.synth.studio import SynthConfig, synthesize
+    from relight.pipeline.synth.config import SynthConfig
+    from relight.pipeline.synth.studio import synthesize
 
     out = tmp_path_factory.mktemp("cap60")
     return synthesize(out / "synth", SynthConfig(width=480, height=270, duration=6.0, fps=60.0, seed=4,
@@ -155,7 +156,7 @@ def test_downscaled_capture_meets_the_goals_and_relights_full_size_frames(synth_
     the video's full-size frames with it."""
     from relight.engine.frame_path import FramePath
     from relight.pipeline import ingest as ingest_mod
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     report_dir = tmp_path / "report"
     opts = CaptureOptions(face_pixels=DOWNSCALED_FACE_PIXELS)
@@ -250,10 +251,10 @@ def test_real_rti_set_predicts_held_out_photos(shared_data, tmp_path):
 
 @pytest.mark.slow  # a capture of a real face set (~19 s): `make test-slow`, CI
 def test_real_face_predicts_held_out_photos(shared_data, tmp_path):
-    from relight.bench import accuracy
+    from relight.bench import accuracy, accuracy_real
 
-    small = accuracy.scaled_rti(shared_data / "faces-yale" / "yaleB02", tmp_path / "yaleB02", 2)
-    res = accuracy.evaluate_face(small, tmp_path / "eval", False,
+    small = accuracy_real.scaled_rti(shared_data / "faces-yale" / "yaleB02", tmp_path / "yaleB02", 2)
+    res = accuracy_real.evaluate_face(small, tmp_path / "eval", False,
                                  variants={k: accuracy.VARIANTS[k] for k in ("full", "barycentric", "ptm")})
     psnr = {k: v["psnr"] for k, v in res["variants"].items()}
     assert res["held_out"][0] == "P00A+000E+00.png" and len(res["held_out"]) == 9  # lights 0, 6, ..., 48

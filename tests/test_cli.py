@@ -44,6 +44,28 @@ def test_module_entry_point():
 
 
 @pytest.mark.slow
+def test_relight_alone_lists_its_commands():
+    """`relight` with no command (the console script, as a user types it) lists every command with
+    its one line and exits 0; `--verbose` alone is still no command."""
+    import shutil
+    from pathlib import Path
+
+    from relight.cli import COMMANDS
+
+    exe = Path(sys.executable).parent / "relight"
+    cmd = [str(exe)] if exe.exists() else [shutil.which("relight")]
+    for extra in ([], ["--verbose"]):
+        out = subprocess.run(cmd + extra, capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        assert out.stderr == ""
+        lines = out.stdout.splitlines()
+        for name, text in COMMANDS.items():
+            assert sum(1 for line in lines if line.split()[:1] == [name] and line.rstrip().endswith(text)) == 1, name
+    # a wrong command is still an error that names the choices
+    bad = subprocess.run(cmd + ["nope"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "invalid choice" in bad.stderr
+
+
 def test_demo_writes_a_contact_sheet(tmp_path, capsys):
     import cv2
 
@@ -60,7 +82,7 @@ def test_demo_writes_a_contact_sheet(tmp_path, capsys):
     assert sheet[5 * 270:].max() > 150  # (the credit's text)
     # The relit live clip under each environment, and the before/after sheet (before + 3 envs, 3 moments).
     from relight.cli import DEMO_ENVS
-    from relight.video import probe_video
+    from relight.video_read import probe_video
 
     for name in DEMO_ENVS:
         assert probe_video(tmp_path / f"relit-{name}.mp4").frame_count == \
@@ -159,7 +181,7 @@ def test_files_are_owner_only_for_bundles_and_follow_the_umask_otherwise(small_c
     import stat
 
     from relight.imageio import write_image
-    from relight.kernels.bundle import write_bundle
+    from relight.kernels.bundle_format import write_bundle
 
     res, _ = small_capture
     old = os.umask(0o027)

@@ -73,6 +73,21 @@ def test_dockerfile_runs_unprivileged_with_health_check_and_serves_by_default():
     assert any(w == "EXPOSE" and a == "8000" for w, a in ins)
 
 
+def test_every_package_folder_reaches_the_image():
+    """Each folder pyproject maps onto a package is COPY'd by the Dockerfile and let through by its
+    .dockerignore (which leaves out everything it does not name): a folder missed in either
+    breaks the image's install."""
+    import tomllib
+
+    dirs = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+    tops = {d.split("/")[0] for d in dirs.values()}
+    copied = {a.split()[0] for w, a in _instructions() if w == "COPY" and not a.startswith("--")}
+    allowed = {line[1:] for line in (DOCKER / "Dockerfile.dockerignore").read_text().splitlines()
+               if line.startswith("!")}
+    assert tops - copied == set(), f"package folders the Dockerfile does not COPY: {sorted(tops - copied)}"
+    assert tops - allowed == set(), f"package folders .dockerignore leaves out: {sorted(tops - allowed)}"
+
+
 def _entrypoint_env(tmp_path, files: dict[str, str], **env) -> dict[str, str]:
     root = tmp_path / "cgroup"
     for name, text in files.items():

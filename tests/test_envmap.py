@@ -203,7 +203,7 @@ def test_lights_conserve_power_and_share_the_grid(pole):
 
 
 def test_camera_grid_columns_are_image_directions():
-    from relight.kernels.shading import grid_directions
+    from relight.kernels.heightfield import grid_directions
 
     d = grid_cell_directions(16, 8, "z").reshape(8, 16, 3)
     img = grid_directions(16)

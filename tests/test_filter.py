@@ -10,7 +10,8 @@ import pytest
 from relight import load_environment
 from relight.cli import main
 from relight.errors import InputError
-from relight.video import VideoWriter, read_frames
+from relight.video_read import read_frames
+from relight.video_write import VideoWriter
 
 from .tolerances import (
     OFF_PERSON_CODES,
@@ -35,7 +36,7 @@ def test_a_frame_kept_in_its_planes_is_relit_in_them(clip, small_bundle):
     import av
 
     from relight.engine.frame_path import FramePath
-    from relight.video import frame_to_rgb
+    from relight.video_frame import frame_to_rgb
     from relight.video_yuv import YuvFrame
 
     path, _ = clip
@@ -187,8 +188,8 @@ def test_pipelined_filter_is_repeatable_and_close_to_the_serial_path(small_bundl
     """relight filter runs the per-frame path in two stages on two threads (front of frame N+1
     beside back of frame N): two runs give the same frames, and they stay within a few codes of
     the serial FramePath.process (the tracker takes the live-lit reference one frame later)."""
+    from relight.apps.filter import run_filter
     from relight.engine.frame_path import FramePath
-    from relight.service.filter import run_filter
 
     path, frames = clip
     env = load_environment("builtin:sunset")
@@ -214,7 +215,7 @@ def test_filter_preset_is_checked_and_used(small_bundle, clip, tmp_path):
     """--preset picks the H.264 encoder's settings (realtime by default: x264's ultrafast with
     CABAC, B-frames and deblocking); a preset x264 lacks is refused with the list, before any
     frame is read."""
-    from relight.service.filter import run_filter
+    from relight.apps.filter import run_filter
     from relight.video_write import DEFAULT_PRESET, X264_PRESETS, check_preset
 
     assert DEFAULT_PRESET == "realtime" and check_preset("medium") == "medium"
@@ -252,7 +253,7 @@ def test_filter_writes_a_video_as_png_frames_without_a_second_encode(small_bundl
     """A video into a folder (no suffix, or an empty folder): its frames as PNGs, each the
     pipelined path's frame exactly (what the live frame's benchmark measures); the audio is
     left out and the report says so; a folder with files in it is refused, nothing written."""
-    from relight.service.filter import run_filter
+    from relight.apps.filter import run_filter
 
     path, frames = clip
     env = load_environment("builtin:sunset")

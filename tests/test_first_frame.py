@@ -41,7 +41,8 @@ def webcam_path(tmp_path_factory):
     """A path on a 4 s 640x360 capture of the small bundle's head (seed 3)."""
     from relight import load_bundle
     from relight.pipeline.capture import capture
-    from relight.pipeline.synth.studio import SynthConfig, synthesize
+    from relight.pipeline.synth.config import SynthConfig
+    from relight.pipeline.synth.studio import synthesize
 
     def make(folder):
         synthesize(folder / "synth", SynthConfig(width=640, height=360, duration=4.0, seed=3), progress=False)
@@ -53,7 +54,7 @@ def webcam_path(tmp_path_factory):
 def _first(path, scene, yaw, pitch, frames=1):
     """(input, outputs, infos, pose error of the last frame or None) of a fresh run of ``frames``
     copies of the head at (yaw, pitch)."""
-    from relight.kernels.relighter import rotation_angle_deg
+    from relight.kernels.relight_inputs import rotation_angle_deg
 
     r = rotation_matrix(yaw, pitch, 0.0)
     rgb = scene.expose(scene.render(r)[0], 0)
@@ -91,7 +92,7 @@ def test_few_points_give_the_pose_that_projected_them():
     the pose that projected them (SQPnP needs no start); too few points or non-finite ones give
     None."""
     from relight.engine.pose import PoseEstimator
-    from relight.kernels.relighter import rotation_angle_deg
+    from relight.kernels.relight_inputs import rotation_angle_deg
 
     rng = np.random.default_rng(2)
     # a face-sized model: eyes, nose tip (nearer the camera), mouth, ears (farther), px at a 1000 px focal length

@@ -133,7 +133,7 @@ def test_a_path_searches_in_the_frame_for_a_file_and_on_a_worker_for_a_live_sour
                                                                                    live_source):
     from relight import load_environment
     from relight.engine.frame_path import FramePath
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     frames = list(read_frames(live_clip))
     fp = FramePath(small_bundle, load_environment("builtin:sunset"), live_source=live_source)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from relight import load_bundle
-from relight.bench import fuzz
+from relight.bench import fuzz, fuzz_seeds, fuzz_targets
 from relight.errors import InputError
 
 from .once import made_once
@@ -21,7 +21,7 @@ def seeds(tmp_path_factory, request):
         if fuzz.shared_data() is None:
             small = request.getfixturevalue("small_bundle")
             (folder / "seed.bundle").write_bytes(small.path.read_bytes())
-        fuzz.make_seeds(folder)
+        fuzz_seeds.make_seeds(folder)
 
     return made_once(tmp_path_factory, "fuzz-seeds", make)
 
@@ -42,7 +42,7 @@ def test_fuzz_target_never_crashes(target, seeds, tmp_path):
 
 def _seed_bundle_file(seeds, tmp_path, path, value):
     f = tmp_path / "crafted.bundle"
-    f.write_bytes(fuzz.craft_bundle((seeds / "seed.bundle").read_bytes(), path, value))
+    f.write_bytes(fuzz_targets.craft_bundle((seeds / "seed.bundle").read_bytes(), path, value))
     return f
 
 
@@ -55,14 +55,14 @@ def _seed_bundle_file(seeds, tmp_path, path, value):
 def test_crafted_bundle_refused_on_load(seeds, tmp_path, path, value, says):
     """A header rewritten with its checksums made right (a crafted file, not a damaged one)."""
     with pytest.raises(InputError, match=says):
-        fuzz.use_bundle(load_bundle(_seed_bundle_file(seeds, tmp_path, path, value)))
+        fuzz_targets.use_bundle(load_bundle(_seed_bundle_file(seeds, tmp_path, path, value)))
 
 
 def test_crafted_recipe_azimuths_refused(seeds, tmp_path):
     """meta.recipe.n_az drove the visibility kernel past its buffer (a segfault in PoCL)."""
     b = load_bundle(_seed_bundle_file(seeds, tmp_path, ("meta", "recipe", "n_az"), 2 ** 63 - 1))
     with pytest.raises(InputError, match="horizon azimuths"):
-        fuzz.use_bundle(b)
+        fuzz_targets.use_bundle(b)
 
 
 def test_lp_huge_and_tiny_directions_stay_unit(tmp_path):
@@ -106,7 +106,7 @@ def test_control_messages_refused(text):
 def test_video_with_damaged_metadata_or_unknown_codec(seeds, tmp_path):
     """Container tags that are not UTF-8 raised UnicodeDecodeError out of PyAV (now read with
     replacement characters); a stream of a codec FFmpeg has no decoder for raised AttributeError."""
-    from relight.video import probe_video, read_frames
+    from relight.video_read import probe_video, read_frames
 
     data = bytearray((seeds / "seed.mp4").read_bytes())
     tagged = bytearray(data)

@@ -4,17 +4,9 @@ import numpy as np
 import pytest
 
 from relight.errors import InputError
+from relight.kernels.heightfield import NO_SURFACE, MarchSettings, grid_directions, horizon_numpy, visibility_numpy
 from relight.kernels.sensor import SensorKernel, expose_numpy, frame_key, hash_normal
-from relight.kernels.shading import (
-    NO_SURFACE,
-    LightShader,
-    MarchSettings,
-    Surface,
-    grid_directions,
-    horizon_numpy,
-    shade_lights_numpy,
-    visibility_numpy,
-)
+from relight.kernels.shading import LightShader, Surface, shade_lights_numpy
 
 from .tolerances import (
     HORIZON_ABS,

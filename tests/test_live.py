@@ -15,8 +15,8 @@ import time
 import numpy as np
 import pytest
 
-from relight.service.live_camera import LatestFrame, device_input
-from relight.service.virtual_camera import backend_hint
+from relight.apps.live_camera import LatestFrame, device_input
+from relight.apps.virtual_camera import backend_hint
 
 from .serving import wait_line
 from .tolerances import LIVE_CHANGED_CODES, LIVE_CHANGED_SHARE, LIVE_FRAME_SHARE, LIVE_IN_FLIGHT, LIVE_RATE_SHARE
@@ -29,7 +29,7 @@ RUN_TIMEOUT = 120
 def test_a_file_as_camera_is_relit_recorded_previewed_switched_and_stopped(small_bundle, live_clip, tmp_path):
     import httpx
 
-    from relight.video import probe_video, read_frames
+    from relight.video_read import probe_video, read_frames
 
     rec, stats = tmp_path / "rec.mp4", tmp_path / "stats.json"
     proc = subprocess.Popen(RELIGHT + ["live", "--bundle", str(small_bundle.path), "--env", "builtin:sunset",

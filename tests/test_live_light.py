@@ -161,7 +161,7 @@ def test_bad_live_frames_give_bounded_output_and_a_status(small_bundle, small_ca
     status says what happened (BAD_FRAME_STATUS)."""
     from relight.engine.frame_path import FramePath
     from relight.imageio import read_image
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     res, _ = small_capture
     meta = json.loads((res.truth / "meta.json").read_text())
@@ -255,11 +255,11 @@ def test_a_real_face_lit_from_one_side_is_found_and_relit(shared_data, tmp_path)
     light is far closer to that light's photo than the unchanged input."""
     import relight
     from relight.bench import realface
-    from relight.bench.accuracy import FACES_TRANSFER, scaled_rti, split_rti
+    from relight.bench.accuracy_real import FACES_TRANSFER, scaled_rti, split_rti
     from relight.engine.frame_path import FramePath
     from relight.pipeline.capture import capture
     from relight.pipeline.capture_types import CaptureOptions
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     folder = scaled_rti(shared_data / "faces-yale" / "yaleB08", tmp_path / "set", 2)
     split_rti(folder, tmp_path / "train")

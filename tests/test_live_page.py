@@ -83,7 +83,7 @@ def _right_over_left(pair: tuple[np.ndarray, np.ndarray]) -> float:
 def test_the_live_page_steers_the_light(chromium, small_bundle, live_clip, tmp_path):
     from relight import load_environment
     from relight.bench.browser import barcoded_y4m, chromium_page
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     lights, stats = tmp_path / "lights", tmp_path / "stats.json"
     proc = subprocess.Popen(RELIGHT + ["live", "--bundle", str(small_bundle.path), "--env", "builtin:studio",

@@ -33,7 +33,7 @@ def path(small_bundle):
 
 @pytest.fixture(scope="module")
 def clip_frame(live_clip):
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     return list(read_frames(live_clip))[10]
 

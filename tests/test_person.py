@@ -43,7 +43,7 @@ def clip(tmp_path_factory):
     coverage over one half, as its truth writes them (``truth/silhouette``; without a truth
     environment rendered, which cost 10 s more)."""
     from relight.pipeline.synth.live import LiveConfig, LiveScene, synthesize_live
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     out = tmp_path_factory.mktemp("person")
     cfg = LiveConfig(width=320, height=180, duration=1.0, fps=5, seed=9)

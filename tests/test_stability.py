@@ -5,14 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from relight.bench.stability import (
-    CASES,
-    VARIANTS,
-    MapProblem,
-    evaluate,
-    make_head,
-    run_stability,
-)
+from relight.bench.stability import MapProblem, evaluate, make_head, run_stability
+from relight.bench.stability_cases import CASES
+from relight.bench.stability_reference import VARIANTS
 
 from .tolerances import STABILITY_MAP_GAIN, STABILITY_MAPS_REL, STABILITY_RENDER_REL
 
@@ -117,7 +112,7 @@ def test_a_non_finite_sample_is_refused_not_passed_on(small_problem, value):
 
 
 def test_the_suite_flags_non_finite_and_wrong_output():
-    from relight.bench.stability import relative_error
+    from relight.bench.stability_reference import relative_error
 
     ref = np.ones((4, 3, 8))
     bad = ref.copy()

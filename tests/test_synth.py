@@ -14,8 +14,9 @@ from relight.directions import rotation_matrix, sphere_point_for_light
 from relight.errors import InputError
 from relight.imageio import read_image
 from relight.pipeline.synth import rig
-from relight.pipeline.synth.studio import OLAT_DIRECTIONS, TRUTH_GRID, Studio, SynthConfig, synthesize
-from relight.video import read_frames
+from relight.pipeline.synth.config import SynthConfig
+from relight.pipeline.synth.studio import OLAT_DIRECTIONS, TRUTH_GRID, Studio, synthesize
+from relight.video_read import read_frames
 
 from .tolerances import (
     DRIFT_GAIN_RANGE,

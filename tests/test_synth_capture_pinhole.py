@@ -10,8 +10,9 @@ import pytest
 
 from relight.cli import main
 from relight.pipeline.synth import rig
+from relight.pipeline.synth.config import SynthConfig
 from relight.pipeline.synth.pinhole_view import capture_mesh, posed_layer
-from relight.pipeline.synth.studio import Studio, SynthConfig
+from relight.pipeline.synth.studio import Studio
 
 from .tolerances import F32_CLOSE
 

@@ -18,7 +18,8 @@ from relight.pipeline.synth.head import height_units, inside
 from relight.pipeline.synth.live import LiveConfig, LiveScene
 from relight.pipeline.synth.motion import head_pose_track, make_audio
 from relight.spherical_harmonics import environment_sh9, sh9_irradiance
-from relight.video import AUDIO_RATE, VideoWriter, read_frames
+from relight.video_read import read_frames
+from relight.video_write import AUDIO_RATE, VideoWriter
 
 from .tolerances import (
     AUDIO_DURATION_S,

@@ -205,7 +205,7 @@ def test_synth_capture_and_live_clip_of_the_scan(tmp_path):
                  "builtin:lee-perry-smith", "--truth-env", "builtin:sunset", "--quiet"]) == 0
     import cv2
 
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     frames = list(read_frames(live / "live.mp4"))
     assert len(frames) == 30 and np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 0.5

@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from relight.errors import InputError
-from relight.video import VideoWriter, probe_video, read_frames
+from relight.video_read import probe_video, read_frames
+from relight.video_write import VideoWriter
 
 from .tolerances import VIDEO_BIAS_CODES, VIDEO_MEAN_CODES, YUV_FAST_MEAN_CODES, YUV_FAST_ROUNDTRIP_CODES
 
@@ -34,11 +35,11 @@ def test_round_trip_is_unbiased(tmp_path):
 
 def test_the_planes_conversions_follow_swscale_and_are_unbiased():
     """relight.video_yuv's Y'CbCr <-> RGB (OpenCV's vector paths, for the boxes the per-frame path
-    touches) against swscale's exact settings (what players and relight.video use), on a real
+    touches) against swscale's exact settings (what players and relight.video_frame use), on a real
     photo: close on average, unbiased, and a round trip as faithful as 4:2:0 allows."""
     from skimage import data
 
-    from relight.video import to_yuv
+    from relight.video_write import to_yuv
     from relight.video_yuv import YuvFrame, planes_to_rgb, rgb_to_planes
 
     rgb = np.ascontiguousarray(data.astronaut()[:, :510])
@@ -93,7 +94,7 @@ def test_display_orientation_follows_the_container_matrix(tmp_path, degrees, hfl
     reads back as the turn and mirror that show the frame that way."""
     import av
 
-    from relight.video import display_orientation, orient
+    from relight.video_orient import display_orientation, orient
 
     coded = np.zeros((48, 64, 3), np.uint8)
     coded[:16, :16] = 255  # a bright corner: top left
@@ -124,7 +125,8 @@ def test_turned_video_reads_upright_in_every_reader(tmp_path, degrees, hflip):
     and crops (the capture's path) all see it as displayed."""
     import av
 
-    from relight.video import crop_frame, frame_to_rgb, probe_video, read_frames, read_frames_raw, read_luma
+    from relight.video_frame import crop_frame, frame_to_rgb
+    from relight.video_read import probe_video, read_frames, read_frames_raw, read_luma
 
     rng = np.random.default_rng(5)
     shown = cv2_resize_noise(rng, (96, 64))  # displayed: 64 wide, 96 high (portrait)

@@ -83,7 +83,7 @@ def test_ten_bit_ycbcr_matches_swscale(matrix, full):
     import av
     from av.video.reformatter import ColorRange, Colorspace
 
-    from relight.video import crop_frame, sws_flags
+    from relight.video_frame import crop_frame, sws_flags
 
     h, w = 32, 48
     colour = VideoColour(matrix=matrix, primaries="bt709", transfer="linear", full_range=full, bits=10)
@@ -158,7 +158,9 @@ def test_phone_codecs_decode_to_the_same_linear_light(tmp_path, codec, colour):
     import av
 
     from relight.colour import decode_srgb8, encode_srgb8
-    from relight.video import VideoWriter, crop_frame, read_frames, read_frames_raw, read_luma
+    from relight.video_frame import crop_frame
+    from relight.video_read import read_frames, read_frames_raw, read_luma
+    from relight.video_write import VideoWriter
 
     try:
         av.codec.Codec(codec, "w")

@@ -95,7 +95,7 @@ def server(small_bundle):
 
 @pytest.fixture(scope="module")
 def clip_frames(live_clip):
-    from relight.video import read_frames
+    from relight.video_read import read_frames
 
     return list(read_frames(live_clip))
 

@@ -18,7 +18,7 @@ from relight.colour import encode_srgb8
 from relight.directions import direction_to_equirect_uv, sphere_point_for_light
 from relight.imageio import read_image, write_image
 from relight.numerics import EPS_VALUE
-from relight.video import read_frames
+from relight.video_read import read_frames
 
 TILE = (480, 270)
 

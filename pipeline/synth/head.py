@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from relight.kernels.shading import NO_SURFACE, Surface
+from relight.kernels.heightfield import NO_SURFACE
+from relight.kernels.shading import Surface
 from relight.numerics import EPS_NORM, EPS_VALUE
 
 #: Subsamples per pixel side for the anti-aliased silhouette.

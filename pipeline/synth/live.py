@@ -63,7 +63,7 @@ from relight.errors import InputError
 from relight.imageio import atomic_path, write_image
 from relight.numerics import FLOAT
 from relight.spherical_harmonics import environment_sh9
-from relight.video import AUDIO_RATE, VideoWriter
+from relight.video_write import AUDIO_RATE, VideoWriter
 
 from .config import MAX_SIZE, MIN_SIZE, SynthConfig, head_info
 from .mesh_render import MeshLiveHead
@@ -126,7 +126,7 @@ class LiveConfig:
     noise: float = 1.0
     crf: int = 18
     audio: str = "tone"
-    #: A textured head mesh instead of the procedural head (as :class:`.studio.SynthConfig`'s).
+    #: A textured head mesh instead of the procedural head (as :class:`.config.SynthConfig`'s).
     head_mesh: str | None = None
     head_texture: str | None = None
     head_normal_map: str | None = None

@@ -354,7 +354,7 @@ def build_mesh_head(mesh: HeadMesh, width: int, height: int, *, rotation=None,
                     placement: Placement | None = None) -> Head:
     """The mesh as the studio's :class:`.head.Head` on a ``width x height`` grid at the
     reference pose (or turned by ``rotation`` about its placement's origin, for tests)."""
-    from relight.kernels.shading import NO_SURFACE
+    from relight.kernels.heightfield import NO_SURFACE
 
     place = placement or place_mesh(mesh, width, height)
     v = mesh.vertices if rotation is None else mesh.vertices @ np.asarray(rotation, np.float64).T

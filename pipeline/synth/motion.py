@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from relight.numerics import EPS, EPS_NORM
-from relight.video import AUDIO_RATE
+from relight.video_write import AUDIO_RATE
 
 #: Motion: each pose channel is a sum of three sines of incommensurate (random) frequencies near
 #: these (Hz), weights :data:`MOTION_WEIGHTS`; the slowest one makes at least

@@ -33,15 +33,12 @@ from relight.errors import InputError
 from relight.imageio import atomic_path, write_image
 from relight.kernels.shading import LightShader
 from relight.numerics import EPS_NORM, FLOAT, px_at, require_finite
-from relight.video import VideoWriter
+from relight.video_write import VideoWriter
 
 from ..geometry import height_field_mesh
 from . import rig
 from .camera import Sensor
-from .config import DEFAULT_TRUTH_ENVS as DEFAULT_TRUTH_ENVS
-from .config import SynthConfig as SynthConfig
-from .config import SynthResult as SynthResult
-from .config import head_info
+from .config import SynthConfig, SynthResult, head_info
 from .head import Head, build_head
 from .pinhole import ORTHOGRAPHIC_META, Pinhole
 from .pinhole_view import capture_mesh, posed_layer, reference_view

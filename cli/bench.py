@@ -177,7 +177,7 @@ def add_parser(sub) -> None:
 
 
 def _run_bench_accuracy(args) -> int:
-    from ..bench import accuracy
+    from ..bench import accuracy, accuracy_report
     from ..bench.real_data import shared_data
     from ..errors import InputError
 
@@ -188,7 +188,7 @@ def _run_bench_accuracy(args) -> int:
     if args.faces is not None and not accuracy.face_subjects(args.faces):
         raise InputError(f"--faces {args.faces}: expected one folder per subject, each with dirs.lp")
     doc = accuracy.run(args.out, quick=args.quick, progress=not args.quiet, rti=rti, faces=faces)
-    print(accuracy.table(doc))
+    print(accuracy_report.table(doc))
     print(f"wrote {args.out / 'bench.json'}, {args.out / 'report.md'} and its PNG plots")
     return 0
 

@@ -31,13 +31,14 @@ DEMO_CLIP_S = 3.0
 
 def _run_demo(args) -> int:
     from .. import load_bundle, load_environment
+    from ..apps.filter import run_filter
     from ..engine.frame_path import FramePath
     from ..pipeline.capture import capture
     from ..pipeline.evaluate import evaluate_capture
+    from ..pipeline.synth.config import SynthConfig
     from ..pipeline.synth.contact_sheet import before_after_sheet, contact_sheet
     from ..pipeline.synth.live import LiveConfig, synthesize_live
-    from ..pipeline.synth.studio import SynthConfig, synthesize
-    from ..service.filter import run_filter
+    from ..pipeline.synth.studio import synthesize
 
     t0 = time.perf_counter()
     # Progress bars on a terminal only: a log file gets one line per stage.

@@ -21,7 +21,7 @@ from .common import (
 
 def add_parser(sub) -> None:
     from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES, REGIONS
-    from ..video import DEFAULT_CRF
+    from ..video_write import DEFAULT_CRF
 
     p = sub.add_parser(
         "live", help=COMMANDS["live"],
@@ -84,10 +84,10 @@ def _live_command(args) -> int:
 
     import relight
 
+    from ..apps.live import run_live
+    from ..apps.virtual_camera import VirtualCameraMissing, check_virtual_camera_backend
     from ..errors import InputError
     from ..imageio import atomic_path
-    from ..service.live import run_live
-    from ..service.virtual_camera import VirtualCameraMissing, check_virtual_camera_backend
 
     if not (args.virtual_camera or args.preview or args.record):
         raise InputError("nothing to send the frames to: add --virtual-camera, --preview and/or --record OUT.mp4")

@@ -11,10 +11,10 @@ The per-frame timings cover the per-frame path only (track + pose + relight + wa
 composite); decoding and encoding run beside it and are reported separately.
 
 The run loop is here (:func:`run_filter`); the work by input and output is in
-:mod:`relight.service.filter_video` (video -> video) and :mod:`relight.service.filter_frames`
+:mod:`relight.apps.filter_video` (video -> video) and :mod:`relight.apps.filter_frames`
 (image sequences, PNG frames), the two-thread per-frame path in
-:mod:`relight.service.frame_pipeline`, the result and its report in
-:mod:`relight.service.filter_report`.
+:mod:`relight.engine.frame_pipeline`, the result and its report in
+:mod:`relight.apps.filter_report`.
 """
 
 from __future__ import annotations
@@ -28,18 +28,14 @@ from relight.errors import InputError
 from relight.video_write import DEFAULT_CRF, DEFAULT_PRESET, check_preset
 
 from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION
-from .filter_frames import IMAGE_SUFFIXES as IMAGE_SUFFIXES
-from .filter_frames import MAX_SEQUENCE as MAX_SEQUENCE
-from .filter_frames import filter_sequence, filter_video_frames
-from .filter_frames import is_folder_output as is_folder_output
-from .filter_frames import png_folder as png_folder
-from .filter_report import FilterResult as FilterResult
-from .filter_report import timing_stats
-from .filter_report import write_report as write_report
-from .filter_video import AUDIO_COPY as AUDIO_COPY
-from .filter_video import VIDEO_CODECS as VIDEO_CODECS
+from ..engine.frame_pipeline import FramePipeline
+from .filter_frames import (
+    filter_sequence,
+    filter_video_frames,
+    is_folder_output,
+)
+from .filter_report import FilterResult, timing_stats, write_report
 from .filter_video import filter_video
-from .frame_pipeline import FramePipeline as FramePipeline
 
 
 def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bool = False, strength: float = 1.0,

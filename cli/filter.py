@@ -73,9 +73,9 @@ def _filter_command(args) -> int:
 
     import relight
 
+    from ..apps.filter import run_filter
     from ..engine.frame_path import EXPOSURE_RANGE_EV
     from ..errors import InputError
-    from ..service.filter import run_filter
 
     lo, hi = EXPOSURE_RANGE_EV
     if not (np.isfinite(args.exposure) and lo <= args.exposure <= hi):

@@ -8,7 +8,7 @@ Threads (no queue grows anywhere - the latest frame wins at each hand-over):
   and leaves each frame in a one-frame slot (:class:`LatestFrame`); a frame the loop had no time
   for is replaced and counted as dropped;
 * the **relight loop** (the caller's thread, plus the second stage of
-  :class:`relight.service.filter.FramePipeline` on a worker) takes the newest frame, relights it
+  :class:`relight.engine.frame_pipeline.FramePipeline` on a worker) takes the newest frame, relights it
   and leaves the result in the output slot;
 * the **output clock** ticks at the output rate and hands the newest relit frame to the sinks:
   the virtual camera (pyvirtualcam: v4l2loopback, OBS Virtual Camera), the recording (H.264,
@@ -37,15 +37,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.errors import InputError
-from relight.video import DEFAULT_CRF
+from relight.video_write import DEFAULT_CRF
 
 from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES
 from ..engine.threads import frames_first
 from .live_camera import CameraReader, LatestFrame
 from .live_controls import Controls, install_signals, key_reader
 from .live_preview import PreviewServer
-from .live_status import LiveResult, light_text
-from .live_status import StatusLine as StatusLine  # `as`: the benchmarks take it from here too
+from .live_status import LiveResult, StatusLine, light_text
 from .virtual_camera import VirtualCamera, check_virtual_camera_backend
 
 #: x264 preset of a recording: the fastest (the relight needs the cores; ~2x the bytes of veryfast).
@@ -84,10 +83,10 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     signal. ``bundle``: a loaded :class:`relight.kernels.bundle.Bundle`; ``envs``: environments
     (paths or ``builtin:NAME``) switched in turn. ``on_ready(result)`` is called once the sinks
     are open (the preview's URL is known)."""
-    from relight.video import VideoWriter
+    from relight.video_write import VideoWriter
 
     from ..engine.frame_path import FramePath
-    from .filter import FramePipeline
+    from ..engine.frame_pipeline import FramePipeline
 
     if mode not in MODES:
         raise InputError(f"mode {mode!r}: use one of {', '.join(MODES)}")

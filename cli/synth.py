@@ -9,8 +9,8 @@ from .common import COMMANDS, DefaultsUnlessNone, parse_size
 
 
 def add_parser(sub) -> None:
+    from ..pipeline.synth.config import DEFAULT_TRUTH_ENVS, SynthConfig
     from ..pipeline.synth.live import AUDIO_KINDS, LiveConfig
-    from ..pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig
 
     d = SynthConfig()
     live = LiveConfig()
@@ -106,7 +106,8 @@ def _run_synth(args) -> int:
     if args.fov is None and args.distance != LiveConfig().distance:
         raise InputError("--distance places a pinhole camera: give its field of view with --fov, or leave "
                          "--distance out")
-    from ..pipeline.synth.studio import DEFAULT_TRUTH_ENVS, SynthConfig, synthesize
+    from ..pipeline.synth.config import DEFAULT_TRUTH_ENVS, SynthConfig
+    from ..pipeline.synth.studio import synthesize
 
     d = SynthConfig()
     cfg = SynthConfig(width=args.size[0], height=args.size[1], fps=args.fps, flash_hz=args.flash_hz,
@@ -125,8 +126,8 @@ def _run_synth(args) -> int:
 def _run_synth_live(args) -> int:
     from ..envmap import environment_stem
     from ..errors import InputError
+    from ..pipeline.synth.config import SynthConfig
     from ..pipeline.synth.live import LiveConfig, synthesize_live
-    from ..pipeline.synth.studio import SynthConfig
 
     d, s = LiveConfig(), SynthConfig()
     capture_only = [flag for flag, used in (("--flash-hz", args.flash_hz != s.flash_hz),

@@ -105,7 +105,7 @@ class CameraReader:
         import av
 
         if self.is_file:
-            from relight.video import probe_video
+            from relight.video_read import probe_video
 
             info = probe_video(self.spec)
             self.rate = float(info.fps) if info.fps else 30.0
@@ -135,8 +135,11 @@ class CameraReader:
         return self
 
     def stop(self) -> None:
+        """Stop the reader (and close the camera); safe before :meth:`start` - a run that failed
+        while starting stops it too, and must not hide its error behind this one's."""
         self._stop.set()
-        self._thread.join(timeout=5)
+        if self._thread.ident is not None:
+            self._thread.join(timeout=5)
         c = getattr(self, "container", None)
         if c is not None:
             c.close()
@@ -157,7 +160,7 @@ class CameraReader:
         return np.ascontiguousarray(rgb)
 
     def _frames(self):
-        from relight.video import read_frames_raw
+        from relight.video_read import read_frames_raw
 
         if not self.is_file:
             for frame in self.container.decode(video=0):
@@ -177,7 +180,7 @@ class CameraReader:
         """A decoded frame kept in its planes where it can be (the camera's own format: 4:2:0,
         4:2:2, NV12, YUYV, MJPEG's full-range planes - only what is touched is converted:
         relight.video_yuv), else RGB as displayed."""
-        from relight.video import frame_to_rgb
+        from relight.video_frame import frame_to_rgb
         from relight.video_yuv import YuvFrame
 
         if self.pixel_format is None:

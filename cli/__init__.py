@@ -38,8 +38,8 @@ from .common import (
 )
 from .demo import DEMO_CLIP_S, DEMO_ENVS
 
-__all__ = ["COMMANDS", "DEMO_CLIP_S", "DEMO_ENVS", "VERBOSE_HELP", "build_parser", "main", "negative_values_joined",
-           "parse_args", "run_command", "serve_main", "set_verbose"]
+__all__ = ["COMMANDS", "DEMO_CLIP_S", "DEMO_ENVS", "VERBOSE_HELP", "build_parser", "commands_text", "main",
+           "negative_values_joined", "parse_args", "run_command", "serve_main", "set_verbose"]
 
 #: Each command's parser builder (``add_parser(subparsers)``), by command name.
 _ADDERS = {"synth": synth.add_parser, "capture": capture.add_parser, "render": render.add_parser,
@@ -77,8 +77,20 @@ def build_parser(command: str | None = "*") -> argparse.ArgumentParser:
     return parser
 
 
+def commands_text() -> str:
+    """What ``relight`` alone prints: the commands, one line each."""
+    width = max(map(len, COMMANDS))
+    rows = "".join(f"  {name:<{width}}  {text}\n" for name, text in COMMANDS.items())
+    return (f"usage: relight COMMAND ...\n\nReal-time relighting of a human face in video, on a CPU.\n\n"
+            f"commands:\n{rows}\n'relight COMMAND --help' lists a command's flags; 'relight --help' the options.\n")
+
+
 def main(argv: list[str] | None = None) -> int:
-    """The ``relight`` command."""
+    """The ``relight`` command (alone: the commands, one line each, exit status 0)."""
+    words = sys.argv[1:] if argv is None else argv
+    if _command(argv) is None and not {"-h", "--help", "--version"} & set(words):
+        sys.stdout.write(commands_text())
+        return 0
     parser = build_parser(_command(argv))
     args = parse_args(parser, argv)
     return run_command("relight", args.func, args)

@@ -34,7 +34,7 @@ import numpy as np
 
 from relight.directions import ENV_TURN_RANGE_DEG
 
-from .controls import RANGES
+from ..service.controls import RANGES
 from .live_camera import LatestFrame
 
 #: The MJPEG preview's JPEG quality, and its most frames a second to a viewer (a monitor of the
@@ -103,7 +103,7 @@ class PreviewServer:
         import cv2
 
         if ext == ".jpg":
-            from .codec import jpeg_from_rgb
+            from ..service.codec import jpeg_from_rgb
 
             return jpeg_from_rgb(rgb, PREVIEW_QUALITY)
         ok, buf = cv2.imencode(ext, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
@@ -292,7 +292,7 @@ def _key_fields(source: str) -> dict | None:
 def _handler(preview: PreviewServer):
     from http.server import BaseHTTPRequestHandler
 
-    from .security import is_loopback, split_host
+    from ..service.security import is_loopback, split_host
 
     page = (Path(__file__).parent / "static" / "live.html").read_bytes()
 
