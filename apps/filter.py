@@ -94,6 +94,8 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
     finally:
         if cam is not None:
             cam.close()
+        if frame_path is None:  # made here: its threads stopped here
+            fp.close()
     if res.frames == 0:
         raise InputError(f"{inp}: no frames could be read")
     res.timings_ms = {k: timing_stats(v) for k, v in stages.items()}

@@ -40,8 +40,9 @@ from relight.errors import InputError
 from relight.video_write import DEFAULT_CRF
 
 from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES
+from ..engine.frame_slot import LatestFrame
 from ..engine.threads import frames_first
-from .live_camera import CameraReader, LatestFrame
+from .live_camera import CameraReader
 from .live_controls import Controls, install_signals, key_reader
 from .live_preview import PreviewServer
 from .live_status import LiveResult, StatusLine, light_text
@@ -269,6 +270,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
             status.close()
             if pv is not None:
                 pv.close()
+            fp.close()
     if clock_error:
         raise clock_error[0]
     wall = max(time.perf_counter() - t_start, 1e-6)

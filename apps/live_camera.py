@@ -1,7 +1,7 @@
 """``relight live``'s camera: the **camera reader** thread - a camera device (FFmpeg's device
 inputs through PyAV: v4l2 on Linux, avfoundation on macOS, dshow on Windows) or a video file
-played at its own rate and looped - and the one-frame slot (:class:`LatestFrame`) each hand-over
-of the live path goes through: the newest frame wins, one nobody took is counted as dropped."""
+played at its own rate and looped - into the one-frame slot each hand-over of the live path goes
+through (:class:`relight.engine.frame_slot.LatestFrame`: the newest frame wins)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from relight.errors import InputError
+
+from ..engine.frame_slot import LatestFrame
 
 #: Largest camera frame accepted (pixels): 4K.
 MAX_CAMERA_PIXELS = 3840 * 2160
@@ -31,46 +33,6 @@ def device_input(camera: str | None, system: str | None = None) -> tuple[str, st
     if system == "Windows":
         return "dshow", camera if camera.startswith("video=") else f"video={camera}"
     raise InputError(f"no camera input for {system}: pass a video file as --camera")
-
-
-class LatestFrame:
-    """A one-item slot: :meth:`put` replaces what is there (counting it as dropped when nobody
-    took it), :meth:`take` waits for something newer than the last taken."""
-
-    def __init__(self):
-        self._cond = threading.Condition()
-        self._item = None
-        self._fresh = False
-        self.put_count = 0
-        self.dropped = 0
-
-    def put(self, item) -> None:
-        with self._cond:
-            if self._fresh:
-                self.dropped += 1
-            self._item, self._fresh = item, True
-            self.put_count += 1
-            self._cond.notify_all()
-
-    def wake(self) -> None:
-        """Wake a waiting :meth:`take` (it returns None unless something fresh came)."""
-        with self._cond:
-            self._cond.notify_all()
-
-    def take(self, timeout: float):
-        """The newest item not taken before, or None after ``timeout`` seconds."""
-        with self._cond:
-            if not self._fresh:
-                self._cond.wait(timeout)
-            if not self._fresh:
-                return None
-            self._fresh = False
-            return self._item
-
-    def peek(self):
-        """The newest item, taken or not (None before the first)."""
-        with self._cond:
-            return self._item
 
 
 @dataclass

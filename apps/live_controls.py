@@ -13,6 +13,7 @@ import threading
 
 import numpy as np
 
+from relight.env_cache import EnvironmentCache
 from relight.errors import InputError
 
 from ..engine.composite import MODES
@@ -28,6 +29,11 @@ MAX_ENVS = 64
 #: of light, 2.8 degrees; the key's smallest disc is 1 degree across): 5 ms instead of 25 at 512,
 #: for a key dragged on the page.
 KEY_WIDTH = 256
+
+
+def key_width(source: str) -> int | None:
+    """The width an environment ``source`` is loaded at: KEY_WIDTH for a key light, else its own."""
+    return KEY_WIDTH if source.startswith("builtin:key") else None
 
 
 class Controls:
@@ -47,9 +53,10 @@ class Controls:
         self.changed = threading.Event()
         self.stop = threading.Event()
         self.lock = threading.Lock()  # the page's handler threads and the loop
-        self._arrays: dict[str, object] = {}  # source -> loaded map (ENV_CACHE of them)
+        self._cache = EnvironmentCache(ENV_CACHE, width=key_width)  # the --env ones pinned below
         self.changed_at = 0.0  # perf_counter of the last change (the page's light latency counts from it)
         self.fixed = len(self.envs)  # the first `fixed` of envs came from the command line (kept loaded)
+        self._cache.pin(self.envs)
         self.wake = lambda: None  # called on a page's change: the loop stops waiting for the next frame
 
     @property
@@ -60,19 +67,7 @@ class Controls:
     def environment(self, source: str | None = None):
         """The map of ``source`` (default: the one in use), loaded on first use and kept (the
         ENV_CACHE last; the --env ones always)."""
-        import relight
-
-        source = self.env if source is None else source
-        with self.lock:
-            env = self._arrays.get(source)
-        if env is None:
-            env = relight.load_environment(source, width=KEY_WIDTH if source.startswith("builtin:key") else None)
-            with self.lock:
-                self._arrays[source] = env
-                extra = [k for k in self._arrays if k not in self.envs[:self.fixed]]
-                for k in extra[:max(0, len(extra) - ENV_CACHE)]:
-                    del self._arrays[k]
-        return env
+        return self._cache.get(self.env if source is None else source)
 
     def select(self, source: str) -> None:
         """Use ``source`` from the next frame (loaded first, on the caller's thread: a bad one

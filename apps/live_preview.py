@@ -34,8 +34,8 @@ import numpy as np
 
 from relight.directions import ENV_TURN_RANGE_DEG
 
+from ..engine.frame_slot import LatestFrame
 from ..service.controls import RANGES
-from .live_camera import LatestFrame
 
 #: The MJPEG preview's JPEG quality, and its most frames a second to a viewer (a monitor of the
 #: relit camera: RGB and a JPEG are made for it at this rate at most, off the frames' path).
@@ -126,12 +126,13 @@ class PreviewServer:
     def choices(self) -> list[str]:
         """The environments the page lists: the run's (command line, chosen, uploaded), then the
         built-ins and presets not among them."""
+        from relight.envmap import BUILTINS
         from relight.presets import PRESETS
 
         c = self.controls
         with c.lock:
             listed = list(c.envs)
-        more = [f"builtin:{n}" for n in ("studio", "sunset", "window", "room", *PRESETS)]
+        more = [f"builtin:{n}" for n in (*BUILTINS, *PRESETS)]
         return listed + [s for s in more if s not in listed]
 
     def state(self) -> dict:

@@ -8,12 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
+from relight.envmap import BUILTINS
+from relight.presets import PRESETS
+
 from .common import COMMANDS
 
 #: The sheet's lights, in its order: the presets people recognise, the key light's defaults, then
-#: the studio's own built-ins.
-SHEET_LIGHTS = ("overcast", "golden-hour", "office", "stage", "ring-light", "key",
-                "studio", "sunset", "window", "room", "uniform")
+#: the studio's own built-ins (uniform, the plainest, last) - from their registries.
+SHEET_LIGHTS = (*PRESETS, "key", *sorted(BUILTINS, key=lambda name: name == "uniform"))
 #: Each tile's face is brought to this median luminance (linear): the sheet shows each light's
 #: direction, softness and colour, as relight live's exposure matching would show them, not its
 #: power (a stage spot and an overcast sky differ by stops).

@@ -152,6 +152,7 @@ class FramePath:
             if ref_face is not None else None
         field_worker, maps_worker = workers if workers is not None else \
             (Worker("relight-field", background=live_source), Worker(background=live_source))
+        self._own_workers = workers is None  # made here: stopped by close()
         self._field_worker = field_worker  # a live source's slow stages, beside its frames
         self._maps_worker = maps_worker
         # (after the subspace's basis: the environment's rows, made ahead on the device's queue,
@@ -316,6 +317,25 @@ class FramePath:
         if found is not None:
             est.k = camera_matrix(est.frame_size, found)
             est.last = None
+
+    def close(self) -> None:
+        """Wait for the slow stages in flight and stop the worker threads this path made (workers
+        given to it are their giver's to stop). The path may not be used after. A slow stage's
+        error is not raised here (it was the frames' to report; close runs on the way out of one)."""
+        try:
+            self.join()
+        except Exception:  # (see above)
+            pass
+        finally:
+            if self._own_workers:
+                self._field_worker.close()
+                self._maps_worker.close()
+
+    def __enter__(self) -> FramePath:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def reset(self) -> None:
         """Forget the track and the filters (a new, unrelated video follows)."""

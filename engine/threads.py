@@ -75,7 +75,8 @@ class Worker:
     is one and never runs twice at once). ``submit(fn, *args)`` returns a
     :class:`concurrent.futures.Future`. ``background``: the thread runs at a lower OS priority
     (:data:`BACKGROUND_NICE`) - a live source's slow stages, which no frame waits for; a single
-    request's wait for its results, so they run at the frame's own priority."""
+    request's wait for its results, so they run at the frame's own priority. :meth:`close` stops
+    the thread (the owner's job: a FramePath closes the workers it made, the service its own)."""
 
     def __init__(self, name: str = "relight-maps", background: bool = False):
         self.name = name
@@ -89,3 +90,10 @@ class Worker:
             self._pool = ThreadPoolExecutor(1, thread_name_prefix=self.name,
                                             initializer=lower_priority if self.background else None)
         return self._pool.submit(fn, *args)
+
+    def close(self) -> None:
+        """Stop the thread once its job is done (jobs not started are cancelled); a later
+        :meth:`submit` starts a new one. Whoever made the worker closes it."""
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)

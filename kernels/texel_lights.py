@@ -19,7 +19,7 @@ import numpy as np
 
 from relight.colour import luminance
 from relight.directions import equirect_directions, rotation_matrix
-from relight.envmap import environment_to_lights, load_environment, validate_environment
+from relight.envmap import BUILTINS, environment_to_lights, load_environment, validate_environment
 from relight.numerics import RANK_REL
 
 #: Lat-long grid (columns, rows) on which environments become lights; their bright texels
@@ -160,7 +160,7 @@ def validation_environments(map_size, texels: np.ndarray, seed: int = 0) -> list
     """
     rng = np.random.default_rng(seed)
     out = []
-    for name in ("studio", "sunset", "window", "uniform", "room"):
+    for name in BUILTINS:
         lights = environment_lights(load_environment(f"builtin:{name}", width=256))
         out.append((name, texel_light(lights, None, map_size, texels)))
         for k in range(2):

@@ -66,9 +66,12 @@ def create_app(config: ServeConfig) -> FastAPI:
             raise
         if config.announce:
             print(config.announce, flush=True)
-        with frames_first():  # the streams' frames wait less behind their slow stages' Python
-            yield
-        await app.state.webrtc.close_all()
+        try:
+            with frames_first():  # the streams' frames wait less behind their slow stages' Python
+                yield
+            await app.state.webrtc.close_all()
+        finally:
+            await asyncio.to_thread(app.state.engine.close)  # its workers' threads, after the sessions
 
     app = FastAPI(title="relight", version="0.1.0", lifespan=lifespan,
                   description="Relight the face in video frames with a reflectance bundle.")

@@ -9,12 +9,13 @@ from pathlib import Path
 from starlette.requests import HTTPConnection
 
 from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION
+from ..envmap import BUILTINS
 from ..presets import PRESETS as LIGHT_PRESETS
 from .codec import MAX_BODY, MAX_PIXELS
 
 #: The environments a request may name (``builtin:NAME``): the studio's built-ins and the
 #: presets people recognise (:mod:`relight.presets`).
-PRESETS = ("studio", "sunset", "window", "uniform", "room", *LIGHT_PRESETS)
+PRESETS = (*BUILTINS, *LIGHT_PRESETS)
 #: The port ``relight-serve`` listens on unless told (``--port``).
 DEFAULT_PORT = 8000
 

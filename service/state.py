@@ -19,6 +19,8 @@ from collections import OrderedDict
 
 import numpy as np
 
+from relight.env_cache import EnvironmentCache
+
 from .settings import ServeConfig
 
 #: A single request's session id: this header, or the ``session`` query parameter.
@@ -27,6 +29,8 @@ SESSION_HEADER = "X-Relight-Session"
 SESSION_ID = re.compile(r"^[A-Za-z0-9._-]{1,64}$")
 #: Named sessions kept at most, and how long one may sit unused before it is dropped (s).
 MAX_NAMED_SESSIONS = 16
+#: Environment maps kept loaded (each turned copy counts; uploads are kept besides).
+ENV_CACHE = 16
 SESSION_IDLE_S = 120.0
 
 
@@ -73,7 +77,7 @@ class Engine:
 
         self.config = config
         self.bundle = relight.load_bundle(config.bundle)
-        self._envs: dict = {}
+        self._envs = EnvironmentCache(ENV_CACHE)
         self.env_name = config.env
         # The service's current environment (PUT /v1/environment): used when a request names none.
         self.default_rotation: tuple[float, float, float] | None = None
@@ -95,6 +99,11 @@ class Engine:
         self._workers = (Worker("relight-field", background=True), Worker("relight-maps", background=True))
         self._named: OrderedDict = OrderedDict()  # session id -> (Session, perf_counter of its last use)
         self._lock = asyncio.Lock()
+
+    def close(self) -> None:
+        """Stop the slow stages' worker threads the sessions share (the app's shutdown)."""
+        for worker in self._workers:
+            worker.close()
 
     # ------------------------------------------------------------------ the API (takes the lock)
     async def new_session(self) -> Session:
@@ -155,27 +164,13 @@ class Engine:
                                  workers=self._workers), env)
 
     def set_uploaded(self, name: str, env: np.ndarray) -> None:
-        """An uploaded (validated) environment becomes the current one under ``name``."""
-        self._envs = {k: v for k, v in self._envs.items() if k[0] != name}
-        self._envs[(name, None)] = env
+        """An uploaded (validated) environment becomes the current one under ``name`` (kept loaded)."""
+        self._envs.put(name, env)
         self.env_name = name
 
     def environment(self, name: str, rotation: tuple[float, float, float] | None = None) -> np.ndarray:
-        import relight
-        from relight.directions import rotation_matrix
-        from relight.envmap import rotate_environment
-
-        key = (name, rotation)
-        env = self._envs.get(key)
-        if env is None:
-            base = self._envs.get((name, None))
-            env = relight.load_environment(name) if base is None else base
-            if rotation is not None and any(rotation):
-                env = rotate_environment(env, rotation_matrix(*rotation), supersample=2)
-            if len(self._envs) > 16:
-                self._envs.clear()
-            self._envs[key] = env
-        return env
+        """The map of ``name`` (built-in, file or upload) turned by ``rotation``, loaded once."""
+        return self._envs.get(name, rotation)
 
     def _relight(self, rgb: np.ndarray, *, env: str | None = None, rotation=None, exposure: float | None = None,
                  strength: float | None = None, mode: str | None = None, spin: float | None = None,

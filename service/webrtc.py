@@ -27,6 +27,7 @@ import uuid
 
 from relight.errors import RelightError
 
+from ..engine.frame_slot import NewestSlot
 from .controls import apply_control, new_settings, parse_control
 from .errors import ServiceError
 
@@ -52,7 +53,7 @@ def relit_track(source, session: WebRTCSession):
 
         def __init__(self):
             super().__init__()
-            self._latest = None
+            self._latest = NewestSlot()  # (frame, time it arrived)
             self._fresh = asyncio.Event()
             self._ended = False
             self._pump = asyncio.ensure_future(self._read())
@@ -63,10 +64,9 @@ def relit_track(source, session: WebRTCSession):
                     frame = await source.recv()
                     session.frames_in += 1
                     session.last_frame = time.monotonic()
-                    if self._latest is not None:
+                    if self._latest.put((frame, time.perf_counter())):
                         session.dropped += 1
                         session.metrics.dropped.inc()
-                    self._latest = (frame, time.perf_counter())
                     self._fresh.set()
             except (MediaStreamError, asyncio.CancelledError):
                 pass
@@ -77,13 +77,12 @@ def relit_track(source, session: WebRTCSession):
         async def recv(self):
             from av import VideoFrame
 
-            while self._latest is None:
+            while (item := self._latest.take()) is None:
                 if self._ended or self.readyState != "live":
                     raise MediaStreamError
                 await self._fresh.wait()
                 self._fresh.clear()
-            frame, t_in = self._latest
-            self._latest = None
+            frame, t_in = item
             return await session.relight(frame, t_in, VideoFrame)
 
         def stop(self):

@@ -15,8 +15,9 @@ import time
 import numpy as np
 import pytest
 
-from relight.apps.live_camera import LatestFrame, device_input
+from relight.apps.live_camera import device_input
 from relight.apps.virtual_camera import backend_hint
+from relight.engine.frame_slot import LatestFrame
 
 from .serving import wait_line
 from .tolerances import LIVE_CHANGED_CODES, LIVE_CHANGED_SHARE, LIVE_FRAME_SHARE, LIVE_IN_FLIGHT, LIVE_RATE_SHARE

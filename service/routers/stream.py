@@ -10,6 +10,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from relight.errors import RelightError
 from relight.imageio import image_size
 
+from ...engine.frame_slot import NewestSlot
 from ..codec import decode_frame, encode_frame
 from ..controls import apply_control, new_settings, parse_control
 from ..dependencies import MetricsDep, SettingsDep
@@ -46,7 +47,7 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
         metrics.clients.dec()
         raise
     settings = new_settings()
-    latest: dict = {"data": None, "type": None, "t": 0.0, "tag": None}
+    latest = NewestSlot()  # (bytes, time it arrived, tag)
     pending: dict = {}
     counts = {"frames": 0, "dropped": 0}
     wake = asyncio.Event()
@@ -70,10 +71,9 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
                         metrics.errors.labels(kind="too_large").inc()
                         await ws.close(code=1009, reason=f"frame over {config.max_body} bytes")
                         break
-                    if latest["data"] is not None:
+                    if latest.put((data, time.perf_counter(), pending.pop("tag", None))):
                         counts["dropped"] += 1
                         metrics.dropped.inc()
-                    latest.update(data=data, t=time.perf_counter(), tag=pending.pop("tag", None))
                     wake.set()
                 elif msg.get("text") is not None:
                     try:
@@ -96,10 +96,10 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
     def take():
         """The newest frame the reader holds, its decode started off the event loop: (Task of
         (the frame - RGB or a JPEG's planes -, content type), time it arrived, tag), or None when none waits."""
-        data, t_in, tag = latest["data"], latest["t"], latest["tag"]
-        latest["data"] = None
-        if data is None:
+        item = latest.take()
+        if item is None:
             return None
+        data, t_in, tag = item
         return asyncio.ensure_future(asyncio.to_thread(decode, data)), t_in, tag
 
     def decode(data: bytes):
