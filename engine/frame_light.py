@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from . import composite
+from .frame_data import LayerLight
 from .frame_warp import sample_live
 from .gains import ExposureLock, ambient_gain, live_gain
 from .live_light import LightEstimator, LiveLight, shared_basis
@@ -72,17 +73,16 @@ class LiveLightStage:
         self.fits = 0
 
     def transfer(self, rgb, cur, ref, rotation, t: float, flat, tm: dict, track_gain: float, defer: bool,
-                 rigid_warp: bool, fit: bool):
+                 rigid_warp: bool, fit: bool) -> LayerLight:
         """Mode transfer's light for a frame: the live light fitted to its face when ``fit`` (the
         scheduler's say: :mod:`.schedule`; beside a live source's frames, on the worker) and taken
         into use (:meth:`took`), the target exposure-matched to it (:func:`.gains.live_gain`, held
-        by the exposure lock). ``rgb``: the frame ((H, W, 3) uint8 sRGB or a YuvFrame), ``cur``,
-        ``ref``: the warp's points in it and in the reference (:func:`.frame_warp.face_warp`,
-        ``rigid_warp`` its kind), ``rotation`` the head's, ``t`` the frame's time, ``flat`` the
-        relit reference frame ((H x W, 3) linear), ``tm`` the frame's timings; ``track_gain``,
-        ``defer``: for the live-lit reference (:meth:`set_lit_reference`). Returns (the layer's
-        mode - 'live', 'ambient' before any light -, the gain, the live face's median luminance,
-        the detail threshold tau, the ratio's eps, the ms waited for the relight)."""
+        by the exposure lock) - a :class:`.frame_data.LayerLight`. ``rgb``: the frame ((H, W, 3)
+        uint8 sRGB or a YuvFrame), ``cur``, ``ref``: the warp's points in it and in the reference
+        (:func:`.frame_warp.face_warp`, ``rigid_warp`` its kind), ``rotation`` the head's, ``t``
+        the frame's time, ``flat`` the relit reference frame ((H x W, 3) linear), ``tm`` the
+        frame's timings; ``track_gain``, ``defer``: for the live-lit reference
+        (:meth:`set_lit_reference`)."""
         t5 = time.perf_counter()
         layer_mode, live_median, tau, eps = composite.LAYER_MODE["transfer"], 0.0, 0.0, float(self.rig.ratio_eps)
         waited = 0.0
@@ -105,7 +105,7 @@ class LiveLightStage:
         else:  # no light yet (the first frames showed too little): the capture room's ratio
             layer_mode, gain = "ambient", ambient_gain(self.rig, flat)
         tm["light"] = (time.perf_counter() - t5) * 1e3 - waited
-        return layer_mode, gain, live_median, tau, eps, waited
+        return LayerLight(layer_mode, gain, live_median, tau, eps, waited)
 
     def fit(self, lin: np.ndarray, valid: np.ndarray, t: float, rotation: np.ndarray):
         """The live light fitted to a frame's sampled face (:meth:`.live_light.LightEstimator.fit`):

@@ -34,7 +34,7 @@ from relight.numerics import EPS_VALUE
 from . import composite
 from .field import FIELD_ROWS
 from .focal import FocalSearch
-from .frame_data import FrameInfo, Front
+from .frame_data import FrameInfo, Front, LayerLight
 from .frame_field import FieldStage
 from .frame_light import LiveLightStage, sync_relight
 from .frame_person import PersonStage
@@ -602,7 +602,7 @@ class FramePath:
     def _person_box(self):
         """The frame's box the person's maps in use reach (None: none in use)."""
         last = self.person.last_maps()
-        return last[1].box if last is not None else None
+        return last.maps.box if last is not None else None
 
     def _make_field(self, front: Front, coarse: np.ndarray, head: Head, plan: Plan, env_rot, defer: bool, tm: dict,
                     ran: list, frame: int):
@@ -621,31 +621,31 @@ class FramePath:
             # source makes its slow stages beside its frames already; before a live light the
             # person's maps are not made at all)
             self.person.start_matte(rgb)
-        layer_mode, gain, live_median, tau, eps, waited = self._light(front, plan, defer, tm, ran)
-        gain = float(np.exp(self.gain_filter([np.log(max(gain, EPS_VALUE))], t)[0]))
-        tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - waited
-        live_buf = self.relighter.slot("live")[1] if layer_mode == "live" else None
-        self.compositor.layer(relit=self.relighter.buffer(self.relit_frame), live=live_buf, mode=layer_mode,
-                              gain=gain * self.exposure, strength=self.strength, eps=eps,
-                              ratio_max=composite.RATIO_MAX, rotation=front.rotation, live_median=live_median)
+        light = self._light(front, plan, defer, tm, ran)
+        gain = float(np.exp(self.gain_filter([np.log(max(light.gain, EPS_VALUE))], t)[0]))
+        tm["warp"] = tm.get("warp", 0.0) + (time.perf_counter() - t3) * 1e3 - tm.get("light", 0.0) - light.waited_ms
+        live_buf = self.relighter.slot("live")[1] if light.mode == "live" else None
+        self.compositor.layer(relit=self.relighter.buffer(self.relit_frame), live=live_buf, mode=light.mode,
+                              gain=gain * self.exposure, strength=self.strength, eps=light.eps,
+                              ratio_max=composite.RATIO_MAX, rotation=front.rotation, live_median=light.live_median)
         maps = None
-        if self.whole_head and layer_mode == "live" and self.strength > 0:
+        if self.whole_head and light.mode == "live" and self.strength > 0:
             t6 = time.perf_counter()
-            maps = self.person.maps(rgb, box, coarse, front.rotation, tau, head.anchor, plan.person is not None,
+            maps = self.person.maps(rgb, box, coarse, front.rotation, light.tau, head.anchor, plan.person is not None,
                                     env=self.env, strength=self.strength, fixed_env=self.fixed_env,
                                     texel_light=self.live_light.texel_light, env_rotation=env_rot)
             if plan.person is not None:
                 ran.append("person")
             tm["person"] = (time.perf_counter() - t6) * 1e3
         t7 = time.perf_counter()
-        made = self.field.made(rgb, box, coarse, layer_mode, tau, maps, head.anchor, frame)
+        made = self.field.made(rgb, box, coarse, light.mode, light.tau, maps, head.anchor, frame)
         tm["field"] = (time.perf_counter() - t7) * 1e3
         return made
 
-    def _light(self, front: Front, plan: Plan, defer: bool, tm: dict, ran: list):
-        """The layer's light for this frame, by mode: (layer mode, exposure gain, the live face's
-        median, tau, eps, ms waited for the relight) - mode transfer's live light fitted when the
-        plan says (:meth:`.frame_light.LiveLightStage.transfer`; "light" appended to ``ran``)."""
+    def _light(self, front: Front, plan: Plan, defer: bool, tm: dict, ran: list) -> LayerLight:
+        """The layer's light for this frame, by mode (a :class:`.frame_data.LayerLight`): mode
+        transfer's live light fitted when the plan says (:meth:`.frame_light.LiveLightStage.transfer`;
+        "light" appended to ``ran``)."""
         rgb = front.frame
         cur, ref = front.warp.cur, front.warp.ref
         flat = self.relit_frame.reshape(-1, 3)
@@ -660,7 +660,7 @@ class FramePath:
             gain = ambient_gain(self.rig, flat)
         else:  # paste: the relit face's median matched to the live face's at the tracked points
             gain = paste_gain(self.rig, rgb, flat, front.track.xy[front.keep], front.ref_idx)
-        return composite.LAYER_MODE[self.mode], gain, 0.0, 0.0, float(self.rig.ratio_eps), waited
+        return LayerLight(composite.LAYER_MODE[self.mode], gain, 0.0, 0.0, float(self.rig.ratio_eps), waited)
 
     def _anchor_acquired(self, est, pose, grey, ts, track):
         """(track, pose) of a face found on this frame: its landmarks found again at once with the

@@ -5,10 +5,21 @@ object holding that state).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from . import head_light
 from .person_maps import PersonInputs, PersonMaps, build_person_maps, environment_texels, person_inputs, work_copy
+
+
+@dataclass(frozen=True)
+class MapsInUse:
+    """The person's maps in use: ``maps`` (:class:`PersonMaps`) made at ``work`` (w, h), the work
+    size of the frames they serve (:meth:`PersonStage.work_size`)."""
+
+    work: tuple[int, int]
+    maps: PersonMaps
 
 
 class PersonStage:
@@ -28,7 +39,7 @@ class PersonStage:
         self.texel_dirs = bundle.texel_dirs
         self.live_source = bool(live_source)
         self.matte = None
-        self.last = None
+        self.last: MapsInUse | None = None
         self.seen = -2
         self.trust_run = 0
         self.job = None
@@ -54,7 +65,7 @@ class PersonStage:
         """Whether :meth:`maps` would make the maps on the frame's own thread: none serve at this
         frame's work size, or they are due and the path is not a live source."""
         last = self.last_maps()
-        if last is None or last[0] != self.work_size(frame):
+        if last is None or last.work != self.work_size(frame):
             return self.job is None or self.job.done()
         return due and self.job is None and not self.live_source and not self.ready()
 
@@ -96,8 +107,8 @@ class PersonStage:
         """Whether maps made beside the frames wait to be taken (the field is remade with them)."""
         return self.job is not None and self.job.done()
 
-    def last_maps(self):
-        """(work size, :class:`PersonMaps`) last made if they still serve - the person was relit on
+    def last_maps(self) -> MapsInUse | None:
+        """The :class:`MapsInUse` last made if they still serve - the person was relit on
         the frame before this one (not across a frame it was left out of: no face, another mode,
         strength 0) - else None."""
         return self.last if self.last is not None and self.seen >= self.frames - 1 else None
@@ -125,7 +136,7 @@ class PersonStage:
         def make():
             return self.inputs(frame, face_box, coarse, rotation, tau, work, anchor, small=small, **target)
 
-        if last is None or last[0] != work:  # none to go on with: made now, on this thread
+        if last is None or last.work != work:  # none to go on with: made now, on this thread
             if self.job is not None:  # made for maps no longer in use (another environment, a gap,
                 self.job.result()     # a reset): dropped once done - the model is one, never two at once
                 self.job = None
@@ -136,12 +147,12 @@ class PersonStage:
         elif due and self.job is None:
             if self.live_source:
                 self.job = self.worker.submit(build_person_maps, self._matte(), make())
-                maps = last[1]
+                maps = last.maps
             else:
                 maps = self.took(build_person_maps(self._matte(), make(), prob))
         else:
-            maps = last[1]
-        self.last = (work, maps)
+            maps = last.maps
+        self.last = MapsInUse(work, maps)
         return maps.moved(anchor)
 
     def took(self, made) -> PersonMaps:
