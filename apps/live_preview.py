@@ -36,6 +36,7 @@ from relight.directions import ENV_TURN_RANGE_DEG
 
 from ..engine.frame_slot import LatestFrame
 from ..service.controls import RANGES
+from ..service.security import is_loopback, split_host
 
 #: The MJPEG preview's JPEG quality, and its most frames a second to a viewer (a monitor of the
 #: relit camera: RGB and a JPEG are made for it at this rate at most, off the frames' path).
@@ -291,124 +292,157 @@ def _key_fields(source: str) -> dict | None:
 
 
 def _handler(preview: PreviewServer):
+    """The request handler class of ``preview``'s page (:class:`_PageHandler` bound to it)."""
     from http.server import BaseHTTPRequestHandler
-
-    from ..service.security import is_loopback, split_host
 
     page = (Path(__file__).parent / "static" / "live.html").read_bytes()
 
-    class Handler(BaseHTTPRequestHandler):
-        def log_message(self, *args):  # quiet
-            pass
+    class Handler(_PageHandler, BaseHTTPRequestHandler):
+        pass
 
-        def _send(self, code: int, body: bytes, ctype: str) -> None:
-            self.send_response(code)
-            self.send_header("Content-Type", ctype)
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Cache-Control", "no-store")
-            self.end_headers()
-            self.wfile.write(body)
-
-        def _json(self, code: int, doc) -> None:
-            self._send(code, json.dumps(doc).encode(), "application/json")
-
-        def _allowed(self) -> bool:
-            """Host names loopback (no DNS rebinding); a browser's Origin is this page's."""
-            host, _ = split_host(self.headers.get("Host", ""))
-            origin = self.headers.get("Origin")
-            if host and not is_loopback(host):
-                self._json(403, {"error": "the page answers localhost/127.0.0.1 only", "kind": "bad_host"})
-                return False
-            if origin is not None:
-                u = urlsplit(origin)
-                if not (is_loopback(u.hostname or "") and u.port == preview.port):
-                    self._json(403, {"error": f"Origin {origin!r} may not drive relight live", "kind": "bad_origin"})
-                    return False
-            return True
-
-        def do_GET(self):  # noqa: N802 (http.server's name)
-            if not self._allowed():
-                return
-            url = urlsplit(self.path)
-            query = {k: v[-1] for k, v in parse_qs(url.query).items()}
-            try:
-                if url.path == "/":
-                    return self._send(200, page, "text/html; charset=utf-8")
-                if url.path == "/stream.mjpg":
-                    return self._stream()
-                if url.path == "/snapshot.png":
-                    item = preview.slot.peek()
-                    if item is None:
-                        return self._json(503, {"error": "no relit frame yet", "kind": "not_ready"})
-                    rgb = item.as_rgb()
-                    if query.get("with") == "camera" and item.src is not None:  # [camera | relit], one frame's
-                        from relight.video_yuv import as_rgb
-
-                        rgb = np.hstack([as_rgb(item.src), rgb])
-                    return self._send(200, preview.encode(rgb, ".png"), "image/png")
-                if preview.controls is None:
-                    return self._json(404, {"error": "not found", "kind": "not_found"})
-                if url.path == "/state":
-                    return self._json(200, preview.state())
-                if url.path in ("/light.png", "/thumb.png"):
-                    source = query.get("env")
-                    if source is not None and source not in preview.choices():
-                        return self._json(404, {"error": f"env {source!r} is not listed", "kind": "not_found"})
-                    if url.path == "/thumb.png" and source is None:
-                        source = preview.controls.env
-                    body = preview.light_png(source) if url.path == "/light.png" else preview.thumb_png(source)
-                    return self._send(200, body, "image/png")
-                return self._json(404, {"error": "not found", "kind": "not_found"})
-            except (BrokenPipeError, ConnectionResetError):
-                return
-            except Exception as exc:  # a page's request never stops the run
-                return self._json(400, {"error": str(exc), "kind": "bad_request"})
-
-        def do_POST(self):  # noqa: N802
-            if not self._allowed():
-                return
-            if preview.controls is None:
-                return self._json(404, {"error": "not found", "kind": "not_found"})
-            url = urlsplit(self.path)
-            query = {k: v[-1] for k, v in parse_qs(url.query).items()}
-            try:
-                length = int(self.headers.get("Content-Length") or 0)
-            except ValueError:
-                return self._json(400, {"error": "bad Content-Length", "kind": "bad_request"})
-            limit = MAX_UPLOAD if url.path == "/upload" else MAX_CONTROL
-            if length < 0 or length > limit:
-                return self._json(413, {"error": f"at most {limit} bytes", "kind": "too_large"})
-            body = self.rfile.read(length) if length else b""
-            try:
-                if url.path == "/control":
-                    return self._json(200, preview.control(json.loads(body.decode("utf-8") or "null")))
-                if url.path == "/upload":
-                    ctype = (self.headers.get("Content-Type") or "").split(";")[0].strip().lower()
-                    photo = query.get("photo", "false").lower() in ("1", "true", "yes")
-                    return self._json(200, preview.upload(body, ctype, photo, query.get("name", "")))
-                if url.path == "/save":
-                    return self._json(200, preview.save(query.get("name", "")))
-                return self._json(404, {"error": "not found", "kind": "not_found"})
-            except (ValueError, UnicodeDecodeError, RecursionError) as exc:
-                return self._json(422, {"error": str(exc), "kind": "bad_control"})
-            except Exception as exc:  # a page's request never stops the run
-                return self._json(400, {"error": str(exc), "kind": "bad_request"})
-
-        def _stream(self):
-            self.send_response(200)
-            self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
-            self.send_header("Cache-Control", "no-store")
-            self.end_headers()
-            last, due = None, 0.0
-            while not preview.closed.is_set():
-                item = preview.slot.peek()
-                wait = due - time.perf_counter()
-                if item is None or item is last or wait > 0:
-                    preview.closed.wait(max(min(wait, 0.05), 0.005))
-                    continue
-                last, due = item, time.perf_counter() + 1.0 / PREVIEW_FPS
-                jpeg = preview.encode(preview.frame_rgb(item))
-                self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: "
-                                 + str(len(jpeg)).encode() + b"\r\n\r\n" + jpeg + b"\r\n")
-
+    Handler.preview, Handler.page = preview, page
     return Handler
+
+
+def _query(url) -> dict:
+    """A URL's query as {name: its last value}."""
+    return {k: v[-1] for k, v in parse_qs(url.query).items()}
+
+
+class _PageHandler:
+    """The page's requests (mixed into an ``http.server.BaseHTTPRequestHandler`` by
+    :func:`_handler`, which sets ``preview``: the :class:`PreviewServer`, and ``page``: the HTML)."""
+
+    preview: PreviewServer
+    page: bytes
+
+    def log_message(self, *args):  # quiet
+        pass
+
+    def _send(self, code: int, body: bytes, ctype: str) -> None:
+        self.send_response(code)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        self.wfile.write(body)
+
+    def _json(self, code: int, doc) -> None:
+        self._send(code, json.dumps(doc).encode(), "application/json")
+
+    def _allowed(self) -> bool:
+        """Host names loopback (no DNS rebinding); a browser's Origin is this page's."""
+        host, _ = split_host(self.headers.get("Host", ""))
+        origin = self.headers.get("Origin")
+        if host and not is_loopback(host):
+            self._json(403, {"error": "the page answers localhost/127.0.0.1 only", "kind": "bad_host"})
+            return False
+        if origin is not None:
+            u = urlsplit(origin)
+            if not (is_loopback(u.hostname or "") and u.port == self.preview.port):
+                self._json(403, {"error": f"Origin {origin!r} may not drive relight live", "kind": "bad_origin"})
+                return False
+        return True
+
+    # ------------------------------------------------------------------ GET
+    def do_GET(self):  # noqa: N802 (http.server's name)
+        if not self._allowed():
+            return
+        url = urlsplit(self.path)
+        query = _query(url)
+        try:
+            return self._get(url.path, query)
+        except (BrokenPipeError, ConnectionResetError):
+            return
+        except Exception as exc:  # a page's request never stops the run
+            return self._json(400, {"error": str(exc), "kind": "bad_request"})
+
+    def _get(self, path: str, query: dict):
+        """A GET answered by its path (see the module docstring)."""
+        preview = self.preview
+        if path == "/":
+            return self._send(200, self.page, "text/html; charset=utf-8")
+        if path == "/stream.mjpg":
+            return self._stream()
+        if path == "/snapshot.png":
+            return self._snapshot(query)
+        if preview.controls is None:
+            return self._json(404, {"error": "not found", "kind": "not_found"})
+        if path == "/state":
+            return self._json(200, preview.state())
+        if path in ("/light.png", "/thumb.png"):
+            source = query.get("env")
+            if source is not None and source not in preview.choices():
+                return self._json(404, {"error": f"env {source!r} is not listed", "kind": "not_found"})
+            if path == "/thumb.png" and source is None:
+                source = preview.controls.env
+            body = preview.light_png(source) if path == "/light.png" else preview.thumb_png(source)
+            return self._send(200, body, "image/png")
+        return self._json(404, {"error": "not found", "kind": "not_found"})
+
+    def _snapshot(self, query: dict):
+        """The newest relit frame as a PNG (``with=camera``: its camera frame on its left)."""
+        item = self.preview.slot.peek()
+        if item is None:
+            return self._json(503, {"error": "no relit frame yet", "kind": "not_ready"})
+        rgb = item.as_rgb()
+        if query.get("with") == "camera" and item.src is not None:  # [camera | relit], one frame's
+            from relight.video_yuv import as_rgb
+
+            rgb = np.hstack([as_rgb(item.src), rgb])
+        return self._send(200, self.preview.encode(rgb, ".png"), "image/png")
+
+    def _stream(self):
+        """The relit frames as MJPEG (at most PREVIEW_FPS a second, a frame once) until the server closes."""
+        preview = self.preview
+        self.send_response(200)
+        self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        last, due = None, 0.0
+        while not preview.closed.is_set():
+            item = preview.slot.peek()
+            wait = due - time.perf_counter()
+            if item is None or item is last or wait > 0:
+                preview.closed.wait(max(min(wait, 0.05), 0.005))
+                continue
+            last, due = item, time.perf_counter() + 1.0 / PREVIEW_FPS
+            jpeg = preview.encode(preview.frame_rgb(item))
+            self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: "
+                             + str(len(jpeg)).encode() + b"\r\n\r\n" + jpeg + b"\r\n")
+
+    # ------------------------------------------------------------------ POST
+    def do_POST(self):  # noqa: N802
+        if not self._allowed():
+            return
+        if self.preview.controls is None:
+            return self._json(404, {"error": "not found", "kind": "not_found"})
+        url = urlsplit(self.path)
+        query = _query(url)
+        try:
+            length = int(self.headers.get("Content-Length") or 0)
+        except ValueError:
+            return self._json(400, {"error": "bad Content-Length", "kind": "bad_request"})
+        limit = MAX_UPLOAD if url.path == "/upload" else MAX_CONTROL
+        if length < 0 or length > limit:
+            return self._json(413, {"error": f"at most {limit} bytes", "kind": "too_large"})
+        body = self.rfile.read(length) if length else b""
+        try:
+            return self._post(url.path, query, body)
+        except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+            return self._json(422, {"error": str(exc), "kind": "bad_control"})
+        except Exception as exc:  # a page's request never stops the run
+            return self._json(400, {"error": str(exc), "kind": "bad_request"})
+
+    def _post(self, path: str, query: dict, body: bytes):
+        """A POST answered by its path: a control, an upload, a light saved (see the module docstring)."""
+        preview = self.preview
+        if path == "/control":
+            return self._json(200, preview.control(json.loads(body.decode("utf-8") or "null")))
+        if path == "/upload":
+            ctype = (self.headers.get("Content-Type") or "").split(";")[0].strip().lower()
+            photo = query.get("photo", "false").lower() in ("1", "true", "yes")
+            return self._json(200, preview.upload(body, ctype, photo, query.get("name", "")))
+        if path == "/save":
+            return self._json(200, preview.save(query.get("name", "")))
+        return self._json(404, {"error": "not found", "kind": "not_found"})

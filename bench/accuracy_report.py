@@ -143,11 +143,29 @@ def _f(v, fmt="{:.2f}") -> str:
 
 
 def report_markdown(doc: dict) -> str:
+    """``report.md``: the goals, the headline table, the default bundle, the per-scene and
+    per-environment tables, the real photos and faces, the heat maps and the stability suite."""
     s = doc["summary"]
     names = list(VARIANTS)
     lines = ["# Accuracy report (`relight bench accuracy`" + (" --quick" if doc["quick"] else "") + ")", ""]
-    g = s["goal"]
-    lines += ["## Goal: `full` >= 1 dB over every baseline", ""]
+    lines += _goal_lines(doc, s["goal"])
+    lines += _headline_lines(s, names)
+    lines += _default_bundle_lines(s.get("default_bundle") or {})
+    lines += _scene_lines(doc, names)
+    lines += _environment_lines(doc, names)
+    if doc.get("dome"):
+        lines += _dome_lines(doc["dome"], names)
+    if doc.get("faces"):
+        lines += _face_lines(doc)
+    lines += _heat_map_lines(doc)
+    lines += _stability_lines(doc)
+    lines += ["", f"Run time of this report: {doc['seconds']:.0f} s.", ""]
+    return "\n".join(lines)
+
+
+def _goal_lines(doc: dict, g: dict) -> list[str]:
+    """Report lines: the goal `full` >= 1 dB over every baseline, synthetic and real photos."""
+    lines = ["## Goal: `full` >= 1 dB over every baseline", ""]
     for key, label in (("psnr all", "synthetic scenes, mean PSNR over scenes x environments"),
                        ("dome psnr", "real held-out photos (rti-dome Test), mean PSNR")):
         r = g[key]
@@ -158,14 +176,19 @@ def report_markdown(doc: dict) -> str:
             lines.append(f"* {label}: full {r['full']:.2f} dB, best baseline {r['best_baseline']} "
                          f"{r['best_baseline_value']:.2f} dB, margin {r['margin_db']:+.2f} dB - "
                          + ("met" if ok else "**not met**"))
-    lines += ["", "## Headline", "",
-              "PSNR / SSIM after one exposure gain inside the face mask, mean over scenes; OLAT: RMS error of "
-              "single-light renders relative to the truth's RMS (solid-angle weighted), whole sphere / captured "
-              "hull; Dome: 20 real held-out photos, sRGB, no gain; time: capture (shared preparation + the "
-              "variant's maps), relight call (default compact path).", "",
-              "| variant | PSNR in hull | PSNR whole sphere | SSIM in hull | SSIM whole | OLAT err whole | "
-              "OLAT err hull | Dome PSNR | Dome SSIM | capture s | maps s | bundle MB | relight ms |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    return lines
+
+
+def _headline_lines(s: dict, names: list[str]) -> list[str]:
+    """Report lines: the headline table, one row per variant of the summary ``s``."""
+    lines = ["", "## Headline", "",
+             "PSNR / SSIM after one exposure gain inside the face mask, mean over scenes; OLAT: RMS error of "
+             "single-light renders relative to the truth's RMS (solid-angle weighted), whole sphere / captured "
+             "hull; Dome: 20 real held-out photos, sRGB, no gain; time: capture (shared preparation + the "
+             "variant's maps), relight call (default compact path).", "",
+             "| variant | PSNR in hull | PSNR whole sphere | SSIM in hull | SSIM whole | OLAT err whole | "
+             "OLAT err hull | Dome PSNR | Dome SSIM | capture s | maps s | bundle MB | relight ms |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for n in names:
         v = s["variants"][n]
         lines.append(f"| {n} | {_f(v['psnr in hull'])} | {_f(v['psnr whole sphere'])} | "
@@ -173,24 +196,34 @@ def report_markdown(doc: dict) -> str:
                      f"{_f(v['olat whole'], '{:.3f}')} | {_f(v['olat hull'], '{:.3f}')} | {_f(v['dome psnr'])} | "
                      f"{_f(v['dome ssim'], '{:.4f}')} | {_f(v['capture s'], '{:.1f}')} | {_f(v['maps s'], '{:.2f}')} | "
                      f"{_f(v['bundle MB'], '{:.1f}')} | {_f(v['relight ms'])} |")
-    db = s.get("default_bundle") or {}
-    if db.get("rows"):
-        lines += ["", f"## The default bundle: recipe + 8/4-bit compact transport against the exact maps (goal: "
-                  f"within {DEFAULT_BUNDLE_DB} dB, <= {DEFAULT_BUNDLE_KB:g} KB per face pixel)", "",
-                  "`full` relit from the bundle `relight capture` writes by default (the maps' recipe: texels "
-                  "made on demand, the compact transport at the default tolerance) and from its exact maps "
-                  "(`--keep-maps`, `--exact`); mean PSNR as in the tables below.", "",
-                  "| source | exact maps dB | default bundle dB | difference dB | KB per face pixel |",
-                  "|---|---|---|---|---|"]
-        for r in db["rows"]:
-            lines.append(f"| {r['source']} | {_f(r['exact'])} | {_f(r['default'])} | "
-                         f"{_f(r['difference_db'], '{:+.3f}')} | {_f(r['kb_per_px'], '{:.3f}')} |")
-        lines.append("")
-        lines.append(f"Worst difference {_f(db['worst_difference_db'], '{:.3f}')} dB, largest bundle "
-                     f"{_f(db['largest_kb_per_px'], '{:.3f}')} KB per face pixel: goal "
-                     + ("met" if db["goal_met"] else "**not met**") + ".")
-    lines += ["", "![error against run time](error_vs_time.png)", "",
-              "## Method x scene (PSNR dB: in hull / whole sphere)", ""]
+    return lines
+
+
+def _default_bundle_lines(db: dict) -> list[str]:
+    """Report lines: the default bundle against its exact maps (``db``: :func:`default_bundle`), or none."""
+    if not db.get("rows"):
+        return []
+    lines = ["", f"## The default bundle: recipe + 8/4-bit compact transport against the exact maps (goal: "
+             f"within {DEFAULT_BUNDLE_DB} dB, <= {DEFAULT_BUNDLE_KB:g} KB per face pixel)", "",
+             "`full` relit from the bundle `relight capture` writes by default (the maps' recipe: texels "
+             "made on demand, the compact transport at the default tolerance) and from its exact maps "
+             "(`--keep-maps`, `--exact`); mean PSNR as in the tables below.", "",
+             "| source | exact maps dB | default bundle dB | difference dB | KB per face pixel |",
+             "|---|---|---|---|---|"]
+    for r in db["rows"]:
+        lines.append(f"| {r['source']} | {_f(r['exact'])} | {_f(r['default'])} | "
+                     f"{_f(r['difference_db'], '{:+.3f}')} | {_f(r['kb_per_px'], '{:.3f}')} |")
+    lines.append("")
+    lines.append(f"Worst difference {_f(db['worst_difference_db'], '{:.3f}')} dB, largest bundle "
+                 f"{_f(db['largest_kb_per_px'], '{:.3f}')} KB per face pixel: goal "
+                 + ("met" if db["goal_met"] else "**not met**") + ".")
+    return lines
+
+
+def _scene_lines(doc: dict, names: list[str]) -> list[str]:
+    """Report lines: the error-against-time plot, the method x scene PSNR table and the scenes."""
+    lines = ["", "![error against run time](error_vs_time.png)", "",
+             "## Method x scene (PSNR dB: in hull / whole sphere)", ""]
     lines.append("| variant | " + " | ".join(sc["name"] for sc in doc["scenes"]) + " |")
     lines.append("|---|" + "---|" * len(doc["scenes"]))
     for n in names:
@@ -209,7 +242,12 @@ def report_markdown(doc: dict) -> str:
                      f"{c['flash_hz']:g} Hz, head motion x{c['head_motion']:g}, camera drift {c['camera_drift']}, "
                      f"sparse sides {c.get('sparse_sides', False)}; {v['samples']} light samples, {v['pixels']} face "
                      f"pixels, hull {100 * v['hull_share']:.0f} % of the sphere")
-    lines += ["", "Environments: " + ", ".join(f"{k} ({e['kind']})" for k, e in doc["envs"].items()), ""]
+    return lines
+
+
+def _environment_lines(doc: dict, names: list[str]) -> list[str]:
+    """Report lines: the environments and the per-environment PSNR / SSIM table (mean over scenes)."""
+    lines = ["", "Environments: " + ", ".join(f"{k} ({e['kind']})" for k, e in doc["envs"].items()), ""]
     lines += ["## Per-environment PSNR / SSIM (mean over scenes)", "",
               "| variant | " + " | ".join(doc["envs"]) + " |", "|---|" + "---|" * len(doc["envs"])]
     for n in names:
@@ -219,56 +257,72 @@ def report_markdown(doc: dict) -> str:
             ss = _mean(sc["variants"][n]["envs"][k]["ssim"] for sc in doc["scenes"])
             cells.append(f"{_f(ps)} / {_f(ss, '{:.3f}')}")
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
-    if doc.get("dome"):
-        d = doc["dome"]
-        lines += ["", f"## Real held-out photos: rti-dome ({d['lights_in']} lights in, {d['held_out']} held out, "
-                  f"{d['image_size'][0]}x{d['image_size'][1]} px"
-                  + (" - shrunk for --quick)" if d["scale"] > 1 else ")"),
-                  "", "| variant | PSNR (dB) | SSIM | worst light PSNR | capture s | bundle MB |",
-                  "|---|---|---|---|---|---|"]
-        for n in names:
-            r = d["variants"][n]
-            lines.append(f"| {n} | {r['psnr']:.2f} | {r['ssim']:.4f} | {min(r['psnr_per_light']):.2f} | "
-                         f"{r['capture_s']:.1f} | {r['bundle_mb']:.1f} |")
-    if doc.get("faces"):
-        fs = doc["faces_summary"]
-        f0 = doc["faces"][0]
-        names_f = list(f0["variants"])
-        lines += ["", f"## Real faces: {len(doc['faces'])} subject(s), every {FACE_HOLDOUT}th light held out", "",
-                  f"Each subject's photos ({f0['image_size'][0]}x{f0['image_size'][1]}, decoded as "
-                  f"{f0['transfer']}) minus the held-out lights build the bundles; each held-out photo is "
-                  "predicted by `render --light` plus the set's room-light frame; PSNR / SSIM sRGB-encoded over "
-                  "the face, no gain. `nearest`: the captured photo whose light is closest.", "",
-                  "| variant | " + " | ".join(f["subject"] for f in doc["faces"]) + " | mean PSNR | mean SSIM |",
-                  "|---|" + "---|" * (len(doc["faces"]) + 2)]
-        for n in names_f:
-            cells = [f"{f['variants'][n]['psnr']:.2f}" for f in doc["faces"]]
-            v = fs["variants"][n]
-            lines.append(f"| {n} | " + " | ".join(cells) + f" | {_f(v['psnr'])} | {_f(v['ssim'], '{:.4f}')} |")
-        lines += ["", "Goal: `full` >= the best other method (baselines, nearest photo) + "
-                  f"{FACE_GOAL_MEAN_DB:g} dB mean, + {FACE_GOAL_EACH_DB:g} dB on every subject: margins "
-                  + ", ".join(f"{f['subject']} {f['margin_db']:+.2f} dB (over {f['best_other']})" for f in doc["faces"])
-                  + f"; mean {fs['mean_margin_db']:+.2f} dB - " + ("met" if fs["goal_met"] else "**not met**"), "",
-                  "Per held-out light (PSNR dB, full / best other):", ""]
-        for f in doc["faces"]:
-            pf, po = f["variants"]["full"]["psnr_per_light"], f["variants"][f["best_other"]]["psnr_per_light"]
-            lines.append(f"* {f['subject']}: " + ", ".join(f"{n.split('.')[0]} {a:.1f}/{b:.1f}"
-                                                         for n, a, b in zip(f["held_out"], pf, po, strict=True)))
-    lines += ["", "## Error heat maps (the paper's Fig. 14)", "",
-              "Per pixel: RMS error of single-light renders over all 32x16 light directions (top) and over the "
-              "captured hull only (bottom), solid-angle weighted; one colour scale per row and scene.", ""]
+    return lines
+
+
+def _dome_lines(d: dict, names: list[str]) -> list[str]:
+    """Report lines: every variant on the rti-dome set's held-out photos (``d``: the doc's ``dome``)."""
+    lines = ["", f"## Real held-out photos: rti-dome ({d['lights_in']} lights in, {d['held_out']} held out, "
+             f"{d['image_size'][0]}x{d['image_size'][1]} px"
+             + (" - shrunk for --quick)" if d["scale"] > 1 else ")"),
+             "", "| variant | PSNR (dB) | SSIM | worst light PSNR | capture s | bundle MB |",
+             "|---|---|---|---|---|---|"]
+    for n in names:
+        r = d["variants"][n]
+        lines.append(f"| {n} | {r['psnr']:.2f} | {r['ssim']:.4f} | {min(r['psnr_per_light']):.2f} | "
+                     f"{r['capture_s']:.1f} | {r['bundle_mb']:.1f} |")
+    return lines
+
+
+def _face_lines(doc: dict) -> list[str]:
+    """Report lines: the real faces - PSNR per subject and variant, the goal, each held-out light."""
+    fs = doc["faces_summary"]
+    f0 = doc["faces"][0]
+    names_f = list(f0["variants"])
+    lines = ["", f"## Real faces: {len(doc['faces'])} subject(s), every {FACE_HOLDOUT}th light held out", "",
+             f"Each subject's photos ({f0['image_size'][0]}x{f0['image_size'][1]}, decoded as "
+             f"{f0['transfer']}) minus the held-out lights build the bundles; each held-out photo is "
+             "predicted by `render --light` plus the set's room-light frame; PSNR / SSIM sRGB-encoded over "
+             "the face, no gain. `nearest`: the captured photo whose light is closest.", "",
+             "| variant | " + " | ".join(f["subject"] for f in doc["faces"]) + " | mean PSNR | mean SSIM |",
+             "|---|" + "---|" * (len(doc["faces"]) + 2)]
+    for n in names_f:
+        cells = [f"{f['variants'][n]['psnr']:.2f}" for f in doc["faces"]]
+        v = fs["variants"][n]
+        lines.append(f"| {n} | " + " | ".join(cells) + f" | {_f(v['psnr'])} | {_f(v['ssim'], '{:.4f}')} |")
+    lines += ["", "Goal: `full` >= the best other method (baselines, nearest photo) + "
+              f"{FACE_GOAL_MEAN_DB:g} dB mean, + {FACE_GOAL_EACH_DB:g} dB on every subject: margins "
+              + ", ".join(f"{f['subject']} {f['margin_db']:+.2f} dB (over {f['best_other']})" for f in doc["faces"])
+              + f"; mean {fs['mean_margin_db']:+.2f} dB - " + ("met" if fs["goal_met"] else "**not met**"), "",
+              "Per held-out light (PSNR dB, full / best other):", ""]
+    for f in doc["faces"]:
+        pf, po = f["variants"]["full"]["psnr_per_light"], f["variants"][f["best_other"]]["psnr_per_light"]
+        lines.append(f"* {f['subject']}: " + ", ".join(f"{n.split('.')[0]} {a:.1f}/{b:.1f}"
+                                                     for n, a, b in zip(f["held_out"], pf, po, strict=True)))
+    return lines
+
+
+def _heat_map_lines(doc: dict) -> list[str]:
+    """Report lines: each scene's OLAT error heat map (the paper's Fig. 14)."""
+    lines = ["", "## Error heat maps (the paper's Fig. 14)", "",
+             "Per pixel: RMS error of single-light renders over all 32x16 light directions (top) and over the "
+             "captured hull only (bottom), solid-angle weighted; one colour scale per row and scene.", ""]
     for sc in doc["scenes"]:
         lines.append(f"![{sc['name']}]({sc['heat_map']})")
-    lines += ["", "## Numerical stability", "",
-              "Each case through every variant; max error relative to a float64 reference; finite = every output "
-              "finite. A clear error for invalid input counts as handled.", "",
-              "| case | variant | max rel. error | finite | note |", "|---|---|---|---|---|"]
+    return lines
+
+
+def _stability_lines(doc: dict) -> list[str]:
+    """Report lines: the numerical stability suite, one row per case and variant."""
+    lines = ["", "## Numerical stability", "",
+             "Each case through every variant; max error relative to a float64 reference; finite = every output "
+             "finite. A clear error for invalid input counts as handled.", "",
+             "| case | variant | max rel. error | finite | note |", "|---|---|---|---|---|"]
     for r in doc["stability"]:
         note = (r.get("error") or "").replace("|", "/")[:90]
         lines.append(f"| {r['case']} | {r['variant']} | {_f(r.get('max_rel_error'), '{:.2e}')} | "
                      f"{'yes' if r['finite'] else '**no**'} | {note} |")
-    lines += ["", f"Run time of this report: {doc['seconds']:.0f} s.", ""]
-    return "\n".join(lines)
+    return lines
 
 
 def table(doc: dict) -> str:

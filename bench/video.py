@@ -31,6 +31,7 @@ import json
 import subprocess
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -91,7 +92,6 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str, planes: bool 
     """The path over the clip (``planes``: in the decoder's planes, as ``relight live`` runs it)."""
     import relight
     from relight.engine.frame_path import FramePath
-    from relight.video_yuv import view_rgb
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
     fps = float(meta["fps"])
@@ -104,49 +104,111 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str, planes: bool 
     for i, f in enumerate(frames[:10]):
         fp.process(f, i / fps)
     fp.reset()
-    times = {k: [] for k in STAGES}
-    estimates, raw = {}, {}
-    pairs = []
-    flick = []
-    lights = {}
-    prev = None
-    side = side_cpu = 0.0
-    reused = []
-    ran: dict = {}  # {stage: frames it ran on} (the scheduler's plan)
+    rec = _measured_pass(fp, frames, fps)
+    fps_pipelined = _pipelined_fps(fp, frames, fps)
+    relit_ms = [t for r, t in rec.reused if not r]
+    reused_ms = [t for r, t in rec.reused if r]
+    err = rotation_errors(rec.estimates, meta["head_rotation"])
+    err_raw = rotation_errors(rec.raw, meta["head_rotation"])
+    face_px = _face_pixels(live)
+    first = min((int(k) for k in rec.estimates), default=None)
+    return {"frames": len(frames), "faces": len(rec.estimates), "first_face_frame": first, "size": meta["size"],
+            "planes": planes, "ran": rec.ran,
+            "face_pixels": face_px,
+            "bundle_pixels": int(np.asarray(bundle.pixels).size),
+            "stage_ms": {k: {"median": float(np.median(v)), "p99": float(np.percentile(v, 99))}
+                         for k, v in rec.times.items()},
+            "fps_sustained": len(frames) / rec.wall, "fps_pipelined": fps_pipelined,
+            "cpu_ms_per_frame": 1000.0 * rec.cpu / len(frames), "wall_ms_per_frame": 1000.0 * rec.wall / len(frames),
+            "cpu_steal": rec.steal,
+            # Leave out what the scene does not need: frames whose head turned < reuse_deg since
+            # the last relight reuse it (FramePath.reuse_deg).
+            "reuse_deg": fp.reuse_deg, "reused_frames": len(reused_ms), "face_frames": len(rec.reused),
+            "relight_ms_relit_median": float(np.median(relit_ms)) if relit_ms else None,
+            "relight_ms_reused_median": float(np.median(reused_ms)) if reused_ms else None,
+            "rotation_error_deg": {"median": float(np.median(err)) if err.size else None,
+                                   "p95": float(np.percentile(err, 95)) if err.size else None,
+                                   "max": float(err.max()) if err.size else None},
+            "rotation_error_raw_deg": {"median": float(np.median(err_raw)) if err_raw.size else None,
+                                       "p95": float(np.percentile(err_raw, 95)) if err_raw.size else None},
+            "flicker_codes": float(np.mean(rec.flick)) if rec.flick else None,
+            "flicker_p95_codes": float(np.percentile(rec.flick, 95)) if rec.flick else None,
+            "live_light_last": rec.lights.get(str(len(frames) - 1)),
+            "estimates": rec.estimates, "raw_estimates": rec.raw, "truth": meta["head_rotation"],
+            "_pairs": rec.pairs}
 
+
+@dataclass
+class _PassRecord:
+    """What the measured pass over a clip saw, frame by frame (keys: the frame index as a string;
+    angles in degrees, times in ms), and its wall and CPU time (s) without the benchmark's own work."""
+
+    times: dict = field(default_factory=lambda: {k: [] for k in STAGES})  # {stage: [ms per frame]}
+    estimates: dict = field(default_factory=dict)  # {frame: the head's angles} where a face was found
+    raw: dict = field(default_factory=dict)  # {frame: the unsmoothed angles}
+    pairs: list = field(default_factory=list)  # (frame, input, output) at a fifth, half and four fifths
+    flick: list = field(default_factory=list)  # flicker per frame step (codes)
+    lights: dict = field(default_factory=dict)  # {frame: the live light as JSON}
+    reused: list = field(default_factory=list)  # (relight reused?, relight ms) per face frame
+    ran: dict = field(default_factory=dict)  # {stage: frames it ran on} (the scheduler's plan)
+    prev: tuple | None = None  # the last frame's (input, output) RGB views
+    wall: float = 0.0
+    cpu: float = 0.0
+    steal: float = 0.0
+
+    def add(self, i: int, info) -> None:
+        """Record frame ``i``'s timings, pose, live light and the slow stages that ran (its FrameInfo)."""
+        for k in STAGES:
+            self.times[k].append(info.timings.get(k, 0.0))
+        if info.face:
+            self.reused.append((info.reused, info.timings.get("relight", 0.0)))
+        for k in info.ran:
+            self.ran[k] = self.ran.get(k, 0) + 1
+        if info.face:
+            self.estimates[str(i)] = info.angles
+            self.raw[str(i)] = info.raw_angles
+        if info.light is not None:
+            self.lights[str(i)] = info.light.as_json()
+
+    def compare(self, i: int, f, out, n_frames: int) -> None:
+        """The flicker from the previous frame to frame ``i`` (input ``f``, output ``out``); keep a few pairs."""
+        from relight.video_yuv import view_rgb
+
+        f_rgb, out_rgb = view_rgb(f), view_rgb(out)
+        if self.prev is not None:
+            d = flicker_step(self.prev[0], self.prev[1], f_rgb, out_rgb)
+            if d is not None:
+                self.flick.append(d)
+        self.prev = (f_rgb, out_rgb)
+        if i in (n_frames // 5, n_frames // 2, 4 * n_frames // 5):
+            self.pairs.append((i, f_rgb, out_rgb))
+
+
+def _measured_pass(fp, frames: list, fps: float) -> _PassRecord:
+    """``frames`` through the FramePath ``fp`` one at a time, each recorded; the flicker measuring is
+    left out of the wall and CPU time (user + sys of every thread of this process: PoCL's, BLAS's)."""
+    rec = _PassRecord()
+    side = side_cpu = 0.0
     jiffies0 = cpu_jiffies()
     t0 = time.perf_counter()
-    cpu0 = time.process_time()  # user + sys of every thread of this process (PoCL's, BLAS's)
+    cpu0 = time.process_time()
     for i, f in enumerate(frames):
         out, info = fp.process(f, i / fps)
-        for k in STAGES:
-            times[k].append(info.timings.get(k, 0.0))
-        if info.face:
-            reused.append((info.reused, info.timings.get("relight", 0.0)))
-        for k in info.ran:
-            ran[k] = ran.get(k, 0) + 1
-        if info.face:
-            estimates[str(i)] = info.angles
-            raw[str(i)] = info.raw_angles
-        if info.light is not None:
-            lights[str(i)] = info.light.as_json()
-        t_side = time.perf_counter()  # the benchmark's own measuring, left out of the wall and CPU time
+        rec.add(i, info)
+        t_side = time.perf_counter()
         c_side = time.process_time()
-        f_rgb, out_rgb = view_rgb(f), view_rgb(out)
-        if prev is not None:
-            d = flicker_step(prev[0], prev[1], f_rgb, out_rgb)
-            if d is not None:
-                flick.append(d)
-        prev = (f_rgb, out_rgb)
-        if i in (len(frames) // 5, len(frames) // 2, 4 * len(frames) // 5):
-            pairs.append((i, f_rgb, out_rgb))
+        rec.compare(i, f, out, len(frames))
         side += time.perf_counter() - t_side
         side_cpu += time.process_time() - c_side
-    wall = time.perf_counter() - t0 - side
-    cpu = time.process_time() - cpu0 - side_cpu
-    steal = steal_share(jiffies0, cpu_jiffies())
-    # The same frames through the two-stage pipeline `relight filter` runs (front of frame N+1
-    # beside back of frame N on two threads): frames per second it sustains.
+    rec.wall = time.perf_counter() - t0 - side
+    rec.cpu = time.process_time() - cpu0 - side_cpu
+    rec.steal = steal_share(jiffies0, cpu_jiffies())
+    return rec
+
+
+def _pipelined_fps(fp, frames: list, fps: float) -> float:
+    """Frames per second the two-stage pipeline `relight filter` runs (front of frame N+1 beside
+    back of frame N on two threads) sustains on ``frames``, from a fresh track."""
     from relight.engine.frame_pipeline import FramePipeline
 
     fp.reset()
@@ -156,41 +218,17 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str, planes: bool 
         for i, f in enumerate(frames):
             pipe.put(f, i / fps, i, i)
         pipe.drain()
-    fps_pipelined = len(frames) / (time.perf_counter() - t_pipe)
-    relit_ms = [t for r, t in reused if not r]
-    reused_ms = [t for r, t in reused if r]
-    err = rotation_errors(estimates, meta["head_rotation"])
-    err_raw = rotation_errors(raw, meta["head_rotation"])
-    face_px = None
-    mask_path = live / "truth" / "mask_reference.png"
-    if mask_path.exists():
-        import cv2
+    return len(frames) / (time.perf_counter() - t_pipe)
 
-        face_px = int((cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE) > 0).sum())
-    first = min((int(k) for k in estimates), default=None)
-    return {"frames": len(frames), "faces": len(estimates), "first_face_frame": first, "size": meta["size"],
-            "planes": planes, "ran": ran,
-            "face_pixels": face_px,
-            "bundle_pixels": int(np.asarray(bundle.pixels).size),
-            "stage_ms": {k: {"median": float(np.median(v)), "p99": float(np.percentile(v, 99))}
-                         for k, v in times.items()},
-            "fps_sustained": len(frames) / wall, "fps_pipelined": fps_pipelined,
-            "cpu_ms_per_frame": 1000.0 * cpu / len(frames), "wall_ms_per_frame": 1000.0 * wall / len(frames),
-            "cpu_steal": steal,
-            # Leave out what the scene does not need: frames whose head turned < reuse_deg since
-            # the last relight reuse it (FramePath.reuse_deg).
-            "reuse_deg": fp.reuse_deg, "reused_frames": len(reused_ms), "face_frames": len(reused),
-            "relight_ms_relit_median": float(np.median(relit_ms)) if relit_ms else None,
-            "relight_ms_reused_median": float(np.median(reused_ms)) if reused_ms else None,
-            "rotation_error_deg": {"median": float(np.median(err)) if err.size else None,
-                                   "p95": float(np.percentile(err, 95)) if err.size else None,
-                                   "max": float(err.max()) if err.size else None},
-            "rotation_error_raw_deg": {"median": float(np.median(err_raw)) if err_raw.size else None,
-                                       "p95": float(np.percentile(err_raw, 95)) if err_raw.size else None},
-            "flicker_codes": float(np.mean(flick)) if flick else None,
-            "flicker_p95_codes": float(np.percentile(flick, 95)) if flick else None,
-            "live_light_last": lights.get(str(len(frames) - 1)),
-            "estimates": estimates, "raw_estimates": raw, "truth": meta["head_rotation"], "_pairs": pairs}
+
+def _face_pixels(live: Path) -> int | None:
+    """The face's pixels in the clip's reference mask (``truth/mask_reference.png``), or None without one."""
+    mask_path = live / "truth" / "mask_reference.png"
+    if not mask_path.exists():
+        return None
+    import cv2
+
+    return int((cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE) > 0).sum())
 
 
 def _still_head(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
@@ -271,10 +309,6 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = ENV,
         mode: str = DEFAULT_MODE, faces: Path | None = None, region: str = DEFAULT_REGION) -> dict:
     """The whole benchmark: the synthetic clips (pose, speed, flicker), a `relight filter` run,
     and the real faces (``faces``: one RTI set per subject; quick: ``QUICK_FACES``)."""
-    from relight.bench.accuracy import QUICK_FACES, face_subjects
-    from relight.bench.accuracy_real import FACES_TRANSFER
-    from relight.bench.realface import evaluate_subject
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     size = (480, 270) if quick else (960, 540)
@@ -290,42 +324,10 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = ENV,
     f_bundle = synth_bundle(out, fsize, CAPTURE_S, progress)
     f_live = synth_live(out, fsize, 4.0 if quick else 10.0, progress)
     if not quick:
-        if progress:
-            print("head pose at 640x360 ...", flush=True)
-        small = _per_frame(f_bundle, f_live, env, mode)
-        small.pop("_pairs")
-        doc["per_frame_640"] = {k: small[k] for k in ("frames", "faces", "size", "rotation_error_deg",
-                                                       "rotation_error_raw_deg", "flicker_codes", "stage_ms")}
-        doc["pose_heads"] = [{"seed": 0, **{k: small[k] for k in ("frames", "faces", "rotation_error_deg")}}]
-        for seed in POSE_HEADS:
-            if progress:
-                print(f"head pose at 640x360, head {seed} ...", flush=True)
-            r = _per_frame(synth_bundle(out, fsize, CAPTURE_S, progress, seed=seed),
-                           synth_live(out, fsize, 10.0, progress, seed=seed), env, mode)
-            doc["pose_heads"].append({"seed": seed, **{k: r[k] for k in ("frames", "faces", "rotation_error_deg")}})
-    # The scanned head beside the procedural one: the same capture and clip settings.
-    doc["heads"] = []
-    for name, mesh in (("procedural", None), ("scan", SCAN)):
-        if progress:
-            print(f"the {name} head at {fsize[0]}x{fsize[1]} ...", flush=True)
-        r = _per_frame(synth_bundle(out, fsize, CAPTURE_S, progress, head_mesh=mesh),
-                       synth_live(out, fsize, 4.0 if quick else 10.0, progress, head_mesh=mesh), env, mode)
-        doc["heads"].append({"head": name, **{k: r[k] for k in HEAD_KEYS}})
+        small = _pose_heads(doc, out, fsize, f_bundle, f_live, env, mode, progress)
+    doc["heads"] = _heads(out, fsize, quick, progress, env, mode)
     if not quick:
-        # The per-frame path's growth with the frame: 640x360 (above), 1280x720 and 1920x1080 live
-        # clips of the same head relit with a 1280x720 capture's bundle (face pixels capped at the
-        # capture's default, as a user's 1080p or 4K capture is).
-        doc["speed"] = [{k: small[k] for k in SPEED_KEYS}]
-        big_bundle = synth_bundle(out, SPEED_CAPTURE, CAPTURE_S, progress)
-        for size in SPEED_SIZES:
-            if progress:
-                print(f"timing the per-frame path at {size[0]}x{size[1]} ...", flush=True)
-            clip = synth_live(out, size, 10.0, progress)
-            r = _per_frame(big_bundle, clip, env, mode, planes=True)  # (as relight live runs it)
-            row = {k: r[k] for k in SPEED_KEYS}
-            row["floor"] = floor.measure(clip / "live.mp4")  # the machine's floor, the same hour
-            row["still"] = _still_head(big_bundle, clip, env, mode)
-            doc["speed"].append(row)
+        big_bundle = _speed_by_size(doc, out, small, env, mode, progress)
     # The live frame against its truth (every frame rendered under the target light): the person
     # relit, the background untouched, no seam - on the heads developed on and unseen ones.
     from . import first_frame, live_frame, perspective
@@ -342,15 +344,7 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = ENV,
         if progress:
             print("running relight filter on a 10 s 1280x720 clip ...", flush=True)
         doc["filter_720"] = _filter_run(big_bundle, synth_live(out, (1280, 720), 10.0, progress), out, env)
-    subjects = face_subjects(faces)
-    if quick:
-        subjects = [p for p in subjects if p.name in QUICK_FACES]
-    doc["faces"] = []
-    for subject in subjects:
-        if progress:
-            print(f"real face {subject.name} ...", flush=True)
-        doc["faces"].append(evaluate_subject(subject, out / "faces" / subject.name, transfer=FACES_TRANSFER,
-                                             progress=progress, region=region))
+    doc["faces"] = _real_faces(out, faces, quick, progress, region)
     doc["faces_skipped"] = None if doc["faces"] else f"no subject folders with dirs.lp at {faces}"
     from relight.imageio import atomic_path
 
@@ -360,7 +354,112 @@ def run(out: Path, quick: bool = False, progress: bool = True, env: str = ENV,
     return doc
 
 
+def _pose_heads(doc: dict, out: Path, fsize: tuple, f_bundle: Path, f_live: Path, env: str, mode: str,
+                progress: bool) -> dict:
+    """The head pose at 640x360 on the first head's clip and on each of :data:`POSE_HEADS`, into
+    ``doc`` (``per_frame_640``, ``pose_heads``); returns the first head's :func:`_per_frame` figures."""
+    if progress:
+        print("head pose at 640x360 ...", flush=True)
+    small = _per_frame(f_bundle, f_live, env, mode)
+    small.pop("_pairs")
+    doc["per_frame_640"] = {k: small[k] for k in ("frames", "faces", "size", "rotation_error_deg",
+                                                   "rotation_error_raw_deg", "flicker_codes", "stage_ms")}
+    doc["pose_heads"] = [{"seed": 0, **{k: small[k] for k in ("frames", "faces", "rotation_error_deg")}}]
+    for seed in POSE_HEADS:
+        if progress:
+            print(f"head pose at 640x360, head {seed} ...", flush=True)
+        r = _per_frame(synth_bundle(out, fsize, CAPTURE_S, progress, seed=seed),
+                       synth_live(out, fsize, 10.0, progress, seed=seed), env, mode)
+        doc["pose_heads"].append({"seed": seed, **{k: r[k] for k in ("frames", "faces", "rotation_error_deg")}})
+    return small
+
+
+def _heads(out: Path, fsize: tuple, quick: bool, progress: bool, env: str, mode: str) -> list[dict]:
+    """The scanned head beside the procedural one (:data:`HEAD_KEYS` of each): the same capture and clip settings."""
+    heads = []
+    for name, mesh in (("procedural", None), ("scan", SCAN)):
+        if progress:
+            print(f"the {name} head at {fsize[0]}x{fsize[1]} ...", flush=True)
+        r = _per_frame(synth_bundle(out, fsize, CAPTURE_S, progress, head_mesh=mesh),
+                       synth_live(out, fsize, 4.0 if quick else 10.0, progress, head_mesh=mesh), env, mode)
+        heads.append({"head": name, **{k: r[k] for k in HEAD_KEYS}})
+    return heads
+
+
+def _speed_by_size(doc: dict, out: Path, small: dict, env: str, mode: str, progress: bool) -> Path:
+    """The per-frame path's growth with the frame into ``doc["speed"]``: 640x360 (``small``), then
+    :data:`SPEED_SIZES` live clips of the same head relit with a :data:`SPEED_CAPTURE` capture's
+    bundle (face pixels capped at the capture's default, as a user's 1080p or 4K capture is), each
+    beside the machine's floor and a still head. Returns that bundle's path."""
+    doc["speed"] = [{k: small[k] for k in SPEED_KEYS}]
+    big_bundle = synth_bundle(out, SPEED_CAPTURE, CAPTURE_S, progress)
+    for size in SPEED_SIZES:
+        if progress:
+            print(f"timing the per-frame path at {size[0]}x{size[1]} ...", flush=True)
+        clip = synth_live(out, size, 10.0, progress)
+        r = _per_frame(big_bundle, clip, env, mode, planes=True)  # (as relight live runs it)
+        row = {k: r[k] for k in SPEED_KEYS}
+        row["floor"] = floor.measure(clip / "live.mp4")  # the machine's floor, the same hour
+        row["still"] = _still_head(big_bundle, clip, env, mode)
+        doc["speed"].append(row)
+    return big_bundle
+
+
+def _real_faces(out: Path, faces: Path | None, quick: bool, progress: bool, region: str) -> list[dict]:
+    """Each real subject in ``faces`` (quick: :data:`QUICK_FACES` only) as a moving clip relit
+    toward a held-out light (:func:`relight.bench.realface.evaluate_subject`)."""
+    from relight.bench.accuracy import QUICK_FACES, face_subjects
+    from relight.bench.accuracy_real import FACES_TRANSFER
+    from relight.bench.realface import evaluate_subject
+
+    subjects = face_subjects(faces)
+    if quick:
+        subjects = [p for p in subjects if p.name in QUICK_FACES]
+    rows = []
+    for subject in subjects:
+        if progress:
+            print(f"real face {subject.name} ...", flush=True)
+        rows.append(evaluate_subject(subject, out / "faces" / subject.name, transfer=FACES_TRANSFER,
+                                     progress=progress, region=region))
+    return rows
+
+
 def table(doc: dict) -> str:
+    """The console summary: the per-frame path, the heads, speed by frame size, the live frame,
+    the first frame, the pinhole, the `relight filter` runs and the real faces."""
+    lines = _per_frame_lines(doc)
+    lines += _head_lines(doc)
+    if doc.get("speed"):
+        lines += _speed_lines(doc["speed"])
+    if doc.get("live_frame"):
+        from . import live_frame
+
+        lines.append(live_frame.table(doc["live_frame"]))
+    if doc.get("first_frame"):
+        from . import first_frame
+
+        lines.append("a turned head's first frame (the scanned head, its start pose at every 15 deg; "
+                     "first-frame/first_frame.png):")
+        lines.append(first_frame.table(doc["first_frame"]))
+    if doc.get("perspective"):
+        from . import perspective
+
+        lines.append("through a webcam's pinhole (an orthographic capture's bundle; the focal length known, found):")
+        lines.append(perspective.table(doc["perspective"]))
+    for key in ("filter", "filter_720"):
+        f = doc.get(key)
+        if f:
+            lines.append(f"relight filter, {f['size'][0]}x{f['size'][1]} {f['clip_s']:.1f} s clip, fresh process: "
+                         f"{f['wall_s']:.1f} s ({f['realtime_factor']:.2f}x real time)")
+    if doc.get("faces"):
+        lines += _face_lines(doc["faces"])
+    elif doc.get("faces_skipped"):
+        lines.append(f"real faces: skipped ({doc['faces_skipped']})")
+    return "\n".join(lines)
+
+
+def _per_frame_lines(doc: dict) -> list[str]:
+    """Table lines of the main clip: head rotation error, per-stage ms, frames per second, CPU, reuse, flicker."""
     pf = doc["per_frame"]
     e, er = pf["rotation_error_deg"], pf["rotation_error_raw_deg"]
     lines = [f"per-frame path on {pf['size'][0]}x{pf['size'][1]} ({pf['frames']} frames, {pf['faces']} with a face; "
@@ -385,6 +484,12 @@ def table(doc: dict) -> str:
                      f"{_fmt(pf['relight_ms_reused_median'])} ms when reused (medians)")
     lines.append(f"flicker (static environment): {_fmt(pf.get('flicker_codes'))} codes mean, "
                  f"{_fmt(pf.get('flicker_p95_codes'))} p95 (output's face change minus the input's)")
+    return lines
+
+
+def _head_lines(doc: dict) -> list[str]:
+    """Table lines of the other heads: the pose at 640x360, the procedural and scanned heads, the other seeds."""
+    lines = []
     small = doc.get("per_frame_640")
     if small:
         e = small["rotation_error_deg"]
@@ -401,70 +506,57 @@ def table(doc: dict) -> str:
         e = h["rotation_error_deg"]
         lines.append(f"head rotation error at 640x360, head {h['seed']} ({h['faces']}/{h['frames']} frames with a "
                      f"face): median {_fmt(e['median'])} deg, p95 {_fmt(e['p95'])} deg")
-    if doc.get("speed"):
-        lines.append("per-frame path by frame size (bundle face pixels / face pixels in the frame; ms per frame; "
-                     "piped = frames per second through relight filter's two-stage pipeline; "
-                     "CPU = user + sys of every thread, ms per frame):")
-        lines.append(f"{'size':>10s} {'bundle':>7s} {'face':>7s} {'median':>7s} {'p99':>7s} {'fps':>6s} {'piped':>6s} "
-                     f"{'wall':>6s} {'CPU':>6s} {'cores':>5s} {'steal':>5s} {'reused':>7s}  per stage (median ms)")
-        for r in doc["speed"]:
-            st = r["stage_ms"]
-            size = f"{r['size'][0]}x{r['size'][1]}"
-            face = _fmt(r["face_pixels"], "{:d}")
-            cores = r["cpu_ms_per_frame"] / r["wall_ms_per_frame"]
-            reused = f"{r['reused_frames']}/{r['face_frames']}"
-            piped = _fmt(r.get("fps_pipelined"), "{:.1f}")
-            lines.append(f"{size:>10s} {r['bundle_pixels']:7d} {face:>7s} {st['total']['median']:7.1f} "
-                         f"{st['total']['p99']:7.1f} {r['fps_sustained']:6.1f} {piped:>6s} "
-                         f"{r['wall_ms_per_frame']:6.1f} "
-                         f"{r['cpu_ms_per_frame']:6.1f} {cores:5.2f} {_pct(r.get('cpu_steal')):>5s} {reused:>7s}  "
-                         + " ".join(f"{k} {st[k]['median']:.1f}" for k in STAGES if k != "total"))
-        for r in doc["speed"]:
-            size = f"{r['size'][0]}x{r['size'][1]}"
-            if r.get("ran"):
-                lines.append(f"  {size}{' in planes' if r.get('planes') else ''}: slow stages ran on "
-                             + ", ".join(f"{k} {n}" for k, n in r["ran"].items()) + f" of {r['frames']} frames")
-            if r.get("floor"):
-                lines.append("  " + floor.line(r["floor"]) + f"; the path above {r['cpu_ms_per_frame']:.1f} ms")
-            if r.get("still"):
-                st = r["still"]
-                lines.append(f"  a still head at {size}: {st['cpu_ms_per_frame']:.1f} ms CPU a frame (median of "
-                             f"{st['frames']}), slow stages ran: "
-                             + (", ".join(f"{k} {n}" for k, n in st["ran"].items()) or "none"))
-    if doc.get("live_frame"):
-        from . import live_frame
+    return lines
 
-        lines.append(live_frame.table(doc["live_frame"]))
-    if doc.get("first_frame"):
-        from . import first_frame
 
-        lines.append("a turned head's first frame (the scanned head, its start pose at every 15 deg; "
-                     "first-frame/first_frame.png):")
-        lines.append(first_frame.table(doc["first_frame"]))
-    if doc.get("perspective"):
-        from . import perspective
+def _speed_lines(speed: list[dict]) -> list[str]:
+    """Table lines of the per-frame path by frame size (``speed``: the doc's rows), then each size's
+    slow stages, the machine's floor and the still head."""
+    lines = ["per-frame path by frame size (bundle face pixels / face pixels in the frame; ms per frame; "
+             "piped = frames per second through relight filter's two-stage pipeline; "
+             "CPU = user + sys of every thread, ms per frame):"]
+    lines.append(f"{'size':>10s} {'bundle':>7s} {'face':>7s} {'median':>7s} {'p99':>7s} {'fps':>6s} {'piped':>6s} "
+                 f"{'wall':>6s} {'CPU':>6s} {'cores':>5s} {'steal':>5s} {'reused':>7s}  per stage (median ms)")
+    for r in speed:
+        st = r["stage_ms"]
+        size = f"{r['size'][0]}x{r['size'][1]}"
+        face = _fmt(r["face_pixels"], "{:d}")
+        cores = r["cpu_ms_per_frame"] / r["wall_ms_per_frame"]
+        reused = f"{r['reused_frames']}/{r['face_frames']}"
+        piped = _fmt(r.get("fps_pipelined"), "{:.1f}")
+        lines.append(f"{size:>10s} {r['bundle_pixels']:7d} {face:>7s} {st['total']['median']:7.1f} "
+                     f"{st['total']['p99']:7.1f} {r['fps_sustained']:6.1f} {piped:>6s} "
+                     f"{r['wall_ms_per_frame']:6.1f} "
+                     f"{r['cpu_ms_per_frame']:6.1f} {cores:5.2f} {_pct(r.get('cpu_steal')):>5s} {reused:>7s}  "
+                     + " ".join(f"{k} {st[k]['median']:.1f}" for k in STAGES if k != "total"))
+    for r in speed:
+        size = f"{r['size'][0]}x{r['size'][1]}"
+        if r.get("ran"):
+            lines.append(f"  {size}{' in planes' if r.get('planes') else ''}: slow stages ran on "
+                         + ", ".join(f"{k} {n}" for k, n in r["ran"].items()) + f" of {r['frames']} frames")
+        if r.get("floor"):
+            lines.append("  " + floor.line(r["floor"]) + f"; the path above {r['cpu_ms_per_frame']:.1f} ms")
+        if r.get("still"):
+            st = r["still"]
+            lines.append(f"  a still head at {size}: {st['cpu_ms_per_frame']:.1f} ms CPU a frame (median of "
+                         f"{st['frames']}), slow stages ran: "
+                         + (", ".join(f"{k} {n}" for k, n in st["ran"].items()) or "none"))
+    return lines
 
-        lines.append("through a webcam's pinhole (an orthographic capture's bundle; the focal length known, found):")
-        lines.append(perspective.table(doc["perspective"]))
-    for key in ("filter", "filter_720"):
-        f = doc.get(key)
-        if f:
-            lines.append(f"relight filter, {f['size'][0]}x{f['size'][1]} {f['clip_s']:.1f} s clip, fresh process: "
-                         f"{f['wall_s']:.1f} s ({f['realtime_factor']:.2f}x real time)")
-    if doc.get("faces"):
-        lines.append("real faces (PSNR dB over the face, one gain per clip; faces found / frames):")
-        lines.append(f"{'subject':9s} {'input':>6s} {'transfer':>8s} {'ambient':>7s} {'paste':>6s} {'still':>6s} "
-                     f"{'found':>6s}  transfer - input, still - transfer")
-        for r in doc["faces"]:
-            m = r["modes"]
-            found = min(r["face_share"].values())
-            lines.append(f"{r['subject']:9s} {m['input']['psnr']:6.2f} {m['transfer']['psnr']:8.2f} "
-                         f"{m['ambient']['psnr']:7.2f} {m['paste']['psnr']:6.2f} {m['still']['psnr']:6.2f} "
-                         f"{100 * found:5.0f}%  {m['transfer']['psnr'] - m['input']['psnr']:+.2f}, "
-                         f"{m['still']['psnr'] - m['transfer']['psnr']:+.2f}")
-    elif doc.get("faces_skipped"):
-        lines.append(f"real faces: skipped ({doc['faces_skipped']})")
-    return "\n".join(lines)
+
+def _face_lines(faces: list[dict]) -> list[str]:
+    """Table lines of the real faces: PSNR per mode and subject, the share of frames with a face found."""
+    lines = ["real faces (PSNR dB over the face, one gain per clip; faces found / frames):"]
+    lines.append(f"{'subject':9s} {'input':>6s} {'transfer':>8s} {'ambient':>7s} {'paste':>6s} {'still':>6s} "
+                 f"{'found':>6s}  transfer - input, still - transfer")
+    for r in faces:
+        m = r["modes"]
+        found = min(r["face_share"].values())
+        lines.append(f"{r['subject']:9s} {m['input']['psnr']:6.2f} {m['transfer']['psnr']:8.2f} "
+                     f"{m['ambient']['psnr']:7.2f} {m['paste']['psnr']:6.2f} {m['still']['psnr']:6.2f} "
+                     f"{100 * found:5.0f}%  {m['transfer']['psnr'] - m['input']['psnr']:+.2f}, "
+                     f"{m['still']['psnr'] - m['transfer']['psnr']:+.2f}")
+    return lines
 
 
 def _fmt(v, f="{:.2f}") -> str:

@@ -10,13 +10,23 @@ from .common import COMMANDS, parse_size
 
 
 def add_parser(sub) -> None:
-    # the defaults: each benchmark's own
-    from ..bench import crash, fuzz, live, serve, soak, video
-    from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES, REGIONS
-
     p = sub.add_parser("bench", help=COMMANDS["bench"],
                        description="Benchmarks: speed, memory and accuracy, measured here and printed.")
     bsub = p.add_subparsers(title="benchmarks", metavar="NAME", required=True)
+    # One parser per benchmark, in the order --help lists them; each takes its defaults from its module.
+    _add_capture(bsub)
+    _add_relight(bsub)
+    _add_video(bsub)
+    _add_serve(bsub)
+    _add_live(bsub)
+    _add_fuzz(bsub)
+    _add_crash(bsub)
+    _add_soak(bsub)
+    _add_accuracy(bsub)
+
+
+def _add_capture(bsub) -> None:
+    """The parser of ``relight bench capture``: the capture pipeline's time, memory and accuracy."""
     c = bsub.add_parser("capture", help="capture pipeline: time per stage, peak memory, accuracy vs truth",
                         description="Synthesise captures (cached) and run `relight capture` on each in a fresh "
                                     "process: total and per-stage time, peak memory, and accuracy against the "
@@ -33,6 +43,10 @@ def add_parser(sub) -> None:
                    help="run only the scenarios whose name contains one of these (e.g. 640x360 1920x1080)")
     c.add_argument("--quiet", action="store_true", help="no progress output")
     c.set_defaults(func=_run_bench_capture)
+
+
+def _add_relight(bsub) -> None:
+    """The parser of ``relight bench relight``: the relighting engine's error against run time."""
     r = bsub.add_parser("relight", help="relighting: error against run time, exact vs compact vs NumPy",
                         description="Capture a synthetic 960x540 face (cached) and time the relighting engine on "
                                     "it: exact and compact paths at several tolerances, their NumPy twins and the "
@@ -45,6 +59,13 @@ def add_parser(sub) -> None:
     r.add_argument("--quick", action="store_true", help="a 10 s 480x270 capture instead (for CI)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.set_defaults(func=_run_bench_relight)
+
+
+def _add_video(bsub) -> None:
+    """The parser of ``relight bench video``: head pose and speed of the per-frame path."""
+    from ..bench import video
+    from ..engine.composite import DEFAULT_MODE, DEFAULT_REGION, MODES, REGIONS
+
     v = bsub.add_parser("video", help="per-frame video path: head-pose error and speed on synthetic live video",
                         description="Synthesise live videos of the head turning (cached) and a bundle of the same "
                                     "head (a 24 s capture at a 4 Hz flash), then measure the head rotation error "
@@ -73,6 +94,12 @@ def add_parser(sub) -> None:
     v.add_argument("--quick", action="store_true", help="480x270 clips of 4 s and one real face instead (for CI)")
     v.add_argument("--quiet", action="store_true", help="no progress output")
     v.set_defaults(func=_run_bench_video)
+
+
+def _add_serve(bsub) -> None:
+    """The parser of ``relight bench serve``: the frame service under websocket load."""
+    from ..bench import serve
+
     sv = bsub.add_parser("serve", help="the frame service under load: websocket clients on loopback",
                          description="Start relight serve in a fresh process and drive it with websocket clients "
                                      "sending 640x360 JPEG frames of a synthetic live video at a fixed rate: "
@@ -95,6 +122,12 @@ def add_parser(sub) -> None:
     sv.add_argument("--quick", action="store_true", help="8 s of load and 640x360 for the single client (for CI)")
     sv.add_argument("--quiet", action="store_true", help="no progress output")
     sv.set_defaults(func=_run_bench_serve)
+
+
+def _add_live(bsub) -> None:
+    """The parser of ``relight bench live``: relight live and the browser page."""
+    from ..bench import live
+
     lv = bsub.add_parser("live", help="relight live and the browser page (WebRTC vs websocket) on one clip",
                          description="relight live with a synthetic clip played as the camera (640x360 and "
                                      "1280x720, into the preview page with no viewer; --record: recorded too): fps "
@@ -111,6 +144,12 @@ def add_parser(sub) -> None:
     lv.add_argument("--quick", action="store_true", help=f"640x360 only, {live.QUICK_SECONDS:g} s per case (for CI)")
     lv.add_argument("--quiet", action="store_true", help="no progress output")
     lv.set_defaults(func=_run_bench_live)
+
+
+def _add_fuzz(bsub) -> None:
+    """The parser of ``relight bench fuzz``: the readers of hostile input, fuzzed."""
+    from ..bench import fuzz
+
     fz = bsub.add_parser("fuzz", help="every reader of hostile input fed mutated real files (Hypothesis)",
                          description="Fuzz the bundle loader (and the relighter on what it accepts), the .lp parser, "
                                      "the environment upload's loader, POST /v1/relight's image decoder, the "
@@ -128,6 +167,12 @@ def add_parser(sub) -> None:
     fz.add_argument("--quick", action="store_true", help=f"{fuzz.QUICK_EXAMPLES} inputs per target (for CI)")
     fz.add_argument("--quiet", action="store_true", help="no progress output")
     fz.set_defaults(func=_run_bench_fuzz)
+
+
+def _add_crash(bsub) -> None:
+    """The parser of ``relight bench crash``: the writers killed at random moments."""
+    from ..bench import crash
+
     cr = bsub.add_parser("crash", help="writers killed with SIGKILL at random moments: no damaged file",
                          description="Kill relight capture (bundle), relight filter (video) and relight-serve taking "
                                      "an environment upload with SIGKILL at random moments (half in the last fifth "
@@ -142,6 +187,12 @@ def add_parser(sub) -> None:
     cr.add_argument("--quick", action="store_true", help=f"{crash.QUICK_KILLS} kills per writer (for CI)")
     cr.add_argument("--quiet", action="store_true", help="no progress output")
     cr.set_defaults(func=_run_bench_crash)
+
+
+def _add_soak(bsub) -> None:
+    """The parser of ``relight bench soak``: relight-serve for minutes under mixed clients."""
+    from ..bench import soak
+
     so = bsub.add_parser("soak", help="relight-serve for minutes with good and misbehaving clients",
                          description=f"A real relight-serve with {soak.CLIENTS} websocket clients at {soak.FPS:g} "
                                      "fps for --minutes, beside clients that vanish, send garbage, never read, or "
@@ -155,6 +206,10 @@ def add_parser(sub) -> None:
     so.add_argument("--quick", action="store_true", help=f"{soak.QUICK_MINUTES:g} minutes (for CI)")
     so.add_argument("--quiet", action="store_true", help="no progress output")
     so.set_defaults(func=_run_bench_soak)
+
+
+def _add_accuracy(bsub) -> None:
+    """The parser of ``relight bench accuracy``: every method against the truth."""
     a = bsub.add_parser("accuracy", help="every method against the truth and real held-out photos: one report",
                         description="Synthesise several captures (cached), build a bundle per method (full, its "
                                     "ablations, barycentric, PTM, HSH orders 3 and 2, RBF) from the same samples, "
@@ -174,7 +229,6 @@ def add_parser(sub) -> None:
                    help="one short 384x216 scene instead of five, the real set at half size and one face (for CI)")
     a.add_argument("--quiet", action="store_true", help="no progress output")
     a.set_defaults(func=_run_bench_accuracy)
-
 
 def _run_bench_accuracy(args) -> int:
     from ..bench import accuracy, accuracy_report

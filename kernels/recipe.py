@@ -323,31 +323,31 @@ def texel_rows(recipe: Recipe, texels: np.ndarray, *, pixels=None) -> np.ndarray
     return out
 
 
-def _rows_chunk(r: Recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs, virt, carry_ids, carry_w, spl_w):
-    k = r.n_samples
-    n_t = texels.size
-    p = len(ps)
-    normals = np.asarray(r.normals[ps], dtype=np.float32)
-    trust = np.asarray(r.trust[ps], dtype=np.float32)
-    albedo = np.asarray(r.albedo[ps], dtype=np.float32)
-    spec = np.asarray(r.spec[ps], dtype=np.float32)
+def _chunk_visibility(r: Recipe, ps, texels: np.ndarray, vtex: np.ndarray, trust: np.ndarray):
+    """The chunk's smoothed visibility, float32: (at the model's vertices' texels ``vtex``
+    (p, m), at the requested ``texels`` (p, n), at the vertices' texels as the interpolation
+    sees them (p, m) or None without a horizon)."""
+    p, n_t = len(ps), texels.size
     if r.horizon is None:
-        vis_m = np.ones((p, len(model_v)), np.float32)
-        vis_t = np.ones((p, n_t), np.float32)
-        vis_iv = None
-    else:
-        hz = r.horizon_elevations(ps)
-        open_sky = trust < 0.5
-        # The model at the vertices sees the horizon itself (open-sky pixels: every light); the
-        # interpolation and the trend see open-sky pixels' horizon as far below every light.
-        vis_m = smoothed_visibility(hz, r.n_az, r.tri.map_size, vtex)
-        vis_m[open_sky] = 1.0
-        hz_i = np.where(open_sky[:, None], np.float32(interp.OPEN_SKY), hz)
-        both = smoothed_visibility(hz_i, r.n_az, r.tri.map_size, np.concatenate([texels, vtex]))
-        vis_t, vis_iv = both[:, :n_t], both[:, n_t:]
-    sm = rf.ShadingModel(albedo=albedo, spec=spec, trust=trust)
-    model = sm.at(normals, r.tri.vertices[model_v].astype(np.float32), vis_m)  # (m, p, 3)
-    x = decode_samples(r.codes, r.scale, ids=samp_v, pixels=ps)  # (s, p, 3)
+        return np.ones((p, len(vtex)), np.float32), np.ones((p, n_t), np.float32), None
+    hz = r.horizon_elevations(ps)
+    open_sky = trust < 0.5
+    # The model at the vertices sees the horizon itself (open-sky pixels: every light); the
+    # interpolation and the trend see open-sky pixels' horizon as far below every light.
+    vis_m = smoothed_visibility(hz, r.n_az, r.tri.map_size, vtex)
+    vis_m[open_sky] = 1.0
+    hz_i = np.where(open_sky[:, None], np.float32(interp.OPEN_SKY), hz)
+    both = smoothed_visibility(hz_i, r.n_az, r.tri.map_size, np.concatenate([texels, vtex]))
+    return vis_m, both[:, :n_t], both[:, n_t:]
+
+
+def _vertex_rows(r: Recipe, x: np.ndarray, model: np.ndarray, trust: np.ndarray, model_v: np.ndarray,
+                 samp_v: np.ndarray, col: dict, virt: np.ndarray, carry_ids, carry_w) -> np.ndarray:
+    """(m, p, 3) float32 the values the interpolation reads at the vertices ``model_v``: the
+    samples ``x`` (s, p, 3) less the trusted model (with the trend), the virtual lights' model
+    and what it leaves of their nearest samples (with extrapolation; else black)."""
+    k = r.n_samples
+    p = x.shape[1]
     xi = {int(v): i for i, v in enumerate(samp_v)}
     tw_ = trust[None, :, None] if r.trend else None
     vals = np.zeros((len(model_v), p, 3), np.float32)
@@ -365,25 +365,75 @@ def _rows_chunk(r: Recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs
                 carried += carry_w[b, j] * np.maximum(x[xi[c]] - model[col[c]], 0.0)
             vals[i] = base + carried
     # (virtual vertices without extrapolation are black: their vals stay 0)
+    return vals
+
+
+def _subset_mix(tw: np.ndarray, use: np.ndarray, cv: np.ndarray) -> np.ndarray:
+    """(n, p, 3) the texels' interpolation over a subset of their vertices: the barycentric
+    weights tw (n, 3) times ``use`` (n, 3, p), renormalised, over the vertex values cv (n, 3, p, 3)."""
+    wgt = tw[:, :, None] * use
+    wgt = wgt / np.maximum(wgt.sum(axis=1, keepdims=True), EPS)
+    return np.einsum("tvp,tvpc->tpc", wgt, cv)
+
+
+def _interpolate_rows(tw: np.ndarray, cv: np.ndarray, ci: np.ndarray, vis_t: np.ndarray, vis_iv) -> np.ndarray:
+    """(n, p, 3) the texels' interpolation of their vertices' values cv (n, 3, p, 3) with
+    barycentric weights tw (n, 3), visibility-aware with a horizon (vis_t (p, n) at the texels,
+    vis_iv (p, m) at the vertices, ci (n, 3) their columns)."""
+    regular = np.einsum("tv,tvpc->tpc", tw, cv)
+    if vis_iv is None:
+        return regular
+    vv = vis_iv[:, ci].transpose(1, 2, 0)  # (n, 3v, p)
+    vp = vis_t.T  # (n, p)
+    vmin, vmax = vv.min(axis=1), vv.max(axis=1)
+    spread = vmax - vmin
+    sp = np.maximum(spread, EPS_VALUE)
+    lit = np.clip((vv - vmin[:, None]) / sp[:, None], 0.0, 1.0)
+    t_lit = np.clip((vp - vmin) / sp, 0.0, 1.0)[..., None]
+    aware = t_lit * _subset_mix(tw, lit, cv) + (1 - t_lit) * _subset_mix(tw, 1.0 - lit, cv)
+    return (1 - spread[..., None]) * regular + spread[..., None] * aware
+
+
+def _blend_rows_spline(r: Recipe, ps, texels: np.ndarray, m: np.ndarray, spl_w) -> None:
+    """In place: the rows m (n, p, 3) at the texels inside the hull (``spl_w``: their columns,
+    spline weights (Q, K)) blended with the spline of the codes, capped at the brightest sample
+    of each texel's triangle, for the pixels whose blend is below 1."""
+    k = r.n_samples
+    blend = np.asarray(r.blend[ps], dtype=np.float32)
+    sel = np.flatnonzero(blend < 1.0)
+    if sel.size:
+        inside, w_ = spl_w
+        q = _POWER[np.asarray(r.codes)[:, ps[sel]]]  # (K, s, 3): (x / scale) ** gamma
+        spl = (w_ @ q.reshape(k, -1)).reshape(len(inside), sel.size, 3)
+        np.clip(spl, 0.0, None, out=spl)
+        sc = np.asarray(r.scale[ps[sel]], dtype=np.float32)
+        spl = spl ** np.float32(1.0 / SAMPLE_GAMMA) * sc[None]
+        corners = r.tri.texel_vertices[texels[inside]]  # sample ids (inside the hull)
+        cap = np.max(_DECODE[np.asarray(r.codes)[corners.ravel()][:, ps[sel]]].reshape(
+            len(inside), 3, sel.size, 3), axis=1) * sc[None]
+        np.minimum(spl, cap, out=spl)
+        b = blend[sel][None, :, None]
+        m[np.ix_(inside, sel)] = np.clip(b * m[np.ix_(inside, sel)] + (1 - b) * spl, 0.0, None)
+
+
+def _rows_chunk(r: Recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs, virt, carry_ids, carry_w, spl_w):
+    """(n, 3, p) float32 rows of the map texels ``texels`` for the pixels ``ps`` (see
+    :func:`texel_rows`, which prepares the rest: the texels' triangles tv (n, 3) and weights tw,
+    the vertices the model is evaluated at ``model_v`` (``col``: their rows, ``vtex``: their
+    texels; ``samp_v`` the samples among them, ``virt`` the virtual ones with their carried
+    samples), the texels' directions tdirs (n, 3), the spline part ``spl_w`` or None)."""
+    normals = np.asarray(r.normals[ps], dtype=np.float32)
+    trust = np.asarray(r.trust[ps], dtype=np.float32)
+    albedo = np.asarray(r.albedo[ps], dtype=np.float32)
+    spec = np.asarray(r.spec[ps], dtype=np.float32)
+    vis_m, vis_t, vis_iv = _chunk_visibility(r, ps, texels, vtex, trust)
+    sm = rf.ShadingModel(albedo=albedo, spec=spec, trust=trust)
+    model = sm.at(normals, r.tri.vertices[model_v].astype(np.float32), vis_m)  # (m, p, 3)
+    x = decode_samples(r.codes, r.scale, ids=samp_v, pixels=ps)  # (s, p, 3)
+    vals = _vertex_rows(r, x, model, trust, model_v, samp_v, col, virt, carry_ids, carry_w)
     ci = np.vectorize(col.get, otypes=[np.int64])(tv)  # (n, 3) rows of vals
     cv = vals[ci]  # (n, 3v, p, 3c)
-    regular = np.einsum("tv,tvpc->tpc", tw, cv)
-    if vis_iv is not None:
-        vv = vis_iv[:, ci].transpose(1, 2, 0)  # (n, 3v, p)
-        vp = vis_t.T  # (n, p)
-        vmin, vmax = vv.min(axis=1), vv.max(axis=1)
-        spread = vmax - vmin
-        sp = np.maximum(spread, EPS_VALUE)
-        lit = np.clip((vv - vmin[:, None]) / sp[:, None], 0.0, 1.0)
-        t_lit = np.clip((vp - vmin) / sp, 0.0, 1.0)[..., None]
-
-        def subset(use):
-            wgt = tw[:, :, None] * use
-            wgt = wgt / np.maximum(wgt.sum(axis=1, keepdims=True), EPS)
-            return np.einsum("tvp,tvpc->tpc", wgt, cv)
-
-        aware = t_lit * subset(lit) + (1 - t_lit) * subset(1.0 - lit)
-        regular = (1 - spread[..., None]) * regular + spread[..., None] * aware
+    regular = _interpolate_rows(tw, cv, ci, vis_t, vis_iv)
     if r.trend:
         coef = trust[:, None] * albedo
         spc = trust[:, None] * spec
@@ -392,19 +442,5 @@ def _rows_chunk(r: Recipe, ps, texels, tv, tw, model_v, samp_v, col, vtex, tdirs
         regular = regular + lit_t.T[..., None] * coef[None] + lobe_t.T[..., None] * spc[None]
     m = np.clip(regular, 0.0, None)  # (n, p, 3)
     if spl_w is not None:
-        blend = np.asarray(r.blend[ps], dtype=np.float32)
-        sel = np.flatnonzero(blend < 1.0)
-        if sel.size:
-            inside, w_ = spl_w
-            q = _POWER[np.asarray(r.codes)[:, ps[sel]]]  # (K, s, 3): (x / scale) ** gamma
-            spl = (w_ @ q.reshape(k, -1)).reshape(len(inside), sel.size, 3)
-            np.clip(spl, 0.0, None, out=spl)
-            sc = np.asarray(r.scale[ps[sel]], dtype=np.float32)
-            spl = spl ** np.float32(1.0 / SAMPLE_GAMMA) * sc[None]
-            corners = r.tri.texel_vertices[texels[inside]]  # sample ids (inside the hull)
-            cap = np.max(_DECODE[np.asarray(r.codes)[corners.ravel()][:, ps[sel]]].reshape(
-                len(inside), 3, sel.size, 3), axis=1) * sc[None]
-            np.minimum(spl, cap, out=spl)
-            b = blend[sel][None, :, None]
-            m[np.ix_(inside, sel)] = np.clip(b * m[np.ix_(inside, sel)] + (1 - b) * spl, 0.0, None)
+        _blend_rows_spline(r, ps, texels, m, spl_w)
     return m.transpose(0, 2, 1)

@@ -267,24 +267,16 @@ def fit_model(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, hori
     return sm, blend, active
 
 
-def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
-                  n_az: int, sm: ShadingModel, blend: np.ndarray, active: np.ndarray, *,
-                  trend: bool = True, extrapolate: bool = True, paper_adaptation: bool = False,
-                  spline: bool = True, backend: str = "opencl", half: bool = False, texel_major: bool = False,
-                  codes: tuple[np.ndarray, np.ndarray] | None = None, progress=None):
-    """The maps of :func:`model_maps` from its fits (:func:`fit_model`: the shading model ``sm``,
-    the spline ``blend`` (P,), the kept texels ``active`` (T,) bool), for these pixels (any
-    subset of the fitted ones, with their fits). Returns (maps, the triangulation whose
-    ``active`` texels they hold); maps (P, 3, T_pad), or with ``texel_major`` (T_pad, 3, P)
-    float32 (what the transport's projections read; OpenCL only). ``codes``: the storage codes
-    (codes (K, P, 3) uint8, scale (P, 3)) the samples were decoded from, when they were
-    (:mod:`relight.kernels.recipe`): the OpenCL spline is then summed exactly from them, and a
-    pixel's maps do not depend on which other pixels are made with it (or on the CPU)."""
+def _vertex_values(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
+                   n_az: int, sm: ShadingModel, *, trend: bool, extrapolate: bool, backend: str, dt
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """What :func:`maps_from_fit` interpolates, pixel chunk by pixel chunk: (vals (V, P, 3) in
+    ``dt`` - the samples (less the trusted model with ``trend``), then with ``extrapolate`` the
+    virtual lights' values - each pixel offset to be non-negative; that offset (P, 3) float64)."""
     k, p = samples.shape[:2]
     verts = tri.vertices
     b = len(verts) - k
     trust = sm.trust
-    dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
     n = np.asarray(normals, dtype=dt)
     verts_dt = verts.astype(dt)
     carry_ids, carry_w = carry_weights(verts, k) if b else (None, None)
@@ -313,18 +305,69 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
         off = np.maximum(-both.min(axis=0), 0.0)  # (p, 3)
         offset[ps] = off
         vals[:, ps] = both + off[None]
+    return vals, offset
+
+
+def _map_triangulation(tri: Triangulation, k: int, active: np.ndarray, extrapolate: bool) -> Triangulation:
+    """The triangulation the maps are made on: ``tri`` with the kept texels ``active``, its
+    virtual lights counted as samples with ``extrapolate`` (they carry values, not black)."""
+    verts = tri.vertices
+    if extrapolate:
+        return Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
+                             texel_vertices=tri.texel_vertices, texel_weights=tri.texel_weights,
+                             active=np.asarray(active, dtype=bool), map_size=tri.map_size)
+    return Triangulation(vertices=verts, n_samples=k, faces=tri.faces, texel_vertices=tri.texel_vertices,
+                         texel_weights=tri.texel_weights, active=np.asarray(active, dtype=bool),
+                         map_size=tri.map_size)
+
+
+def _spline_inputs(verts: np.ndarray, k: int, map_tri: Triangulation, act: np.ndarray):
+    """(inside (Q,) columns of the active texels ``act`` inside the samples' hull, their spline
+    weights (Q, K), their triangles' sample ids (Q, 3)), or None when no texel has spline weights."""
+    from .spline import spline_weights
+
+    inside = np.flatnonzero(spline_texels(map_tri.texel_vertices[act], k))
+    sw = spline_weights(verts[:k], map_tri.texel_dirs[act][inside]) if inside.size else None
+    if sw is None:
+        return None
+    return (inside, sw, map_tri.texel_vertices[act[inside]])
+
+
+def _blend_spline_chunks(maps: np.ndarray, samples: np.ndarray, blend: np.ndarray, smooth, n_act: int, dt) -> None:
+    """In place, NumPy's spline blend: pixel-major maps (P, 3, T_pad) blended with the spline of
+    their samples (``smooth``: :func:`_spline_inputs`) where ``blend`` (P,) < 1, clipped at 0."""
+    p = samples.shape[1]
+    for p0 in range(0, p, PIXEL_CHUNK):
+        ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
+        if (blend[ps] < 1.0).any():
+            m = maps[ps, :, :n_act].astype(dt)
+            blend_spline(m, samples[:, ps], blend[ps], *smooth)
+            maps[ps, :, :n_act] = np.clip(m, 0.0, None)
+
+
+def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, horizon: np.ndarray | None,
+                  n_az: int, sm: ShadingModel, blend: np.ndarray, active: np.ndarray, *,
+                  trend: bool = True, extrapolate: bool = True, paper_adaptation: bool = False,
+                  spline: bool = True, backend: str = "opencl", half: bool = False, texel_major: bool = False,
+                  codes: tuple[np.ndarray, np.ndarray] | None = None, progress=None):
+    """The maps of :func:`model_maps` from its fits (:func:`fit_model`: the shading model ``sm``,
+    the spline ``blend`` (P,), the kept texels ``active`` (T,) bool), for these pixels (any
+    subset of the fitted ones, with their fits). Returns (maps, the triangulation whose
+    ``active`` texels they hold); maps (P, 3, T_pad), or with ``texel_major`` (T_pad, 3, P)
+    float32 (what the transport's projections read; OpenCL only). ``codes``: the storage codes
+    (codes (K, P, 3) uint8, scale (P, 3)) the samples were decoded from, when they were
+    (:mod:`relight.kernels.recipe`): the OpenCL spline is then summed exactly from them, and a
+    pixel's maps do not depend on which other pixels are made with it (or on the CPU)."""
+    k, p = samples.shape[:2]
+    trust = sm.trust
+    dt = np.float64 if samples.dtype == np.float64 else np.float32  # float64 in: the stability reference
+    vals, offset = _vertex_values(samples, normals, tri, horizon, n_az, sm, trend=trend, extrapolate=extrapolate,
+                                  backend=backend, dt=dt)
     if horizon is not None and (trust < 0.5).any():
         # Where the model does not explain the samples, neither does its geometry's shadowing:
         # those pixels interpolate without visibility (an open sky: every light visible).
         horizon = np.where((trust < 0.5)[:, None], np.float32(OPEN_SKY), horizon).astype(np.float32)
-    if extrapolate:
-        map_tri = Triangulation(vertices=verts, n_samples=len(verts), faces=tri.faces,
-                                texel_vertices=tri.texel_vertices, texel_weights=tri.texel_weights,
-                                active=np.asarray(active, dtype=bool), map_size=tri.map_size)
-    else:
-        map_tri = Triangulation(vertices=verts, n_samples=k, faces=tri.faces, texel_vertices=tri.texel_vertices,
-                                texel_weights=tri.texel_weights, active=np.asarray(active, dtype=bool),
-                                map_size=tri.map_size)
+    map_tri = _map_triangulation(tri, k, active, extrapolate)
     # The kernel takes the offset off and adds the trusted model back at each texel in float32,
     # then stores float16 with ``half`` (the bundle's storage; keeps large captures' memory down).
     coef = trust[:, None] * sm.albedo if trend else np.zeros_like(sm.albedo)
@@ -332,14 +375,7 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
     if texel_major and backend != "opencl":
         raise InputError("texel-major maps are made by the OpenCL backend only")
     act = np.flatnonzero(map_tri.active)
-    smooth = None
-    if spline and (blend < 1.0).any():
-        from .spline import spline_weights
-
-        inside = np.flatnonzero(spline_texels(map_tri.texel_vertices[act], k))
-        sw = spline_weights(verts[:k], map_tri.texel_dirs[act][inside]) if inside.size else None
-        if sw is not None:
-            smooth = (inside, sw, map_tri.texel_vertices[act[inside]])
+    smooth = _spline_inputs(tri.vertices, k, map_tri, act) if spline and (blend < 1.0).any() else None
     # The OpenCL kernel blends the spline in itself (its values from BLAS, chunk by chunk).
     blend_in = None
     if smooth is not None and backend == "opencl":
@@ -348,12 +384,7 @@ def maps_from_fit(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, 
                         backend=backend, half=half and not texel_major, trend=(offset, coef, spec),
                         texel_major=texel_major, spline=blend_in, progress=progress)
     if smooth is not None and blend_in is None:
-        for p0 in range(0, p, PIXEL_CHUNK):
-            ps = slice(p0, min(p0 + PIXEL_CHUNK, p))
-            if (blend[ps] < 1.0).any():
-                m = maps[ps, :, :act.size].astype(dt)
-                blend_spline(m, samples[:, ps], blend[ps], *smooth)
-                maps[ps, :, :act.size] = np.clip(m, 0.0, None)
+        _blend_spline_chunks(maps, samples, blend, smooth, act.size, dt)
     # The OpenCL maps are finite when their inputs are (guarded divisions, outputs clipped to
     # [0, inf) by selects): the vertex values are checked, ~10x fewer than the maps.
     checked = vals if backend == "opencl" else maps

@@ -63,6 +63,24 @@ def _round_up(n: int, m: int) -> int:
     return (n + m - 1) // m * m
 
 
+def _host_buffer(ctx, a: np.ndarray):
+    """A read-only device buffer over the host array ``a`` itself (no copy)."""
+    import pyopencl as cl
+
+    return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=a)
+
+
+def _shared_buffer(ctx, a):
+    """A read-only device buffer over one of the bundle's arrays, used in place where the device
+    can (PoCL on the CPU: the host's memory-mapped file, no copy), else over a contiguous copy."""
+    import pyopencl as cl
+
+    a = np.asarray(a)
+    if a.flags.c_contiguous:
+        return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=a)
+    return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
+
+
 class Relighter:
     """Relights one bundle.
 
@@ -78,12 +96,46 @@ class Relighter:
             raise InputError(f"tolerance {tolerance}: use a positive number such as 0.01 (1 %)")
         self.bundle = bundle
         self.rt = get_runtime()
-        ctx, queue = self.rt.context, self.rt.queue
-        mf = cl.mem_flags
+        ctx = self.rt.context
         # Denormals flushed: see relight.numerics.HALF_TINY (halves below 2^-14 read as zero).
         prg = build_program("relight", ("-cl-denorms-are-zero",))
         self._k_compact = cl.Kernel(prg, "relight_compact")
         self._k_exact = cl.Kernel(prg, "relight_exact")
+        frame_size = self._read_bundle(bundle)
+        self.tolerance = float(tolerance)
+        self.rank = None if exact else self.transport.rank_for(self.tolerance)
+        self.exact = self.rank is None
+        self._make_frame(frame_size)
+        # The exact texels' maps: the bundle's own (memory-mapped) when it stores them, else a
+        # cache of texel rows made from its recipe on first use (least recently used reused).
+        if bundle.has_maps:
+            self.row_cache = None
+            self._rows_buf = _shared_buffer(ctx, bundle.maps_rows)
+        else:
+            self.row_cache = RowCache(bundle, row_slots(bundle.n_pixels))
+            self._rows_buf = self.row_cache.buf
+        self._upload_basis()
+        self._fidx = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=self.frame_index)
+        # The frame lives in host memory the device writes into directly (no copy back). More
+        # frames ("slots", e.g. the face under the live light beside the target) on request.
+        self._frame_buf = cl.Buffer(ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR, hostbuf=self.frame)
+        self._slots = {"main": (self.frame, self._frame_buf)}
+        self._make_light_operands()
+        self._set_compact_args()
+        # The exact path's maps: built on first use (see _exact_maps).
+        self.t_exact = _round_up(self.t_pad, LANES)
+        self._maps_buf = None
+        self._lp = cl.Buffer(ctx, cl.mem_flags.READ_ONLY, 3 * self.t_exact * 4)
+        self._blocks = cl.Buffer(ctx, cl.mem_flags.READ_ONLY, (self.t_exact // LANES) * 4)
+        self._queue = self.rt.queue
+        self._pending = None  # (buf, frame) of a launch not yet waited for (relight(wait=False))
+        if self.exact:
+            self._exact_maps()
+        self._init_caches()
+
+    def _read_bundle(self, bundle) -> tuple[int, int]:
+        """The bundle's layout - its map texels, pixels, sample scale (checked), compact transport
+        and the texels' hull cone - and its frame size (W, H)."""
         self.texels = np.asarray(bundle.map_texels, dtype=np.int64)
         self.map_size = bundle.map_size
         # Samples and maps are stored divided by this power of two (float16 range; 1 for ordinary
@@ -95,70 +147,52 @@ class Relighter:
         self.n_pix = bundle.n_pixels
         self.t_pad = padded_texels(int(self.texels.size))
         self._maps = None
-        w, h = bundle.frame_size
+        frame_size = bundle.frame_size
         self.frame_index = bundle.frame_index
         self.transport = read_transport(bundle)
         self.cone = texel_lights.hull_cone(self.map_size, self.texels)
-        self.tolerance = float(tolerance)
-        self.rank = None if exact else self.transport.rank_for(self.tolerance)
-        self.exact = self.rank is None
+        return frame_size
+
+    def _make_frame(self, frame_size) -> None:
+        """The output frame (H, W, 3) float32, zero, and the flat float range of its rows the
+        face spans, from its first to its last (:meth:`fresh_copy`)."""
+        w, h = frame_size
         self.frame = np.zeros((h, w, 3), dtype=np.float32)
         fi = np.asarray(self.frame_index)
-        # the frame's flat float range from the face's first to its last row (fresh_copy)
         self._face_span = ((int(fi.min()) // w) * w * 3, (int(fi.max()) // w + 1) * w * 3) if fi.size else (0, 0)
 
-        def shared(a):
-            # The bundle's arrays are used in place where the device can (PoCL on the CPU: the
-            # host's memory-mapped file, no copy).
-            a = np.asarray(a)
-            if a.flags.c_contiguous:
-                return cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=a)
-            return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
-
-        # The exact texels' maps: the bundle's own (memory-mapped) when it stores them, else a
-        # cache of texel rows made from its recipe on first use (least recently used reused).
-        if bundle.has_maps:
-            self.row_cache = None
-            self._rows_buf = shared(bundle.maps_rows)
-        else:
-            self.row_cache = RowCache(bundle, row_slots(bundle.n_pixels))
-            self._rows_buf = self.row_cache.buf
-        # Only the chosen rank of the basis, in the kernel's blocks as the bundle stores it.
+    def _upload_basis(self) -> None:
+        """Only the chosen rank of the basis, in the kernel's blocks as the bundle stores it, and
+        device buffers over it (8-bit steps and units, 4-bit steps and units)."""
         self._basis = pack_basis(self.transport, self.rank, self.n_pix)
         self.rank8, self.rank4, self._q8, self._units, self._q4, self._units4 = self._basis
-        buf = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=a)  # noqa: E731
-        self._q8_buf, self._units_buf = buf(self._q8), buf(self._units)
-        self._q4_buf, self._units4_buf = buf(self._q4), buf(self._units4)
-        self._fidx = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=self.frame_index)
-        # The frame lives in host memory the device writes into directly (no copy back). More
-        # frames ("slots", e.g. the face under the live light beside the target) on request.
-        self._frame_buf = cl.Buffer(ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=self.frame)
-        self._slots = {"main": (self.frame, self._frame_buf)}
-        # The per-call light (the basis coefficients; the exact texels' light and rows) in host
-        # memory the kernel reads in place: written between launches (each call waits for its
-        # kernel), no enqueued copies (each cost ~0.3 ms of PyOpenCL overhead).
+        ctx = self.rt.context
+        self._q8_buf, self._units_buf = _host_buffer(ctx, self._q8), _host_buffer(ctx, self._units)
+        self._q4_buf, self._units4_buf = _host_buffer(ctx, self._q4), _host_buffer(ctx, self._units4)
+
+    def _make_light_operands(self) -> None:
+        """The per-call light (the basis coefficients (rank, 4); the exact texels' light and rows
+        (n, 4)) in host memory the kernel reads in place: written between launches (each call
+        waits for its kernel), no enqueued copies (each cost ~0.3 ms of PyOpenCL overhead)."""
         self._n_direct_max = max(self.transport.direct, 4)
         self._coef4 = aligned_zeros((max(self.rank or 1, 1), 4), np.float32)
         self._direct4 = aligned_zeros((self._n_direct_max, 4), np.float32)
-        self._coef = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._coef4)
-        self._direct = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=self._direct4)
+        self._coef = _host_buffer(self.rt.context, self._coef4)
+        self._direct = _host_buffer(self.rt.context, self._direct4)
         # u^T of the chosen rank in float64 (the light is float64: a float32 u was cast every call)
         self._ut = np.ascontiguousarray(self.transport.u[:, :self.rank].T, dtype=np.float64) if self.rank else None
-        # The compact kernel's arguments set once; a call sets the rank, the texel count and the frame.
+
+    def _set_compact_args(self) -> None:
+        """The compact kernel's arguments set once (a call sets the rank, the texel count and the
+        frame) and its launch grid."""
         self._k_compact.set_args(self._q8_buf, np.int32(0), np.int32(self._q8.shape[1]), self._units_buf,
                                  self._q4_buf, np.int32(0), np.int32(self._q4.shape[1]), self._units4_buf,
                                  self._coef, self._rows_buf, np.int32(self.n_pix), self._direct, np.int32(0),
                                  self._fidx, np.int32(self.n_pix), self._frame_buf)
         self._compact_grid = ((_round_up(-(-self.n_pix // LANES), COMPACT_GROUP),), (COMPACT_GROUP,))
-        # The exact path's maps: built on first use (see _exact_maps).
-        self.t_exact = _round_up(self.t_pad, LANES)
-        self._maps_buf = None
-        self._lp = cl.Buffer(ctx, mf.READ_ONLY, 3 * self.t_exact * 4)
-        self._blocks = cl.Buffer(ctx, mf.READ_ONLY, (self.t_exact // LANES) * 4)
-        self._queue = queue
-        self._pending = None  # (buf, frame) of a launch not yet waited for (relight(wait=False))
-        if self.exact:
-            self._exact_maps()
+
+    def _init_caches(self) -> None:
+        """Nothing cached yet: no environment's lights, no last relight; the call counters at 0."""
         self._env_key = None  # (shape, dtype, digest) of the environment whose lights are cached
         self._env_array = None  # that environment (identity: a frozen array is not hashed again)
         self._env_lights = None

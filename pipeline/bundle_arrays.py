@@ -30,37 +30,13 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
     """Geometry, maps and bundle arrays from prepared samples: (arrays, meta, geometry, triangulation)."""
     t0 = time.perf_counter()
     k, h, w = prep.images.shape[:3]
-    if opts.mesh is not None:
-        import trimesh
-
-        try:
-            mesh = trimesh.load(opts.mesh, force="mesh", process=False)
-        except Exception as exc:  # trimesh raises many kinds for a bad file
-            raise InputError(f"{opts.mesh}: not a mesh trimesh can read ({exc})") from None
-        depth, normal, cover = geometry.rasterize_mesh(mesh, (h, w), prep.origin)
-        mask = cover if prep.mask is None else (cover & prep.mask)
-        if mask.sum() < 16:
-            raise InputError(f"{opts.mesh}: the mesh covers {int(mask.sum())} pixels of the reference frame; "
-                             "it must be aligned to the reference camera (vertices: column, -row, height)")
-        _, albedo, resid = geometry.photometric_stereo(prep.images, prep.dirs, mask, prep.clipped)
-        geo = geometry.Geometry(normal=normal, albedo=albedo, depth=np.where(mask, depth, 0).astype(np.float32),
-                                mask=mask, fit_residual=resid)
-    elif prep.mask is not None:
-        normal, albedo, resid = geometry.photometric_stereo(prep.images, prep.dirs, prep.mask, prep.clipped)
-        geo = geometry.Geometry(normal=normal, albedo=albedo, depth=geometry.integrate_normals(normal, prep.mask),
-                                mask=prep.mask, fit_residual=resid)
-    else:
-        geo = geometry.estimate_geometry(prep.images, prep.dirs, prep.ambient, prep.clipped, prep.face_local,
-                                         progress=progress)
+    geo = _geometry(prep, opts, progress, (h, w))
     if opts.export_mesh:
-        from relight.imageio import atomic_path
-
-        out = Path(opts.export_mesh)
-        with atomic_path(out) as tmp:
-            geometry.height_field_mesh(geo.depth, geo.mask, prep.origin).export(str(tmp), file_type=out.suffix[1:]
-                                                                               or "ply")
+        _export_mesh(geo, prep.origin, opts.export_mesh)
     timings["geometry"] = time.perf_counter() - t0
 
+    # The large arrays (samples, maps) are rebound here as each step replaces them, so that the
+    # one they replace is freed: a helper's caller would keep it alive.
     t0 = time.perf_counter()
     pix = np.flatnonzero(geo.mask)
     samples = np.ascontiguousarray(prep.images.reshape(k, -1, 3)[:, pix], dtype=np.float32)
@@ -75,41 +51,24 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
         horizon = horizon_rows(geo.depth, geo.mask)
         timings["horizon"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    done = [0]
-
-    def cb(n):
-        done[0] += n
-        progress("maps", done[0], pix.size)
-
+    cb = _PixelProgress(progress, pix.size)
     made: dict = {}
     maps, texels, scale, samples = reflectance_maps(samples, normals, tri, opts, horizon, progress=cb, grid=geo.mask,
                                                     recipe_out=made, recipe_only=not opts.keep_maps)
     recipe = made.get("recipe")
     from relight.kernels import transport
-    from relight.kernels.bundle_format import encode_background
 
     rows = None
     if maps is None:
         # The default bundle stores the maps' recipe: the maps are made chunk by chunk for the
         # compact transport and dropped (no array of every pixel's maps is ever held).
-        from relight.kernels.recipe import recipe_maps
-
         timings["maps"] = time.perf_counter() - t1  # the fits; making the maps counts as transport
         t1 = time.perf_counter()
-        done[0] = 0
-
-        def make(index):  # texel-major float32 maps (the NumPy backend's transposed)
-            if opts.backend == "opencl":
-                return recipe_maps(recipe.subset(index), texel_major=True)
-            return recipe_maps(recipe.subset(index), backend=opts.backend, half=False).transpose(2, 1, 0)
-
-        compact = transport.factorize_stream(make, pix.size, opts.map_size, texels,
-                                             store_tolerance=opts.store_tolerance, progress=cb)
+        cb.done = 0
+        compact = _transport_from_recipe(recipe, pix.size, texels, opts, cb)
     else:
         timings["maps"] = time.perf_counter() - t1
-        if not np.isfinite(maps).all():
-            raise NumericalError("reflectance maps hold non-finite values; this is a bug, please report it")
-        maps = flush_subnormal_halves(maps.astype(np.float16, copy=False))
+        maps = _half_maps(maps)
         t1 = time.perf_counter()
         # The maps texel-major (what the bundle stores); the pixel-major copy only when kept: the
         # two together were the capture's peak memory.
@@ -120,6 +79,99 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
                                       store_tolerance=opts.store_tolerance)
     timings["transport"] = time.perf_counter() - t1
     t1 = time.perf_counter()
+    arrays, rec_meta = _bundle_arrays(prep, geo, pix=pix, normals=normals, tri=tri, texels=texels, compact=compact,
+                                      recipe=recipe, rows=rows, samples=samples, maps=maps, opts=opts)
+    meta = _bundle_meta(prep, opts, (k, h, w), pix.size, tri, scale, compact)
+    if recipe is not None:
+        meta["recipe"] = rec_meta
+    timings["landmarks"] = time.perf_counter() - t1
+    return arrays, meta, geo, tri
+
+
+def _geometry(prep: Prepared, opts: CaptureOptions, progress: Progress, shape: tuple[int, int]) -> geometry.Geometry:
+    """The head's geometry on the (h, w) reference grid: from the given mesh, from photometric
+    stereo inside the given mask, or estimated (photometric stereo and the head's mask)."""
+    if opts.mesh is not None:
+        return _mesh_geometry(prep, opts.mesh, shape)
+    if prep.mask is not None:
+        normal, albedo, resid = geometry.photometric_stereo(prep.images, prep.dirs, prep.mask, prep.clipped)
+        return geometry.Geometry(normal=normal, albedo=albedo, depth=geometry.integrate_normals(normal, prep.mask),
+                                 mask=prep.mask, fit_residual=resid)
+    return geometry.estimate_geometry(prep.images, prep.dirs, prep.ambient, prep.clipped, prep.face_local,
+                                      progress=progress)
+
+
+def _mesh_geometry(prep: Prepared, mesh_path, shape: tuple[int, int]) -> geometry.Geometry:
+    """Depth and normals from the mesh file at ``mesh_path`` rasterized on the (h, w) grid, albedo
+    from photometric stereo. Raises :class:`InputError` on an unreadable or misaligned mesh."""
+    import trimesh
+
+    h, w = shape
+    try:
+        mesh = trimesh.load(mesh_path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many kinds for a bad file
+        raise InputError(f"{mesh_path}: not a mesh trimesh can read ({exc})") from None
+    depth, normal, cover = geometry.rasterize_mesh(mesh, (h, w), prep.origin)
+    mask = cover if prep.mask is None else (cover & prep.mask)
+    if mask.sum() < 16:
+        raise InputError(f"{mesh_path}: the mesh covers {int(mask.sum())} pixels of the reference frame; "
+                         "it must be aligned to the reference camera (vertices: column, -row, height)")
+    _, albedo, resid = geometry.photometric_stereo(prep.images, prep.dirs, mask, prep.clipped)
+    return geometry.Geometry(normal=normal, albedo=albedo, depth=np.where(mask, depth, 0).astype(np.float32),
+                             mask=mask, fit_residual=resid)
+
+
+def _export_mesh(geo: geometry.Geometry, origin, path) -> None:
+    """Write the depth as a height-field mesh to ``path`` (its suffix names the format; ply without one)."""
+    from relight.imageio import atomic_path
+
+    out = Path(path)
+    with atomic_path(out) as tmp:
+        geometry.height_field_mesh(geo.depth, geo.mask, origin).export(str(tmp), file_type=out.suffix[1:] or "ply")
+
+
+class _PixelProgress:
+    """A progress callback for work done in chunks of pixels: reports the running count of ``total``."""
+
+    def __init__(self, progress: Progress, total: int):
+        self.progress = progress
+        self.total = total
+        self.done = 0
+
+    def __call__(self, n: int) -> None:
+        """Count ``n`` more pixels done and report."""
+        self.done += n
+        self.progress("maps", self.done, self.total)
+
+
+def _half_maps(maps: np.ndarray) -> np.ndarray:
+    """The maps as float16 with subnormals flushed; raises :class:`NumericalError` on a non-finite value."""
+    if not np.isfinite(maps).all():
+        raise NumericalError("reflectance maps hold non-finite values; this is a bug, please report it")
+    return flush_subnormal_halves(maps.astype(np.float16, copy=False))
+
+
+def _transport_from_recipe(recipe, n_pixels: int, texels, opts: CaptureOptions, cb: _PixelProgress):
+    """The compact transport of the maps the recipe makes, chunk by chunk (no full maps array held)."""
+    from relight.kernels import transport
+    from relight.kernels.recipe import recipe_maps
+
+    def make(index):  # texel-major float32 maps (the NumPy backend's transposed)
+        if opts.backend == "opencl":
+            return recipe_maps(recipe.subset(index), texel_major=True)
+        return recipe_maps(recipe.subset(index), backend=opts.backend, half=False).transpose(2, 1, 0)
+
+    return transport.factorize_stream(make, n_pixels, opts.map_size, texels,
+                                      store_tolerance=opts.store_tolerance, progress=cb)
+
+
+def _bundle_arrays(prep: Prepared, geo: geometry.Geometry, *, pix, normals, tri, texels, compact, recipe, rows,
+                   samples, maps, opts: CaptureOptions) -> tuple[dict, dict | None]:
+    """The bundle's arrays (name -> array, the landmarks found here) and the recipe's meta (None
+    without a recipe). ``pix``: (P,) flat indices of the head's pixels in the crop."""
+    from relight.kernels.bundle_format import encode_background
+    from relight.kernels.reflectance import stored_precision
+
     landmarks = _landmarks(prep, geo.mask)
     arrays = {
         "pixels": pix.astype(np.int32), "mask_crop": geo.mask,
@@ -136,6 +188,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
     }
     if compact.q4 is not None:
         arrays.update({"transport_v4": compact.q4, "transport_v4_scale": compact.q4_scale})
+    rec_meta = None
     if recipe is not None:  # what the maps are made of (~K + 100 bytes per pixel), not the maps
         from relight.kernels.recipe import recipe_arrays
 
@@ -145,6 +198,13 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
         arrays["maps_rows"] = rows
     if opts.keep_maps:
         arrays.update({"samples": samples.astype(np.float16), "maps": maps})
+    return arrays, rec_meta
+
+
+def _bundle_meta(prep: Prepared, opts: CaptureOptions, khw: tuple[int, int, int], n_pixels: int, tri, scale,
+                 compact) -> dict:
+    """The bundle's meta: the prepared capture's, plus what the maps and transport were made with."""
+    k, h, w = khw
     meta = dict(prep.meta)
     meta.update({
         "relight_version": __version__, "frame_size": list(prep.frame_size), "crop_origin": list(prep.origin),
@@ -156,7 +216,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
         "model_reach_deg": float(opts.model_reach) if opts.method == "full" and opts.extrapolation else 0.0,
         "light_adaptation": ("none" if not (opts.adaptation and opts.method == "full") else
                              "paper" if opts.paper_adaptation else "shading model"), "n_samples": int(k),
-        "n_pixels": int(pix.size),
+        "n_pixels": int(n_pixels),
         "n_black_lights": int(len(tri.vertices) - tri.n_samples), "units": "linear Rec.709, flash units",
         "conventions": "camera space +X right, +Y up, +Z toward the camera; maps are lat-long (OpenEXR)",
         "geometry": "mesh" if opts.mesh else "photometric stereo",
@@ -164,10 +224,7 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
         "transport_direct": compact.direct,
         "transport_rank_1pct": compact.rank_for(0.01),
     })
-    if recipe is not None:
-        meta["recipe"] = rec_meta
-    timings["landmarks"] = time.perf_counter() - t1
-    return arrays, meta, geo, tri
+    return meta
 
 
 def _landmarks(prep: Prepared, mask: np.ndarray) -> np.ndarray:

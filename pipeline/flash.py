@@ -135,15 +135,7 @@ def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
         raise InputError("the brightness trace holds non-finite values; the video is corrupt")
     if fps <= 0 or not np.isfinite(fps):
         raise InputError(f"frame rate {fps}: the video must state a positive frame rate")
-    if times is None:
-        times = np.arange(n) / fps
-    else:
-        times = np.asarray(times, dtype=np.float64)
-        if times.shape != (n,) or not np.isfinite(times).all() or (np.diff(times) <= 0).any():
-            raise InputError("frame times must be finite and increasing, one per frame of the trace")
-        rate = (n - 1) / (times[-1] - times[0])
-        if abs(rate - fps) > RATE_TOLERANCE * fps:
-            fps = rate  # the stated rate is not what the frames show (variable frame rate)
+    times, fps = _frame_times(times, n, fps)
     estimated = flash_hz is None
     if estimated:
         flash_hz = estimate_flash_hz(trace, fps, times) or DEFAULT_FLASH_HZ
@@ -151,6 +143,42 @@ def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
         raise InputError(f"--flash-hz {flash_hz}: must be above 0 and at most half the frame rate ({fps / 2:g})")
     s = fps / (2.0 * flash_hz)
     half = max(int(np.floor(s)), 1)
+    maxima, minima = _extrema(trace, half)
+    rejected = {"low_contrast": 0, "period": 0, "no_dark_neighbour": 0}
+    if minima.size == 0:
+        raise InputError("no dark (no-flash) frames found: the flash must blink slower than the camera "
+                         "films (check --flash-hz) and the room must be dark between flashes")
+    cand, cand_dark, cand_contrast = _contrast_filter(trace, maxima, minima, threshold, min_share, rejected)
+    if cand.size >= 3:
+        cand, cand_dark, cand_contrast = _period_filter(trace, times, cand, cand_dark, cand_contrast, half, minima,
+                                                        flash_hz, rejected)
+    if cand.size == 0:
+        reasons = ", ".join(f"{k}: {v}" for k, v in rejected.items() if v)
+        raise InputError(f"no usable flash found ({reasons or 'no bright frames'}); check that the flash "
+                         "lights the face, or lower --flash-threshold")
+    level, pulse_of = _lit_frames(trace, cand, cand_dark, cand_contrast, half, minima)
+    flash_frames = np.array(sorted(pulse_of), dtype=np.int64)
+    dark = _dark_frames(trace, minima, cand, cand_contrast, pulse_of)
+    return FlashFrames(peaks=cand.astype(np.int64), flash_frames=flash_frames, pulse_of=pulse_of, level=level,
+                       dark=dark, flash_hz=float(flash_hz), estimated=estimated, rejected=rejected)
+
+
+def _frame_times(times, n: int, fps: float) -> tuple[np.ndarray, float]:
+    """Each frame's time (N,) in seconds and the frame rate to use (Hz): the frames' mean rate when
+    it differs from the stated one. Raises :class:`InputError` on unusable ``times``."""
+    if times is None:
+        return np.arange(n) / fps, fps
+    times = np.asarray(times, dtype=np.float64)
+    if times.shape != (n,) or not np.isfinite(times).all() or (np.diff(times) <= 0).any():
+        raise InputError("frame times must be finite and increasing, one per frame of the trace")
+    rate = (n - 1) / (times[-1] - times[0])
+    if abs(rate - fps) > RATE_TOLERANCE * fps:
+        fps = rate  # the stated rate is not what the frames show (variable frame rate)
+    return times, fps
+
+
+def _extrema(trace: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """Frame indices of the trace's local maxima and minima in a window of +-``half`` frames."""
     size = 2 * half + 1
     is_max = (trace == maximum_filter1d(trace, size, mode="nearest"))
     is_min = (trace == minimum_filter1d(trace, size, mode="nearest"))
@@ -159,11 +187,12 @@ def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
     is_min &= np.r_[True, trace[1:] != trace[:-1]] | ~np.r_[False, is_min[:-1]]
     maxima = np.flatnonzero(is_max & ~is_min)
     minima = np.flatnonzero(is_min & ~is_max)
-    rejected = {"low_contrast": 0, "period": 0, "no_dark_neighbour": 0}
-    if minima.size == 0:
-        raise InputError("no dark (no-flash) frames found: the flash must blink slower than the camera "
-                         "films (check --flash-hz) and the room must be dark between flashes")
+    return maxima, minima
 
+
+def _contrast_filter(trace, maxima, minima, threshold: float, min_share: float, rejected: dict):
+    """Flash candidates that stand out of the dark level around them: (peaks, dark levels,
+    contrasts), each (F,); counts the dropped ones in ``rejected``."""
     # Dark level around each candidate: mean of the nearest minimum before and after.
     pos = np.searchsorted(minima, maxima)
     before = np.where(pos > 0, minima[np.maximum(pos - 1, 0)], -1)
@@ -184,28 +213,31 @@ def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
     low = ok & (contrast < max(threshold, min_share * typical))
     rejected["low_contrast"] = int(low.sum())
     keep = ok & ~low
-    cand = maxima[keep]
-    cand_dark = dark_level[keep]
-    cand_contrast = contrast[keep]
+    return maxima[keep], dark_level[keep], contrast[keep]
 
+
+def _period_filter(trace, times, cand, cand_dark, cand_contrast, half: int, minima, flash_hz: float,
+                   rejected: dict):
+    """Drop candidates whose gaps to both neighbours are off the blink period; returns the kept
+    (peaks, dark levels, contrasts) and counts the dropped ones in ``rejected``."""
     # Period filter: both gaps far from a whole number of blink periods -> a spurious extremum.
     # Whole multiples, because a dropped flash between two good ones doubles their gap. In
     # seconds, from the frames' times (evenly spaced frames: 2 s frames a period, s / 2 off).
-    if cand.size >= 3:
-        gaps = np.diff(_pulse_times(trace, times, cand, cand_dark, cand_contrast, half, minima))
-        period = 1.0 / flash_hz
-        periods = np.maximum(np.round(gaps / period), 1.0)
-        off = np.abs(gaps - periods * period) > period / 4
-        prev_bad = np.r_[True, off]
-        next_bad = np.r_[off, True]
-        bad = prev_bad & next_bad
-        rejected["period"] = int(bad.sum())
-        cand, cand_dark, cand_contrast = cand[~bad], cand_dark[~bad], cand_contrast[~bad]
-    if cand.size == 0:
-        reasons = ", ".join(f"{k}: {v}" for k, v in rejected.items() if v)
-        raise InputError(f"no usable flash found ({reasons or 'no bright frames'}); check that the flash "
-                         "lights the face, or lower --flash-threshold")
+    gaps = np.diff(_pulse_times(trace, times, cand, cand_dark, cand_contrast, half, minima))
+    period = 1.0 / flash_hz
+    periods = np.maximum(np.round(gaps / period), 1.0)
+    off = np.abs(gaps - periods * period) > period / 4
+    prev_bad = np.r_[True, off]
+    next_bad = np.r_[off, True]
+    bad = prev_bad & next_bad
+    rejected["period"] = int(bad.sum())
+    return cand[~bad], cand_dark[~bad], cand_contrast[~bad]
 
+
+def _lit_frames(trace, cand, cand_dark, cand_contrast, half: int, minima) -> tuple[np.ndarray, dict]:
+    """Each frame's share of its flash's peak contrast, level (N,), and frame -> flash index for
+    the frames a kept flash lit for most of their exposure."""
+    n = trace.size
     level = np.zeros(n)
     pulse_of: dict[int, int] = {}
     for k, (peak, dark, con) in enumerate(zip(cand, cand_dark, cand_contrast, strict=True)):
@@ -217,9 +249,12 @@ def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
                     continue
                 pulse_of[j] = k
                 level[j] = min(share, 1.0) if j != peak else 1.0
-    flash_frames = np.array(sorted(pulse_of), dtype=np.int64)
+    return level, pulse_of
 
-    # Dark frames: the minima plus neighbours with almost no flash light.
+
+def _dark_frames(trace, minima, cand, cand_contrast, pulse_of: dict) -> np.ndarray:
+    """Sorted no-flash frames: the minima plus neighbours with almost no flash light."""
+    n = trace.size
     dark_set = set(int(m) for m in minima)
     for m in minima:
         k = int(np.searchsorted(cand, m))
@@ -230,9 +265,7 @@ def separate(trace: np.ndarray, fps: float, flash_hz: float | None = None,
         for j in (m - 1, m + 1):
             if 0 <= j < n and j not in pulse_of and trace[j] - trace[m] < DARK_SHARE * con:
                 dark_set.add(j)
-    dark = np.array(sorted(dark_set - set(pulse_of)), dtype=np.int64)
-    return FlashFrames(peaks=cand.astype(np.int64), flash_frames=flash_frames, pulse_of=pulse_of, level=level,
-                       dark=dark, flash_hz=float(flash_hz), estimated=estimated, rejected=rejected)
+    return np.array(sorted(dark_set - set(pulse_of)), dtype=np.int64)
 
 
 def _pulse_times(trace, times, peaks, dark, contrast, half: int, minima) -> np.ndarray:

@@ -142,9 +142,47 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
     det = min(1.0, DETECT_MAX_SIDE / max(size))
     det_size = (max(int(round(size[0] * det)), 1), max(int(round(size[1] * det)), 1))
     hold = info.coded_size[0] * info.coded_size[1] * 3 * head_n <= HOLD_HEAD_BYTES
+    lut = decode_srgb8(np.arange(256, dtype=np.uint8))
+    head_raw, head_rgb, means, darkest, colour = _read_head(frames, head_n, det, det_size, hold, lut)
+    if len(head_rgb) < 8:
+        raise InputError(f"{path}: {len(head_rgb)} frames; a capture needs several seconds of video")
+    notes: list[str] = [f"video colour: {colour.describe()}"] + [f"video colour: {n}" for n in colour.notes]
+    order = np.argsort(means)
+    face, face_source = _find_face(face, head_rgb, order, det, size)
+    still_index = int(order[0])
+    sphere_hint, sphere_source = _find_sphere(sphere_hint, head_rgb, order, still_index, face, darkest[1],
+                                              det, det_size, size)
+    still_rgb = head_rgb[still_index] if det == 1.0 else None
+    del head_rgb
+
+    lay = _layout(face, sphere_hint, size, face_pixels, notes)
+    s, work, crop = lay.scale, lay.work, lay.crop
+    face_w = None if face is None else _scaled_box(face, s, work)
+    guess_w = None if sphere_hint is None else tuple(float(v) * s for v in sphere_hint)
+    still = still_rgb if s == 1.0 and still_rgb is not None else whole_frame(darkest[1]).resized(work).rgb()
+    del darkest
+
+    if not hold:
+        frames.close()  # the first seconds are decoded again: memory bounded at any frame size
+    source = _chain(head_raw, frames) if hold else read_frames_raw(path)
+    crops, scrops, fmean, trace, stamps = _decode_all(source, lay, _face_window(face_w or crop, crop), lut, progress)
+    times = frame_times(stamps, info.fps)
+    if times is None:
+        notes.append("frame timestamps missing or not increasing; frames taken as evenly spaced at "
+                     f"{info.fps:g} fps")
+        times = np.arange(len(crops)) / info.fps
+    return Ingested(path=str(path), fps=info.fps, size=work, frame_mean=np.asarray(fmean), crop=crop,
+                    crops=crops, sphere_box=lay.sbox, sphere_crops=scrops, face_box=face_w, face_source=face_source,
+                    sphere_guess=guess_w, sphere_source=sphere_source, still=still, still_index=still_index,
+                    trace=np.asarray(trace), colour=colour, times=times, scale=s, source_size=size, notes=notes)
+
+
+def _read_head(frames, head_n: int, det: float, det_size, hold: bool, lut):
+    """Decode the first ``head_n`` frames: (raw frames kept when ``hold``, else empty; RGB copies
+    (H, W, 3) uint8 at the detection scale ``det``; each frame's mean linear brightness; (index,
+    raw frame) of the darkest; the stream's :class:`VideoColour`, None without frames)."""
     head_raw, head_rgb, means = [], [], []
     darkest, colour = None, None
-    lut = decode_srgb8(np.arange(256, dtype=np.uint8))
     for f in frames:
         if colour is None:
             colour = video_colour(f)
@@ -157,12 +195,12 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
             head_raw.append(f)
         if len(head_rgb) >= head_n:
             break
-    if len(head_rgb) < 8:
-        raise InputError(f"{path}: {len(head_rgb)} frames; a capture needs several seconds of video")
-    notes: list[str] = [f"video colour: {colour.describe()}"] + [f"video colour: {n}" for n in colour.notes]
-    order = np.argsort(means)
+    return head_raw, head_rgb, means, darkest, colour
 
-    # The face: given, or Haar on the darkest early frames (no flash: the paper's reference).
+
+def _find_face(face, head_rgb: list, order: np.ndarray, det: float, size):
+    """The face box (x, y, w, h) in video pixels and its source: given (clipped to the frame), Haar
+    on the darkest early frames (no flash: the paper's reference), or (None, 'none')."""
     face_source = "given" if face is not None else "none"
     if face is None:
         for i in order[:8]:
@@ -173,10 +211,13 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
                 break
     else:
         face = _clip_box(face, size)
-    still_index = int(order[0])
+    return face, face_source
 
-    # The sphere: given, or circles in the darkest frame checked against where the flashes
-    # appear in the brightest ones.
+
+def _find_sphere(sphere_hint, head_rgb: list, order: np.ndarray, still_index: int, face, darkest_frame,
+                 det: float, det_size, size):
+    """The mirror sphere (cx, cy, r) in video pixels and its source: given, or circles in the darkest
+    frame checked against where the flashes appear in the brightest ones, or (None, 'none')."""
     sphere_source = "given" if sphere_hint is not None else "none"
     if sphere_hint is None:
         bright = [head_rgb[i] for i in order[::-1][:12]]
@@ -189,11 +230,30 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
                 # Found on a scaled-down copy: its outline refined on the video's own pixels (left
                 # to the later, working-scale refinement, a guess 4 px off measured 2.2 deg mean
                 # light-direction error on a downscaled synth capture; refined here, 0.85).
-                sphere_hint = _refine_on(darkest[1], sphere_hint, size)
-    still_rgb = head_rgb[still_index] if det == 1.0 else None
-    del head_rgb
+                sphere_hint = _refine_on(darkest_frame, sphere_hint, size)
+    return sphere_hint, sphere_source
 
-    # The working scale: the head at about ``face_pixels`` pixels.
+
+@dataclass
+class _Layout:
+    """The working scale and the stored regions (x, y, w, h), in video pixels (``*_full``) and in
+    the working frame's (``crop``, ``sbox``).
+
+    scale : working pixels per video pixel. work : (W, H) of the working frame.
+    sbox_full / sbox : the sphere's region, None without a sphere.
+    """
+
+    scale: float
+    work: tuple[int, int]
+    crop_full: tuple[int, int, int, int]
+    crop: tuple[int, int, int, int]
+    sbox_full: tuple[int, int, int, int] | None
+    sbox: tuple[int, int, int, int] | None
+
+
+def _layout(face, sphere_hint, size, face_pixels: int | None, notes: list[str]) -> _Layout:
+    """The working scale (the head at about ``face_pixels`` pixels) and the face and sphere regions;
+    notes a downscale and a missing face in ``notes``."""
     crop_full = (0, 0, size[0], size[1]) if face is None else face_crop(face, size)
     head_est = HEAD_SHARE_OF_CROP * crop_full[2] * crop_full[3]
     s = 1.0 if face_pixels is None or head_est <= face_pixels else float(np.sqrt(face_pixels / head_est))
@@ -213,20 +273,24 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
         pad = max(0.35 * r, 6 / s)
         sbox_full = _clip_box((cx - r - pad, cy - r - pad, 2 * (r + pad), 2 * (r + pad)), size)
         sbox = _scaled_box(sbox_full, s, work)
-    face_w = None if face is None else _scaled_box(face, s, work)
-    guess_w = None if sphere_hint is None else tuple(float(v) * s for v in sphere_hint)
-    still = still_rgb if s == 1.0 and still_rgb is not None else whole_frame(darkest[1]).resized(work).rgb()
-    del darkest
+    return _Layout(scale=s, work=work, crop_full=crop_full, crop=crop, sbox_full=sbox_full, sbox=sbox)
 
+
+def _face_window(face_w, crop) -> tuple[slice, slice]:
+    """(rows, cols) of the face box ``face_w`` (working frame) inside the stored region ``crop``."""
+    fx, fy, fw, fh = face_w
+    fx, fy = fx - crop[0], fy - crop[1]
+    return slice(max(fy, 0), fy + fh), slice(max(fx, 0), fx + fw)
+
+
+def _decode_all(source, lay: _Layout, face_window: tuple[slice, slice], lut, progress):
+    """The main pass over every frame: (face crops, sphere crops or None, each frame's mean linear
+    brightness, the face's brightness trace, presentation times)."""
     # The face's brightness trace is read from the luma as frames pass (decoded as if grey:
     # monotone in the brightness and exact on grey, which is all a trace needs).
-    fx, fy, fw, fh = face_w or crop
-    fx, fy = fx - crop[0], fy - crop[1]
-    face_rows, face_cols = slice(max(fy, 0), fy + fh), slice(max(fx, 0), fx + fw)
+    s, crop, crop_full, sbox, sbox_full = lay.scale, lay.crop, lay.crop_full, lay.sbox, lay.sbox_full
+    face_rows, face_cols = face_window
     crops, scrops, fmean, trace, stamps = [], [] if sbox else None, [], [], []
-    if not hold:
-        frames.close()  # the first seconds are decoded again: memory bounded at any frame size
-    source = _chain(head_raw, frames) if hold else read_frames_raw(path)
     for f in source:
         if s == 1.0:
             c = crop_frame(f, crop)
@@ -242,15 +306,7 @@ def ingest(path, *, face: tuple[int, int, int, int] | None = None,
         stamps.append(f.time)
         if progress is not None:
             progress(1)
-    times = frame_times(stamps, info.fps)
-    if times is None:
-        notes.append("frame timestamps missing or not increasing; frames taken as evenly spaced at "
-                     f"{info.fps:g} fps")
-        times = np.arange(len(crops)) / info.fps
-    return Ingested(path=str(path), fps=info.fps, size=work, frame_mean=np.asarray(fmean), crop=crop,
-                    crops=crops, sphere_box=sbox, sphere_crops=scrops, face_box=face_w, face_source=face_source,
-                    sphere_guess=guess_w, sphere_source=sphere_source, still=still, still_index=still_index,
-                    trace=np.asarray(trace), colour=colour, times=times, scale=s, source_size=size, notes=notes)
+    return crops, scrops, fmean, trace, stamps
 
 
 def _refine_on(frame, circle, size, rounds: int = 2):

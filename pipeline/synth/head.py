@@ -166,134 +166,202 @@ def build_head(width: int, height: int, seed: int = 0) -> Head:
     """Sample the procedural head on a ``width x height`` grid (skin tone and texture vary with ``seed``)."""
     (cx, cy), s = head_placement(width, height)
     rng = np.random.default_rng([seed, 0x4EAD])
+    window, u, v = _window_grid(width, height, cx, cy, s)
+    alpha, mask = _coverage(u, v, s)
+    hz, nrm = _height_and_normals(u, v, s, rng)
+
+    # ---- albedo and skin parameters -------------------------------------------------
+    skin = _Skin(u, v, s, rng)
+    lips = skin.paint_lips()
+    brows = skin.paint_brows(rng)
+    eyes = skin.paint_eyes()
+    skin.paint_nostrils()
+    skin.paint_moles(rng)
+    hair_w = skin.paint_hair(rng)
+    skin.paint_ears_and_neck()
+
+    off = ~mask
+    nrm[off] = 0.0
+    skin.albedo[off] = 0.0
+
+    def frame(a, fill=0.0):
+        return _embed(a, window, (width, height), fill)
+
+    regions = {"eyes": eyes & mask, "hair": (hair_w > 0.5) & mask, "brows": (brows > 0.5) & mask,
+               "lips": (lips > 0.5) & mask}
+    return Head(
+        height=frame(np.where(mask, hz, NO_SURFACE), NO_SURFACE), alpha=frame(alpha), mask=frame(mask),
+        normal=frame(nrm), albedo=frame(np.clip(skin.albedo, 0.0, 1.0)),
+        specular=frame(np.where(mask, skin.spec, 0.0)), roughness=frame(np.clip(skin.rough, 0.05, 1.0), 1.0),
+        wrap=frame(skin.wrap), center=(float(cx), float(cy)), scale=float(s),
+        regions={k: frame(v) for k, v in regions.items()},
+    )
+
+
+def _window_grid(full_w: int, full_h: int, cx: float, cy: float, s: float):
+    """The window the head can reach, ``(wx0, wx1, wy0)`` (frame px; it runs to the frame's
+    bottom), and the head coordinates ``u``, ``v`` (h, w) float64 of its pixel centres."""
     # Work on the window the head can reach (ears at |u| < 0.84, crown at v = 1; the neck runs
     # to the bottom edge) and embed it in the frame at the end.
-    full_w, full_h = width, height
     wx0 = max(int(np.floor(cx - 0.9 * s)) - 2, 0)
     wx1 = min(int(np.ceil(cx + 0.9 * s)) + 3, full_w)
     wy0 = max(int(np.floor(cy - 1.02 * s)) - 2, 0)
-    width, height = wx1 - wx0, full_h - wy0
     xs = np.arange(wx0, wx1, dtype=np.float64)
     ys = np.arange(wy0, full_h, dtype=np.float64)
     u = (xs[None, :] - cx) / s
     v = (cy - ys[:, None]) / s
     u, v = np.broadcast_arrays(u, v)
+    return (wx0, wx1, wy0), u, v
 
-    # Silhouette coverage by supersampling.
+
+def _coverage(u: np.ndarray, v: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(alpha (h, w) float32 0-1: the silhouette's coverage by supersampling, mask (h, w) bool:
+    pixel centres on the head) at head coordinates ``u``, ``v`` (``s``: px per head unit)."""
     k = ALPHA_SUPERSAMPLE
     off = (np.arange(k) + 0.5) / k - 0.5
-    alpha = np.zeros((height, width), dtype=np.float64)
+    alpha = np.zeros(u.shape, dtype=np.float64)
     for oy in off:
         for ox in off:
             alpha += inside(u + ox / s, v - oy / s)
     alpha = (alpha / (k * k)).astype(np.float32)
-    mask = inside(u, v)
+    return alpha, inside(u, v)
 
+
+def _height_and_normals(u: np.ndarray, v: np.ndarray, s: float,
+                        rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(height (h, w) float64 px toward the camera, unit normals (h, w, 3) float64 with the skin's
+    micro-relief, slopes capped at MAX_SLOPE) at head coordinates ``u``, ``v``."""
     hz = height_units(u, v) * s
     # Normals from central differences of the continuous height (half a pixel each way).
     e = 0.5 / s
     gx = (height_units(u + e, v) - height_units(u - e, v)) * s  # dz/dx per pixel
     gy = (height_units(u, v + e) - height_units(u, v - e)) * s  # dz/d(up) per pixel
     # Micro-relief: pores and fine skin texture make the specular lobe break up a little.
-    bump = _noise(rng, (height, width), 0.8) * (0.004 * s / 100.0)
+    bump = _noise(rng, u.shape, 0.8) * (0.004 * s / 100.0)
     gx = gx + np.gradient(bump, axis=1)
     gy = gy - np.gradient(bump, axis=0)
     slope = np.hypot(gx, gy)
     limit = np.where(slope > MAX_SLOPE, MAX_SLOPE / np.maximum(slope, EPS_NORM), 1.0)
     nrm = np.stack([-gx * limit, -gy * limit, np.ones_like(gx)], axis=-1)
     nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    return hz, nrm
 
-    # ---- albedo and skin parameters -------------------------------------------------
-    tone = 1.0 + 0.06 * rng.standard_normal()
-    skin = np.array([0.62, 0.42, 0.33]) * tone
-    albedo = np.broadcast_to(skin, (height, width, 3)).copy()
-    albedo *= (1.0 + 0.035 * _noise(rng, (height, width), 6.0 * s / 162))[..., None]
-    albedo *= (1.0 + 0.03 * _noise(rng, (height, width), 0.7))[..., None]
-    blush = _pair(u, v, 0.36, -0.25, 0.12, 0.10)
-    albedo += blush[..., None] * np.array([0.06, -0.03, -0.02])
-    spec = np.full((height, width), 0.35)
-    rough = np.full((height, width), 0.38)
-    wrap = np.broadcast_to(np.array([0.30, 0.14, 0.09]), (height, width, 3)).copy()
-    # Oily T-zone: forehead and nose.
-    tzone = np.clip(_g(u, v, 0.0, 0.35, 0.25, 0.15) + _g(u, v, 0.0, -0.2, 0.06, 0.16), 0, 1)
-    spec += 0.25 * tzone
-    rough -= 0.06 * tzone
 
-    def paint(weight, colour, ks=None, r=None, wr=None):
+def _embed(a: np.ndarray, window: tuple[int, int, int], full_size: tuple[int, int], fill=0.0) -> np.ndarray:
+    """The window's array ``a`` placed in a (H, W, ...) frame of ``fill`` (float32, or bool for a mask)."""
+    wx0, wx1, wy0 = window
+    full_w, full_h = full_size
+    out = np.full((full_h, full_w, *a.shape[2:]), fill, dtype=np.float32 if a.dtype != bool else bool)
+    out[wy0:, wx0:wx1] = a
+    return out
+
+
+class _Skin:
+    """The skin maps painted on the head's window, float64: ``albedo`` (h, w, 3) linear,
+    ``spec`` and ``rough`` (h, w), ``wrap`` (h, w, 3); each ``paint_*`` adds one feature at the
+    head coordinates ``u``, ``v`` (h, w) in place (in the order :func:`build_head` calls them:
+    the seeded draws follow it)."""
+
+    def __init__(self, u: np.ndarray, v: np.ndarray, s: float, rng: np.random.Generator):
+        self.u, self.v = u, v
+        self.px = 1.0 / s  # one pixel in head units, for soft edges
+        shape = u.shape
+        tone = 1.0 + 0.06 * rng.standard_normal()
+        self.skin = np.array([0.62, 0.42, 0.33]) * tone
+        albedo = np.broadcast_to(self.skin, (*shape, 3)).copy()
+        albedo *= (1.0 + 0.035 * _noise(rng, shape, 6.0 * s / 162))[..., None]
+        albedo *= (1.0 + 0.03 * _noise(rng, shape, 0.7))[..., None]
+        blush = _pair(u, v, 0.36, -0.25, 0.12, 0.10)
+        albedo += blush[..., None] * np.array([0.06, -0.03, -0.02])
+        self.albedo = albedo
+        self.spec = np.full(shape, 0.35)
+        self.rough = np.full(shape, 0.38)
+        self.wrap = np.broadcast_to(np.array([0.30, 0.14, 0.09]), (*shape, 3)).copy()
+        # Oily T-zone: forehead and nose.
+        tzone = np.clip(_g(u, v, 0.0, 0.35, 0.25, 0.15) + _g(u, v, 0.0, -0.2, 0.06, 0.16), 0, 1)
+        self.spec += 0.25 * tzone
+        self.rough -= 0.06 * tzone
+
+    def paint(self, weight, colour, ks=None, r=None, wr=None) -> None:
+        """Blend ``colour`` (and specular ``ks``, roughness ``r``, wrap ``wr``) in by ``weight`` (h, w), clipped 0-1."""
         wgt = np.clip(weight, 0.0, 1.0)
-        albedo[:] = albedo * (1 - wgt[..., None]) + wgt[..., None] * np.asarray(colour)
+        self.albedo[:] = self.albedo * (1 - wgt[..., None]) + wgt[..., None] * np.asarray(colour)
         if ks is not None:
-            spec[:] = spec * (1 - wgt) + wgt * ks
+            self.spec[:] = self.spec * (1 - wgt) + wgt * ks
         if r is not None:
-            rough[:] = rough * (1 - wgt) + wgt * r
+            self.rough[:] = self.rough * (1 - wgt) + wgt * r
         if wr is not None:
-            wrap[:] = wrap * (1 - wgt[..., None]) + wgt[..., None] * np.asarray(wr)
+            self.wrap[:] = self.wrap * (1 - wgt[..., None]) + wgt[..., None] * np.asarray(wr)
 
-    px = 1.0 / s  # one pixel in head units, for soft edges
+    def soft_inside(self, signed):
+        """(h, w) 0-1: inside where ``signed`` < 0 (head units), with a ~1 px anti-aliased edge."""
+        return np.clip(0.5 - signed / (1.5 * self.px), 0.0, 1.0)
 
-    def soft_inside(signed):  # signed < 0 inside; ~1 px anti-aliased edge
-        return np.clip(0.5 - signed / (1.5 * px), 0.0, 1.0)
+    def paint_lips(self) -> np.ndarray:
+        """Paint the lips and the line between them; returns the lips' weight (h, w)."""
+        u, v = self.u, self.v
+        lip_d = np.maximum(((u / 0.125) ** 2 + ((v + 0.545) / 0.07) ** 2), 0.0)
+        lips = self.soft_inside((np.sqrt(lip_d) - 1.0) * 0.06)
+        self.paint(lips * 0.85, (0.50, 0.20, 0.20), ks=0.5, r=0.3, wr=(0.35, 0.15, 0.1))
+        self.paint(self.soft_inside(np.abs(v + 0.542) - 0.004) * (np.abs(u) < 0.11), (0.12, 0.05, 0.05))
+        return lips
 
-    # Lips.
-    lip_d = np.maximum(((u / 0.125) ** 2 + ((v + 0.545) / 0.07) ** 2), 0.0)
-    lips = soft_inside((np.sqrt(lip_d) - 1.0) * 0.06)
-    paint(lips * 0.85, (0.50, 0.20, 0.20), ks=0.5, r=0.3, wr=(0.35, 0.15, 0.1))
-    paint(soft_inside(np.abs(v + 0.542) - 0.004) * (np.abs(u) < 0.11), (0.12, 0.05, 0.05))
-    # Eyebrows: arcs above the eyes, with strands.
-    strands = 0.9 + 0.15 * _noise(rng, (height, width), 0.6)
-    brows = np.zeros((height, width))
-    for sgn in (-1.0, 1.0):
-        du = (u - sgn * 0.29) / 0.17
-        arc = 0.15 + 0.035 * (1 - du**2)
-        band = soft_inside(np.abs(v - arc) - 0.03 * (1 - 0.5 * du**2)) * soft_inside(np.abs(du) - 1.0)
-        brows = np.maximum(brows, band)
-    paint(brows * np.clip(strands, 0, 1), (0.035, 0.025, 0.02), ks=0.1, r=0.5, wr=(0.05, 0.05, 0.05))
-    # Eyes: almond opening with sclera, iris, pupil; dark lash line on the upper lid.
-    eyes = np.zeros((height, width), dtype=bool)
-    for sgn in (-1.0, 1.0):
-        du = (u - sgn * 0.29) / 0.105
-        lid = 0.042 * np.sqrt(np.clip(1 - du**2, 0, None))
-        dv = v - 0.0
-        opening = soft_inside(np.maximum(np.abs(dv) - lid, (np.abs(du) - 1.0) * 0.105))
-        eyes |= opening > 0.5
-        paint(opening, (0.74, 0.71, 0.67), ks=1.0, r=0.08, wr=(0.0, 0.0, 0.0))
-        rr = np.hypot(u - sgn * 0.29, v)
-        paint(opening * soft_inside(rr - 0.040), (0.20, 0.12, 0.06))
-        paint(opening * soft_inside(rr - 0.017), (0.015, 0.012, 0.01))
-        lash = soft_inside(np.abs(dv - lid) - 0.007) * soft_inside(np.abs(du) - 1.05) * (dv > -0.01)
-        paint(lash, (0.03, 0.02, 0.02), ks=0.05, r=0.5)
-    # Nostrils.
-    for sgn in (-1.0, 1.0):
-        paint(soft_inside(np.hypot((u - sgn * 0.042) / 0.028, (v + 0.385) / 0.013) * 0.013 - 0.013),
-              (0.06, 0.03, 0.03), ks=0.05)
-    # Moles (seeded): a few small dark spots on the skin.
-    for _ in range(3):
-        mu, mv = rng.uniform(-0.5, 0.5), rng.uniform(-0.7, 0.35)
-        paint(0.8 * soft_inside(np.hypot(u - mu, v - mv) - 0.012), (0.25, 0.14, 0.1))
-    # Hair (above the hairline and at the sides of the skull).
-    hair_w = _smoothstep(-0.015, 0.015, v - hairline(u)) * (_skull_r2(u, v) < 1.05)
-    hair_strands = np.clip(0.85 + 0.3 * _noise(rng, (height, width), 0.8), 0.3, 1.3)
-    paint(hair_w, (0.075, 0.048, 0.032), ks=0.2, r=0.45, wr=(0.05, 0.05, 0.05))
-    albedo *= np.where(hair_w > 0.5, hair_strands, 1.0)[..., None]
-    # Ears a touch redder, the neck a touch darker.
-    paint(0.5 * (_ear_r2(u, v) < 1.0) * (_skull_r2(u, v) >= 1.0), skin * np.array([1.05, 0.9, 0.88]))
-    paint(0.4 * _smoothstep(-0.95, -1.2, v), skin * 0.85)
+    def paint_brows(self, rng: np.random.Generator) -> np.ndarray:
+        """Paint the eyebrows: arcs above the eyes, with strands; returns their weight (h, w)."""
+        u, v = self.u, self.v
+        strands = 0.9 + 0.15 * _noise(rng, u.shape, 0.6)
+        brows = np.zeros(u.shape)
+        for sgn in (-1.0, 1.0):
+            du = (u - sgn * 0.29) / 0.17
+            arc = 0.15 + 0.035 * (1 - du**2)
+            band = self.soft_inside(np.abs(v - arc) - 0.03 * (1 - 0.5 * du**2)) * self.soft_inside(np.abs(du) - 1.0)
+            brows = np.maximum(brows, band)
+        self.paint(brows * np.clip(strands, 0, 1), (0.035, 0.025, 0.02), ks=0.1, r=0.5, wr=(0.05, 0.05, 0.05))
+        return brows
 
-    off = ~mask
-    nrm[off] = 0.0
-    albedo[off] = 0.0
+    def paint_eyes(self) -> np.ndarray:
+        """Paint the eyes: almond opening with sclera, iris, pupil; dark lash line on the upper lid.
+        Returns the openings (h, w) bool."""
+        u, v = self.u, self.v
+        eyes = np.zeros(u.shape, dtype=bool)
+        for sgn in (-1.0, 1.0):
+            du = (u - sgn * 0.29) / 0.105
+            lid = 0.042 * np.sqrt(np.clip(1 - du**2, 0, None))
+            dv = v - 0.0
+            opening = self.soft_inside(np.maximum(np.abs(dv) - lid, (np.abs(du) - 1.0) * 0.105))
+            eyes |= opening > 0.5
+            self.paint(opening, (0.74, 0.71, 0.67), ks=1.0, r=0.08, wr=(0.0, 0.0, 0.0))
+            rr = np.hypot(u - sgn * 0.29, v)
+            self.paint(opening * self.soft_inside(rr - 0.040), (0.20, 0.12, 0.06))
+            self.paint(opening * self.soft_inside(rr - 0.017), (0.015, 0.012, 0.01))
+            lash = self.soft_inside(np.abs(dv - lid) - 0.007) * self.soft_inside(np.abs(du) - 1.05) * (dv > -0.01)
+            self.paint(lash, (0.03, 0.02, 0.02), ks=0.05, r=0.5)
+        return eyes
 
-    def frame(a, fill=0.0):
-        out = np.full((full_h, full_w, *a.shape[2:]), fill, dtype=np.float32 if a.dtype != bool else bool)
-        out[wy0:, wx0:wx1] = a
-        return out
+    def paint_nostrils(self) -> None:
+        """Paint the nostrils."""
+        u, v = self.u, self.v
+        for sgn in (-1.0, 1.0):
+            self.paint(self.soft_inside(np.hypot((u - sgn * 0.042) / 0.028, (v + 0.385) / 0.013) * 0.013 - 0.013),
+                       (0.06, 0.03, 0.03), ks=0.05)
 
-    regions = {"eyes": eyes & mask, "hair": (hair_w > 0.5) & mask, "brows": (brows > 0.5) & mask,
-               "lips": (lips > 0.5) & mask}
-    return Head(
-        height=frame(np.where(mask, hz, NO_SURFACE), NO_SURFACE), alpha=frame(alpha), mask=frame(mask),
-        normal=frame(nrm), albedo=frame(np.clip(albedo, 0.0, 1.0)),
-        specular=frame(np.where(mask, spec, 0.0)), roughness=frame(np.clip(rough, 0.05, 1.0), 1.0),
-        wrap=frame(wrap), center=(float(cx), float(cy)), scale=float(s),
-        regions={k: frame(v) for k, v in regions.items()},
-    )
+    def paint_moles(self, rng: np.random.Generator) -> None:
+        """Paint moles (seeded): a few small dark spots on the skin."""
+        for _ in range(3):
+            mu, mv = rng.uniform(-0.5, 0.5), rng.uniform(-0.7, 0.35)
+            self.paint(0.8 * self.soft_inside(np.hypot(self.u - mu, self.v - mv) - 0.012), (0.25, 0.14, 0.1))
+
+    def paint_hair(self, rng: np.random.Generator) -> np.ndarray:
+        """Paint the hair (above the hairline, at the skull's sides) with strands; returns its weight (h, w)."""
+        u, v = self.u, self.v
+        hair_w = _smoothstep(-0.015, 0.015, v - hairline(u)) * (_skull_r2(u, v) < 1.05)
+        hair_strands = np.clip(0.85 + 0.3 * _noise(rng, u.shape, 0.8), 0.3, 1.3)
+        self.paint(hair_w, (0.075, 0.048, 0.032), ks=0.2, r=0.45, wr=(0.05, 0.05, 0.05))
+        self.albedo *= np.where(hair_w > 0.5, hair_strands, 1.0)[..., None]
+        return hair_w
+
+    def paint_ears_and_neck(self) -> None:
+        """Paint the ears a touch redder, the neck a touch darker."""
+        u, v = self.u, self.v
+        self.paint(0.5 * (_ear_r2(u, v) < 1.0) * (_skull_r2(u, v) >= 1.0), self.skin * np.array([1.05, 0.9, 0.88]))
+        self.paint(0.4 * _smoothstep(-0.95, -1.2, v), self.skin * 0.85)
