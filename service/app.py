@@ -1,7 +1,7 @@
 """``relight-serve``: the frame service (FastAPI + uvicorn).
 
 One process keeps a bundle loaded (its relighter and kernels shared) and relights frames one at a
-time under the engine's lock (:class:`~relight.service.state.Engine`; the per-frame path already
+time under the engine's lock (:class:`~relight.service.state.FrameService`; the per-frame path already
 uses both cores): each websocket or WebRTC stream in a per-frame path of its own (its tracker and
 live light), every ``POST /v1/relight`` as a first frame in a fresh one. Endpoints:
 
@@ -16,7 +16,7 @@ live light), every ``POST /v1/relight`` as a first frame in a fresh one. Endpoin
   OpenAPI at ``/docs``.
 
 Layout (FastAPI's larger applications): this module only assembles - :func:`create_app` makes
-the app, its lifespan loads the :class:`~relight.service.state.Engine` onto ``app.state``, and it
+the app, its lifespan loads the :class:`~relight.service.state.FrameService` onto ``app.state``, and it
 includes one router per resource (:mod:`relight.service.routers`: health, frames, environment,
 stream); settings come through one dependency (:func:`relight.service.settings.get_settings`),
 frames and bodies through :mod:`relight.service.codec`.
@@ -43,7 +43,7 @@ from .errors import ServiceError
 from .routers import environment, frames, health, stream, webrtc
 from .security import AccessGuard
 from .settings import DEFAULT_PORT, ServeConfig
-from .state import Engine, Metrics
+from .state import FrameService, Metrics
 from .webrtc import WebRTCSessions
 
 #: Seconds a 503 (loading, at the client cap) asks the client to wait (Retry-After).
@@ -60,7 +60,7 @@ def create_app(config: ServeConfig) -> FastAPI:
     async def lifespan(app: FastAPI):
         clean_stale_uploads()  # folders a killed server left while validating an upload
         try:
-            app.state.engine = await asyncio.to_thread(Engine, config)
+            app.state.frame_service = await asyncio.to_thread(FrameService, config)
         except RelightError as exc:
             app.state.load_error = str(exc)
             raise
@@ -71,13 +71,13 @@ def create_app(config: ServeConfig) -> FastAPI:
                 yield
             await app.state.webrtc.close_all()
         finally:
-            await asyncio.to_thread(app.state.engine.close)  # its workers' threads, after the sessions
+            await asyncio.to_thread(app.state.frame_service.close)  # its workers' threads, after the sessions
 
     app = FastAPI(title="relight", version="0.1.0", lifespan=lifespan,
                   description="Relight the face in video frames with a reflectance bundle.")
     app.state.settings = config
     app.state.metrics = Metrics()
-    app.state.engine = None  # set by the lifespan once the bundle is loaded
+    app.state.frame_service = None  # set by the lifespan once the bundle is loaded
     app.state.load_error = None
     app.state.clients = 0  # connected stream clients (websockets and WebRTC sessions)
     app.state.webrtc = WebRTCSessions(app.state, app.state.metrics, config)

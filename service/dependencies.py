@@ -9,7 +9,7 @@ from starlette.requests import HTTPConnection
 
 from .errors import ServiceError
 from .settings import ServeConfig, get_settings
-from .state import Engine, Metrics
+from .state import FrameService, Metrics
 
 
 def get_metrics(conn: HTTPConnection) -> Metrics:
@@ -17,15 +17,15 @@ def get_metrics(conn: HTTPConnection) -> Metrics:
     return conn.app.state.metrics
 
 
-def get_engine(conn: HTTPConnection) -> Engine:
+def get_frame_service(conn: HTTPConnection) -> FrameService:
     """The loaded engine, or 503 while the bundle is still loading."""
-    engine = conn.app.state.engine
+    engine = conn.app.state.frame_service
     if engine is None:
         raise ServiceError(503, "not_ready", "the service is still loading its bundle; retry shortly")
     return engine
 
 
 #: Route parameter types (FastAPI's ``Annotated`` dependencies).
-EngineDep = Annotated[Engine, Depends(get_engine)]
+ServiceDep = Annotated[FrameService, Depends(get_frame_service)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 SettingsDep = Annotated[ServeConfig, Depends(get_settings)]

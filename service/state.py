@@ -1,4 +1,4 @@
-"""The service's state: the loaded bundle and per-frame path (:class:`Engine`, one frame at a
+"""The service's state: the loaded bundle and per-frame path (:class:`FrameService`, one frame at a
 time under its lock) and the Prometheus metrics. Made in the app's lifespan, kept on ``app.state``
 and handed to the routes by :mod:`relight.service.dependencies`.
 
@@ -6,7 +6,7 @@ The engine's lock is behind its API: its ``async`` methods take it (and run the 
 event loop), so no route can forget it; the sessions share the relighter, one frame at a time.
 Frames are decoded and encoded outside the lock (a client's JPEG work runs beside another's
 relight). ``POST /v1/relight`` with a session id (:data:`SESSION_HEADER`, or the ``session``
-query) keeps the client's track, filters and light between its requests (:meth:`Engine.named_session`:
+query) keeps the client's track, filters and light between its requests (:meth:`FrameService.named_session`:
 at most :data:`MAX_NAMED_SESSIONS`, the least recently used dropped, and any idle for
 :data:`SESSION_IDLE_S`)."""
 
@@ -66,7 +66,7 @@ class Session:
         self.env = env  # the environment array the path was last given (identity: unchanged)
 
 
-class Engine:
+class FrameService:
     """The loaded bundle and per-frame path, one frame at a time; environments cached by name.
     Each stream client gets a :class:`Session` (:meth:`session`); single requests share one."""
 

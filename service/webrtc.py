@@ -179,7 +179,7 @@ class WebRTCSessions:
             raise ServiceError(413, "too_large", f"SDP offers are at most {MAX_SDP} bytes")
         if "m=video" not in offer["sdp"]:
             raise ServiceError(422, "bad_offer", "the offer has no video: add the camera's track (sendrecv)")
-        engine = self.state.engine
+        engine = self.state.frame_service
         if engine is None:
             raise ServiceError(503, "not_ready", "the service is still loading its bundle; retry shortly")
         if self.state.clients >= self.config.max_clients:

@@ -62,7 +62,7 @@ def test_the_service_stops_its_workers_at_shutdown(small_bundle):
     th.start()
     try:
         assert wait_ready(f"http://127.0.0.1:{port}", 60)
-        workers = app.state.engine._workers
+        workers = app.state.frame_service._workers
         for w in workers:
             w.submit(lambda: None).result(timeout=10)
         assert all(w._pool is not None for w in workers)

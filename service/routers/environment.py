@@ -18,7 +18,7 @@ from ..codec import (
     read_body,
 )
 from ..controls import RANGES, environment_source
-from ..dependencies import EngineDep
+from ..dependencies import ServiceDep
 from ..errors import ServiceError
 from ..settings import PRESETS
 
@@ -26,13 +26,13 @@ router = APIRouter()
 
 
 @router.get("/v1/environment", summary="The current environment and the built-ins")
-async def get_environment(engine: EngineDep):
+async def get_environment(engine: ServiceDep):
     return {"current": engine.env_name, "rotation": engine.default_rotation, "exposure": engine.default_exposure,
             "builtins": list(PRESETS)}
 
 @router.put("/v1/environment", summary="Choose a built-in or a key light, or upload an environment or a photo",
          openapi_extra=binary_body(*ENV_TYPES, required=False), responses={400: {}, 413: {}, 415: {}, 422: {}})
-async def put_environment(request: Request, engine: EngineDep,
+async def put_environment(request: Request, engine: ServiceDep,
                           builtin: str | None = Query(None, description="a built-in (" + ", ".join(PRESETS)
                                                       + ") or a key light, key:az=30,el=25,size=30,kelvin=5000,"
                                                         "fill=0.3,power=1 (every field optional)"),
@@ -63,7 +63,7 @@ async def put_environment(request: Request, engine: EngineDep,
 
 @router.get("/v1/environment/light.png", summary="A grey and a skin-toned ball lit by an environment",
             response_class=Response, responses={200: {"content": {"image/png": {}}}, 422: {}})
-async def light_balls(engine: EngineDep,
+async def light_balls(engine: ServiceDep,
                       env: str | None = Query(None, description="a preset (" + ", ".join(PRESETS) + ") or a key "
                                               "light key:az=..,el=..; default: the current environment")):
     """What the page shows of a light, and where dragging places the key light (the bright spot's
@@ -81,7 +81,7 @@ async def light_balls(engine: EngineDep,
 
 @router.get("/v1/environment/preview.png", summary="The current environment, tone-mapped",
          response_class=Response, responses={200: {"content": {"image/png": {}}}})
-async def preview_environment(engine: EngineDep):
+async def preview_environment(engine: ServiceDep):
     env = await engine.current_environment()
     return Response(await asyncio.to_thread(preview_png, env, engine.default_exposure), media_type="image/png")
 

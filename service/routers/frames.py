@@ -12,7 +12,7 @@ from relight.errors import RelightError
 from ...engine.composite import MODES
 from ..codec import CONTENT_TYPES, binary_body, decode_frame, encode_frame, parse_rotation, read_body
 from ..controls import RANGES, environment_source
-from ..dependencies import EngineDep, MetricsDep, SettingsDep
+from ..dependencies import MetricsDep, ServiceDep, SettingsDep
 from ..errors import ServiceError
 from ..settings import PRESETS
 from ..state import SESSION_HEADER, SESSION_ID
@@ -22,7 +22,7 @@ router = APIRouter()
 
 @router.post("/v1/relight", summary="Relight one frame", openapi_extra=binary_body("image/png", "image/jpeg"),
           responses={200: {"content": {"image/png": {}, "image/jpeg": {}}}, 400: {}, 413: {}, 415: {}, 422: {}})
-async def relight_frame(request: Request, engine: EngineDep, metrics: MetricsDep, config: SettingsDep,
+async def relight_frame(request: Request, engine: ServiceDep, metrics: MetricsDep, config: SettingsDep,
                         env: str | None = Query(None, description="a built-in preset (" + ", ".join(PRESETS)
                                                 + ") or a key light, key:az=30,el=25,size=30,kelvin=5000,fill=0.3,"
                                                   "power=1 (every field optional)"),

@@ -26,7 +26,7 @@ async def livez():
 
 @router.get("/readyz", summary="Bundle loaded and kernels built")
 async def readyz(request: Request, settings: SettingsDep):
-    engine = request.app.state.engine
+    engine = request.app.state.frame_service
     if engine is None:
         return JSONResponse({"status": "loading", "error": request.app.state.load_error}, status_code=503)
     from relight.kernels.runtime import get_runtime

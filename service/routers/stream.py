@@ -29,7 +29,7 @@ async def stream(ws: WebSocket, config: SettingsDep, metrics: MetricsDep):
     "paste", "exposure": 0}`` and ``{"stats": true}``; after each relit frame a JSON text
     message ``{"frame", "latency_ms", "dropped", "face", "timings"}``."""
     state = ws.app.state
-    engine = state.engine  # None while loading: the socket is closed with 1013, not refused
+    engine = state.frame_service  # None while loading: the socket is closed with 1013, not refused
     await ws.accept()  # (closing before the handshake would be an HTTP 403, not a close code)
     if engine is None:
         await ws.close(code=1013, reason="loading; try again shortly")
