@@ -16,8 +16,8 @@ def build_variants(source, out_dir: Path, *, images: bool = False, variants=None
     """Prepare ``source`` once (a capture video, or an RTI folder with ``images``, its files encoded
     with ``transfer``) and write one bundle per variant to ``out_dir``: name -> {"bundle",
     "capture_s", "prepare_s", "bundle_mb"}."""
-    from relight.kernels.bundle_format import write_bundle
     from relight.pipeline.bundle_arrays import finish
+    from relight.pipeline.bundle_write import write_bundle
     from relight.pipeline.capture_progress import Progress
     from relight.pipeline.capture_types import CaptureOptions
     from relight.pipeline.image_set import prepare_images

@@ -136,7 +136,7 @@ def evaluate_scene(cfg, cap: Path, bundles: dict, envs: dict, out: Path, name: s
                    keep_bundles: bool = False) -> dict:
     import relight
     from relight.imageio import read_image
-    from relight.kernels.triangulation import inside_hull
+    from relight.pipeline.triangulate import inside_hull
 
     meta = json.loads((cap / "truth" / "meta.json").read_text())
     truth_mask = read_image(cap / "truth" / "mask.png")[..., 0] > 0.5

@@ -43,7 +43,7 @@ def synth_live(out: Path, size: tuple[int, int], duration: float, progress: bool
                head_mesh: str | None = None, fov: float | None = None) -> Path:
     """A live clip of head ``seed`` (or ``head_mesh``) at ``size`` (cached); ``fov``: through a
     pinhole of that field of view at the default distance (``relight synth --fov``)."""
-    from relight.pipeline.synth.live import LiveConfig, synthesize_live
+    from relight.pipeline.synth.live_clip import LiveConfig, synthesize_live
 
     folder = out / (f"live-{size[0]}x{size[1]}-{duration:g}s" + (f"-seed{seed}" if seed else "") + head_tag(head_mesh)
                     + (f"-fov{fov:g}" if fov is not None else ""))

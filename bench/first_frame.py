@@ -52,7 +52,7 @@ def run(out: Path, *, quick: bool = False, progress: bool = True) -> dict:
     from relight.engine.tracking_image import tracking_image
     from relight.imageio import atomic_path
     from relight.kernels.relight_inputs import rotation_angle_deg
-    from relight.pipeline.synth.live import LiveConfig, LiveScene
+    from relight.pipeline.synth.live_clip import LiveConfig, LiveScene
 
     from .clips import synth_bundle
 

@@ -23,7 +23,7 @@ def real_face_frames(n: int, size: tuple[int, int]) -> list[np.ndarray]:
         files = sorted((shared / "faces-yale" / "yaleB01").glob("*.png"))[:n]
         imgs = [cv2.imread(str(f), cv2.IMREAD_COLOR) for f in files]
     else:  # the synthetic studio's head (a live clip's first frames)
-        from relight.pipeline.synth.live import LiveConfig, synthesize_live
+        from relight.pipeline.synth.live_clip import LiveConfig, synthesize_live
         from relight.video_read import read_frames
 
         folder = Path(tempfile.mkdtemp(prefix="relight-fuzz-live-"))

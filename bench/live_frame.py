@@ -69,7 +69,7 @@ def synth_truth_clip(out: Path, size: tuple[int, int], envs: tuple[str, ...], *,
                      fov: float | None = None, **mesh_maps) -> Path:
     """A live clip with its truth under ``envs`` (cached by its settings; ``fov``: through a
     pinhole of that field of view)."""
-    from relight.pipeline.synth.live import LiveConfig, synthesize_live
+    from relight.pipeline.synth.live_clip import LiveConfig, synthesize_live
 
     from .clips import head_tag
 
@@ -165,7 +165,7 @@ def _band(region: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
 
 def live_scene(live: Path):
     """The :class:`LiveScene` a clip was made from (its truth's config)."""
-    from relight.pipeline.synth.live import LiveConfig, LiveScene
+    from relight.pipeline.synth.live_clip import LiveConfig, LiveScene
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
     return LiveScene(LiveConfig(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in meta["config"].items()}))

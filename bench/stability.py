@@ -10,7 +10,7 @@ cases and the synthetic head: :mod:`relight.bench.stability_cases`. Renders (cas
 ``sun_1e5`` and ``exposure_extremes``): a tiny bundle is built per variant by
 :func:`~relight.pipeline.capture.finish` from a hand-made ``Prepared`` (given mask:
 photometric stereo geometry on the synthetic images), written with
-:func:`~relight.kernels.bundle.write_bundle` and loaded back (:class:`BundleCache`).
+:func:`~relight.pipeline.bundle_write.write_bundle` and loaded back (:class:`BundleCache`).
 ``max_rel_error`` is the exact path's (``exact=True``: the full sum in float32); the default
 compact path is a rank-k approximation chosen to meet a 1 % tolerance, so its error is a
 modelling error: it is listed in ``detail`` and counts towards ``finite``, not towards
@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from relight.errors import InputError
-from relight.kernels import reflectance, triangulation
+from relight.pipeline import shading_fit
+from relight.pipeline.triangulate import DEFAULT_MAP_SIZE
 
 from .stability_cases import CASES, Head, make_head
 from .stability_reference import (
@@ -60,7 +61,7 @@ RENDER_MAX_REL = 1e-5
 #: over the least cosine a fit uses (``MODEL_MIN_COS``), the lobe's weight at most it over
 #: ``MODEL_LOBE_SEEN``; interpolation and the spline stay within the samples. (Before the lobe
 #: had to be seen, ``unseen_lobe`` reached 8e3 and ``grazing`` 23.)
-MAX_MAP_GAIN = 1.0 / reflectance.MODEL_MIN_COS + 1.0 / reflectance.MODEL_LOBE_SEEN
+MAX_MAP_GAIN = 1.0 / shading_fit.MODEL_MIN_COS + 1.0 / shading_fit.MODEL_LOBE_SEEN
 
 
 class BundleCache:
@@ -77,8 +78,8 @@ class BundleCache:
 
     def _build(self, variant: str):
         from relight.kernels.bundle import load_bundle
-        from relight.kernels.bundle_format import write_bundle
         from relight.pipeline.bundle_arrays import finish
+        from relight.pipeline.bundle_write import write_bundle
         from relight.pipeline.capture_progress import Progress
         from relight.pipeline.capture_types import CaptureOptions, Prepared
 
@@ -147,7 +148,7 @@ def map_gain(maps: np.ndarray, samples: np.ndarray) -> float:
     return float((peak / top[lit]).max())
 
 
-def evaluate(case: str, description: str, problems: list, variant: str, *, map_size=triangulation.DEFAULT_MAP_SIZE,
+def evaluate(case: str, description: str, problems: list, variant: str, *, map_size=DEFAULT_MAP_SIZE,
              bundles: BundleCache | None = None) -> dict:
     """One row: the problems of a case through one variant, production against reference.
 
@@ -199,7 +200,7 @@ def evaluate(case: str, description: str, problems: list, variant: str, *, map_s
             "seconds": round(clock[0], 4), "detail": "; ".join(details + failures)}
 
 
-def run_stability(variants=None, *, map_size=triangulation.DEFAULT_MAP_SIZE, cases=None) -> list[dict]:
+def run_stability(variants=None, *, map_size=DEFAULT_MAP_SIZE, cases=None) -> list[dict]:
     """Every case of :data:`CASES` (or the named ``cases``) through every variant of
     :data:`VARIANTS` (or the named ``variants``): one row per (case, variant), cases in order.
 

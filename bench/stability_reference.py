@@ -1,8 +1,8 @@
 """The two computations the numerical stability suite (:mod:`relight.bench.stability`) compares
 for every problem: production, as the product runs it, and a float64 reference.
 
-* **Production maps** are built exactly as :func:`relight.pipeline.capture.finish` builds
-  them: :func:`~relight.kernels.triangulation.triangulate`, then for the triangulated variants
+* **Production maps** are built exactly as :func:`relight.pipeline.bundle_arrays.finish` builds
+  them: :func:`~relight.pipeline.triangulate.triangulate`, then for the triangulated variants
   :func:`~relight.kernels.interpolation.compute_maps` on the OpenCL device with float16 output
   (horizon from :func:`~relight.pipeline.capture.horizon_for` when visibility is on), for the
   fitted ones :func:`~relight.pipeline.methods.fit_and_evaluate` on the front texels; then
@@ -33,10 +33,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from relight.errors import InputError
-from relight.kernels import interpolation, reflectance, triangulation
-from relight.kernels.bundle_format import storage_scale
+from relight.kernels import interpolation, triangulation
 from relight.numerics import flush_subnormal_halves
-from relight.pipeline import methods
+from relight.pipeline import methods, recipe_write, shading_fit
+from relight.pipeline.bundle_write import storage_scale
+from relight.pipeline.triangulate import triangulate
 
 from .variants import VARIANTS as CAPTURE_VARIANTS
 
@@ -77,7 +78,7 @@ class MapProblem:
         if key not in self._tri:
             t0 = time.perf_counter()
             try:
-                self._tri[key] = (triangulation.triangulate(self.dirs, key), time.perf_counter() - t0)
+                self._tri[key] = (triangulate(self.dirs, key), time.perf_counter() - t0)
             except InputError as exc:
                 self._tri[key] = (exc, time.perf_counter() - t0)
         return self._tri[key]
@@ -108,7 +109,7 @@ def builder_maps(variant: str, problem: MapProblem, tri: triangulation.Triangula
                  half: bool) -> tuple[np.ndarray, float]:
     """(maps (P, 3, T_pad), scale) as :func:`relight.pipeline.capture.reflectance_maps` - the
     maps stage of ``bundle_arrays.finish`` - returns them (``tri``: the problem's
-    :func:`~relight.kernels.triangulation.triangulate`): the OpenCL kernel's float16 output with
+    :func:`~relight.pipeline.triangulate.triangulate`): the OpenCL kernel's float16 output with
     ``half`` (production) or its float32 output; a fitted method's float32. The maps hold the
     samples divided by ``scale``."""
     from relight.pipeline.capture_types import CaptureOptions
@@ -141,25 +142,24 @@ def reference_maps(variant: str, problem: MapProblem, tri: triangulation.Triangu
     # 8-bit codes are the measurement, not the arithmetic under test), in the production's
     # storage units (divided by its power-of-two scale, multiplied back at the end).
     unit = storage_scale(problem.samples)
-    codes, code_scale = recipe.encode_samples((problem.samples / unit).astype(np.float32))
+    codes, code_scale = recipe_write.encode_samples((problem.samples / unit).astype(np.float32))
     samples = (codes / 255.0) ** (1.0 / recipe.SAMPLE_GAMMA) * code_scale.astype(np.float64)[None]
     return unit * _reference_maps(opts, method, samples, problem, tri)
 
 
 def _reference_maps(opts, method, samples, problem, tri):
-    from relight.kernels import recipe
     from relight.kernels.heightfield import HORIZON_DIRS
 
     if method not in methods.FITTED:
         vis = None
         horizon = problem.horizon if opts["visibility"] else None
         if horizon is not None:
-            horizon = recipe.quantise_horizon(horizon).astype(np.float64)
+            horizon = recipe_write.quantise_horizon(horizon).astype(np.float64)
         if horizon is not None:
             vis = interpolation.visibility_maps(horizon.astype(np.float64), HORIZON_DIRS, tri.map_size)
         trend = opts["adaptation"] and not opts["paper_adaptation"]
         if opts["method"] == "full" and (trend or opts["extrapolation"] or opts["spline"]):
-            maps, tri = reflectance.model_maps(samples, problem.normals.astype(np.float64), tri, horizon,
+            maps, tri = shading_fit.model_maps(samples, problem.normals.astype(np.float64), tri, horizon,
                                                HORIZON_DIRS, trend=trend, extrapolate=opts["extrapolation"],
                                                paper_adaptation=opts["adaptation"] and not trend,
                                                spline=opts["spline"], backend="numpy")

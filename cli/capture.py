@@ -41,7 +41,7 @@ def _circle(text: str) -> tuple[float, float, float]:
 
 
 def add_parser(sub) -> None:
-    from ..kernels.bundle_format import BUNDLE_MODE
+    from ..pipeline.bundle_write import BUNDLE_MODE
     from ..pipeline.capture_types import TRANSFERS, CaptureOptions
     from ..pipeline.methods import METHODS
     from ..pipeline.samples import SampleOptions  # the defaults: the pipeline's own options

@@ -37,7 +37,7 @@ def _run_demo(args) -> int:
     from ..pipeline.evaluate import evaluate_capture
     from ..pipeline.synth.config import SynthConfig
     from ..pipeline.synth.contact_sheet import before_after_sheet, contact_sheet
-    from ..pipeline.synth.live import LiveConfig, synthesize_live
+    from ..pipeline.synth.live_clip import LiveConfig, synthesize_live
     from ..pipeline.synth.studio import synthesize
 
     t0 = time.perf_counter()

@@ -10,7 +10,7 @@ from .common import COMMANDS, DefaultsUnlessNone, parse_size
 
 def add_parser(sub) -> None:
     from ..pipeline.synth.config import DEFAULT_TRUTH_ENVS, SynthConfig
-    from ..pipeline.synth.live import AUDIO_KINDS, LiveConfig
+    from ..pipeline.synth.live_clip import AUDIO_KINDS, LiveConfig
 
     d = SynthConfig()
     live = LiveConfig()
@@ -95,7 +95,7 @@ def _head_mesh_args(args) -> dict:
 
 def _run_synth(args) -> int:
     from ..errors import InputError
-    from ..pipeline.synth.live import LiveConfig
+    from ..pipeline.synth.live_clip import LiveConfig
 
     if args.live:
         return _run_synth_live(args)
@@ -127,7 +127,7 @@ def _run_synth_live(args) -> int:
     from ..envmap import environment_stem
     from ..errors import InputError
     from ..pipeline.synth.config import SynthConfig
-    from ..pipeline.synth.live import LiveConfig, synthesize_live
+    from ..pipeline.synth.live_clip import LiveConfig, synthesize_live
 
     d, s = LiveConfig(), SynthConfig()
     capture_only = [flag for flag, used in (("--flash-hz", args.flash_hz != s.flash_hz),

@@ -1,6 +1,8 @@
-"""Stage 6: the reflectance bundle - one file with everything the online side needs, loaded as a
+"""The loaded reflectance bundle - one file with everything the online side needs - as a
 :class:`Bundle` (``meta`` and the memory-mapped arrays, with views the relighter and the frame
-path read). The file format and its fields: :mod:`relight.kernels.bundle_format`.
+path read, and a recipe bundle's maps made again). The file format, its fields and its reader:
+:mod:`relight.kernels.bundle_format`; the capture writes it (stage 6):
+:mod:`relight.pipeline.bundle_write`.
 """
 
 from __future__ import annotations

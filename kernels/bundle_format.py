@@ -1,6 +1,7 @@
-"""The reflectance bundle's file format - the one module that knows its fields: writing
-(:func:`write_bundle`), reading and validating (:func:`read_bundle_file`; :func:`relight.kernels.bundle.load_bundle`
-wraps it into a :class:`relight.kernels.bundle.Bundle`).
+"""The reflectance bundle's file format - the one module that knows its fields - and its reader:
+reading and validating (:func:`read_bundle_file`; :func:`relight.kernels.bundle.load_bundle`
+wraps it into a :class:`relight.kernels.bundle.Bundle`). The capture writes it with
+:func:`relight.pipeline.bundle_write.write_bundle`, from the names defined here.
 
 Format (version 4), little-endian::
 
@@ -14,8 +15,8 @@ Format (version 4), little-endian::
 ``arrays`` maps a field name to ``{"dtype", "shape", "offset", "nbytes", "crc32"}`` (dtype in
 NumPy's string form, offset absolute). Arrays are raw C-order data, so loading memory-maps
 them (read-only); every array's CRC-32 is checked on load (about 3 GB/s). No pickle anywhere.
-Writes go to a temporary file in the same folder that is renamed over the target, so a killed
-writer leaves any previous bundle intact.
+Writes (:mod:`relight.pipeline.bundle_write`) go to a temporary file in the same folder that is
+renamed over the target, so a killed writer leaves any previous bundle intact.
 
 Fields (P = head pixels, K = light samples, T = active map texels; crop = the stored region
 of the reference frame, ``crop_origin`` its top-left pixel in the frame):
@@ -90,24 +91,22 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.errors import InputError, NumericalError
-from relight.imageio import atomic_path, image_size
+from relight.errors import InputError
+from relight.imageio import image_size
 
 from .layout import padded_texels
 
 MAGIC = b"RLBUNDLE"
-VERSION = 4
 #: Format versions this relight reads (versions 1 and 2 store the maps, not their recipe).
 READABLE_VERSIONS = (1, 2, 3, 4)
-ALIGN = 64
-_PREFIX = struct.Struct("<8sIIQ")
+#: The file's first bytes: magic, format version, the header's CRC-32 and length (read here, written
+#: by :func:`relight.pipeline.bundle_write.write_bundle`).
+PREFIX = struct.Struct("<8sIIQ")
 #: Largest header accepted (a corrupt length must not make us allocate gigabytes).
 MAX_HEADER = 64 << 20
 REQUIRED = ("pixels", "mask_crop", "ambient", "normal", "albedo", "depth", "light_dirs", "map_texels")
 #: The reference frame: a JPEG (format 3 and later) or raw pixels (before).
 BACKGROUND = ("background_jpeg", "background")
-#: JPEG quality of the stored reference frame (sRGB, display and tracking only: never relit).
-BACKGROUND_QUALITY = 95
 #: A bundle holds its maps (``maps_rows``) or all of these (their recipe).
 RECIPE = ("samples_code", "samples_scale", "model_albedo", "model_spec", "model_trust", "spline_blend",
           "tri_vertices", "tri_faces", "tri_texel_vertices", "tri_texel_weights")
@@ -144,41 +143,10 @@ def check_meta(meta, where: str = "bundle") -> dict:
 MAX_DIRECT_TEXELS = 64
 
 
-#: Bundles store samples and maps as float16 (largest 65504, smallest normal 6.1e-5): samples
-#: are scaled by a power of two so their peak lies at most at ``STORE_PEAK`` (light adaptation
-#: may multiply a value by up to 1 / MIN_COS = 10) and at least at ``STORE_FLOOR``.
-STORE_PEAK = 2.0 ** 12
-STORE_FLOOR = 2.0 ** -4
-
-
-def storage_scale(samples: np.ndarray) -> float:
-    """Power of two to divide samples by before float16 storage: 1.0 when their peak is within
-    [STORE_FLOOR, STORE_PEAK] (every ordinary capture), else the one that brings the peak to
-    about 1. All-zero samples: 1.0."""
-    peak = float(np.max(samples)) if samples.size else 0.0
-    if not np.isfinite(peak):
-        raise InputError("light samples hold NaN or infinite values; check the input images")
-    if peak <= 0.0 or STORE_FLOOR <= peak <= STORE_PEAK:
-        return 1.0
-    return float(2.0 ** np.round(np.log2(peak)))
-
-
-def encode_background(rgb: np.ndarray) -> np.ndarray:
-    """(N,) uint8 JPEG of an (H, W, 3) uint8 sRGB frame (quality BACKGROUND_QUALITY, 4:4:4)."""
-    import cv2
-
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]),
-                           [cv2.IMWRITE_JPEG_QUALITY, BACKGROUND_QUALITY,
-                            cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444])
-    if not ok:
-        raise RuntimeError("could not encode the reference frame as JPEG; this is a bug, please report it")
-    return buf.reshape(-1)
-
-
 def decode_background(data: np.ndarray, frame_size: tuple[int, int]) -> np.ndarray:
-    """The (H, W, 3) uint8 sRGB frame of :func:`encode_background` data; its header must say
-    ``frame_size`` (width, height) before anything is decoded (a hostile file cannot make us
-    allocate more)."""
+    """The (H, W, 3) uint8 sRGB frame of :func:`relight.pipeline.bundle_write.encode_background`
+    data; its header must say ``frame_size`` (width, height) before anything is decoded (a hostile
+    file cannot make us allocate more)."""
     import cv2
 
     from relight.imageio import image_size
@@ -193,74 +161,6 @@ def decode_background(data: np.ndarray, frame_size: tuple[int, int]) -> np.ndarr
     return np.ascontiguousarray(img[..., ::-1])
 
 
-def _dtype_str(a: np.ndarray) -> str:
-    return np.dtype(a.dtype).newbyteorder("<").str if a.dtype.byteorder not in ("|",) else a.dtype.str
-
-
-#: Permission bits of a bundle: owner only. A bundle is a person's face - biometric data; widen
-#: it deliberately (``relight capture --file-mode 0640``).
-BUNDLE_MODE = 0o600
-
-
-def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray], *,
-                 mode: int = BUNDLE_MODE) -> Path:
-    """Write a bundle atomically, with permission bits ``mode`` (default owner-only). ``arrays``
-    values are converted to little-endian C order."""
-    if not (isinstance(mode, int) and 0 <= mode <= 0o777 and mode & 0o600 == 0o600):
-        raise InputError(f"file mode {mode!r}: an octal mode from 600 to 777 that lets the owner read and write")
-    missing = [k for k in REQUIRED if k not in arrays]
-    if not any(k in arrays for k in BACKGROUND):
-        missing.append("background_jpeg")
-    if "maps_rows" not in arrays:
-        missing += [k for k in RECIPE if k not in arrays]
-    if missing:
-        raise InputError(f"bundle is missing required field(s): {', '.join(missing)}")
-    check_meta(meta, str(path))
-    prepared = {}
-    for name, a in arrays.items():
-        a = np.asarray(a)
-        if a.dtype.kind == "f" and not np.isfinite(a).all():
-            raise NumericalError(f"bundle field {name!r} holds non-finite values")
-        a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<") if a.dtype.byteorder == ">" else a.dtype)
-        prepared[name] = a
-    directory = {}
-    # Offsets depend on the header length, which depends on the offsets' digits: iterate.
-    header_len = 4096
-    for _ in range(8):
-        offset = _align(_PREFIX.size + header_len)
-        directory = {}
-        for name, a in prepared.items():
-            directory[name] = {"dtype": _dtype_str(a), "shape": list(a.shape), "offset": offset,
-                               "nbytes": int(a.nbytes), "crc32": zlib.crc32(_raw(a))}
-            offset = _align(offset + a.nbytes)
-        header = json.dumps({"format": "relight-bundle", "version": VERSION, "meta": meta, "arrays": directory},
-                            sort_keys=True, allow_nan=False).encode("utf-8")
-        if len(header) <= header_len:
-            header = header + b" " * (header_len - len(header))
-            break
-        header_len = _align(len(header) + 1024)
-    path = Path(path)
-    with atomic_path(path, mode=mode) as tmp, open(tmp, "wb") as f:
-        f.write(_PREFIX.pack(MAGIC, VERSION, zlib.crc32(header), len(header)))
-        f.write(header)
-        for name, a in prepared.items():
-            pos = directory[name]["offset"]
-            f.write(b"\0" * (pos - f.tell()))
-            f.write(_raw(a))
-        f.flush()
-        os.fsync(f.fileno())
-    return path
-
-
-def _raw(a: np.ndarray) -> np.ndarray:
-    """The bytes of a C-contiguous array as a flat uint8 view (zero-size arrays included)."""
-    return a.reshape(-1).view(np.uint8)
-
-
-def _align(n: int) -> int:
-    return (n + ALIGN - 1) // ALIGN * ALIGN
-
-
 def read_bundle_file(path: str | os.PathLike, *, verify: bool = True) -> tuple[dict, dict]:
     """A bundle file's (meta, arrays): header validated, every array checked (CRC-32) and
     memory-mapped read-only.
@@ -273,17 +173,17 @@ def read_bundle_file(path: str | os.PathLike, *, verify: bool = True) -> tuple[d
         raise InputError(f"{path}: no such bundle file; check the path")
     size = path.stat().st_size
     with open(path, "rb") as f:
-        prefix = f.read(_PREFIX.size)
-        if len(prefix) < _PREFIX.size:
+        prefix = f.read(PREFIX.size)
+        if len(prefix) < PREFIX.size:
             raise InputError(f"{path}: too short to be a bundle ({size} bytes); it is truncated")
-        magic, version, crc, hlen = _PREFIX.unpack(prefix)
+        magic, version, crc, hlen = PREFIX.unpack(prefix)
         if magic != MAGIC:
             raise InputError(f"{path}: not a relight bundle (bad magic); make one with `relight capture`")
         if version not in READABLE_VERSIONS:
             raise InputError(f"{path}: bundle format version {version}, this relight reads versions "
                              f"{', '.join(map(str, READABLE_VERSIONS))}; re-run `relight capture` with this version "
                              "(or use the relight that wrote it)")
-        if hlen > MAX_HEADER or _PREFIX.size + hlen > size:
+        if hlen > MAX_HEADER or PREFIX.size + hlen > size:
             raise InputError(f"{path}: header length {hlen} does not fit the {size}-byte file; it is truncated "
                              "or corrupt")
         header = f.read(hlen)
@@ -316,7 +216,7 @@ def read_bundle_file(path: str | os.PathLike, *, verify: bool = True) -> tuple[d
             raise InputError(f"{path}: field {name!r} has a negative size in its shape {shape}")
         if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize != nbytes:
             raise InputError(f"{path}: field {name!r}: shape {shape} does not match its {nbytes} bytes")
-        if offset < _PREFIX.size + hlen or offset + nbytes > size:
+        if offset < PREFIX.size + hlen or offset + nbytes > size:
             raise InputError(f"{path}: field {name!r} runs past the end of the file; the bundle is truncated")
         if nbytes == 0:
             arrays[name] = np.zeros(shape, dtype=dtype)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from relight.directions import direction_to_equirect_uv, equirect_directions
+from relight.directions import equirect_directions
 from relight.errors import InputError, NumericalError
 from relight.numerics import EPS, EPS_NORM, EPS_VALUE
 
@@ -84,7 +84,7 @@ def visibility_maps(horizon: np.ndarray, n_az: int, map_size: tuple[int, int], *
     horizon : (P, n_az) horizon elevation (radians above the image plane: the arctangent of the
     largest rise per pixel of image-plane travel, :func:`relight.pipeline.reflectance_maps.horizon_for`)
     toward each of ``n_az`` image-plane directions (see
-    :func:`relight.kernels.shading.grid_directions`), interpolated linearly between them.
+    :func:`relight.kernels.heightfield.grid_directions`), interpolated linearly between them.
     """
     w, h = map_size
     tdirs = equirect_directions(w, h).reshape(-1, 3)
@@ -159,8 +159,8 @@ def build_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *,
     normals : (P, 3) unit normals (used by light adaptation). visibility : (P, h, w) smoothed
     visibility maps, or None to interpolate without them. trend : None, or (offset (P, 3), coef
     (P, 3)[, spec (P, 3)]): each texel becomes ``interpolation - offset + (coef x max(n . l, 0) +
-    spec x lobe(l)) x visibility(l)`` (the shading model added back, :func:`model_maps`;
-    :func:`lobe`), then clipped at 0.
+    spec x lobe(l)) x visibility(l)`` (the shading model added back,
+    :func:`relight.pipeline.shading_fit.model_maps`; :func:`lobe`), then clipped at 0.
     """
     k, p = samples.shape[:2]
     if k != tri.n_samples:
@@ -228,28 +228,6 @@ def _subset(c, wv, use):
     w = wv * use
     w = w / np.maximum(w.sum(axis=-1, keepdims=True), EPS)
     return np.einsum("...v,...vc->...c", w, c)
-
-
-def sample_map(maps: np.ndarray, tri_active: np.ndarray, map_size: tuple[int, int], direction) -> np.ndarray:
-    """Bilinear lookup of pixel-major reflectance maps (P, 3, T_pad) toward one direction: (P, 3)."""
-    w, h = map_size
-    u, v = direction_to_equirect_uv(np.asarray(direction, dtype=np.float64))
-    x = float(u) * w - 0.5
-    y = min(max(float(v) * h - 0.5, 0.0), h - 1.0)
-    x0 = int(np.floor(x))
-    y0 = int(np.floor(y))
-    fx, fy = x - x0, y - y0
-    lut = -np.ones(w * h, dtype=np.int64)
-    lut[np.flatnonzero(tri_active)] = np.arange(int(tri_active.sum()))
-    out = np.zeros(maps.shape[:2], dtype=np.float64)
-    for dy, wy in ((0, 1 - fy), (1, fy)):
-        for dx, wx in ((0, 1 - fx), (1, fx)):
-            yy = min(y0 + dy, h - 1)
-            xx = (x0 + dx) % w
-            t = lut[yy * w + xx]
-            if t >= 0 and wx * wy > 0:
-                out += wx * wy * np.asarray(maps[:, :, t], dtype=np.float64)
-    return out.astype(np.float32)
 
 
 def compute_maps(samples: np.ndarray, normals: np.ndarray, tri: Triangulation, *, horizon: np.ndarray | None,

@@ -1,9 +1,12 @@
-"""The bundle format's array layout: how many texel slots a pixel's maps take.
+"""The maps' texel padding: how many texel slots a pixel's maps take (a multiple of 16, what the
+relighting kernels read at once).
 
-Part of the bundle's format (:mod:`relight.kernels.bundle_format`). It sits in this leaf module
-only because the maths that fills the arrays (:mod:`relight.kernels.maps`,
-:mod:`relight.kernels.interpolation`) runs below the bundle: the bundle makes a recipe bundle's
-maps through them, so they cannot import it.
+One rule for every array of maps: the bundle's (checked by :mod:`relight.kernels.bundle_format`,
+read by :mod:`relight.kernels.bundle`), the maps kernel's output (:mod:`relight.kernels.maps`,
+:mod:`relight.kernels.interpolation`), the transport's ranks (:mod:`relight.kernels.transport`)
+and the relighter's operands. It sits in this leaf module because the maths that fills the
+arrays runs below the bundle: the bundle makes a recipe bundle's maps through it, so it cannot
+import the bundle's modules.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
  * relight.kernels.recipe.texel_rows).
  *
  * texel_rows: per pixel, a few map texels (a sun, a point light) made again from the stored
- *   samples and fits exactly as relight.kernels.reflectance.model_maps made them: the shading
+ *   samples and fits exactly as relight.pipeline.shading_fit.model_maps made them: the shading
  *   model at the triangles' vertices (visibility from the horizon table), the vertices' values
  *   (sample minus the trusted model; beyond the hull the model plus what it leaves of the
  *   nearest samples), visibility-aware interpolation, the trusted model added back, and the

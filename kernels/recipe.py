@@ -1,7 +1,8 @@
-"""The maps' recipe: what a bundle keeps instead of its reflectance maps.
+"""The maps' recipe: what a bundle keeps instead of its reflectance maps, read back from the
+bundle and evaluated.
 
 A pixel's reflectance map (64x32 texels, ~1000-2000 of them lit) is made by
-:func:`relight.kernels.reflectance.model_maps` from the capture's light samples and a handful
+:func:`relight.pipeline.shading_fit.model_maps` from the capture's light samples and a handful
 of per-pixel fits: the shading model (albedo, specular weight, trust), the horizon table
 (visibility), and the weight of the model path against the thin-plate spline. Those are what a
 bundle stores - about K + 100 bytes per face pixel for K samples, against 2 x 3 x T bytes for
@@ -24,7 +25,9 @@ Storage (the bundle's ``samples_code`` / ``samples_scale`` / ``horizon_code``):
   texel, 5.6 degrees, wide).
 
 The capture quantises first and builds everything from the decoded values, so the maps a
-bundle evaluates are the maps its capture made (to float rounding).
+bundle evaluates are the maps its capture made (to float rounding); the capture's side -
+encoding the samples, quantising the horizons, the recipe's arrays for the bundle - is
+:mod:`relight.pipeline.recipe_write`.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ import numpy as np
 
 from relight.directions import equirect_directions
 from relight.errors import InputError, NumericalError
-from relight.numerics import EPS, EPS_NORM, EPS_VALUE, half_ceil
+from relight.numerics import EPS, EPS_NORM, EPS_VALUE
 
 from . import interpolation as interp
 from . import reflectance as rf
@@ -50,28 +53,6 @@ ROW_CHUNK = 16384
 
 
 # ---------------------------------------------------------------------- quantisation
-def encode_samples(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(codes (K, P, 3) uint8, scale (P, 3) float16) of linear samples (K, P, 3); see the module."""
-    x = np.asarray(samples, dtype=np.float32)
-    if x.ndim != 3 or x.shape[2] != 3:
-        raise InputError(f"samples of shape {x.shape}: expected (K, P, 3)")
-    if not np.isfinite(x).all():
-        raise InputError("light samples hold NaN or infinite values; check the input images")
-    peak = np.maximum(x.max(axis=0), 0.0) if x.shape[0] else np.zeros(x.shape[1:], np.float32)
-    if float(peak.max(initial=0.0)) > float(np.finfo(np.float16).max):
-        raise InputError("light samples above the float16 range: scale them first "
-                         "(relight.kernels.bundle.storage_scale)")
-    scale = half_ceil(peak)  # x / scale <= 1
-    s = scale.astype(np.float32)
-    inv = np.where(s > 0, 1.0 / np.where(s > 0, s, 1.0), 0.0).astype(np.float32)
-    codes = np.empty(x.shape, dtype=np.uint8)
-    for k0 in range(0, x.shape[0], 16):
-        r = np.clip(x[k0:k0 + 16] * inv[None], 0.0, 1.0)
-        np.power(r, np.float32(SAMPLE_GAMMA), out=r)
-        codes[k0:k0 + 16] = np.rint(r * 255.0)
-    return codes, scale
-
-
 def _code_table(gamma: float) -> np.ndarray:
     return ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
 
@@ -101,17 +82,13 @@ def decode_horizon(codes: np.ndarray) -> np.ndarray:
     return _ELEVATION[np.asarray(codes, dtype=np.uint8)]
 
 
-def quantise_horizon(elevations: np.ndarray | None) -> np.ndarray | None:
-    """Horizon elevations as a bundle stores them, decoded (None stays None)."""
-    return None if elevations is None else decode_horizon(encode_horizon(elevations))
-
-
 # ---------------------------------------------------------------------- the recipe
 @dataclass
 class Recipe:
-    """Everything :func:`relight.kernels.reflectance.model_maps` needs to make any texel again.
+    """Everything :func:`relight.pipeline.shading_fit.model_maps` needs to make any texel again.
 
-    codes (K, P, 3) uint8 / scale (P, 3): the samples (:func:`encode_samples`). normals (P, 3).
+    codes (K, P, 3) uint8 / scale (P, 3): the samples
+    (:func:`relight.pipeline.recipe_write.encode_samples`). normals (P, 3).
     horizon (P, n_az) float32 elevations (or their uint8 codes), or None (no visibility).
     albedo, spec (P, 3), trust (P,): the shading model
     (:class:`relight.kernels.reflectance.ShadingModel`). blend (P,): the model path's weight
@@ -234,30 +211,6 @@ def _horizon_fits(hz: np.ndarray, hidx: np.ndarray | None, p: int) -> bool:
     return hidx.shape == (p,) and (p == 0 or (int(np.min(hidx)) >= 0 and int(np.max(hidx)) < hz.shape[0]))
 
 
-def recipe_arrays(recipe: Recipe) -> tuple[dict, dict]:
-    """(arrays, meta["recipe"]) a bundle stores for a recipe (inverse of :func:`recipe_from_arrays`)."""
-    arrays = {
-        "samples_code": np.asarray(recipe.codes, dtype=np.uint8),
-        "samples_scale": np.asarray(recipe.scale, dtype=np.float16),
-        "model_albedo": rf.stored_precision(np.asarray(recipe.albedo, np.float32)).astype(np.float16),
-        "model_spec": rf.stored_precision(np.asarray(recipe.spec, np.float32)).astype(np.float16),
-        "model_trust": np.asarray(recipe.trust, np.float32).astype(np.float16),
-        "spline_blend": np.asarray(recipe.blend, np.float32).astype(np.float16),
-        "tri_vertices": np.asarray(recipe.tri.vertices, dtype=np.float64),
-        "tri_faces": np.asarray(recipe.tri.faces, dtype=np.int32),
-        "tri_texel_vertices": np.asarray(recipe.tri.texel_vertices, dtype=np.int32),
-        "tri_texel_weights": np.asarray(recipe.tri.texel_weights, dtype=np.float32),
-    }
-    if recipe.horizon is not None:
-        h = np.asarray(recipe.horizon)
-        arrays["horizon_code"] = h if h.dtype == np.uint8 else encode_horizon(h)
-        if recipe.horizon_index is not None:
-            arrays["horizon_index"] = np.asarray(recipe.horizon_index, dtype=np.int32)
-    meta = {"n_az": int(recipe.n_az), "trend": bool(recipe.trend), "extrapolate": bool(recipe.extrapolate),
-            "spline": bool(recipe.spline), "sample_gamma": SAMPLE_GAMMA}
-    return arrays, meta
-
-
 # ---------------------------------------------------------------------- a few texels
 def smoothed_visibility(horizon: np.ndarray, n_az: int, map_size, texels: np.ndarray) -> np.ndarray:
     """(p, n) the smoothed visibility (:func:`relight.kernels.interpolation.visibility_maps`) of
@@ -282,7 +235,7 @@ def smoothed_visibility(horizon: np.ndarray, n_az: int, map_size, texels: np.nda
 def texel_rows(recipe: Recipe, texels: np.ndarray, *, pixels=None) -> np.ndarray:
     """(n, 3, P) float32 maps of the given map texels (ids into the map, all active) for every
     pixel (or the index array ``pixels``), evaluated from the recipe as
-    :func:`relight.kernels.reflectance.model_maps` makes them."""
+    :func:`relight.pipeline.shading_fit.model_maps` makes them."""
     texels = np.asarray(texels, dtype=np.int64).ravel()
     if texels.size and not recipe.active[texels].all():
         raise InputError("texel_rows: a requested texel is not among the bundle's map texels")

@@ -14,13 +14,13 @@ import numpy as np
 from relight import __version__
 from relight.colour import encode_srgb8
 from relight.errors import InputError, NumericalError
-from relight.kernels import triangulation
 from relight.numerics import EPS_VALUE, flush_subnormal_halves
 
 from . import geometry
 from .capture_progress import Progress
 from .capture_types import CaptureOptions, Prepared
 from .reflectance_maps import horizon_rows, reflectance_maps, texel_major
+from .triangulate import triangulate
 
 #: The most landmarks stored.
 MAX_LANDMARKS = 300
@@ -41,11 +41,11 @@ def finish(prep: Prepared, opts: CaptureOptions, progress: Progress, timings: di
     pix = np.flatnonzero(geo.mask)
     samples = np.ascontiguousarray(prep.images.reshape(k, -1, 3)[:, pix], dtype=np.float32)
     prep.images = None  # the full sample images are the largest thing held: the head's pixels suffice now
-    from relight.kernels.reflectance import stored_precision
+    from .shading_fit import stored_precision
 
     # The normals as the bundle stores them (float16): its recipe makes the maps from those.
     normals = stored_precision(geo.normal.reshape(-1, 3)[pix].astype(np.float32))
-    tri = triangulation.triangulate(prep.dirs, opts.map_size)
+    tri = triangulate(prep.dirs, opts.map_size)
     horizon = None
     if opts.visibility and opts.method == "full":
         horizon = horizon_rows(geo.depth, geo.mask)
@@ -153,24 +153,25 @@ def _half_maps(maps: np.ndarray) -> np.ndarray:
 
 def _transport_from_recipe(recipe, n_pixels: int, texels, opts: CaptureOptions, cb: _PixelProgress):
     """The compact transport of the maps the recipe makes, chunk by chunk (no full maps array held)."""
-    from relight.kernels import transport
     from relight.kernels.recipe import recipe_maps
+
+    from .transport_stream import factorize_stream
 
     def make(index):  # texel-major float32 maps (the NumPy backend's transposed)
         if opts.backend == "opencl":
             return recipe_maps(recipe.subset(index), texel_major=True)
         return recipe_maps(recipe.subset(index), backend=opts.backend, half=False).transpose(2, 1, 0)
 
-    return transport.factorize_stream(make, n_pixels, opts.map_size, texels,
-                                      store_tolerance=opts.store_tolerance, progress=cb)
+    return factorize_stream(make, n_pixels, opts.map_size, texels, store_tolerance=opts.store_tolerance,
+                            progress=cb)
 
 
 def _bundle_arrays(prep: Prepared, geo: geometry.Geometry, *, pix, normals, tri, texels, compact, recipe, rows,
                    samples, maps, opts: CaptureOptions) -> tuple[dict, dict | None]:
     """The bundle's arrays (name -> array, the landmarks found here) and the recipe's meta (None
     without a recipe). ``pix``: (P,) flat indices of the head's pixels in the crop."""
-    from relight.kernels.bundle_format import encode_background
-    from relight.kernels.reflectance import stored_precision
+    from .bundle_write import encode_background
+    from .shading_fit import stored_precision
 
     landmarks = _landmarks(prep, geo.mask)
     arrays = {
@@ -190,7 +191,7 @@ def _bundle_arrays(prep: Prepared, geo: geometry.Geometry, *, pix, normals, tri,
         arrays.update({"transport_v4": compact.q4, "transport_v4_scale": compact.q4_scale})
     rec_meta = None
     if recipe is not None:  # what the maps are made of (~K + 100 bytes per pixel), not the maps
-        from relight.kernels.recipe import recipe_arrays
+        from .recipe_write import recipe_arrays
 
         rec_arrays, rec_meta = recipe_arrays(recipe)
         arrays.update(rec_arrays)

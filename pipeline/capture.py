@@ -20,10 +20,9 @@ import time
 import cv2
 import numpy as np
 
-from relight.kernels.bundle_format import BUNDLE_MODE, write_bundle
-
 # `NAME`: also taken from here by the benchmarks (where they lived before the split).
 from .bundle_arrays import finish
+from .bundle_write import BUNDLE_MODE, write_bundle
 from .capture_progress import Progress, StageTimings
 from .capture_types import CaptureOptions, CaptureResult
 from .image_set import prepare_images

@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 
 from relight.errors import InputError
-from relight.kernels import reflectance, triangulation
 from relight.kernels.transport import STORE_TOLERANCE
 
 from . import methods
 from .ingest import DEFAULT_FACE_PIXELS
 from .samples import SampleOptions
+from .shading_fit import MODEL_REACH_DEG
+from .triangulate import DEFAULT_MAP_SIZE
 
 #: Transfer curves an image set's 8/16-bit files may be encoded with (``relight capture
 #: --transfer``): sRGB (phones, cameras' JPEGs, most RTI sets) or linear (a camera's raw response,
@@ -34,8 +35,8 @@ class CaptureOptions:
     extrapolation: bool = True
     paper_adaptation: bool = False
     spline: bool = True
-    model_reach: float = reflectance.MODEL_REACH_DEG
-    map_size: tuple[int, int] = triangulation.DEFAULT_MAP_SIZE
+    model_reach: float = MODEL_REACH_DEG
+    map_size: tuple[int, int] = DEFAULT_MAP_SIZE
     samples: SampleOptions = field(default_factory=SampleOptions)
     face: tuple[int, int, int, int] | None = None
     mesh: str | None = None

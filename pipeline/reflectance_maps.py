@@ -9,10 +9,10 @@ import numpy as np
 
 from relight.errors import InputError
 from relight.kernels import interpolation, reflectance
-from relight.kernels.bundle_format import storage_scale
 from relight.kernels.heightfield import HORIZON_DIRS
 
-from . import methods
+from . import methods, recipe_write, shading_fit
+from .bundle_write import storage_scale
 from .capture_types import CaptureOptions
 
 #: The head size (pixels) above which the horizon table (relight.kernels.heightfield.HORIZON_DIRS
@@ -28,7 +28,7 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     float32).
 
     The samples are divided by ``scale``, a power of two (1 for ordinary captures; see
-    :func:`relight.kernels.bundle.storage_scale`) so that maps and samples fit float16;
+    :func:`relight.pipeline.bundle_write.storage_scale`) so that maps and samples fit float16;
     the bundle records it as ``sample_scale`` and the renderer multiplies its light by it.
     ``horizon``: the pixels' horizon table for visibility (P, n_az), or (table, index) as
     :func:`horizon_rows` gives it, or None.
@@ -47,12 +47,12 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     scale = storage_scale(samples)
     if scale != 1.0:
         samples = (samples / np.float32(scale)).astype(np.float32)
-    codes, code_scale = rcp.encode_samples(samples)
+    codes, code_scale = recipe_write.encode_samples(samples)
     samples = rcp.decode_samples(codes, code_scale)
     horizon_index = None
     if isinstance(horizon, tuple):
         horizon, horizon_index = horizon
-    horizon = rcp.quantise_horizon(horizon)
+    horizon = recipe_write.quantise_horizon(horizon)
     horizon_table = horizon
     if horizon is not None and horizon_index is not None:
         horizon = horizon[horizon_index]  # a row per pixel for the fits and maps
@@ -64,7 +64,7 @@ def reflectance_maps(samples: np.ndarray, normals: np.ndarray, tri, opts: Captur
     adapt = opts.adaptation and full
     trend = adapt and not opts.paper_adaptation
     if full and (trend or opts.extrapolation or opts.spline):
-        sm, blend, active = reflectance.fit_model(samples, normals, tri, horizon, HORIZON_DIRS,
+        sm, blend, active = shading_fit.fit_model(samples, normals, tri, horizon, HORIZON_DIRS,
                                                   extrapolate=opts.extrapolation, spline=opts.spline, grid=grid,
                                                   reach_deg=opts.model_reach, backend=opts.backend)
         recipe = None

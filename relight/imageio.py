@@ -245,7 +245,7 @@ def file_mode() -> int:
     """The permission bits of a file relight writes, as ``open()`` would give them: 0666 less
     the process's umask (0644 under the usual 022), like other tools' outputs. (A temporary
     file is made 0600, and its mode would survive the rename.) Bundles are owner-only instead:
-    :data:`relight.kernels.bundle.BUNDLE_MODE`."""
+    :data:`relight.pipeline.bundle_write.BUNDLE_MODE`."""
     return 0o666 & ~_umask()
 
 

@@ -60,7 +60,7 @@ def small_bundle(small_capture, tmp_path_factory):
 def live_clip(tmp_path_factory) -> Path:
     """A 2 s live clip (MP4) of the small capture's head (seed 3, 320x180), turning a little:
     the camera of `relight live`'s tests and the browser's fake webcam."""
-    from relight.pipeline.synth.live import LiveConfig, synthesize_live
+    from relight.pipeline.synth.live_clip import LiveConfig, synthesize_live
 
     def make(folder: Path):
         synthesize_live(folder, LiveConfig(width=320, height=180, duration=2.0, seed=3, yaw=10.0, pitch=5.0,

@@ -69,7 +69,7 @@ def test_masked_ssim_is_scikit_images_inside_the_mask():
 
 
 def test_sparse_sides_thin_the_samples_at_wide_azimuths():
-    from relight.pipeline.synth.rig import AZIMUTH_MAX, hand_direction
+    from relight.pipeline.synth.acquisition import AZIMUTH_MAX, hand_direction
 
     t = np.linspace(0, 60, 20000)
     phase = np.zeros(4)

@@ -24,7 +24,7 @@ INNER_CODES = 5
 
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory):
-    from relight.pipeline.synth.live import LiveConfig, synthesize_live
+    from relight.pipeline.synth.live_clip import LiveConfig, synthesize_live
 
     out = tmp_path_factory.mktemp("lf")
     synthesize_live(out, LiveConfig(width=SIZE[0], height=SIZE[1], duration=1.0, fps=FPS, seed=4,

@@ -8,7 +8,7 @@ import pytest
 
 from relight import load_bundle
 from relight.errors import InputError
-from relight.kernels.bundle_format import VERSION, write_bundle
+from relight.pipeline.bundle_write import VERSION, write_bundle
 
 
 def _arrays(p=50, t=20, k=6):

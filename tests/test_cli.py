@@ -101,7 +101,7 @@ def test_a_command_builds_only_its_own_parser():
     time), and every command is still listed by --help."""
     code = ("import sys; from relight.cli import build_parser, COMMANDS; p = build_parser('filter'); "
             "p.parse_args(['filter', 'a.mp4', 'b.mp4', '--bundle', 'x.bundle', '--env', 'builtin:sunset']); "
-            "print(sorted(m for m in ('fastapi', 'relight.pipeline.capture', 'relight.pipeline.synth.live') "
+            "print(sorted(m for m in ('fastapi', 'relight.pipeline.capture', 'relight.pipeline.synth.live_clip') "
             "if m in sys.modules)); print(sorted(p._subparsers._group_actions[0].choices) == sorted(COMMANDS))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
     assert out[0] == "[]" and out[1] == "True"
@@ -181,7 +181,7 @@ def test_files_are_owner_only_for_bundles_and_follow_the_umask_otherwise(small_c
     import stat
 
     from relight.imageio import write_image
-    from relight.kernels.bundle_format import write_bundle
+    from relight.pipeline.bundle_write import write_bundle
 
     res, _ = small_capture
     old = os.umask(0o027)

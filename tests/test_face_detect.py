@@ -14,7 +14,7 @@ from .tolerances import FACE_DETECT_CENTRE
 
 @pytest.fixture(scope="module")
 def scene():
-    from relight.pipeline.synth.live import LiveConfig, LiveScene
+    from relight.pipeline.synth.live_clip import LiveConfig, LiveScene
 
     return LiveScene(LiveConfig(width=640, height=360, seed=5, yaw=45.0, pitch=30.0, roll=10.0, audio="none"))
 

@@ -31,7 +31,7 @@ def _path(bundle):
 
 
 def _scene(seed: int, size=(640, 360)):
-    from relight.pipeline.synth.live import LiveConfig, LiveScene
+    from relight.pipeline.synth.live_clip import LiveConfig, LiveScene
 
     return LiveScene(LiveConfig(width=size[0], height=size[1], duration=1.0, seed=seed, audio="none"))
 

@@ -42,7 +42,7 @@ def clip(tmp_path_factory):
     """A 5-frame live clip's frames (as encoded) and the person's silhouettes: the scene's own
     coverage over one half, as its truth writes them (``truth/silhouette``; without a truth
     environment rendered, which cost 10 s more)."""
-    from relight.pipeline.synth.live import LiveConfig, LiveScene, synthesize_live
+    from relight.pipeline.synth.live_clip import LiveConfig, LiveScene, synthesize_live
     from relight.video_read import read_frames
 
     out = tmp_path_factory.mktemp("person")

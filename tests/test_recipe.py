@@ -8,6 +8,7 @@ import pytest
 
 from relight.errors import InputError
 from relight.kernels import recipe as rcp
+from relight.pipeline import recipe_write
 
 from .tolerances import F32_CLOSE, HALF_REL
 
@@ -19,7 +20,7 @@ def test_sample_codes_keep_relative_precision_and_never_exceed_the_scale():
     rng = np.random.default_rng(0)
     x = rng.uniform(0, 1, (40, 500, 3)).astype(np.float32) ** 3 * rng.uniform(0.01, 3000, (1, 500, 3))
     x[3, 7, 1] = -0.01  # flash minus no-flash noise
-    codes, scale = rcp.encode_samples(x)
+    codes, scale = recipe_write.encode_samples(x)
     assert codes.dtype == np.uint8 and scale.dtype == np.float16
     assert (scale.astype(np.float32) >= x.max(axis=0)).all()  # rounded up
     y = rcp.decode_samples(codes, scale)
@@ -36,9 +37,9 @@ def test_sample_codes_keep_relative_precision_and_never_exceed_the_scale():
 
 def test_sample_codes_reject_what_float16_cannot_hold():
     with pytest.raises(InputError, match="float16"):
-        rcp.encode_samples(np.full((2, 3, 3), 1e6, np.float32))
+        recipe_write.encode_samples(np.full((2, 3, 3), 1e6, np.float32))
     with pytest.raises(InputError, match="NaN"):
-        rcp.encode_samples(np.full((2, 3, 3), np.nan, np.float32))
+        recipe_write.encode_samples(np.full((2, 3, 3), np.nan, np.float32))
 
 
 def test_horizon_codes_round_trip_within_half_a_step():

@@ -6,7 +6,7 @@ import pytest
 from relight.errors import InputError
 from relight.kernels.heightfield import NO_SURFACE, horizon_table
 from relight.kernels.interpolation import MIN_COS, compute_maps, visibility_at, visibility_maps
-from relight.kernels.triangulation import inside_hull, triangulate
+from relight.pipeline.triangulate import inside_hull, triangulate
 
 from .lights import front_directions
 from .tolerances import F32_CLOSE, F64_CLOSE, MAPS_TWIN_REL, TREND_EFFECT, VISIBILITY_EFFECT

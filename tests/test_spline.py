@@ -4,16 +4,10 @@ import numpy as np
 import pytest
 
 from relight.directions import fibonacci_sphere
-from relight.kernels.reflectance import model_maps
-from relight.kernels.spline import (
-    SPLINE_GAMMA,
-    leave_one_out,
-    spline_values,
-    spline_weights,
-    stacking_terms,
-    stacking_weight,
-)
-from relight.kernels.triangulation import inside_hull, triangulate
+from relight.kernels.spline import SPLINE_GAMMA, spline_values, spline_weights
+from relight.pipeline.shading_fit import model_maps
+from relight.pipeline.stacking import leave_one_out, stacking_terms, stacking_weight
+from relight.pipeline.triangulate import inside_hull, triangulate
 
 from .lights import front_directions
 from .tolerances import F32_CLOSE, F32_EXACT, F64_CLOSE, F64_SOLVE, SPLINE_GAIN

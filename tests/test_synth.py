@@ -13,7 +13,7 @@ from relight.colour import decode_srgb8, luminance
 from relight.directions import rotation_matrix, sphere_point_for_light
 from relight.errors import InputError
 from relight.imageio import read_image
-from relight.pipeline.synth import rig
+from relight.pipeline.synth import acquisition
 from relight.pipeline.synth.config import SynthConfig
 from relight.pipeline.synth.studio import OLAT_DIRECTIONS, TRUTH_GRID, Studio, synthesize
 from relight.video_read import read_frames
@@ -78,8 +78,8 @@ def test_meta_contract(capture):
     ref = meta["reference_frame"]
     assert meta["flash_fraction"][ref] == 0 and meta["head_motion"][ref] == [0, 0, 0]
     motion = np.array(meta["head_motion"])
-    assert np.hypot(motion[:, 0], motion[:, 1]).max() <= rig.MAX_SHIFT_PX_AT_540 * cfg.height / 540 + 1e-6
-    assert np.abs(motion[:, 2]).max() <= rig.MAX_ROT_DEG + 1e-9
+    assert np.hypot(motion[:, 0], motion[:, 1]).max() <= acquisition.MAX_SHIFT_PX_AT_540 * cfg.height / 540 + 1e-6
+    assert np.abs(motion[:, 2]).max() <= acquisition.MAX_ROT_DEG + 1e-9
     assert np.abs(motion).max() > 0  # the head does move
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from relight.cli import main
-from relight.pipeline.synth import rig
+from relight.pipeline.synth import acquisition
 from relight.pipeline.synth.config import SynthConfig
 from relight.pipeline.synth.pinhole_view import capture_mesh, posed_layer
 from relight.pipeline.synth.studio import Studio
@@ -43,7 +43,7 @@ def test_the_mesh_moves_the_head_as_the_image_plane_warp_does():
     image = studio.head_image(studio.ambient_head())
     motion = np.array([5.0, -4.0, 4.0])
     studio.motion[1] = motion
-    studio.matrices[1] = rig.motion_matrices(motion[None], studio.head.center)[0]
+    studio.matrices[1] = acquisition.motion_matrices(motion[None], studio.head.center)[0]
     warped = studio.render_frame(1, flash=np.zeros_like(studio.ambient_head()))
     errors = []
     for row in (motion, motion * [1, 1, -1], motion * [1, -1, 1]):

@@ -15,7 +15,7 @@ from relight.envmap import load_environment
 from relight.errors import InputError
 from relight.imageio import read_image
 from relight.pipeline.synth.head import height_units, inside
-from relight.pipeline.synth.live import LiveConfig, LiveScene
+from relight.pipeline.synth.live_clip import LiveConfig, LiveScene
 from relight.pipeline.synth.motion import head_pose_track, make_audio
 from relight.spherical_harmonics import environment_sh9, sh9_irradiance
 from relight.video_read import read_frames

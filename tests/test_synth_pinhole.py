@@ -11,7 +11,7 @@ import pytest
 from relight.cli import main
 from relight.directions import rotation_matrix
 from relight.errors import InputError
-from relight.pipeline.synth.live import LiveConfig, LiveScene
+from relight.pipeline.synth.live_clip import LiveConfig, LiveScene
 from relight.pipeline.synth.mesh_render import extend_below
 from relight.pipeline.synth.pinhole import HEAD_UNIT_CM, Pinhole, image_points
 

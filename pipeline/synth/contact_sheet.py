@@ -155,10 +155,30 @@ def _directions_plot(meta: dict) -> np.ndarray:
     return _fit(img)
 
 
+def sample_map(maps: np.ndarray, tri_active: np.ndarray, map_size: tuple[int, int], direction) -> np.ndarray:
+    """Bilinear lookup of pixel-major reflectance maps (P, 3, T_pad) toward one direction: (P, 3)."""
+    w, h = map_size
+    u, v = direction_to_equirect_uv(np.asarray(direction, dtype=np.float64))
+    x = float(u) * w - 0.5
+    y = min(max(float(v) * h - 0.5, 0.0), h - 1.0)
+    x0 = int(np.floor(x))
+    y0 = int(np.floor(y))
+    fx, fy = x - x0, y - y0
+    lut = -np.ones(w * h, dtype=np.int64)
+    lut[np.flatnonzero(tri_active)] = np.arange(int(tri_active.sum()))
+    out = np.zeros(maps.shape[:2], dtype=np.float64)
+    for dy, wy in ((0, 1 - fy), (1, fy)):
+        for dx, wx in ((0, 1 - fx), (1, fx)):
+            yy = min(y0 + dy, h - 1)
+            xx = (x0 + dx) % w
+            t = lut[yy * w + xx]
+            if t >= 0 and wx * wy > 0:
+                out += wx * wy * np.asarray(maps[:, :, t], dtype=np.float64)
+    return out.astype(np.float32)
+
+
 def _bundle_row(bundle, meta, capture, mask, bb) -> list:
     """Estimated normals, a reflectance map, and a predicted one-light image next to the truth's."""
-    from relight.kernels.interpolation import sample_map
-
     h, w = mask.shape
     x0, y0 = bundle.crop_origin
     crop = np.asarray(bundle.mask_crop)

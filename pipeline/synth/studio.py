@@ -36,7 +36,7 @@ from relight.numerics import EPS_NORM, FLOAT, px_at, require_finite
 from relight.video_write import VideoWriter
 
 from ..geometry import height_field_mesh
-from . import rig
+from . import acquisition
 from .camera import Sensor
 from .config import SynthConfig, SynthResult, head_info
 from .head import Head, build_head
@@ -99,17 +99,17 @@ class Studio:
         self.surface = self.head.surface()
         self.shader = LightShader(self.surface)
 
-        self.pulses = rig.make_pulses(np.random.default_rng(rng_rig), c.duration, c.flash_hz,
+        self.pulses = acquisition.make_pulses(np.random.default_rng(rng_rig), c.duration, c.flash_hz,
                                      sparse_sides=c.sparse_sides)
-        self.lit = rig.flash_fractions(self.pulses, self.n, c.fps, self.exposure_time)
+        self.lit = acquisition.flash_fractions(self.pulses, self.n, c.fps, self.exposure_time)
         self.fraction = np.array([sum(f for _, f in lst) for lst in self.lit])
         self.level = np.array([sum(f * self.pulses[k].strength for k, f in lst) for lst in self.lit])
         dark = np.flatnonzero(self.fraction == 0.0)
         self.reference_frame = int(dark[0]) if dark.size else int(np.argmin(self.fraction))
-        self.motion = rig.head_motion(np.random.default_rng(rng_motion), self.n, c.fps, c.height,
+        self.motion = acquisition.head_motion(np.random.default_rng(rng_motion), self.n, c.fps, c.height,
                                       c.head_motion, self.reference_frame)
-        self.matrices = rig.motion_matrices(self.motion, self.head.center)
-        self.gain, self.white_balance = rig.camera_drift(np.random.default_rng(rng_drift), self.level,
+        self.matrices = acquisition.motion_matrices(self.motion, self.head.center)
+        self.gain, self.white_balance = acquisition.camera_drift(np.random.default_rng(rng_drift), self.level,
                                                          c.fps, c.camera_drift)
         self.sensor = Sensor().scaled(c.noise)
 
@@ -136,8 +136,8 @@ class Studio:
         self._edge_dst = np.flatnonzero(edge)
         self._edge_src = flat_pos[(iy * c.width + ix)[edge]]
         # Frames move the head within this crop (its bounding box plus the largest motion).
-        reach = px_at(rig.MAX_SHIFT_PX_AT_540, c.height) * max(c.head_motion, 1.0)
-        self._reach = reach + np.radians(rig.MAX_ROT_DEG * max(c.head_motion, 1.0)) * max(c.width, c.height)
+        reach = px_at(acquisition.MAX_SHIFT_PX_AT_540, c.height) * max(c.head_motion, 1.0)
+        self._reach = reach + np.radians(acquisition.MAX_ROT_DEG * max(c.head_motion, 1.0)) * max(c.width, c.height)
         x0, y0, x1, y1 = self.head.bbox(pad=int(np.ceil(self._reach)) + 4)
         self._crop = (x0, y0, x1, y1)
         cw = x1 - x0
