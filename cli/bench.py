@@ -12,7 +12,8 @@ from .common import COMMANDS, parse_size
 def add_parser(sub) -> None:
     p = sub.add_parser("bench", help=COMMANDS["bench"],
                        description="Benchmarks: speed, memory and accuracy, measured here and printed.")
-    bsub = p.add_subparsers(title="benchmarks", metavar="NAME", required=True)
+    bsub = p.add_subparsers(title="benchmarks", metavar="NAME")
+    p.set_defaults(func=lambda args: _list_benchmarks(bsub))  # `relight bench` alone: the list
     # One parser per benchmark, in the order --help lists them; each takes its defaults from its module.
     _add_capture(bsub)
     _add_relight(bsub)
@@ -23,6 +24,16 @@ def add_parser(sub) -> None:
     _add_crash(bsub)
     _add_soak(bsub)
     _add_accuracy(bsub)
+
+
+def _list_benchmarks(bsub) -> int:
+    """What ``relight bench`` alone prints: the benchmarks, one line each (exit status 0)."""
+    helps = {a.dest: a.help for a in bsub._choices_actions}
+    width = max(map(len, helps))
+    rows = "".join(f"  {name:<{width}}  {text}\n" for name, text in helps.items())
+    print(f"usage: relight bench NAME ...\n\nbenchmarks:\n{rows}\n'relight bench NAME --help' lists a "
+          "benchmark's flags.")
+    return 0
 
 
 def _add_capture(bsub) -> None:

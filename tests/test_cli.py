@@ -64,6 +64,11 @@ def test_relight_alone_lists_its_commands():
     # a wrong command is still an error that names the choices
     bad = subprocess.run(cmd + ["nope"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "invalid choice" in bad.stderr
+    # `relight bench` alone lists the benchmarks the same way
+    bench = subprocess.run(cmd + ["bench"], capture_output=True, text=True, timeout=60)
+    assert bench.returncode == 0 and bench.stderr == ""
+    names = [line.split()[0] for line in bench.stdout.splitlines() if line.startswith("  ")]
+    assert names == ["capture", "relight", "video", "serve", "live", "fuzz", "crash", "soak", "accuracy"]
 
 
 def test_demo_writes_a_contact_sheet(tmp_path, capsys):
