@@ -21,11 +21,24 @@ def test_a_worker_stops_its_thread_on_close_and_starts_anew_on_use():
     assert not _alive("relight-test-worker")
 
 
-def test_a_frame_path_stops_the_workers_it_made_and_not_the_ones_it_was_given(small_bundle, clip):
+def _first_frames(small_capture, n: int) -> list:
+    """The small capture's first ``n`` frames (RGB uint8): enough to run a path's slow stages."""
+    from relight.video_read import read_frames
+
+    res, _ = small_capture
+    frames = []
+    for f in read_frames(res.video):
+        frames.append(f)
+        if len(frames) == n:
+            break
+    return frames
+
+
+def test_a_frame_path_stops_the_workers_it_made_and_not_the_ones_it_was_given(small_bundle, small_capture):
     from relight import load_environment
     from relight.engine.frame_path import FramePath
 
-    _, frames = clip
+    frames = _first_frames(small_capture, 6)
     env = load_environment("builtin:sunset")
     with FramePath(small_bundle, env, focal="ortho", live_source=True) as fp:
         for i, f in enumerate(frames[:6]):
