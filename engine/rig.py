@@ -34,8 +34,10 @@ FEATHER_SIGMA = 0.02
 WARP_GRID_SHARE = 1.0 / 16.0
 
 
-def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(N,) float32: the (H, W) ``img`` read bilinearly at points ``xy`` (N, 2) (edges replicated)."""
+def _remap_at(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(N,) float32: the (H, W) ``img`` read bilinearly at points ``xy`` (N, 2) by ``cv2.remap``
+    (edges replicated; positions quantised to 1/32 px, as OpenCV's bilinear does - not
+    :func:`relight.sampling.bilinear`, whose exact weights would move every model point a little)."""
     m = cv2.remap(img.astype(np.float32), xy[:, 0:1].astype(np.float32), xy[:, 1:2].astype(np.float32),
                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return m.reshape(-1)
@@ -129,7 +131,7 @@ class FaceRig:
         pts = np.asarray(points, np.float32).reshape(-1, 2)
         h, w = self.depth_crop.shape
         xy = np.clip(pts - np.array(self.origin, np.float32), 0, [w - 1, h - 1])
-        return lift_landmarks(pts, _bilinear(self.depth_crop, xy), self.k_ref)
+        return lift_landmarks(pts, _remap_at(self.depth_crop, xy), self.k_ref)
 
     @classmethod
     def build(cls, bundle, relighter, focal=None) -> FaceRig:
@@ -209,13 +211,13 @@ def _control_model(landmarks: np.ndarray, ring: np.ndarray, depth_filled: np.nda
     h, w = depth_filled.shape
     pts = np.concatenate([landmarks, ring])
     crop_xy = np.clip(pts - np.array([x0, y0], np.float32), 0, [w - 1, h - 1])
-    depth_at = _bilinear(depth_filled, crop_xy)
+    depth_at = _remap_at(depth_filled, crop_xy)
     model = lift_landmarks(pts, depth_at, k_ref)
     # Each control point and its neighbours REFIND_STEP px right and down, lifted the same way:
     # the pose's local affine at a landmark (:func:`.refind.refind_landmarks`) by finite differences.
     steps = np.concatenate([pts + [REFIND_STEP, 0.0], pts + [0.0, REFIND_STEP]])
     steps_xy = np.clip(steps - np.array([x0, y0], np.float32), 0, [w - 1, h - 1]).astype(np.float32)
-    refind_model = np.concatenate([model, lift_landmarks(steps, _bilinear(depth_filled, steps_xy), k_ref)])
+    refind_model = np.concatenate([model, lift_landmarks(steps, _remap_at(depth_filled, steps_xy), k_ref)])
     return {"control_ref": pts, "n_landmarks": len(landmarks), "ring_index": np.arange(len(landmarks), len(pts)),
             "model": model, "refind_model": refind_model,
             "shape_model": lift_straight(pts, depth_at, k_ref) if straight else model}

@@ -14,6 +14,7 @@ import numpy as np
 
 from relight.colour import decode_lut8, encode_lut
 from relight.numerics import EPS
+from relight.sampling import bilinear
 
 from .compositor import (
     AGREE_RAMP,
@@ -34,9 +35,11 @@ from .compositor import (
 from .work_groups import OUTSIDE_HALF
 
 
-def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | None = None) -> np.ndarray:
+def _bilinear_filled(img: np.ndarray, x: np.ndarray, y: np.ndarray, fill: np.ndarray | None = None) -> np.ndarray:
     """Bilinear samples (N, C) of img (ch, cw, C) - or of img's pixels (M, C) through ``fill`` -
-    at crop positions x, y; zero outside the crop or where fill is -1."""
+    at crop positions x, y; zero outside the crop or where fill is -1 (the composite kernel's own
+    read of the relit crop: float32 weights; images with replicated edges are read by
+    :func:`relight.sampling.bilinear`)."""
     ch, cw = (fill.shape if fill is not None else img.shape[:2])
     flat = img.reshape(-1, img.shape[-1])
     x0 = np.floor(x)
@@ -212,7 +215,7 @@ def _person_terms(img, box, face_box, coarse, step, origin, layer, *, mode, tau,
         inside = np.all([ci[:, 0] >= OUTSIDE_HALF for ci in c], axis=0)
         m = ((c[0] * (1 - ax)[:, None] + c[1] * ax[:, None]) * (1 - ay)[:, None]
              + (c[2] * (1 - ax)[:, None] + c[3] * ax[:, None]) * ay[:, None])
-        lay = _bilinear(layer, m[:, 0] - np.float32(origin[0]), m[:, 1] - np.float32(origin[1]))
+        lay = _bilinear_filled(layer, m[:, 0] - np.float32(origin[0]), m[:, 1] - np.float32(origin[1]))
         sel = inside & (lay[:, 7] > 0)
         k, lay = k[sel], lay[sel]
         mx, my = m[sel, 0] - np.float32(origin[0]), m[sel, 1] - np.float32(origin[1])
@@ -221,7 +224,7 @@ def _person_terms(img, box, face_box, coarse, step, origin, layer, *, mode, tau,
         s = lay[:, 3:4]
         kf = np.zeros_like(s)  # the share kept as something over the face (mode live)
         if mode == "live":
-            e = _bilinear(expect[..., 3:4], mx, my)
+            e = _bilinear_filled(expect[..., 3:4], mx, my)
             ec = _nearest(expect[..., :3], mx, my)  # (E's colour is smooth: the nearest texel's)
             agree = (f @ LUMINANCE)[:, None] / np.maximum(e, np.float32(EPS))
             dark = ramp(agree, AGREE_RAMP)
@@ -241,8 +244,8 @@ def _person_terms(img, box, face_box, coarse, step, origin, layer, *, mode, tau,
         changed[k] = True
     if person is not None:
         (sx, sy), (gox, goy) = person_sampling(person, frame_size, offset, person_origin, person_scale)
-        g = _bilinear_replicate(person, (fx + gox + np.float32(0.5)) * sx - np.float32(0.5),
-                                (fy + goy + np.float32(0.5)) * sy - np.float32(0.5))
+        g = bilinear(person, (fx + gox + np.float32(0.5)) * sx - np.float32(0.5),
+                     (fy + goy + np.float32(0.5)) * sy - np.float32(0.5)).astype(np.float32)
         if gate:
             fl = np.float32(floor)
             kk = np.clip((g[:, 3] - fl) / (np.float32(GATE_HI) - fl), 0.0, 1.0).astype(np.float32)
@@ -258,15 +261,5 @@ def _person_terms(img, box, face_box, coarse, step, origin, layer, *, mode, tau,
         changed |= on
     return f_all, res_all, gain_all.astype(np.float32), off_all.astype(np.float32), changed
 
-
-def _bilinear_replicate(grid: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
-    """(N, C) bilinear samples of ``grid`` (gh, gw, C) at grid positions gx, gy, edges replicated."""
-    gh, gw = grid.shape[:2]
-    ix, iy = np.floor(gx).astype(np.int64), np.floor(gy).astype(np.int64)
-    ax, ay = (gx - ix).astype(np.float32)[:, None], (gy - iy).astype(np.float32)[:, None]
-    xa, xb = np.clip(ix, 0, gw - 1), np.clip(ix + 1, 0, gw - 1)
-    ya, yb = np.clip(iy, 0, gh - 1), np.clip(iy + 1, 0, gh - 1)
-    return ((grid[ya, xa] * (1 - ax) + grid[ya, xb] * ax) * (1 - ay)
-            + (grid[yb, xa] * (1 - ax) + grid[yb, xb] * ax) * ay).astype(np.float32)
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from relight.directions import fibonacci_sphere
 from relight.numerics import EPS
+from relight.sampling import bilinear
 from relight.spherical_harmonics import SPHERE_POINTS, environment_sh9, sh9_irradiance
 
 from ..raster import rasterise
@@ -34,17 +35,6 @@ from .render import IRRADIANCE_FLOOR, MAX_SHADING_RATIO, box_filter_samples, emp
 #: A sample was visible at the reference pose when its depth is within this many pixels of the
 #: reference's depth buffer there (the buffer is sampled bilinearly; steep sides need the slack).
 VISIBLE_DEPTH_PX = 2.0
-
-
-def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples (N, C) of an image (H, W, C) at pixel coordinates (clamped to the image)."""
-    h, w = img.shape[:2]
-    xc, yc = np.clip(x, 0, w - 1), np.clip(y, 0, h - 1)
-    x0, y0 = np.minimum(xc.astype(np.int64), w - 2), np.minimum(yc.astype(np.int64), h - 2)
-    fx, fy = (xc - x0)[:, None], (yc - y0)[:, None]
-    a = img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx
-    b = img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx
-    return a * (1 - fy) + b * fy
 
 
 #: Below this many head units under the eyes a mesh's open boundary is the body's cut (a bust's
@@ -182,9 +172,9 @@ class MeshLiveHead:
 
         ref = blend(self.points)  # where each sample's surface point was at the reference pose
         rx, ry, rz = ref[:, 0], -ref[:, 1], ref[:, 2]
-        seen = (np.abs(_bilinear(self._ref_depth, rx, ry)[:, 0] - rz) < VISIBLE_DEPTH_PX) & ~wall
+        seen = (np.abs(bilinear(self._ref_depth, rx, ry)[:, 0] - rz) < VISIBLE_DEPTH_PX) & ~wall
         if values is not None:
-            vals = np.where(seen[:, None], _bilinear(values, rx, ry), 0.0)
+            vals = np.where(seen[:, None], bilinear(values, rx, ry), 0.0)
         else:
             n_ref = blend(self.normals)
             n_ref /= np.maximum(np.linalg.norm(n_ref, axis=1, keepdims=True), EPS)
@@ -196,7 +186,7 @@ class MeshLiveHead:
                 ref = np.concatenate([np.asarray(lit[0], dtype=np.float64), self._ref[..., 3:]], axis=2)
                 sh, n_hidden = np.asarray(lit[1], dtype=np.float64), n_ref @ rotation.T
             e_hidden = np.maximum(sh9_irradiance(sh, n_hidden), 0.0 if lit is not None else self._e_floor)
-            ref_img = _bilinear(ref, rx, ry)
+            ref_img = bilinear(ref, rx, ry)
             wgt = ref_img[:, 3:4]
             vals = np.where((seen[:, None] & (wgt > 0.5)), ref_img[:, :3] / np.maximum(wgt, EPS),
                             sample_map(self.mesh.albedo, blend(self.uv)) * e_hidden / np.pi)
