@@ -31,6 +31,7 @@ from .common import (
     COMMANDS,
     VERBOSE_HELP,
     DefaultsUnlessNone,
+    name_table,
     negative_values_joined,
     parse_args,
     run_command,
@@ -79,8 +80,7 @@ def build_parser(command: str | None = "*") -> argparse.ArgumentParser:
 
 def commands_text() -> str:
     """What ``relight`` alone prints: the commands, one line each."""
-    width = max(map(len, COMMANDS))
-    rows = "".join(f"  {name:<{width}}  {text}\n" for name, text in COMMANDS.items())
+    rows = name_table(COMMANDS)
     return (f"usage: relight COMMAND ...\n\nReal-time relighting of a human face in video, on a CPU.\n\n"
             f"commands:\n{rows}\n'relight COMMAND --help' lists a command's flags; 'relight --help' the options.\n")
 

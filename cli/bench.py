@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import COMMANDS, parse_size
+from .common import COMMANDS, name_table, parse_size
 
 
 def add_parser(sub) -> None:
@@ -28,9 +28,7 @@ def add_parser(sub) -> None:
 
 def _list_benchmarks(bsub) -> int:
     """What ``relight bench`` alone prints: the benchmarks, one line each (exit status 0)."""
-    helps = {a.dest: a.help for a in bsub._choices_actions}
-    width = max(map(len, helps))
-    rows = "".join(f"  {name:<{width}}  {text}\n" for name, text in helps.items())
+    rows = name_table({a.dest: a.help for a in bsub._choices_actions})
     print(f"usage: relight bench NAME ...\n\nbenchmarks:\n{rows}\n'relight bench NAME --help' lists a "
           "benchmark's flags.")
     return 0

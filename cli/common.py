@@ -27,6 +27,13 @@ COMMANDS = {
 }
 
 
+def name_table(helps: dict[str, str]) -> str:
+    """Names and their one-line helps as aligned rows (what ``relight`` and ``relight bench`` alone
+    print), each row indented and ending in a newline."""
+    width = max(map(len, helps))
+    return "".join(f"  {name:<{width}}  {text}\n" for name, text in helps.items())
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """WIDTHxHEIGHT (``--size 960x540``) -> (width, height)."""
     try:
