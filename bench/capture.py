@@ -66,6 +66,7 @@ def _child(video: str, bundle: str, truth: str) -> None:
     import resource
 
     from relight import load_bundle
+    from relight.kernels.bundle_format import Field
     from relight.pipeline.capture import capture
     from relight.pipeline.evaluate import evaluate_capture
 
@@ -74,7 +75,8 @@ def _child(video: str, bundle: str, truth: str) -> None:
     metrics = evaluate_capture(res.report, load_bundle(bundle), truth)
     print(json.dumps({"timings": res.timings, "peak_mb": peak_kb / 1024.0, "metrics": metrics,
                       "peak_rss_mb": res.report.get("peak_rss_mb", {}),
-                      "samples": int(res.arrays["light_dirs"].shape[0]), "pixels": int(res.arrays["pixels"].size),
+                      "samples": int(res.arrays[Field.LIGHT_DIRS].shape[0]),
+                      "pixels": int(res.arrays[Field.PIXELS].size),
                       "bundle_mb": Path(bundle).stat().st_size / 1e6}))
 
 

@@ -131,6 +131,7 @@ def _octal_mode(text: str) -> int:
 
 def _run_capture(args) -> int:
     from ..errors import InputError
+    from ..kernels.bundle_format import Field
     from ..pipeline.capture import capture
     from ..pipeline.capture_types import CaptureOptions
     from ..pipeline.samples import SampleOptions
@@ -154,8 +155,8 @@ def _run_capture(args) -> int:
     res = capture(args.images or args.video, args.out, opts, images=args.images is not None,
                   report_dir=args.report, progress=not args.quiet, file_mode=args.file_mode)
     rej = ", ".join(f"{k} {v}" for k, v in res.report.get("rejected", {}).items()) or "none"
-    print(f"wrote {res.bundle} ({res.arrays['light_dirs'].shape[0]} light samples, "
-          f"{res.arrays['pixels'].size} pixels, {res.bundle.stat().st_size / 1e6:.0f} MB)")
+    print(f"wrote {res.bundle} ({res.arrays[Field.LIGHT_DIRS].shape[0]} light samples, "
+          f"{res.arrays[Field.PIXELS].size} pixels, {res.bundle.stat().st_size / 1e6:.0f} MB)")
     print(f"dropped: {rej}")
     for note in res.report.get("notes", []):
         print(f"note: {note}")

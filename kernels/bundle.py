@@ -20,6 +20,7 @@ from relight.errors import InputError
 from .bundle_format import (
     MAPS_ONLY,
     RECIPE,
+    Field,
     decode_background,
     read_bundle_file,
 )
@@ -71,8 +72,8 @@ class Bundle:
         ``pixels`` field indexes the stored crop). Computed once, read-only."""
         w = self.frame_size[0]
         x0, y0 = self.crop_origin
-        cw = np.asarray(self.arrays["mask_crop"]).shape[1]
-        pix = np.asarray(self.arrays["pixels"], dtype=np.int64)
+        cw = np.asarray(self.arrays[Field.MASK_CROP]).shape[1]
+        pix = np.asarray(self.arrays[Field.PIXELS], dtype=np.int64)
         index = ((pix // cw + y0) * w + (pix % cw + x0)).astype(np.int32)
         index.flags.writeable = False
         return index
@@ -83,7 +84,7 @@ class Bundle:
         w, h = self.frame_size
         out = np.zeros((h, w), dtype=bool)
         x, y = self.crop_origin
-        m = np.asarray(self.arrays["mask_crop"])
+        m = np.asarray(self.arrays[Field.MASK_CROP])
         out[y:y + m.shape[0], x:x + m.shape[1]] = m
         return out
 
@@ -91,7 +92,7 @@ class Bundle:
     def solid_angle(self) -> np.ndarray:
         """(T,) solid angle (sr) of each stored map texel."""
         w, h = self.map_size
-        rows = np.asarray(self.arrays["map_texels"]) // w
+        rows = np.asarray(self.arrays[Field.MAP_TEXELS]) // w
         return equirect_solid_angles(w, h)[rows]
 
     @property
@@ -100,7 +101,7 @@ class Bundle:
         from relight.directions import equirect_directions
 
         w, h = self.map_size
-        return equirect_directions(w, h).reshape(-1, 3)[np.asarray(self.arrays["map_texels"])]
+        return equirect_directions(w, h).reshape(-1, 3)[np.asarray(self.arrays[Field.MAP_TEXELS])]
 
     def ambient_frame(self) -> np.ndarray:
         """(H, W, 3) float32 linear: the room light (``ambient``) placed in the reference frame,
@@ -108,7 +109,7 @@ class Bundle:
         w, h = self.frame_size
         out = np.zeros((h, w, 3), dtype=np.float32)
         x, y = self.crop_origin
-        a = np.asarray(self.arrays["ambient"], dtype=np.float32)
+        a = np.asarray(self.arrays[Field.AMBIENT], dtype=np.float32)
         out[y:y + a.shape[0], x:x + a.shape[1]] = a
         return out
 
@@ -120,8 +121,8 @@ class Bundle:
         noise, not a reference to track or take lighting ratios against."""
         from relight.colour import decode_srgb8, luminance
 
-        a = np.asarray(self.arrays["ambient"], dtype=np.float32)
-        m = np.asarray(self.arrays["mask_crop"], dtype=bool)
+        a = np.asarray(self.arrays[Field.AMBIENT], dtype=np.float32)
+        m = np.asarray(self.arrays[Field.MASK_CROP], dtype=bool)
         if not m.any():
             return None
         x, y = self.crop_origin
@@ -133,18 +134,18 @@ class Bundle:
     @property
     def background(self) -> np.ndarray:
         """(H, W, 3) uint8 sRGB reference frame (decoded once from the stored JPEG)."""
-        if "background" in self.arrays:
-            return self.arrays["background"]
+        if Field.BACKGROUND in self.arrays:
+            return self.arrays[Field.BACKGROUND]
         cached = self.__dict__.get("_background")
         if cached is None:
-            cached = decode_background(np.asarray(self.arrays["background_jpeg"]), self.frame_size)
+            cached = decode_background(np.asarray(self.arrays[Field.BACKGROUND_JPEG]), self.frame_size)
             cached.flags.writeable = False
             self.__dict__["_background"] = cached
         return cached
 
     @property
     def n_pixels(self) -> int:
-        return int(self.arrays["pixels"].shape[0])
+        return int(self.arrays[Field.PIXELS].shape[0])
 
     @property
     def recipe_stored(self) -> bool:
@@ -154,7 +155,7 @@ class Bundle:
     @property
     def has_maps(self) -> bool:
         """Whether the bundle stores its maps (else their recipe)."""
-        return "maps_rows" in self.arrays
+        return Field.MAPS_ROWS in self.arrays
 
     @property
     def recipe(self):
@@ -189,10 +190,10 @@ class Bundle:
         for every head pixel: read from ``maps_rows``, or made from the recipe."""
         idx = np.asarray(index, dtype=np.int64).ravel()
         if self.has_maps:
-            return np.asarray(self.arrays["maps_rows"][idx])
+            return np.asarray(self.arrays[Field.MAPS_ROWS][idx])
         from .recipe import texel_rows
 
-        tex = np.asarray(self.arrays["map_texels"], dtype=np.int64)[idx]
+        tex = np.asarray(self.arrays[Field.MAP_TEXELS], dtype=np.int64)[idx]
         return _to_half(texel_rows(self.recipe, tex))
 
     def pixel_maps(self, index=None, *, padded: bool = True) -> np.ndarray:
@@ -200,10 +201,10 @@ class Bundle:
         slice into ``pixels``; None: all), zero padded to Tp texels (a multiple of 16) unless
         ``padded`` is False. From ``maps`` when the bundle stores it, else gathered from
         ``maps_rows`` (memory: the result only)."""
-        if "maps" in self.arrays:
-            sel = self.arrays["maps"] if index is None else self.arrays["maps"][index]
+        if Field.MAPS in self.arrays:
+            sel = self.arrays[Field.MAPS] if index is None else self.arrays[Field.MAPS][index]
             out = np.asarray(sel)
-            return out if padded else out[:, :, :self.arrays["map_texels"].shape[0]]
+            return out if padded else out[:, :, :self.arrays[Field.MAP_TEXELS].shape[0]]
         if not self.has_maps:
             from .recipe import recipe_maps
 
@@ -219,8 +220,8 @@ class Bundle:
                         self.__dict__["_made_maps"] = out
             else:
                 out = recipe_maps(r.subset(np.arange(self.n_pixels)[index]), half=True)
-            return out if padded else out[:, :, :self.arrays["map_texels"].shape[0]]
-        rows = self.arrays["maps_rows"]
+            return out if padded else out[:, :, :self.arrays[Field.MAP_TEXELS].shape[0]]
+        rows = self.arrays[Field.MAPS_ROWS]
         t = rows.shape[0]
         idx = np.arange(rows.shape[2]) if index is None else np.arange(rows.shape[2])[index]
         out = np.zeros((idx.size, 3, padded_texels(t) if padded else t), dtype=np.float16)
@@ -237,7 +238,7 @@ class Bundle:
     def full_map(self, pixel: int) -> np.ndarray:
         """(H_map, W_map, 3) float32 reflectance map of one head pixel (index into ``pixels``)."""
         w, h = self.map_size
-        tex = np.asarray(self.arrays["map_texels"])
+        tex = np.asarray(self.arrays[Field.MAP_TEXELS])
         out = np.zeros((h * w, 3), dtype=np.float32)
         out[tex] = self.pixel_maps(np.array([int(pixel)]), padded=False)[0].T
         return out.reshape(h, w, 3)

@@ -28,7 +28,8 @@ pixels                  (P,) int32                   flat row-major indices of t
 mask_crop               (h, w) bool                  head pixels in the crop
 ambient                 (h, w, 3) float16            registered no-flash average (image sets: their
                                                      ambient frame, or 0), linear (float32 before version 3)
-background              (H, W, 3) uint8              a full no-flash frame, sRGB
+background_jpeg         (N,) uint8                   a full no-flash frame, sRGB, as a JPEG (format 3 and later)
+background              (H, W, 3) uint8              the same frame as pixels (formats 1 and 2)
 normal                  (P, 3) float32               camera-space unit normals
 albedo                  (P, 3) float16               Lambertian albedo, linear, flash units (float32 before 3)
 depth                   (h, w) float32               height toward the camera, pixels
@@ -87,6 +88,7 @@ import json
 import os
 import struct
 import zlib
+from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
@@ -104,14 +106,62 @@ READABLE_VERSIONS = (1, 2, 3, 4)
 PREFIX = struct.Struct("<8sIIQ")
 #: Largest header accepted (a corrupt length must not make us allocate gigabytes).
 MAX_HEADER = 64 << 20
-REQUIRED = ("pixels", "mask_crop", "ambient", "normal", "albedo", "depth", "light_dirs", "map_texels")
+
+
+class Field(StrEnum):
+    """The bundle's array fields, by the name the file stores (the table above says each one's
+    shape, type and meaning). The one place their names are written: everything that reads or
+    writes a bundle's arrays keys them with these (``arrays[Field.PIXELS]``). A member is a
+    ``str``, so a file's plain-string keys find it; its repr is the name's, as messages quote it."""
+
+    PIXELS = "pixels"
+    MASK_CROP = "mask_crop"
+    AMBIENT = "ambient"
+    BACKGROUND = "background"
+    BACKGROUND_JPEG = "background_jpeg"
+    NORMAL = "normal"
+    ALBEDO = "albedo"
+    DEPTH = "depth"
+    LANDMARKS = "landmarks"
+    LIGHT_DIRS = "light_dirs"
+    SAMPLES_CODE = "samples_code"
+    SAMPLES_SCALE = "samples_scale"
+    HORIZON_CODE = "horizon_code"
+    HORIZON_INDEX = "horizon_index"
+    MODEL_ALBEDO = "model_albedo"
+    MODEL_SPEC = "model_spec"
+    MODEL_TRUST = "model_trust"
+    SPLINE_BLEND = "spline_blend"
+    TRI_TEXEL_VERTICES = "tri_texel_vertices"
+    TRI_TEXEL_WEIGHTS = "tri_texel_weights"
+    SAMPLES = "samples"
+    MAPS = "maps"
+    MAPS_ROWS = "maps_rows"
+    MAP_TEXELS = "map_texels"
+    TRANSPORT_U = "transport_u"
+    TRANSPORT_V = "transport_v"
+    TRANSPORT_V_SCALE = "transport_v_scale"
+    TRANSPORT_V4 = "transport_v4"
+    TRANSPORT_V4_SCALE = "transport_v4_scale"
+    TRANSPORT_ERRORS = "transport_errors"
+    TRANSPORT_SIGMA = "transport_sigma"
+    TRI_VERTICES = "tri_vertices"
+    TRI_FACES = "tri_faces"
+
+    def __repr__(self) -> str:
+        return repr(self.value)
+
+
+#: Fields every bundle holds.
+REQUIRED = (Field.PIXELS, Field.MASK_CROP, Field.AMBIENT, Field.NORMAL, Field.ALBEDO, Field.DEPTH, Field.LIGHT_DIRS,
+            Field.MAP_TEXELS)
 #: The reference frame: a JPEG (format 3 and later) or raw pixels (before).
-BACKGROUND = ("background_jpeg", "background")
+BACKGROUND = (Field.BACKGROUND_JPEG, Field.BACKGROUND)
 #: A bundle holds its maps (``maps_rows``) or all of these (their recipe).
-RECIPE = ("samples_code", "samples_scale", "model_albedo", "model_spec", "model_trust", "spline_blend",
-          "tri_vertices", "tri_faces", "tri_texel_vertices", "tri_texel_weights")
+RECIPE = (Field.SAMPLES_CODE, Field.SAMPLES_SCALE, Field.MODEL_ALBEDO, Field.MODEL_SPEC, Field.MODEL_TRUST,
+          Field.SPLINE_BLEND, Field.TRI_VERTICES, Field.TRI_FACES, Field.TRI_TEXEL_VERTICES, Field.TRI_TEXEL_WEIGHTS)
 #: Fields only ``--keep-maps`` bundles hold (the maps themselves, the float16 samples).
-MAPS_ONLY = ("maps", "maps_rows", "samples")
+MAPS_ONLY = (Field.MAPS, Field.MAPS_ROWS, Field.SAMPLES)
 _ALLOWED_DTYPES = {"|b1", "|u1", "|i1", "<i4", "<i8", "<f2", "<f4", "<f8"}
 #: The meta keys every bundle must hold, each a pair of whole numbers within the bound: the
 #: reference frame's (W, H), the stored crop's top-left pixel in it, the lat-long map's (W, H).
@@ -197,9 +247,9 @@ def read_bundle_file(path: str | os.PathLike, *, verify: bool = True) -> tuple[d
         raise InputError(f"{path}: header does not describe a relight bundle")
     check_meta(doc.get("meta"), str(path))
     arrays = {}
-    need = REQUIRED + (() if "maps_rows" in doc["arrays"] else RECIPE)
+    need = REQUIRED + (() if Field.MAPS_ROWS in doc["arrays"] else RECIPE)
     if not any(k in doc["arrays"] for k in BACKGROUND):
-        need = need + ("background_jpeg",)
+        need = need + (Field.BACKGROUND_JPEG,)
     for name in need:
         if name not in doc["arrays"]:
             raise InputError(f"{path}: field {name!r} is missing; the bundle is incomplete")
@@ -257,47 +307,48 @@ def check_fields(meta: dict, arrays: dict, where: str = "bundle") -> None:
     fw, fh = meta["frame_size"]
     x0, y0 = meta["crop_origin"]
     mw, mh = meta["map_size"]
-    crop = need("mask_crop", (None, None), "b")
+    crop = need(Field.MASK_CROP, (None, None), "b")
     ch, cw = crop.shape
     if x0 + cw > fw or y0 + ch > fh:
-        bad("mask_crop", f"of {cw}x{ch} at ({x0}, {y0}) does not fit the {fw}x{fh} frame")
-    pixels = need("pixels", (None,), "iu")
+        bad(Field.MASK_CROP, f"of {cw}x{ch} at ({x0}, {y0}) does not fit the {fw}x{fh} frame")
+    pixels = need(Field.PIXELS, (None,), "iu")
     p = pixels.shape[0]
     if p and (int(pixels.min()) < 0 or int(pixels.max()) >= ch * cw or np.any(np.diff(pixels) <= 0)):
-        bad("pixels", f"holds indices outside the {cw}x{ch} crop or out of order")
+        bad(Field.PIXELS, f"holds indices outside the {cw}x{ch} crop or out of order")
     if p != int(np.count_nonzero(crop)):
-        bad("pixels", f"lists {p} head pixels but mask_crop marks {int(np.count_nonzero(crop))}")
-    need("ambient", (ch, cw, 3)), need("depth", (ch, cw)), need("normal", (p, 3)), need("albedo", (p, 3))
-    need("background", (fh, fw, 3), "u"), need("landmarks", (None, 2))
-    jpeg = need("background_jpeg", (None,), "u")
+        bad(Field.PIXELS, f"lists {p} head pixels but mask_crop marks {int(np.count_nonzero(crop))}")
+    need(Field.AMBIENT, (ch, cw, 3)), need(Field.DEPTH, (ch, cw))
+    need(Field.NORMAL, (p, 3)), need(Field.ALBEDO, (p, 3))
+    need(Field.BACKGROUND, (fh, fw, 3), "u"), need(Field.LANDMARKS, (None, 2))
+    jpeg = need(Field.BACKGROUND_JPEG, (None,), "u")
     if jpeg is not None and image_size(bytes(jpeg[:1 << 16])) != (fw, fh):
-        bad("background_jpeg", f"is not a {fw}x{fh} JPEG (the frame size the meta gives)")
-    need("light_dirs", (None, 3))
-    tex = need("map_texels", (None,), "iu")
+        bad(Field.BACKGROUND_JPEG, f"is not a {fw}x{fh} JPEG (the frame size the meta gives)")
+    need(Field.LIGHT_DIRS, (None, 3))
+    tex = need(Field.MAP_TEXELS, (None,), "iu")
     t = tex.shape[0]
     if t and (int(tex.min()) < 0 or int(tex.max()) >= mw * mh):
-        bad("map_texels", f"holds texels outside the {mw}x{mh} map")
-    need("maps_rows", (t, 3, p)), need("maps", (p, 3, padded_texels(t))), need("samples", (None, p, 3))
-    need("samples_code", (None, p, 3), "u"), need("samples_scale", (p, 3)), need("horizon_index", (p,), "iu")
-    need("horizon_code", (None, None), "u")
-    for name in ("model_albedo", "model_spec"):
+        bad(Field.MAP_TEXELS, f"holds texels outside the {mw}x{mh} map")
+    need(Field.MAPS_ROWS, (t, 3, p)), need(Field.MAPS, (p, 3, padded_texels(t))), need(Field.SAMPLES, (None, p, 3))
+    need(Field.SAMPLES_CODE, (None, p, 3), "u"), need(Field.SAMPLES_SCALE, (p, 3))
+    need(Field.HORIZON_INDEX, (p,), "iu"), need(Field.HORIZON_CODE, (None, None), "u")
+    for name in (Field.MODEL_ALBEDO, Field.MODEL_SPEC):
         need(name, (p, 3))
-    for name in ("model_trust", "spline_blend"):
+    for name in (Field.MODEL_TRUST, Field.SPLINE_BLEND):
         need(name, (p,))
-    need("tri_texel_vertices", (mw * mh, 3), "iu"), need("tri_texel_weights", (mw * mh, 3))
-    need("tri_vertices", (None, 3)), need("tri_faces", (None, 3), "iu")
-    u = need("transport_u", (t, None))
+    need(Field.TRI_TEXEL_VERTICES, (mw * mh, 3), "iu"), need(Field.TRI_TEXEL_WEIGHTS, (mw * mh, 3))
+    need(Field.TRI_VERTICES, (None, 3)), need(Field.TRI_FACES, (None, 3), "iu")
+    u = need(Field.TRANSPORT_U, (t, None))
     if u is not None:
         r = u.shape[1]
-        need("transport_errors", (r,)), need("transport_sigma", (r,))
+        need(Field.TRANSPORT_ERRORS, (r,)), need(Field.TRANSPORT_SIGMA, (r,))
         nb = -(-p // 16)
-        v = need("transport_v", (nb, 3, None, 16))
-        need("transport_v_scale", (nb * 16, 3)), need("transport_v4", (nb, 3, None, 8), "u")
-        need("transport_v4_scale", (nb * 16, 3))
+        v = need(Field.TRANSPORT_V, (nb, 3, None, 16))
+        need(Field.TRANSPORT_V_SCALE, (nb * 16, 3)), need(Field.TRANSPORT_V4, (nb, 3, None, 8), "u")
+        need(Field.TRANSPORT_V4_SCALE, (nb * 16, 3))
         if v is not None and v.dtype == np.int8:
-            k8 = v.shape[2] + (arrays["transport_v4"].shape[2] if "transport_v4" in arrays else 0)
+            k8 = v.shape[2] + (arrays[Field.TRANSPORT_V4].shape[2] if Field.TRANSPORT_V4 in arrays else 0)
             if k8 != r:
-                bad("transport_v", f"holds {k8} ranks, transport_u {r}")
+                bad(Field.TRANSPORT_V, f"holds {k8} ranks, transport_u {r}")
     for name, a in arrays.items():
         if a.dtype.kind == "f" and a.nbytes <= FINITE_CHECKED_BYTES and not np.isfinite(a).all():
             bad(name, "holds NaN or infinite values")

@@ -43,6 +43,7 @@ from relight.numerics import EPS, EPS_NORM, EPS_VALUE
 from . import interpolation as interp
 from . import reflectance as rf
 from . import triangulation
+from .bundle_format import Field
 from .maps import neighbourhoods
 from .spline import SPLINE_GAMMA, spline_weights
 
@@ -166,28 +167,28 @@ MAX_AZIMUTHS = 1024
 
 def recipe_from_arrays(arrays: dict, meta: dict, map_size) -> Recipe:
     """The recipe a bundle stores (:mod:`relight.kernels.bundle`, fields marked (r))."""
-    verts = np.asarray(arrays["tri_vertices"], dtype=np.float64)
-    codes = arrays["samples_code"]
+    verts = np.asarray(arrays[Field.TRI_VERTICES], dtype=np.float64)
+    codes = arrays[Field.SAMPLES_CODE]
     k = int(codes.shape[0])
-    p = int(arrays["pixels"].shape[0])
-    tv = np.asarray(arrays["tri_texel_vertices"], dtype=np.int64)
-    tw = np.asarray(arrays["tri_texel_weights"], dtype=np.float64)
+    p = int(arrays[Field.PIXELS].shape[0])
+    tv = np.asarray(arrays[Field.TRI_TEXEL_VERTICES], dtype=np.int64)
+    tw = np.asarray(arrays[Field.TRI_TEXEL_WEIGHTS], dtype=np.float64)
     w, h = map_size
-    if (codes.shape != (k, p, 3) or arrays["samples_scale"].shape != (p, 3) or tv.shape != (w * h, 3)
+    if (codes.shape != (k, p, 3) or arrays[Field.SAMPLES_SCALE].shape != (p, 3) or tv.shape != (w * h, 3)
             or tw.shape != (w * h, 3) or verts.ndim != 2 or verts.shape[1:] != (3,) or len(verts) < k
             or (tv.size and (tv.min() < 0 or tv.max() >= len(verts)))):
         raise InputError("the bundle's recipe fields do not fit together (samples, pixels, triangulation); "
                          "the bundle is damaged - capture it again")
     active = np.zeros(w * h, dtype=bool)
-    tex = np.asarray(arrays["map_texels"], dtype=np.int64)
+    tex = np.asarray(arrays[Field.MAP_TEXELS], dtype=np.int64)
     if tex.size and (tex.min() < 0 or tex.max() >= w * h):
         raise InputError("the bundle's map_texels lie outside its map; capture it again")
     active[tex] = True
     tri = triangulation.Triangulation(vertices=verts, n_samples=k,
-                                      faces=np.asarray(arrays["tri_faces"], dtype=np.int64), texel_vertices=tv,
+                                      faces=np.asarray(arrays[Field.TRI_FACES], dtype=np.int64), texel_vertices=tv,
                                       texel_weights=tw, active=(tv < k).any(axis=1), map_size=(w, h))
     opts = meta.get("recipe", {}) if isinstance(meta.get("recipe"), dict) else {}
-    hz, hidx = arrays.get("horizon_code"), arrays.get("horizon_index")
+    hz, hidx = arrays.get(Field.HORIZON_CODE), arrays.get(Field.HORIZON_INDEX)
     if hz is not None and not _horizon_fits(hz, hidx, p):
         raise InputError("the bundle's horizon fields do not fit its pixels; the bundle is damaged - capture it again")
     n_az = opts.get("n_az", 64 if hz is None else hz.shape[1])
@@ -195,10 +196,10 @@ def recipe_from_arrays(arrays: dict, meta: dict, map_size) -> Recipe:
             or (hz is not None and n_az != hz.shape[1]):
         raise InputError(f"the bundle's recipe says {n_az!r} horizon azimuths, its horizon_code holds "
                          f"{None if hz is None else hz.shape[1]}; the bundle is damaged - capture it again")
-    return Recipe(codes=codes, scale=arrays["samples_scale"], normals=arrays["normal"],
-                  horizon=hz, horizon_index=None if hz is None else hidx, albedo=arrays["model_albedo"],
-                  spec=arrays["model_spec"],
-                  trust=arrays["model_trust"], blend=arrays["spline_blend"], tri=tri, active=active,
+    return Recipe(codes=codes, scale=arrays[Field.SAMPLES_SCALE], normals=arrays[Field.NORMAL],
+                  horizon=hz, horizon_index=None if hz is None else hidx, albedo=arrays[Field.MODEL_ALBEDO],
+                  spec=arrays[Field.MODEL_SPEC],
+                  trust=arrays[Field.MODEL_TRUST], blend=arrays[Field.SPLINE_BLEND], tri=tri, active=active,
                   n_az=n_az, trend=bool(opts.get("trend", True)),
                   extrapolate=bool(opts.get("extrapolate", True)), spline=bool(opts.get("spline", True)))
 

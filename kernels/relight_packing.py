@@ -19,6 +19,7 @@ from relight.errors import InputError
 from relight.numerics import flush_subnormal_halves, read_halves
 
 from . import texel_lights, transport
+from .bundle_format import Field
 from .runtime import aligned_zeros
 
 #: Pixels per compact work item and texels per exact block (the kernels' 64-byte loads of 32 halves).
@@ -30,24 +31,24 @@ def read_transport(bundle) -> transport.Transport:
     4, the 4-bit later ranks kept as stored, their shapes checked; format 1-2: the float16 basis),
     or factorised from its maps when it stores none."""
     arrays = bundle.arrays
-    if "transport_u" in arrays:
-        v = arrays["transport_v"]
+    if Field.TRANSPORT_U in arrays:
+        v = arrays[Field.TRANSPORT_V]
         q = q_scale = q4 = q4_scale = None
         if v.dtype == np.int8:  # 8-bit storage (format 3 and later): dequantised only where needed
-            if "transport_v_scale" not in arrays:
+            if Field.TRANSPORT_V_SCALE not in arrays:
                 raise InputError("the bundle's 8-bit transport basis has no transport_v_scale: capture it again")
-            q, q_scale = v, np.asarray(arrays["transport_v_scale"])
+            q, q_scale = v, np.asarray(arrays[Field.TRANSPORT_V_SCALE])
             transport.basis_scale(q, q_scale)  # its shape checked now
             v = None
-            if "transport_v4" in arrays:  # format 4: the later ranks in 4 bits
-                q4, q4_scale = arrays["transport_v4"], np.asarray(arrays.get("transport_v4_scale", np.zeros(0)))
+            if Field.TRANSPORT_V4 in arrays:  # format 4: the later ranks in 4 bits
+                q4, q4_scale = arrays[Field.TRANSPORT_V4], np.asarray(arrays.get(Field.TRANSPORT_V4_SCALE, np.zeros(0)))
                 if q4.dtype != np.uint8 or q4.ndim != 4 or q4.shape[:2] != q.shape[:2] or q4.shape[3] * 2 != 16:
                     raise InputError(f"the bundle's 4-bit transport basis has shape {q4.shape} ({q4.dtype}): "
                                      "capture it again")
                 transport.basis_scale(q4, q4_scale)
-        return transport.Transport(u=np.asarray(arrays["transport_u"]), v=v,
-                                   rank_errors=np.asarray(arrays["transport_errors"]),
-                                   sigma=np.asarray(arrays.get("transport_sigma", np.zeros(1))),
+        return transport.Transport(u=np.asarray(arrays[Field.TRANSPORT_U]), v=v,
+                                   rank_errors=np.asarray(arrays[Field.TRANSPORT_ERRORS]),
+                                   sigma=np.asarray(arrays.get(Field.TRANSPORT_SIGMA, np.zeros(1))),
                                    direct=int(bundle.meta.get("transport_direct", texel_lights.DIRECT_TEXELS)),
                                    q=q, q_scale=q_scale, q4=q4, q4_scale=q4_scale)
     return transport.factorize(bundle.pixel_maps(), bundle.map_size, np.asarray(bundle.map_texels))

@@ -22,6 +22,7 @@ import numpy as np
 from relight.numerics import HALF_TINY
 
 from . import texel_lights, transport
+from .bundle_format import Field
 
 #: The Relighter's default tolerance (relative L2 against the exact path) choosing the rank.
 DEFAULT_TOLERANCE = transport.STORE_TOLERANCE
@@ -61,8 +62,8 @@ def brightest_texels(lp: np.ndarray, n: int) -> np.ndarray:
 def stored_rank(bundle, tolerance: float) -> int | None:
     """The smallest stored rank whose validation error (``transport_errors``) meets ``tolerance``;
     None when none does (the exact path)."""
-    a = bundle.arrays
-    errors = a["transport_errors"] if "transport_u" in a else _stored_transport(bundle)[0]
+    arrays = bundle.arrays
+    errors = arrays[Field.TRANSPORT_ERRORS] if Field.TRANSPORT_U in arrays else _stored_transport(bundle)[0]
     ok = np.flatnonzero(np.asarray(errors) <= tolerance)
     return int(ok[0]) + 1 if ok.size else None
 
@@ -71,17 +72,17 @@ def _stored_transport(bundle, rank: int | None = None):
     """(errors, u (T, K), q, q_scale, q4, q4_scale) as the bundle stores its transport (a float16
     basis of format 1-2 rounded as format 4 stores it, for ``rank``; a bundle without one
     factorised as the Relighter does on load)."""
-    a = bundle.arrays
-    if "transport_u" not in a:
+    arrays = bundle.arrays
+    if Field.TRANSPORT_U not in arrays:
         tr = transport.factorize(bundle.pixel_maps(), bundle.map_size, np.asarray(bundle.map_texels))
         return tr.rank_errors, tr.u, tr.q, tr.q_scale, tr.q4, tr.q4_scale
-    v = a["transport_v"]
+    v = arrays[Field.TRANSPORT_V]
     if v.dtype == np.int8:
-        q, q_scale = v, a["transport_v_scale"]
-        q4, q4_scale = a.get("transport_v4"), a.get("transport_v4_scale")
+        q, q_scale = v, arrays[Field.TRANSPORT_V_SCALE]
+        q4, q4_scale = arrays.get(Field.TRANSPORT_V4), arrays.get(Field.TRANSPORT_V4_SCALE)
     else:
         q, q_scale, q4, q4_scale = transport.quantise_basis(v, min(max(rank or 1, 1), v.shape[2]))
-    return a["transport_errors"], a["transport_u"], q, q_scale, q4, q4_scale
+    return arrays[Field.TRANSPORT_ERRORS], arrays[Field.TRANSPORT_U], q, q_scale, q4, q4_scale
 
 
 def _basis(q, scale, pixels: slice, levels: int, nibbles: bool) -> np.ndarray:

@@ -14,6 +14,7 @@ import numpy as np
 from relight import __version__
 from relight.colour import encode_srgb8
 from relight.errors import InputError, NumericalError
+from relight.kernels.bundle_format import Field
 from relight.numerics import EPS_VALUE, flush_subnormal_halves
 
 from . import geometry
@@ -175,20 +176,20 @@ def _bundle_arrays(prep: Prepared, geo: geometry.Geometry, *, pix, normals, tri,
 
     landmarks = _landmarks(prep, geo.mask)
     arrays = {
-        "pixels": pix.astype(np.int32), "mask_crop": geo.mask,
-        "ambient": stored_precision(prep.ambient.astype(np.float32)).astype(np.float16),
-        "background_jpeg": encode_background(prep.background), "normal": normals.astype(np.float16),
-        "albedo": stored_precision(geo.albedo.reshape(-1, 3)[pix].astype(np.float32)).astype(np.float16),
-        "depth": stored_precision(geo.depth.astype(np.float32)).astype(np.float16),
-        "landmarks": landmarks, "light_dirs": prep.dirs.astype(np.float32),
-        "map_texels": texels.astype(np.int32), "tri_vertices": tri.vertices.astype(np.float64),
-        "tri_faces": tri.faces.astype(np.int32),
-        "transport_u": compact.u, "transport_v": compact.q, "transport_v_scale": compact.q_scale,
-        "transport_errors": compact.rank_errors,
-        "transport_sigma": compact.sigma,
+        Field.PIXELS: pix.astype(np.int32), Field.MASK_CROP: geo.mask,
+        Field.AMBIENT: stored_precision(prep.ambient.astype(np.float32)).astype(np.float16),
+        Field.BACKGROUND_JPEG: encode_background(prep.background), Field.NORMAL: normals.astype(np.float16),
+        Field.ALBEDO: stored_precision(geo.albedo.reshape(-1, 3)[pix].astype(np.float32)).astype(np.float16),
+        Field.DEPTH: stored_precision(geo.depth.astype(np.float32)).astype(np.float16),
+        Field.LANDMARKS: landmarks, Field.LIGHT_DIRS: prep.dirs.astype(np.float32),
+        Field.MAP_TEXELS: texels.astype(np.int32), Field.TRI_VERTICES: tri.vertices.astype(np.float64),
+        Field.TRI_FACES: tri.faces.astype(np.int32),
+        Field.TRANSPORT_U: compact.u, Field.TRANSPORT_V: compact.q, Field.TRANSPORT_V_SCALE: compact.q_scale,
+        Field.TRANSPORT_ERRORS: compact.rank_errors,
+        Field.TRANSPORT_SIGMA: compact.sigma,
     }
     if compact.q4 is not None:
-        arrays.update({"transport_v4": compact.q4, "transport_v4_scale": compact.q4_scale})
+        arrays.update({Field.TRANSPORT_V4: compact.q4, Field.TRANSPORT_V4_SCALE: compact.q4_scale})
     rec_meta = None
     if recipe is not None:  # what the maps are made of (~K + 100 bytes per pixel), not the maps
         from .recipe_write import recipe_arrays
@@ -196,9 +197,9 @@ def _bundle_arrays(prep: Prepared, geo: geometry.Geometry, *, pix, normals, tri,
         rec_arrays, rec_meta = recipe_arrays(recipe)
         arrays.update(rec_arrays)
     if recipe is None or opts.keep_maps:
-        arrays["maps_rows"] = rows
+        arrays[Field.MAPS_ROWS] = rows
     if opts.keep_maps:
-        arrays.update({"samples": samples.astype(np.float16), "maps": maps})
+        arrays.update({Field.SAMPLES: samples.astype(np.float16), Field.MAPS: maps})
     return arrays, rec_meta
 
 

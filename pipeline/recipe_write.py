@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from relight.errors import InputError
+from relight.kernels.bundle_format import Field
 from relight.kernels.recipe import SAMPLE_GAMMA, Recipe, decode_horizon, encode_horizon
 from relight.numerics import half_ceil
 
@@ -46,22 +47,22 @@ def recipe_arrays(recipe: Recipe) -> tuple[dict, dict]:
     """(arrays, meta["recipe"]) a bundle stores for a recipe (inverse of
     :func:`relight.kernels.recipe.recipe_from_arrays`)."""
     arrays = {
-        "samples_code": np.asarray(recipe.codes, dtype=np.uint8),
-        "samples_scale": np.asarray(recipe.scale, dtype=np.float16),
-        "model_albedo": stored_precision(np.asarray(recipe.albedo, np.float32)).astype(np.float16),
-        "model_spec": stored_precision(np.asarray(recipe.spec, np.float32)).astype(np.float16),
-        "model_trust": np.asarray(recipe.trust, np.float32).astype(np.float16),
-        "spline_blend": np.asarray(recipe.blend, np.float32).astype(np.float16),
-        "tri_vertices": np.asarray(recipe.tri.vertices, dtype=np.float64),
-        "tri_faces": np.asarray(recipe.tri.faces, dtype=np.int32),
-        "tri_texel_vertices": np.asarray(recipe.tri.texel_vertices, dtype=np.int32),
-        "tri_texel_weights": np.asarray(recipe.tri.texel_weights, dtype=np.float32),
+        Field.SAMPLES_CODE: np.asarray(recipe.codes, dtype=np.uint8),
+        Field.SAMPLES_SCALE: np.asarray(recipe.scale, dtype=np.float16),
+        Field.MODEL_ALBEDO: stored_precision(np.asarray(recipe.albedo, np.float32)).astype(np.float16),
+        Field.MODEL_SPEC: stored_precision(np.asarray(recipe.spec, np.float32)).astype(np.float16),
+        Field.MODEL_TRUST: np.asarray(recipe.trust, np.float32).astype(np.float16),
+        Field.SPLINE_BLEND: np.asarray(recipe.blend, np.float32).astype(np.float16),
+        Field.TRI_VERTICES: np.asarray(recipe.tri.vertices, dtype=np.float64),
+        Field.TRI_FACES: np.asarray(recipe.tri.faces, dtype=np.int32),
+        Field.TRI_TEXEL_VERTICES: np.asarray(recipe.tri.texel_vertices, dtype=np.int32),
+        Field.TRI_TEXEL_WEIGHTS: np.asarray(recipe.tri.texel_weights, dtype=np.float32),
     }
     if recipe.horizon is not None:
         h = np.asarray(recipe.horizon)
-        arrays["horizon_code"] = h if h.dtype == np.uint8 else encode_horizon(h)
+        arrays[Field.HORIZON_CODE] = h if h.dtype == np.uint8 else encode_horizon(h)
         if recipe.horizon_index is not None:
-            arrays["horizon_index"] = np.asarray(recipe.horizon_index, dtype=np.int32)
+            arrays[Field.HORIZON_INDEX] = np.asarray(recipe.horizon_index, dtype=np.int32)
     meta = {"n_az": int(recipe.n_az), "trend": bool(recipe.trend), "extrapolate": bool(recipe.extrapolate),
             "spline": bool(recipe.spline), "sample_gamma": SAMPLE_GAMMA}
     return arrays, meta

@@ -18,6 +18,7 @@ import numpy as np
 
 from relight.directions import direction_to_equirect_uv
 from relight.imageio import atomic_path, write_image
+from relight.kernels.bundle_format import Field
 from relight.numerics import EPS_VALUE
 
 
@@ -116,8 +117,8 @@ def _directions(plt, tri, path):
 
 
 def _maps(plt, arrays, meta, tri, geo, path):
-    texels = arrays["map_texels"]
-    pix = arrays["pixels"]
+    texels = arrays[Field.MAP_TEXELS]
+    pix = arrays[Field.PIXELS]
     h, w = geo.mask.shape
     ys, xs = pix // w, pix % w
     picks = []
@@ -125,8 +126,8 @@ def _maps(plt, arrays, meta, tri, geo, path):
         tx, ty = xs.min() + qx * np.ptp(xs), ys.min() + qy * np.ptp(ys)
         picks.append(int(np.argmin((xs - tx) ** 2 + (ys - ty) ** 2)))
     mw, mh = tri.map_size
-    if "maps_rows" in arrays:
-        maps = np.asarray(arrays["maps_rows"][:, :, picks], dtype=np.float32).transpose(2, 1, 0)  # (n, 3, T)
+    if Field.MAPS_ROWS in arrays:
+        maps = np.asarray(arrays[Field.MAPS_ROWS][:, :, picks], dtype=np.float32).transpose(2, 1, 0)  # (n, 3, T)
     else:  # made again from the bundle's recipe, as a user's bundle would
         from relight.kernels.recipe import recipe_from_arrays, recipe_maps
 
@@ -152,7 +153,7 @@ def _visibility(plt, arrays, tri, geo, picks, path):
     from relight.kernels.heightfield import HORIZON_DIRS, NO_SURFACE, horizon_table
     from relight.kernels.interpolation import visibility_maps
 
-    pix = arrays["pixels"]
+    pix = arrays[Field.PIXELS]
     hgt = np.where(geo.mask, geo.depth, NO_SURFACE).astype(np.float32)
     sel = pix[picks].astype(np.int32)
     vis = visibility_maps(np.arctan(horizon_table(hgt, sel, HORIZON_DIRS)), HORIZON_DIRS, tri.map_size)

@@ -149,3 +149,70 @@ def test_the_meta_schema_is_checked_on_write_and_on_load(tmp_path):
     (tmp_path / "forged.bundle").write_bytes(bytes(forged))
     with pytest.raises(InputError, match="meta 'frame_size'"):
         load_bundle(tmp_path / "forged.bundle")
+
+
+def test_the_fields_are_the_formats_table():
+    """Field names every array the format's table documents, and nothing else."""
+    import re
+
+    from relight.kernels import bundle_format
+    from relight.kernels.bundle_format import Field
+
+    table = bundle_format.__doc__.split("======================  ===========================")[2]
+    documented = set(re.findall(r"^([a-z][a-z0-9_]*)", table, re.M))
+    assert documented == {f.value for f in Field}
+    assert repr(Field.MAPS_ROWS) == "'maps_rows'" and f"{Field.MAPS_ROWS}" == "maps_rows"
+
+
+def _string_keys_on_arrays(tree):
+    """(line, key) of every string literal used as a key of something called ``arrays``
+    (``arrays["x"]``, ``arrays.get("x")``, ``"x" in arrays``, ``arrays = {"x": ...}``,
+    ``arrays.update({"x": ...})``), ``arrays`` a name or an attribute, or a name given one
+    (``a = bundle.arrays``)."""
+    import ast
+
+    aliases = {t.id for node in ast.walk(tree) if isinstance(node, ast.Assign)
+               and isinstance(node.value, ast.Attribute) and node.value.attr == "arrays"
+               for t in node.targets if isinstance(t, ast.Name)}
+
+    def is_arrays(node):
+        return (isinstance(node, ast.Name) and node.id in aliases | {"arrays"}) or (
+            isinstance(node, ast.Attribute) and node.attr == "arrays")
+
+    def literal_keys(d):
+        return [k.value for k in getattr(d, "keys", []) if isinstance(k, ast.Constant) and isinstance(k.value, str)]
+
+    for node in ast.walk(tree):
+        keys = []
+        if isinstance(node, ast.Subscript) and is_arrays(node.value):
+            keys = [node.slice.value] if isinstance(node.slice, ast.Constant) else []
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and is_arrays(node.func.value):
+            arg = node.args[0] if node.args else None
+            if node.func.attr in ("get", "pop") and isinstance(arg, ast.Constant):
+                keys = [arg.value]
+            elif node.func.attr == "update" and isinstance(arg, ast.Dict):
+                keys = literal_keys(arg)
+        elif isinstance(node, ast.Compare) and isinstance(node.left, ast.Constant) and any(
+                isinstance(op, ast.In | ast.NotIn) for op in node.ops) and any(map(is_arrays, node.comparators)):
+            keys = [node.left.value]
+        elif isinstance(node, ast.Assign) and any(map(is_arrays, node.targets)) and isinstance(node.value, ast.Dict):
+            keys = literal_keys(node.value)
+        yield from ((node.lineno, k) for k in keys if isinstance(k, str))
+
+
+def test_only_the_format_spells_the_field_names():
+    """One owner for the bundle's field names: outside bundle_format.py the package keys a
+    bundle's arrays with :class:`Field` members, never a string literal (a typo there is a
+    KeyError at run time; with Field it fails at import)."""
+    import ast
+
+    from tests.architecture import modules
+
+    found = [f"{path.name}:{line} {key!r}" for name, path in modules().items()
+             if not name.endswith(".bundle_format")
+             for line, key in _string_keys_on_arrays(ast.parse(path.read_text()))]
+    assert not found, found
+    # the scan sees what it looks for
+    probe = ('arrays["pixels"]; b.arrays.get("maps"); "x" in arrays; arrays = {"a": 1}; arrays.update({"b": 2}); '
+             'q = b.arrays; q["y"]')
+    assert sorted(k for _, k in _string_keys_on_arrays(ast.parse(probe))) == ["a", "b", "maps", "pixels", "x", "y"]
