@@ -48,14 +48,16 @@ def run_filter(inp, out, bundle, env, *, mode: str = DEFAULT_MODE, fixed_env: bo
     from tqdm import tqdm
 
     from ..engine.frame_path import FramePath
+    from ..engine.frame_settings import FrameSettings
 
     t_start = time.perf_counter() if start_time is None else start_time
     inp, out = Path(inp), Path(out)
     check_preset(preset)
     if inp.resolve() == out.resolve():
         raise InputError(f"{out}: the output would overwrite the input; choose another name")
-    fp = frame_path or FramePath(bundle, env, mode=mode, strength=strength, fixed_env=fixed_env, focal=focal,
-                                 exposure=exposure, region=region, env_turn=env_turn, env_spin=env_spin)
+    settings = FrameSettings(mode=mode, strength=strength, fixed_env=fixed_env, focal=focal, exposure=exposure,
+                             region=region, env_turn=env_turn, env_spin=env_spin)
+    fp = frame_path or FramePath(bundle, env, settings)
     res = FilterResult(out=out)
     res.start_s = time.perf_counter() - t_start
     stages: dict[str, list] = {k: [] for k in ("track", "pose", "relight", "light", "warp", "composite", "total")}

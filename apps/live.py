@@ -290,6 +290,7 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     are open (the preview's URL is known)."""
     from ..engine.frame_path import FramePath
     from ..engine.frame_pipeline import FramePipeline
+    from ..engine.frame_settings import FrameSettings
 
     _check_request(mode, duration)
     if virtual_camera:
@@ -301,8 +302,9 @@ def run_live(bundle, envs: list[str], *, camera: str | None = None, size: tuple[
     res = LiveResult(camera=reader.name)
     out_fps = float(fps or reader.rate or 30.0)
     # a live source: the person's maps made beside the frames, not in one of them
-    fp = FramePath(bundle, controls.environment(), mode=mode, strength=strength, focal=focal, region=region,
-                   live_source=True, exposure=exposure, env_turn=env_turn, env_spin=env_spin)
+    settings = FrameSettings(mode=mode, strength=strength, focal=focal, region=region, live_source=True,
+                             exposure=exposure, env_turn=env_turn, env_spin=env_spin)
+    fp = FramePath(bundle, controls.environment(), settings)
     # every kernel built and run once, at the camera's size, before its first frame is read: no
     # frame waits for a compile
     res.warm_up_s = fp.warm_up(reader.frame_size)

@@ -49,6 +49,7 @@ def run(out: Path, *, quick: bool = False, progress: bool = True) -> dict:
     from relight.directions import rotation_matrix
     from relight.engine.face_detect import FaceDetector
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
     from relight.engine.tracking_image import tracking_image
     from relight.imageio import atomic_path
     from relight.kernels.relight_inputs import rotation_angle_deg
@@ -62,7 +63,7 @@ def run(out: Path, *, quick: bool = False, progress: bool = True) -> dict:
     bundle = relight.load_bundle(synth_bundle(out, (640, 360), 12.0 if quick else 24.0, progress, head_mesh=HEAD))
     haar = cv2.CascadeClassifier(cv2.data.haarcascades + "haarcascade_frontalface_default.xml")
     detector = FaceDetector()
-    fp = FramePath(bundle, relight.load_environment("builtin:sunset"), focal="ortho")
+    fp = FramePath(bundle, relight.load_environment("builtin:sunset"), FrameSettings(focal="ortho"))
     rows = []
     for w, h in sizes:
         if progress:

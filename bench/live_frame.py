@@ -106,7 +106,7 @@ def filter_frames(bundle: Path, live: Path, env: str, out: Path, *, mode: str = 
 def live_source_frames(bundle, live: Path, env: str, out: Path, *, mode: str = "transfer",
                        region: str = DEFAULT_REGION) -> Path:
     """The clip through a live source's path - ``relight live``'s and the service's streams': the
-    slow stages beside the frames, each taken once made (``FramePath(live_source=True)``) - in
+    slow stages beside the frames, each taken once made (``FrameSettings(live_source=True)``) - in
     the filter's two-thread pipeline, into PNG frames (in this process; its jobs overlap the next
     frames as they would at 30 fps, so the figures vary a little from run to run). ``bundle``: the
     loaded bundle. Returns the frames' folder."""
@@ -115,11 +115,12 @@ def live_source_frames(bundle, live: Path, env: str, out: Path, *, mode: str = "
     import relight
     from relight.apps.filter import run_filter
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     dst = out / "live-source-frames"
     shutil.rmtree(dst, ignore_errors=True)
     e = relight.load_environment(env)
-    fp = FramePath(bundle, e, mode=mode, region=region, focal="ortho", live_source=True)
+    fp = FramePath(bundle, e, FrameSettings(mode=mode, region=region, focal="ortho", live_source=True))
     run_filter(live / "live.mp4", dst, bundle, e, mode=mode, region=region, focal="ortho", frame_path=fp,
                progress=False)
     return dst

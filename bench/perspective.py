@@ -45,13 +45,14 @@ def pose_run(bundle, clip: Path, focal) -> dict:
     errors against the truth, the frame the focal search switched at, the focal used at the end."""
     import relight
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
     from relight.video_read import read_frames
 
     from .clips import rotation_errors
 
     meta = json.loads((clip / "truth" / "meta.json").read_text())
     fps = float(meta["fps"])
-    fp = FramePath(bundle, relight.load_environment(ENV), focal=focal)
+    fp = FramePath(bundle, relight.load_environment(ENV), FrameSettings(focal=focal))
     estimates, ms, switched = {}, [], None
     for i, frame in enumerate(read_frames(clip / "live.mp4")):
         t0 = time.perf_counter()

@@ -92,13 +92,14 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str, planes: bool 
     """The path over the clip (``planes``: in the decoder's planes, as ``relight live`` runs it)."""
     import relight
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
     fps = float(meta["fps"])
     bundle = relight.load_bundle(bundle_path)
     # relight synth's camera is orthographic.
     focal = "ortho" if "orthographic" in meta.get("conventions", "") else None
-    fp = FramePath(bundle, relight.load_environment(env), mode=mode, focal=focal)
+    fp = FramePath(bundle, relight.load_environment(env), FrameSettings(mode=mode, focal=focal))
     frames = _frames(live, planes)
     # Warm-up (kernel caches, first allocations), then the measured pass from a fresh track.
     for i, f in enumerate(frames[:10]):
@@ -122,8 +123,8 @@ def _per_frame(bundle_path: Path, live: Path, env: str, mode: str, planes: bool 
             "cpu_ms_per_frame": 1000.0 * rec.cpu / len(frames), "wall_ms_per_frame": 1000.0 * rec.wall / len(frames),
             "cpu_steal": rec.steal,
             # Leave out what the scene does not need: frames whose head turned < reuse_deg since
-            # the last relight reuse it (FramePath.reuse_deg).
-            "reuse_deg": fp.reuse_deg, "reused_frames": len(reused_ms), "face_frames": len(rec.reused),
+            # the last relight reuse it (FrameSettings.reuse_deg).
+            "reuse_deg": fp.settings.reuse_deg, "reused_frames": len(reused_ms), "face_frames": len(rec.reused),
             "relight_ms_relit_median": float(np.median(relit_ms)) if relit_ms else None,
             "relight_ms_reused_median": float(np.median(reused_ms)) if reused_ms else None,
             "rotation_error_deg": {"median": float(np.median(err)) if err.size else None,
@@ -237,10 +238,12 @@ def _still_head(bundle_path: Path, live: Path, env: str, mode: str) -> dict:
     slow stages that ran on them (none, once settled: the scheduler's promise)."""
     import relight
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     meta = json.loads((live / "truth" / "meta.json").read_text())
-    fp = FramePath(relight.load_bundle(bundle_path), relight.load_environment(env), mode=mode,
-                   focal="ortho" if "orthographic" in meta.get("conventions", "") else None)
+    focal = "ortho" if "orthographic" in meta.get("conventions", "") else None
+    fp = FramePath(relight.load_bundle(bundle_path), relight.load_environment(env),
+                   FrameSettings(mode=mode, focal=focal))
     frames = _frames(live, planes=True)
     still = next((f for i, f in enumerate(frames[:30]) if fp.process(f, i / 30.0)[1].face), frames[0])
     fp.reset()

@@ -33,6 +33,7 @@ def _run_demo(args) -> int:
     from .. import load_bundle, load_environment
     from ..apps.filter import run_filter
     from ..engine.frame_path import FramePath
+    from ..engine.frame_settings import FrameSettings
     from ..pipeline.capture import capture
     from ..pipeline.evaluate import evaluate_capture
     from ..pipeline.synth.config import SynthConfig
@@ -76,7 +77,7 @@ def _run_demo(args) -> int:
     for name in DEMO_ENVS:
         env = load_environment(f"builtin:{name}")
         if fp is None:
-            fp = FramePath(bundle, env, focal="ortho")
+            fp = FramePath(bundle, env, FrameSettings(focal="ortho"))
         else:
             fp.set_environment(env)
             fp.reset()

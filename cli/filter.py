@@ -74,7 +74,7 @@ def _filter_command(args) -> int:
     import relight
 
     from ..apps.filter import run_filter
-    from ..engine.frame_path import EXPOSURE_RANGE_EV
+    from ..engine.frame_settings import EXPOSURE_RANGE_EV
     from ..errors import InputError
 
     lo, hi = EXPOSURE_RANGE_EV

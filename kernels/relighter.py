@@ -284,7 +284,7 @@ class Relighter:
         whose rotation is within this angle (degrees) of its rotation, into the same ``out``,
         leaves that result instead of relighting (``reused`` counts them, ``relit`` the
         relights): the error added is about 1.7 % per degree at worst on the bench's scenes (a
-        point light), see :data:`relight.engine.frame_path.REUSE_DEG`.
+        point light), see :data:`relight.engine.frame_settings.REUSE_DEG`.
         out : the hot path's target, as NumPy's ``out=``: a writeable C-contiguous (H, W, 3)
         float32 array the kernel writes the face pixels into directly (no copy; the pixels
         outside the face are left as they are). Pass the same array every frame; a call that

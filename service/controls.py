@@ -11,7 +11,7 @@ import json
 
 from ..directions import ENV_SPIN_RANGE_DEG_S
 from ..engine.composite import MODES
-from ..engine.frame_path import EXPOSURE_RANGE_EV
+from ..engine.frame_settings import EXPOSURE_RANGE_EV
 from .codec import parse_rotation
 from .errors import ServiceError
 from .settings import PRESETS

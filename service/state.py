@@ -74,6 +74,7 @@ class FrameService:
         import relight
 
         from ..engine.frame_path import FramePath
+        from ..engine.frame_settings import FrameSettings
 
         self.config = config
         self.bundle = relight.load_bundle(config.bundle)
@@ -85,8 +86,8 @@ class FrameService:
         # The environment array the frame path was last given (the engine's cached arrays are
         # never edited in place, so identity says whether it changed; FramePath copies it).
         env = self.environment(config.env)
-        self.shared = Session(FramePath(self.bundle, env, mode=config.mode, focal=config.focal,
-                                                region=config.region), env)
+        settings = FrameSettings(mode=config.mode, focal=config.focal, region=config.region)
+        self.shared = Session(FramePath(self.bundle, env, settings), env)
         self.path = self.shared.path
         # every kernel built and run once before the first request (none waits for a compile)
         self.warm_up_s = self.path.warm_up()
@@ -155,13 +156,14 @@ class FrameService:
     # ------------------------------------------------------------------ under the lock
     def _session(self, live_source: bool = True) -> Session:
         from ..engine.frame_path import FramePath
+        from ..engine.frame_settings import FrameSettings
 
         env = self.environment(self.env_name)
         # a stream is a live source: its person's maps made beside its frames (no device work); a
         # named session's requests make theirs in the request (each answer is its frame's)
-        return Session(FramePath(self.bundle, env, mode=self.config.mode, focal=self.config.focal,
-                                 region=self.config.region, relighter=self.path.relighter, live_source=live_source,
-                                 workers=self._workers), env)
+        c = self.config
+        settings = FrameSettings(mode=c.mode, focal=c.focal, region=c.region, live_source=live_source)
+        return Session(FramePath(self.bundle, env, settings, relighter=self.path.relighter, workers=self._workers), env)
 
     def set_uploaded(self, name: str, env: np.ndarray) -> None:
         """An uploaded (validated) environment becomes the current one under ``name`` (kept loaded)."""
@@ -190,7 +192,7 @@ class FrameService:
         fp.set_mode(mode or self.config.mode)
         fp.set_strength(1.0 if strength is None else strength)
         fp.set_exposure(self.default_exposure if exposure is None else exposure)
-        if (spin or 0.0) != fp.env_spin:  # (set only on a change: a spin counts from when it was set)
+        if (spin or 0.0) != fp.settings.env_spin:  # (set only on a change: a spin counts from when it was set)
             fp.set_env_spin(spin or 0.0)
         return fp.process(rgb, time.perf_counter())
 

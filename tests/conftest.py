@@ -114,7 +114,8 @@ def clip(small_capture, tmp_path_factory):
 def frame_path(small_bundle):
     from relight import load_environment
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     # the face's composite (the tests of the whole person make their own paths); the studio's
     # frames are orthographic: told so, as a user tells a webcam's focal length or leaves it found
-    return FramePath(small_bundle, load_environment("builtin:sunset"), region="face", focal="ortho")
+    return FramePath(small_bundle, load_environment("builtin:sunset"), FrameSettings(region="face", focal="ortho"))

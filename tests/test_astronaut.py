@@ -108,12 +108,13 @@ def _clip(photo, kind):
 def test_astronaut_clips_track_and_composite(astronaut_bundle, kind, mode, tmp_path):
     from relight import load_environment
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
     from relight.imageio import write_image
 
     bundle, photo = astronaut_bundle
     # region face: this checks where the face's composite lands (the person's hair and shoulders
     # would change too in region person)
-    fp = FramePath(bundle, load_environment("builtin:window"), mode=mode, region="face")
+    fp = FramePath(bundle, load_environment("builtin:window"), FrameSettings(mode=mode, region="face"))
     face = cv2.dilate(np.asarray(bundle.mask, np.uint8), np.ones((31, 31), np.uint8))
     found = 0
     sheet = []

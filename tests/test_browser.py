@@ -80,12 +80,13 @@ def test_bar_codes_survive_the_relight(small_bundle, live_clip, tmp_path):
     import relight
     from relight.bench.browser import CODE_BITS, CODE_BLOCK
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
     from relight.video_read import read_frames
 
     frames = list(read_frames(live_clip))[:8]
     y4m = barcoded_y4m(frames, tmp_path / "c.y4m")
     coded = list(read_frames(y4m))
-    fp = FramePath(small_bundle, relight.load_environment("builtin:sunset"), focal="ortho")
+    fp = FramePath(small_bundle, relight.load_environment("builtin:sunset"), FrameSettings(focal="ortho"))
     for i, f in enumerate(coded):
         out, info = fp.process(f, i / 30)
         mid = CODE_BLOCK // 2

@@ -6,6 +6,7 @@ import pytest
 
 from relight import load_environment
 from relight.directions import rotation_matrix
+from relight.engine.frame_settings import FrameSettings
 
 from .tolerances import (
     COMPOSITE_TWIN_CODES,
@@ -129,7 +130,7 @@ def test_the_persons_maps_are_not_reused_across_a_new_environment_or_a_gap(small
     monkeypatch.setattr(head_light, "MATTE_TRUST_RUN", 1)
     for every in (schedule.PERSON_MAX_AGE, 1):
         monkeypatch.setattr(schedule, "PERSON_MAX_AGE", every)
-        fp = fpm.FramePath(small_bundle, env, region="person")
+        fp = fpm.FramePath(small_bundle, env, FrameSettings(region="person"))
         run = [fp.process(f, i / 30) for i, f in enumerate(frames[:7])]
         assert all(info.face for _, info in run)
         for k in (7, 8):  # two switches in a row
@@ -179,7 +180,7 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
     monkeypatch.setattr(frame_light.LiveLightStage, "fit", fit)
     outs = []
     for live in (False, True):
-        fp = fpm.FramePath(small_bundle, env, region="person", live_source=live, focal="ortho")
+        fp = fpm.FramePath(small_bundle, env, FrameSettings(region="person", live_source=live, focal="ortho"))
         run = []
         for i, f in enumerate(frames[:12]):
             run.append(fp.process(f, i / 30))
@@ -217,21 +218,21 @@ def test_a_setting_set_again_unchanged_does_not_wait_for_the_slow_stages(small_b
 
     _, frames = clip
     workers = (Worker("relight-field"), Worker("relight-maps"))
-    fp = fpm.FramePath(small_bundle, load_environment("builtin:sunset"), region="face", live_source=True,
-                       workers=workers)
-    other = fpm.FramePath(small_bundle, load_environment("builtin:sunset"), region="face", live_source=True,
-                          relighter=fp.relighter, workers=workers)
-    assert fp._field_worker is other._field_worker and fp.person.worker is other.live_light.worker is workers[1]
+    settings = FrameSettings(region="face", live_source=True)
+    fp = fpm.FramePath(small_bundle, load_environment("builtin:sunset"), settings, workers=workers)
+    other = fpm.FramePath(small_bundle, load_environment("builtin:sunset"), settings, relighter=fp.relighter,
+                          workers=workers)
+    assert fp.workers[0] is other.workers[0] and fp.person.worker is other.live_light.worker is workers[1]
     fp.process(frames[0], 0.0)
     job = Future()  # a field being made beside the frames, not done yet
     fp._field_job = job
     done = threading.Event()
 
     def set_all_again():
-        fp.set_mode(fp.mode)
-        fp.set_strength(fp.strength)
+        fp.set_mode(fp.settings.mode)
+        fp.set_strength(fp.settings.strength)
         fp.set_exposure(0.0)
-        fp.set_env_turn(fp.env_turn)
+        fp.set_env_turn(fp.settings.env_turn)
         done.set()
 
     threading.Thread(target=set_all_again, daemon=True).start()
@@ -240,7 +241,7 @@ def test_a_setting_set_again_unchanged_does_not_wait_for_the_slow_stages(small_b
     threading.Thread(target=lambda: (fp.set_strength(0.5), changed.set()), daemon=True).start()
     assert not changed.wait(0.3)  # waits for the field in flight
     job.set_result(None)
-    assert changed.wait(5.0) and fp.strength == 0.5
+    assert changed.wait(5.0) and fp.settings.strength == 0.5
 
 
 def _person_grid(rng, shape):

@@ -32,13 +32,14 @@ def test_a_frame_paths_turn_is_the_environment_turned(small_bundle, clip, region
     (a quarter turn is an exact column shift of the map): the same frames within a few codes
     (the texel light is splatted from the rotated directions instead of the shifted map)."""
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     _, frames = clip
     env = load_environment("builtin:window")
     turned = rotate_environment(env, rotation_matrix(90, 0, 0))
-    a = FramePath(small_bundle, env, region=region, env_turn=90)
-    b = FramePath(small_bundle, turned, region=region)
-    unturned = FramePath(small_bundle, env, region=region)
+    a = FramePath(small_bundle, env, FrameSettings(region=region, env_turn=90))
+    b = FramePath(small_bundle, turned, FrameSettings(region=region))
+    unturned = FramePath(small_bundle, env, FrameSettings(region=region))
     worst, moved = 0.0, 0.0
     for i, f in enumerate(frames[:8]):
         oa, ia = a.process(f, i / 30)
@@ -53,8 +54,9 @@ def test_a_frame_paths_turn_is_the_environment_turned(small_bundle, clip, region
 
 def test_spin_counts_from_the_first_frame_and_wraps(small_bundle):
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
-    fp = FramePath(small_bundle, load_environment("builtin:studio"), env_turn=10, env_spin=90)
+    fp = FramePath(small_bundle, load_environment("builtin:studio"), FrameSettings(env_turn=10, env_spin=90))
     np.testing.assert_allclose(fp.env_rotation(100.0), rotation_matrix(10, 0, 0), atol=1e-12)  # t0 = 100
     np.testing.assert_allclose(fp.env_rotation(101.0), rotation_matrix(100, 0, 0), atol=1e-12)
     np.testing.assert_allclose(fp.env_rotation(104.0), rotation_matrix(10 + 360, 0, 0), atol=1e-9)
@@ -89,9 +91,10 @@ def test_a_moved_key_keeps_the_locked_exposure_and_a_new_light_matches_anew(smal
     darkens as the key goes to its side, as it would) and has the person's maps remade when
     next due; another environment is matched anew."""
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     _, frames = clip
-    fp = FramePath(small_bundle, load_environment("builtin:key:az=0"), region="person")
+    fp = FramePath(small_bundle, load_environment("builtin:key:az=0"), FrameSettings(region="person"))
     for i, f in enumerate(frames[:30]):
         fp.process(f, i / 30)
     lock = fp.live_light.exposure_lock
@@ -110,11 +113,12 @@ def test_a_moved_light_is_a_draft_until_it_settles(small_bundle, clip):
     """While a light is moved (a key dragged) the face is relit from the low-rank part alone - no
     exact texel row is made - within DRAFT_REL of the full relight; settle() relights in full."""
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     from .tolerances import DRAFT_REL
 
     _, frames = clip
-    fp = FramePath(small_bundle, load_environment("builtin:key:az=-30,size=10"), region="face")
+    fp = FramePath(small_bundle, load_environment("builtin:key:az=-30,size=10"), FrameSettings(region="face"))
     for i, f in enumerate(frames[:5]):
         fp.process(f, i / 30)
     cache = fp.relighter.row_cache

@@ -36,6 +36,7 @@ def test_a_frame_kept_in_its_planes_is_relit_in_them(clip, small_bundle):
     import av
 
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
     from relight.video_frame import frame_to_rgb
     from relight.video_yuv import YuvFrame
 
@@ -54,7 +55,7 @@ def test_a_frame_kept_in_its_planes_is_relit_in_them(clip, small_bundle):
     assert d.mean() < YUV_SMALL_MEAN_CODES
     for region in ("face", "person"):
         # (the studio's frames are orthographic: told so, as every test of a path on them)
-        fp = FramePath(small_bundle, load_environment("builtin:sunset"), region=region, focal="ortho")
+        fp = FramePath(small_bundle, load_environment("builtin:sunset"), FrameSettings(region=region, focal="ortho"))
         a = [fp.process(f, i / 30) for i, f in enumerate(rgb)]
         fp.reset()
         b = [fp.process(f, i / 30) for i, f in enumerate(yf)]
@@ -92,6 +93,7 @@ def test_the_whole_person_relit_stays_on_the_person(small_bundle, small_capture,
     even where the segmentation model sees shoulders on the wall (this clip's cartoon head has
     none)."""
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
     from relight.imageio import read_image
 
     _, frames = clip
@@ -99,7 +101,8 @@ def test_the_whole_person_relit_stays_on_the_person(small_bundle, small_capture,
     person = read_image(res.truth / "mask.png")[..., 0] > 0.5
     grown = cv2.dilate(person.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
     env = load_environment("builtin:sunset")
-    whole, face_only = FramePath(small_bundle, env, region="person"), FramePath(small_bundle, env, region="face")
+    whole = FramePath(small_bundle, env, FrameSettings(region="person"))
+    face_only = FramePath(small_bundle, env, FrameSettings(region="face"))
     more = []
     for i, f in enumerate(frames[:20]):
         out, info = whole.process(f, i / 30)
@@ -138,9 +141,10 @@ def test_the_rigid_grid_covers_the_composited_face_with_a_cell_to_spare(small_bu
 
 def test_strength_zero_and_faceless_frames_pass_through(small_bundle, clip):
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     _, frames = clip
-    fp = FramePath(small_bundle, load_environment("builtin:studio"), strength=0.0, mode="paste")
+    fp = FramePath(small_bundle, load_environment("builtin:studio"), FrameSettings(strength=0.0, mode="paste"))
     out, info = fp.process(frames[3], 0.0)
     assert info.face and np.array_equal(out, frames[3])
     blank = np.full_like(frames[0], 90)
@@ -190,6 +194,7 @@ def test_pipelined_filter_is_repeatable_and_close_to_the_serial_path(small_bundl
     the serial FramePath.process (the tracker takes the live-lit reference one frame later)."""
     from relight.apps.filter import run_filter
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     path, frames = clip
     env = load_environment("builtin:sunset")
@@ -200,7 +205,7 @@ def test_pipelined_filter_is_repeatable_and_close_to_the_serial_path(small_bundl
         assert res.frames == len(frames)
         runs.append(list(read_frames(out)))
     assert all(np.array_equal(a, b) for a, b in zip(*runs, strict=True))
-    fp = FramePath(small_bundle, env, focal="ortho")
+    fp = FramePath(small_bundle, env, FrameSettings(focal="ortho"))
     serial = [fp.process(f, i / 30.0)[0] for i, f in enumerate(frames)]
     # crf 0: lossless but in YUV 4:2:0 - compare through the same encode
     ser_path = tmp_path / "serial.mp4"
@@ -347,9 +352,11 @@ def test_virtual_camera_without_the_extra_says_how_to_install_it(small_bundle, c
 
 def test_frames_of_another_size_than_the_bundle_are_relit(small_bundle, clip):
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     _, frames = clip
-    fp = FramePath(small_bundle, load_environment("builtin:studio"), focal="ortho")  # (the studio's camera)
+    # (the studio's camera)
+    fp = FramePath(small_bundle, load_environment("builtin:studio"), FrameSettings(focal="ortho"))
     found = 0
     for i, f in enumerate(frames[:12]):
         big = cv2.resize(f, (f.shape[1] * 3 // 2, f.shape[0] * 3 // 2), interpolation=cv2.INTER_LINEAR)

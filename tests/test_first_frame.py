@@ -25,9 +25,10 @@ SLOW = pytest.mark.slow(reason="a 640x360 capture made for it (~20 s): make test
 
 def _path(bundle):
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     # (the studio's camera is orthographic: told so)
-    return FramePath(bundle, load_environment("builtin:sunset"), focal="ortho")
+    return FramePath(bundle, load_environment("builtin:sunset"), FrameSettings(focal="ortho"))
 
 
 def _scene(seed: int, size=(640, 360)):
@@ -118,5 +119,5 @@ def test_the_rig_lifts_any_reference_point_as_it_lifted_its_control_points(frame
     the control points' own model back: the same depth, the same camera, the same pixels."""
     rig = frame_path.rig
     assert np.allclose(rig.lift(rig.control_ref), rig.model, rtol=0, atol=1e-3)
-    assert frame_path._keypoint_model is not None and frame_path._keypoint_model.shape == (6, 3)
-    assert np.isfinite(frame_path._keypoint_model).all()
+    assert frame_path.front_stage.keypoint_model is not None and frame_path.front_stage.keypoint_model.shape == (6, 3)
+    assert np.isfinite(frame_path.front_stage.keypoint_model).all()

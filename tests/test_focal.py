@@ -100,16 +100,17 @@ def test_a_search_that_cannot_beat_the_guess_keeps_it():
 def test_a_path_told_its_focal_keeps_it_and_one_told_none_searches(small_bundle):
     from relight import load_environment
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     env = load_environment("builtin:sunset")
-    told = FramePath(small_bundle, env, focal=500.0)
+    told = FramePath(small_bundle, env, FrameSettings(focal=500.0))
     free = FramePath(small_bundle, env)
     frame = np.ascontiguousarray(small_bundle.background)
     for fp in (told, free):
         fp.process(frame, 0.0)
     h, w = frame.shape[:2]
-    assert told.frames_focal == 500.0 and told._focal_search is None
-    assert free.frames_focal == pytest.approx(DEFAULT_FOCAL * max(w, h)) and free._focal_search is not None
+    assert told.frames_focal == 500.0 and told.front_stage.focal_search is None
+    assert free.frames_focal == pytest.approx(DEFAULT_FOCAL * max(w, h)) and free.front_stage.focal_search is not None
     free.reset()
     assert free.frames_focal is None  # another video: searched for afresh
 
@@ -133,25 +134,26 @@ def test_a_path_searches_in_the_frame_for_a_file_and_on_a_worker_for_a_live_sour
                                                                                    live_source):
     from relight import load_environment
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
     from relight.video_read import read_frames
 
     frames = list(read_frames(live_clip))
-    fp = FramePath(small_bundle, load_environment("builtin:sunset"), live_source=live_source)
+    fp = FramePath(small_bundle, load_environment("builtin:sunset"), FrameSettings(live_source=live_source))
     posed = 0
     for i, f in enumerate(frames + frames[::-1]):
         _, info = fp.process(f, i / 30)
         posed += bool(info.face)
-        search = fp._focal_search
+        search = fp.front_stage.focal_search
         if not live_source:  # a file: run in the frame its samples came in (repeatable)
-            assert fp._focal_job is None and search.started == search.done
+            assert fp.front_stage.focal_job is None and search.started == search.done
         if search.started:
             break
     assert search.started and posed < len(frames) * 2
     if live_source:  # (a worker below the frames' priority: on a busy machine it waits for the cores)
-        assert fp._focal_job is not None
+        assert fp.front_stage.focal_job is not None
         fp.join()
         fp.process(frames[0], 10.0)  # the result taken
-    assert search.done and fp._focal_job is None
+    assert search.done and fp.front_stage.focal_job is None
     assert fp.frames_focal == (search.found if search.found is not None else search.guess)
     assert fp.focal_found == (search.found is not None)
 

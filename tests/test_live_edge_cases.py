@@ -29,9 +29,10 @@ from .tolerances import (
 @pytest.fixture(scope="module")
 def path(small_bundle):
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     # (the studio's frames are orthographic: told so - the focal search has its own tests)
-    return FramePath(small_bundle, load_environment("builtin:sunset"), focal="ortho")
+    return FramePath(small_bundle, load_environment("builtin:sunset"), FrameSettings(focal="ortho"))
 
 
 @pytest.fixture(scope="module")
@@ -250,8 +251,9 @@ def test_a_live_source_refits_a_sudden_light_change_beside_its_frames(small_bund
     a refit within 3 frames, the field made beside the frames is taken (made after the change, in
     use by frame 24), and every frame is relit meanwhile (the field in use carried)."""
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
-    live = FramePath(small_bundle, load_environment("builtin:sunset"), live_source=True)
+    live = FramePath(small_bundle, load_environment("builtin:sunset"), FrameSettings(live_source=True))
     seq = frames[:20] + [np.clip(f.astype(np.float32) * 1.6, 0, 255).astype(np.uint8) for f in frames[20:30]]
     infos, made = [], []
     for i, f in enumerate(seq):

@@ -130,13 +130,14 @@ def test_frame_path_finds_a_known_light_on_the_studio_truth(small_capture, small
     """The synthetic studio's truth rendered under one directional light (not the bundle: the
     renderer that made the capture) as a live frame: the estimate points at that light."""
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
     from relight.imageio import read_image
 
     res, _ = small_capture
     meta = json.loads((res.truth / "meta.json").read_text())
     mask = read_image(res.truth / "mask.png")[..., 0] > 0.5
     background = decode_srgb8(np.asarray(small_bundle.background))
-    fp = FramePath(small_bundle, load_environment("builtin:studio"), focal="ortho")
+    fp = FramePath(small_bundle, load_environment("builtin:studio"), FrameSettings(focal="ortho"))
     for name in ("olat_left", "olat_top"):
         face = read_image(res.truth.parent / meta["files"]["olat"][name])
         frame = encode_srgb8(np.where(mask[..., None], 0.8 * face + background, background))
@@ -257,6 +258,7 @@ def test_a_real_face_lit_from_one_side_is_found_and_relit(shared_data, tmp_path)
     from relight.bench import realface
     from relight.bench.accuracy_real import FACES_TRANSFER, scaled_rti, split_rti
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
     from relight.pipeline.capture import capture
     from relight.pipeline.capture_types import CaptureOptions
     from relight.video_read import read_frames
@@ -269,7 +271,7 @@ def test_a_real_face_lit_from_one_side_is_found_and_relit(shared_data, tmp_path)
     data = np.load(tmp_path / "clip" / "truth.npz")
     frames = list(read_frames(tmp_path / "clip" / "clip.mp4"))[:20]
     env = load_environment("builtin:point:" + ",".join(str(v) for v in info["dir_b"]))
-    fp = FramePath(relight.load_bundle(tmp_path / "face.bundle"), env, fixed_env=True, focal="ortho")
+    fp = FramePath(relight.load_bundle(tmp_path / "face.bundle"), env, FrameSettings(fixed_env=True, focal="ortho"))
     outs, found = [], 0
     for i, f in enumerate(frames):
         out, inf = fp.process(f, i / realface.CLIP_FPS)

@@ -27,8 +27,9 @@ FIT_STATUS = {1e-4: "dark", 1e-3: "ok", 1e-2: "ok", 0.1: "ok", 0.5: "ok", 1.0: "
 def path(small_bundle):
     import relight
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
-    return FramePath(small_bundle, relight.load_environment("builtin:sunset"), focal="ortho")
+    return FramePath(small_bundle, relight.load_environment("builtin:sunset"), FrameSettings(focal="ortho"))
 
 
 @pytest.fixture(scope="module")

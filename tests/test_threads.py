@@ -37,20 +37,21 @@ def _first_frames(small_capture, n: int) -> list:
 def test_a_frame_path_stops_the_workers_it_made_and_not_the_ones_it_was_given(small_bundle, small_capture):
     from relight import load_environment
     from relight.engine.frame_path import FramePath
+    from relight.engine.frame_settings import FrameSettings
 
     frames = _first_frames(small_capture, 6)
     env = load_environment("builtin:sunset")
-    with FramePath(small_bundle, env, focal="ortho", live_source=True) as fp:
+    with FramePath(small_bundle, env, FrameSettings(focal="ortho", live_source=True)) as fp:
         for i, f in enumerate(frames[:6]):
             fp.process(f, i / 30)
-        made = [fp._field_worker.name, fp._maps_worker.name]
+        made = [w.name for w in fp.workers]
         assert any(_alive(n) for n in made)  # a live source's slow stages ran on them
-        workers = (fp._field_worker, fp._maps_worker)
+        workers = fp.workers
     assert all(w._pool is None for w in workers)
     given = (Worker("relight-test-field", background=True), Worker("relight-test-maps", background=True))
     for w in given:  # started before the path has them
         w.submit(lambda: None).result(timeout=10)
-    fp = FramePath(small_bundle, env, focal="ortho", live_source=True, workers=given)
+    fp = FramePath(small_bundle, env, FrameSettings(focal="ortho", live_source=True), workers=given)
     for i, f in enumerate(frames[:6]):
         fp.process(f, i / 30)
     fp.close()

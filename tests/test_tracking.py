@@ -100,7 +100,7 @@ def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, s
     frame = cv2.warpAffine(ref, sim, (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
     idx = np.arange(fp.rig.n_landmarks)
     truth = fp.rig.control_ref[idx] @ sim[:, :2].T + sim[:, 2]
-    est = fp._estimator((w, h))
+    est = fp.front_stage.estimator((w, h))
     est.last = None
     pose = est.solve(idx, truth + np.array([2.0, 0.0]))
     assert pose is not None
@@ -109,7 +109,7 @@ def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, s
     if ts < 1:
         grey = cv2.resize(grey, (round(w * ts), round(h * ts)), interpolation=cv2.INTER_AREA)
     grey, _ = track_exposure(grey)
-    found = fp._refind(est, pose, ts, grey, idx)
+    found = fp.front_stage._refind(est, pose, ts, grey, idx)
     assert found is not None and len(found) >= REFIND_FOUND_SHARE * len(idx)
     err = np.linalg.norm(found.xy / ts - truth[found.ref_index], axis=1)
     before = np.linalg.norm(est.project(pose, found.ref_index) - truth[found.ref_index], axis=1)
