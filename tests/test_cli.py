@@ -71,6 +71,7 @@ def test_relight_alone_lists_its_commands():
     assert names == ["capture", "relight", "video", "serve", "live", "fuzz", "crash", "soak", "accuracy"]
 
 
+@pytest.mark.slow  # the whole demo (~40 s: a 12 s capture, three relit clips): `make test-slow`, CI
 def test_demo_writes_a_contact_sheet(tmp_path, capsys):
     import cv2
 
