@@ -162,6 +162,21 @@ RECIPE = (Field.SAMPLES_CODE, Field.SAMPLES_SCALE, Field.MODEL_ALBEDO, Field.MOD
           Field.SPLINE_BLEND, Field.TRI_VERTICES, Field.TRI_FACES, Field.TRI_TEXEL_VERTICES, Field.TRI_TEXEL_WEIGHTS)
 #: Fields only ``--keep-maps`` bundles hold (the maps themselves, the float16 samples).
 MAPS_ONLY = (Field.MAPS, Field.MAPS_ROWS, Field.SAMPLES)
+
+
+def missing_fields(names) -> list[Field]:
+    """The fields a bundle must hold that ``names`` (a collection of field names) lacks, in the
+    order the reader checks them: :data:`REQUIRED`, the recipe (:data:`RECIPE`, unless the maps
+    are stored as ``maps_rows``), then the reference frame (``background_jpeg``, unless either
+    :data:`BACKGROUND` field is there). The writer and the reader both ask it."""
+    missing = [k for k in REQUIRED if k not in names]
+    if Field.MAPS_ROWS not in names:
+        missing += [k for k in RECIPE if k not in names]
+    if not any(k in names for k in BACKGROUND):
+        missing.append(Field.BACKGROUND_JPEG)
+    return missing
+
+
 _ALLOWED_DTYPES = {"|b1", "|u1", "|i1", "<i4", "<i8", "<f2", "<f4", "<f8"}
 #: The meta keys every bundle must hold, each a pair of whole numbers within the bound: the
 #: reference frame's (W, H), the stored crop's top-left pixel in it, the lat-long map's (W, H).
@@ -247,12 +262,9 @@ def read_bundle_file(path: str | os.PathLike, *, verify: bool = True) -> tuple[d
         raise InputError(f"{path}: header does not describe a relight bundle")
     check_meta(doc.get("meta"), str(path))
     arrays = {}
-    need = REQUIRED + (() if Field.MAPS_ROWS in doc["arrays"] else RECIPE)
-    if not any(k in doc["arrays"] for k in BACKGROUND):
-        need = need + (Field.BACKGROUND_JPEG,)
-    for name in need:
-        if name not in doc["arrays"]:
-            raise InputError(f"{path}: field {name!r} is missing; the bundle is incomplete")
+    missing = missing_fields(doc["arrays"])
+    if missing:
+        raise InputError(f"{path}: field {missing[0]!r} is missing; the bundle is incomplete")
     for name, spec in doc["arrays"].items():
         if not isinstance(spec, dict) or not isinstance(spec.get("dtype"), str) or spec["dtype"] not in _ALLOWED_DTYPES:
             raise InputError(f"{path}: field {name!r} has a malformed description or an unsupported type")

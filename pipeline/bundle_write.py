@@ -14,7 +14,7 @@ import numpy as np
 
 from relight.errors import InputError, NumericalError
 from relight.imageio import atomic_path
-from relight.kernels.bundle_format import BACKGROUND, MAGIC, PREFIX, RECIPE, REQUIRED, Field, check_meta
+from relight.kernels.bundle_format import MAGIC, PREFIX, check_meta, missing_fields
 
 #: The format version written (the reader takes :data:`relight.kernels.bundle_format.READABLE_VERSIONS`).
 VERSION = 4
@@ -70,11 +70,7 @@ def write_bundle(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarr
     values are converted to little-endian C order."""
     if not (isinstance(mode, int) and 0 <= mode <= 0o777 and mode & 0o600 == 0o600):
         raise InputError(f"file mode {mode!r}: an octal mode from 600 to 777 that lets the owner read and write")
-    missing = [k for k in REQUIRED if k not in arrays]
-    if not any(k in arrays for k in BACKGROUND):
-        missing.append(Field.BACKGROUND_JPEG)
-    if Field.MAPS_ROWS not in arrays:
-        missing += [k for k in RECIPE if k not in arrays]
+    missing = missing_fields(arrays)
     if missing:
         raise InputError(f"bundle is missing required field(s): {', '.join(missing)}")
     check_meta(meta, str(path))
