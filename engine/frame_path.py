@@ -39,7 +39,7 @@ from .frame_field import FieldStage
 from .frame_front import FrontStage
 from .frame_light import LiveLightStage, sync_relight
 from .frame_person import PersonStage
-from .frame_settings import FrameSettings
+from .frame_settings import FIXED_AT_START, FrameSettings
 from .gains import ambient_gain, paste_gain
 from .pose import OneEuroFilter
 from .rig import FaceRig
@@ -158,9 +158,9 @@ class FramePath:
     # FrameSettings does (an InputError saying what to change; the settings then unchanged).
     def update(self, **changes) -> None:
         """The settings changed (``mode=...``, any of :class:`.frame_settings.FrameSettings`' but
-        ``focal``, ``tolerance``, ``live_source`` and ``field_rows``, which the path was made with)
-        from the next frame. ``env_spin`` counts from the next frame's time when it changes."""
-        fixed = {"focal", "tolerance", "live_source", "field_rows"} & changes.keys()
+        those the path was made with, :data:`.frame_settings.FIXED_AT_START`) from the next frame.
+        ``env_spin`` counts from the next frame's time when it changes."""
+        fixed = set(FIXED_AT_START) & changes.keys()
         if fixed:
             raise InputError(f"{', '.join(sorted(fixed))}: set when the frame path is made; make a new one")
         new = replace(self.settings, **changes)

@@ -24,6 +24,9 @@ REUSE_DEG_MAX = 5.0
 EXPOSURE_RANGE_EV = (-20.0, 20.0)
 #: The light field's rows a caller may ask for (:data:`.field.FIELD_ROWS`).
 FIELD_ROWS_RANGE = (16, 4320)
+#: The settings a frame path is made with and keeps (its rig, relighter, workers and field are
+#: built from them): :meth:`relight.engine.frame_path.FramePath.update` refuses to change them.
+FIXED_AT_START = ("focal", "tolerance", "live_source", "field_rows")
 
 
 @dataclass(frozen=True)
