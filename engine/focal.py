@@ -57,7 +57,7 @@ MIN_POINTS = 12
 ERROR_CAP_PX = 3.0
 #: The estimate replaces the guess when the kept frames' RMS errors are lower at it than at the
 #: guess with this one-sided significance (a paired t-test over the frames; else the guess is as good).
-SIGNIFICANCE = 0.01
+SIGNIFICANCE = 0.05
 
 
 def frame_errors(model: np.ndarray, samples: list, size: tuple[int, int], focal: float) -> np.ndarray:

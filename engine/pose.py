@@ -133,14 +133,17 @@ class PoseEstimator:
         self._since_check = 0
         self._share = 0.0  # the share of points the last pose explained
 
-    def solve(self, ref_index: np.ndarray, xy: np.ndarray) -> Pose | None:
+    def solve(self, ref_index: np.ndarray, xy: np.ndarray, robust: bool = True) -> Pose | None:
         """The pose of this frame's tracked points (None when no consistent pose exists).
 
         Tracking (a previous pose): Levenberg-Marquardt from it, then again on the points whose
         reprojection error is under the RANSAC threshold (when most points agree,
         ``TRACK_INLIERS``); RANSAC then LM on its inliers checks it every ``CHECK_EVERY`` frames
         and when the share it explains drops (``CHECK_DROP``) - the one that explains more points
-        is kept. At acquisition, and when the warm start fails: RANSAC, then LM."""
+        is kept. At acquisition, and when the warm start fails: RANSAC, then LM. ``robust``: a
+        pose whose consensus is a minority is then fitted over every point (:func:`robust_fit`) -
+        for points that are each the face's own measurement; not for points a detector's rough
+        first pose placed, whose errors share that pose's (the caller knows which it holds)."""
         if len(ref_index) < MIN_INLIERS:
             self.last = None
             return None
@@ -171,7 +174,7 @@ class PoseEstimator:
                     if n_other > explained:
                         pose, share = other, n_other / len(obj)
             self._share = share
-        if pose is not None and pose.inliers.size < TRACK_INLIERS * len(obj):
+        if robust and pose is not None and pose.inliers.size < TRACK_INLIERS * len(obj):
             pose = self._robust(obj, img, pose, thr)
         self.last = pose
         return pose
