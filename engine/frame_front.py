@@ -71,7 +71,7 @@ class FrontStage:
         focal search with it when the focal length was not told)."""
         est = self.estimators.get(size)
         if est is None:
-            est = PoseEstimator(self.rig.model, size, self.rig.focal)
+            est = PoseEstimator(self.rig.model, size, self.rig.focal, self.rig.model_normals)
             self.estimators = {size: est}
             self.focal_search = FocalSearch(self.rig.shape_model, size, est.k[0, 0]) if self.auto_focal else None
             self.focal_job = None  # (another size's search: its result is not this one's)

@@ -125,8 +125,12 @@ class Pose:
 class PoseEstimator:
     """PnP + RANSAC of tracked landmarks against the model, warm-started from the last pose."""
 
-    def __init__(self, model: np.ndarray, frame_size: tuple[int, int], focal: float | None = None):
+    def __init__(self, model: np.ndarray, frame_size: tuple[int, int], focal: float | None = None,
+                 normals: np.ndarray | None = None):
         self.model = np.asarray(model, dtype=np.float64)
+        #: (N, 3) the model points' unit surface normals (toward the reference camera), or None:
+        #: the robust fit weights each point by how squarely it faces the camera (:func:`facing`).
+        self.normals = None if normals is None else np.asarray(normals, dtype=np.float64)
         self.k = camera_matrix(frame_size, focal)
         self.frame_size = frame_size
         self.last: Pose | None = None
@@ -175,7 +179,7 @@ class PoseEstimator:
                         pose, share = other, n_other / len(obj)
             self._share = share
         if robust and pose is not None and pose.inliers.size < TRACK_INLIERS * len(obj):
-            pose = self._robust(obj, img, pose, thr)
+            pose = self._robust(obj, img, pose, thr, None if self.normals is None else self.normals[ref_index])
         self.last = pose
         return pose
 
@@ -235,11 +239,13 @@ class PoseEstimator:
         """How many of the points ``pose`` projects within ``thr`` px of where they were seen."""
         return int((self._errors(obj, img, pose.rvec, pose.tvec) < thr).sum())
 
-    def _robust(self, obj, img, pose: Pose, thr: float) -> Pose:
+    def _robust(self, obj, img, pose: Pose, thr: float, normals=None) -> Pose:
         """``pose`` fitted again over every point by :func:`robust_fit` (its inliers those within
-        twice ``thr`` px, as a warm start's are); ``pose`` itself when that fit leaves the model
-        behind the camera."""
-        rvec, tvec = robust_fit(obj, img, pose.rvec, pose.tvec, self.k, thr)
+        twice ``thr`` px, as a warm start's are), each point weighted by :func:`facing` under
+        ``pose`` when the points' ``normals`` are known; ``pose`` itself when that fit leaves the
+        model behind the camera."""
+        weights = None if normals is None else facing(normals, obj, pose.rvec, pose.tvec)
+        rvec, tvec = robust_fit(obj, img, pose.rvec, pose.tvec, self.k, thr, weights=weights)
         inl = np.flatnonzero(self._errors(obj, img, rvec, tvec) < 2.0 * thr)
         fitted = self._finish(obj, img, rvec, tvec, inl) if inl.size >= MIN_INLIERS else None
         return fitted if fitted is not None else pose
@@ -283,30 +289,48 @@ class PoseEstimator:
         return pts.reshape(-1, 2)
 
 
-def _cauchy_cost(err: np.ndarray, scale: float) -> float:
-    """sum over points of ln(1 + (err / scale)^2) (err: (N,) px)."""
-    return float(np.log1p((err / scale) ** 2).sum())
+def _cauchy_cost(err: np.ndarray, scale: float, weights: np.ndarray) -> float:
+    """sum over points of weights * ln(1 + (err / scale)^2) (err: (N,) px)."""
+    return float((weights * np.log1p((err / scale) ** 2)).sum())
+
+
+def facing(normals: np.ndarray, obj: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    """(N,) float64 in [0, 1]: how squarely each model point's surface faces the camera under the
+    pose (rvec, tvec) - the cosine between its turned normal (``normals`` (N, 3), unit, the model's
+    space) and its direction to the camera, 0 where it faces away. A point's tracked position is
+    as good as its patch: a surface turned by an angle shows its texture compressed by that
+    angle's cosine, and one near the silhouette is about to be hidden."""
+    r, _ = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3, 1))
+    cam = np.asarray(obj, np.float64).reshape(-1, 3) @ r.T + np.asarray(tvec, np.float64).ravel()
+    dist = np.linalg.norm(cam, axis=1)
+    cos = -np.einsum("ij,ij->i", np.asarray(normals, np.float64).reshape(-1, 3) @ r.T, cam) / np.maximum(dist, 1e-9)
+    return np.clip(np.nan_to_num(cos, nan=0.0), 0.0, 1.0)
 
 
 def robust_fit(obj: np.ndarray, img: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, k: np.ndarray,
-               scale: float, iterations: int = ROBUST_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
+               scale: float, iterations: int = ROBUST_ITERATIONS,
+               weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The pose (rvec, tvec: (3, 1) float64, OpenCV's) near a start that minimises
-    sum_i ln(1 + (e_i / scale)^2) over every point, e_i px its reprojection error: a Cauchy
-    (Lorentzian) loss, quadratic within ``scale`` px and growing only as a log beyond, so a point
-    far off still pulls a little and no point decides alone.
+    sum_i w_i ln(1 + (e_i / scale)^2) over every point, e_i px its reprojection error and w_i its
+    ``weights`` (N,) >= 0 (None: all 1): a Cauchy (Lorentzian) loss, quadratic within ``scale``
+    px and growing only as a log beyond, so a point far off still pulls a little and no point
+    decides alone.
 
     obj : (N, 3) model points; img : (N, 2) or (N, 1, 2) seen positions (px); k : the camera's
     3x3 intrinsics. Iteratively reweighted least squares: each point weighted by
-    1 / (1 + (e_i / scale)^2), a Gauss-Newton step on the weighted points with Levenberg damping
+    w_i / (1 + (e_i / scale)^2), a Gauss-Newton step on the weighted points with Levenberg damping
     raised until the loss falls (the Jacobian is ``cv2.projectPoints``'), at most ``iterations``.
-    The start comes back unchanged when it is not finite, the points are too few (< 4) or no step
-    lowers the loss."""
+    The start comes back unchanged when it or the weights are not finite, fewer than 4 points
+    carry weight or no step lowers the loss."""
     obj = np.asarray(obj, np.float64).reshape(-1, 1, 3)
     img = np.asarray(img, np.float64).reshape(-1, 2)
     x = np.concatenate([np.asarray(rvec, np.float64).ravel(), np.asarray(tvec, np.float64).ravel()])
     start = (x[:3].reshape(3, 1).copy(), x[3:].reshape(3, 1).copy())
-    if len(obj) < 4 or len(img) != len(obj) or not (np.isfinite(x).all() and np.isfinite(obj).all()
-                                                    and np.isfinite(img).all() and scale > 0):
+    pw = np.ones(len(obj)) if weights is None else np.asarray(weights, np.float64).ravel()
+    if len(img) != len(obj) or len(pw) != len(obj) or not (np.isfinite(x).all() and np.isfinite(obj).all()
+                                                           and np.isfinite(img).all() and np.isfinite(pw).all()
+                                                           and (pw >= 0).all() and scale > 0) \
+            or (pw > 0).sum() < 4:
         return start
 
     def residual(v):
@@ -314,10 +338,10 @@ def robust_fit(obj: np.ndarray, img: np.ndarray, rvec: np.ndarray, tvec: np.ndar
         return proj.reshape(-1, 2) - img, jac[:, :6]
 
     r, jac = residual(x)
-    cost = _cauchy_cost(np.linalg.norm(r, axis=1), scale)
+    cost = _cauchy_cost(np.linalg.norm(r, axis=1), scale, pw)
     damping = 1e-3
     for _ in range(iterations):
-        w = np.repeat(1.0 / (1.0 + (np.linalg.norm(r, axis=1) / scale) ** 2), 2)
+        w = np.repeat(pw / (1.0 + (np.linalg.norm(r, axis=1) / scale) ** 2), 2)
         a = jac.T @ (jac * w[:, None])
         g = jac.T @ (w * r.ravel())
         diag = np.maximum(np.diag(a), 1e-12)
@@ -326,7 +350,7 @@ def robust_fit(obj: np.ndarray, img: np.ndarray, rvec: np.ndarray, tvec: np.ndar
             if step is None or not np.isfinite(step).all():
                 return (x[:3].reshape(3, 1), x[3:].reshape(3, 1)) if np.isfinite(x).all() else start
             r_new, jac_new = residual(x + step)
-            cost_new = _cauchy_cost(np.linalg.norm(r_new, axis=1), scale)
+            cost_new = _cauchy_cost(np.linalg.norm(r_new, axis=1), scale, pw)
             if np.isfinite(cost_new) and cost_new <= cost:
                 break
             damping *= 10.0

@@ -94,6 +94,7 @@ class FaceRig:
     #: lifted straight (:func:`.pose.lift_straight`), a pinhole's as ``model`` - the focal search's model
     shape_model: np.ndarray
     refind_model: np.ndarray  # (3N, 3) model, then each point moved REFIND_STEP px right, then down
+    model_normals: np.ndarray  # (N, 3) unit surface normals of ``model``'s points (toward the reference camera)
     depth_crop: np.ndarray  # (ch, cw) float32 depth (px toward the camera; off the face the nearest face px's)
     k_ref: np.ndarray  # (3, 3) the reference's camera (the one it is lifted with: reference_focal)
     ref_track_scale: float  # the tracking copy's scale of the reference
@@ -201,6 +202,20 @@ def _filled_depth(depth, mask_crop: np.ndarray) -> tuple[np.ndarray, tuple[np.nd
     return depth[iy, ix], (iy, ix)
 
 
+def surface_normals(refind_model: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3) float64 unit normals of the model's points from their neighbours a step right and a
+    step down (``refind_model``: the n points, then those, lifted alike), turned toward the
+    reference camera (OpenCV's space: -Z); (0, 0, -1) where the neighbours give no plane."""
+    p, right, down = refind_model[:n], refind_model[n:2 * n], refind_model[2 * n:3 * n]
+    nrm = np.cross(right - p, down - p)
+    length = np.linalg.norm(nrm, axis=1, keepdims=True)
+    ok = (length[:, 0] > 1e-9) & np.isfinite(length[:, 0])
+    out = np.tile(np.array([0.0, 0.0, -1.0]), (n, 1))
+    out[ok] = nrm[ok] / length[ok]
+    out[out[:, 2] > 0] *= -1.0  # the reference saw every point: its surface faces that camera
+    return out
+
+
 def _control_model(landmarks: np.ndarray, ring: np.ndarray, depth_filled: np.ndarray, origin: tuple[int, int],
                    k_ref: np.ndarray, straight: bool) -> dict:
     """The rig's control points (landmarks, then the ring; reference px) and their 3D models, lifted
@@ -219,7 +234,7 @@ def _control_model(landmarks: np.ndarray, ring: np.ndarray, depth_filled: np.nda
     steps_xy = np.clip(steps - np.array([x0, y0], np.float32), 0, [w - 1, h - 1]).astype(np.float32)
     refind_model = np.concatenate([model, lift_landmarks(steps, _remap_at(depth_filled, steps_xy), k_ref)])
     return {"control_ref": pts, "n_landmarks": len(landmarks), "ring_index": np.arange(len(landmarks), len(pts)),
-            "model": model, "refind_model": refind_model,
+            "model": model, "refind_model": refind_model, "model_normals": surface_normals(refind_model, len(pts)),
             "shape_model": lift_straight(pts, depth_at, k_ref) if straight else model}
 
 

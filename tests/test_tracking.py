@@ -10,6 +10,7 @@ from .tolerances import (
     F32_EXACT,
     F32_LOOSE,
     F64_EXACT,
+    MODEL_NORMAL_MEDIAN_DEG,
     NCC_SELF_PEAK,
     ONE_EURO_LAG_DEG,
     ONE_EURO_REST_STD,
@@ -132,6 +133,55 @@ def test_the_robust_fit_converges_and_ignores_gross_outliers():
                  (est.model, np.where(np.arange(90)[:, None] == 5, np.inf, xy), start_r, start_t)]:
         rvec, tvec = robust_fit(*args, est.k, 1.67)
         assert np.array_equal(rvec, args[2], equal_nan=True) and np.array_equal(tvec, args[3])
+
+
+def test_facing_is_the_cosine_toward_the_camera_and_zero_behind():
+    """A point on the optical axis facing the camera: 1; the pose turned 60 deg about Y: 0.5; a
+    normal facing away: 0; a weight of zero in the robust fit is the point left out."""
+    import cv2
+
+    from relight.engine.pose import facing, robust_fit
+
+    obj = np.array([[0.0, 0.0, 0.0]] * 3)
+    normals = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
+    tvec = np.array([[0.0], [0.0], [500.0]])
+    assert np.allclose(facing(normals, obj, np.zeros((3, 1)), tvec), [1.0, 1.0, 0.0])
+    turned = np.array([[0.0], [np.radians(60.0)], [0.0]])
+    assert np.allclose(facing(normals, obj, turned, tvec), [0.5, 0.5, 0.0])
+    assert np.allclose(facing(normals, obj, np.array([[0.0], [np.pi], [0.0]]), tvec), [0.0, 0.0, 1.0])
+
+    est, seen = _bump_head(5, 60)
+    xy = seen((12.0, -6.0, 3.0))
+    exact = est.solve(np.arange(60), xy)
+    bad = xy.copy()
+    bad[:10] += np.array([6.0, -4.0])
+    w = np.ones(60)
+    w[:10] = 0.0
+    start_r, start_t = exact.rvec + 0.05, exact.tvec + 5.0
+    with_weights = robust_fit(est.model, bad, start_r, start_t, est.k, 1.67, weights=w)
+    left_out = robust_fit(est.model[10:], bad[10:], start_r, start_t, est.k, 1.67)
+    assert np.allclose(with_weights[0], left_out[0], atol=1e-9) and np.allclose(with_weights[1], left_out[1], atol=1e-6)
+    assert np.allclose(with_weights[0], exact.rvec, atol=1e-6)
+    for w_bad in (np.full(60, np.nan), -w, np.zeros(60), np.ones(59)):
+        assert np.array_equal(robust_fit(est.model, bad, start_r, start_t, est.k, 1.67, weights=w_bad)[0], start_r)
+
+
+def test_the_rigs_model_normals_are_the_bundles_normals(frame_path, small_bundle):
+    """The landmarks' normals the pose weights by (from the lifted depth) agree with the bundle's
+    own (photometric) normals there, turned into OpenCV's space, and are unit and face the camera."""
+    rig = frame_path.rig
+    x0, y0 = small_bundle.crop_origin
+    cw = np.asarray(small_bundle.mask_crop).shape[1]
+    where = {int(p): i for i, p in enumerate(np.asarray(small_bundle.pixels, np.int64))}
+    pts = np.rint(rig.control_ref[:rig.n_landmarks] - [x0, y0]).astype(np.int64)
+    idx = [where.get(int(y) * cw + int(x)) for x, y in pts]
+    ok = np.array([i is not None for i in idx])
+    assert ok.mean() > 0.9
+    theirs = np.asarray(small_bundle.normal, np.float64)[[i for i in idx if i is not None]] * [1.0, -1.0, -1.0]
+    theirs /= np.linalg.norm(theirs, axis=1, keepdims=True)
+    ours = rig.model_normals[:rig.n_landmarks][ok]
+    assert np.allclose(np.linalg.norm(rig.model_normals, axis=1), 1.0) and (rig.model_normals[:, 2] <= 0).all()
+    assert np.median(np.degrees(np.arccos(np.clip((theirs * ours).sum(1), -1.0, 1.0)))) < MODEL_NORMAL_MEDIAN_DEG
 
 
 def test_reanchoring_finds_landmarks_where_the_pose_misplaces_them(frame_path, small_bundle):

@@ -486,3 +486,6 @@ SMALL_CAPTURE_LIGHT_DIR_MEAN_DEG = 1.2
 #: pose's (measured 0.46-1.75 deg against 1.01-4.60, mean 1.02 against 2.72).
 POSE_NOISY_DEG = 2.5
 POSE_NOISY_GAIN = 0.6
+#: The rig's model normals (from the lifted depth's neighbours) against the bundle's own
+#: photometric normals at the landmarks: median degrees (the studio's 640x360 bundles: 3.8-4.1).
+MODEL_NORMAL_MEDIAN_DEG = 10.0
