@@ -138,7 +138,6 @@ def test_the_robust_fit_converges_and_ignores_gross_outliers():
 def test_facing_is_the_cosine_toward_the_camera_and_zero_behind():
     """A point on the optical axis facing the camera: 1; the pose turned 60 deg about Y: 0.5; a
     normal facing away: 0; a weight of zero in the robust fit is the point left out."""
-    import cv2
 
     from relight.engine.pose import facing, robust_fit
 
