@@ -7,7 +7,8 @@ frame's pose is ``cv2.solvePnPRansac`` against that model with the frame's own c
 length given, or ``DEFAULT_FOCAL`` x the frame's larger side: a phone or webcam of ~60-degree
 field of view); a very long focal length models the orthographic synthetic camera. Where RANSAC's
 consensus is a minority of the points, the pose is fitted again over all of them with a robust
-(Cauchy) loss, :func:`robust_fit`.
+(Cauchy) loss, each weighted by how squarely its surface faces the camera: :func:`robust_fit`,
+:func:`facing`.
 
 Rotations handed out are in relight's camera space (+X right, +Y up, +Z toward the camera; see
 :mod:`relight.directions`): ``R`` turns the reference head into this frame's head, and
@@ -58,8 +59,8 @@ CHECK_DROP = 0.85
 #: third of the points and a biased third - on the synthetic 80-degree webcam clip 37-42 of 108,
 #: whose own exact positions give a pose 4-5.6 deg off where all the points' give 1.8-2.3. The
 #: points outside it still pull, weighted down by their error. Only there: every frame's pose
-#: refitted so worsened the orthographic clip's p95 (2.82 -> 3.50 deg), where the consensus is
-#: the right pose's. Gauss-Newton steps on the reweighted points, Levenberg-damped so the loss
+#: refitted so (SciPy's least_squares, its loss per coordinate) worsened the orthographic clip's
+#: p95 (2.82 -> 3.50 deg), where the consensus is the right pose's. Gauss-Newton steps on the reweighted points, Levenberg-damped so the loss
 #: never rises, at most this many.
 ROBUST_ITERATIONS = 12
 #: relight camera space <-> OpenCV camera space (flip Y and Z).
