@@ -60,8 +60,8 @@ CHECK_DROP = 0.85
 #: whose own exact positions give a pose 4-5.6 deg off where all the points' give 1.8-2.3. The
 #: points outside it still pull, weighted down by their error. Only there: every frame's pose
 #: refitted so (SciPy's least_squares, its loss per coordinate) worsened the orthographic clip's
-#: p95 (2.82 -> 3.50 deg), where the consensus is the right pose's. Gauss-Newton steps on the reweighted points, Levenberg-damped so the loss
-#: never rises, at most this many.
+#: p95 (2.82 -> 3.50 deg), where the consensus is the right pose's. Gauss-Newton steps on the
+#: reweighted points, Levenberg-damped so the loss never rises, at most this many.
 ROBUST_ITERATIONS = 12
 #: relight camera space <-> OpenCV camera space (flip Y and Z).
 _FLIP = np.diag([1.0, -1.0, -1.0])
