@@ -155,7 +155,8 @@ class PoseEstimator:
         obj = self.model[ref_index]
         img = np.asarray(xy, dtype=np.float64).reshape(-1, 1, 2)
         thr = px_at(RANSAC_PX_AT_540, self.frame_size[1])
-        pose = self._track(obj, img, thr) if self.last is not None else None
+        normals = None if self.normals is None else self.normals[ref_index]
+        pose = self._track(obj, img, thr, normals) if self.last is not None else None
         if pose is None:
             pose = self._ransac(obj, img, thr)
             self._since_check = 0
@@ -180,7 +181,7 @@ class PoseEstimator:
                         pose, share = other, n_other / len(obj)
             self._share = share
         if robust and pose is not None and pose.inliers.size < TRACK_INLIERS * len(obj):
-            pose = self._robust(obj, img, pose, thr, None if self.normals is None else self.normals[ref_index])
+            pose = self._robust(obj, img, pose, thr, normals)
         self.last = pose
         return pose
 
@@ -251,14 +252,22 @@ class PoseEstimator:
         fitted = self._finish(obj, img, rvec, tvec, inl) if inl.size >= MIN_INLIERS else None
         return fitted if fitted is not None else pose
 
-    def _track(self, obj, img, thr) -> Pose | None:
+    def _track(self, obj, img, thr, normals=None) -> Pose | None:
+        """The warm start: from the last pose, twice a fit on the points within twice ``thr`` px
+        - with the points' ``normals`` known, :func:`robust_fit` weighted by :func:`facing` (a
+        point's error counts as its patch is seen); else Levenberg-Marquardt. None when the
+        points within reach are fewer than TRACK_INLIERS of them."""
         rvec, tvec = self.last.rvec.copy(), self.last.tvec.copy()
         try:
             for _ in range(2):
                 inl = np.flatnonzero(self._errors(obj, img, rvec, tvec) < 2.0 * thr)
                 if inl.size < max(MIN_INLIERS, TRACK_INLIERS * len(obj)):
                     return None
-                rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], self.k, None, rvec, tvec)
+                if normals is None:
+                    rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], self.k, None, rvec, tvec)
+                else:
+                    rvec, tvec = robust_fit(obj[inl], img[inl], rvec, tvec, self.k, thr,
+                                            weights=facing(normals[inl], obj[inl], rvec, tvec))
             inl = np.flatnonzero(self._errors(obj, img, rvec, tvec) < 2.0 * thr)
         except cv2.error:
             return None

@@ -165,6 +165,31 @@ def test_facing_is_the_cosine_toward_the_camera_and_zero_behind():
         assert np.array_equal(robust_fit(est.model, bad, start_r, start_t, est.k, 1.67, weights=w_bad)[0], start_r)
 
 
+def test_the_warm_start_weights_points_by_how_squarely_they_face_the_camera():
+    """Tracking from the last pose, a third of the points on surfaces turned almost edge-on
+    (normals 85 deg from the camera) and 2.5 px off where the head puts them (within the warm
+    start's reach): told the normals, the pose follows the points that face the camera; without
+    them, Levenberg-Marquardt splits the difference."""
+    from relight.engine.pose import PoseEstimator
+    from relight.kernels.relight_inputs import rotation_angle_deg
+
+    est, seen = _bump_head(6, 90)
+    normals = np.tile([0.0, 0.0, -1.0], (90, 1))
+    edge = np.arange(90) % 3 == 0
+    normals[edge] = [np.sin(np.radians(85.0)), 0.0, -np.cos(np.radians(85.0))]
+    xy = seen((8.0, 4.0, 0.0))
+    xy[edge] += [2.5, 0.0]
+    truth = rotation_matrix(8.0, 4.0, 0.0)
+    errors = []
+    for told in (normals, None):
+        e = PoseEstimator(est.model, (640, 360), normals=told)
+        e.last = e.solve(np.arange(90), seen((6.0, 3.0, 0.0)))
+        e._since_check, e._share = -10, 0.0  # (the warm start alone: no RANSAC check on this frame)
+        pose = e.solve(np.arange(90), xy)
+        errors.append(rotation_angle_deg(truth, pose.rotation))
+    assert errors[0] < 0.5 * errors[1], errors
+
+
 def test_the_rigs_model_normals_are_the_bundles_normals(frame_path, small_bundle):
     """The landmarks' normals the pose weights by (from the lifted depth) agree with the bundle's
     own (photometric) normals there, turned into OpenCV's space, and are unit and face the camera."""
