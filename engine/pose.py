@@ -63,6 +63,8 @@ CHECK_DROP = 0.85
 #: p95 (2.82 -> 3.50 deg), where the consensus is the right pose's. Gauss-Newton steps on the
 #: reweighted points, Levenberg-damped so the loss never rises, at most this many.
 ROBUST_ITERATIONS = 12
+#: ... and it stops when a step lowers the loss by less than this share of it.
+ROBUST_TOLERANCE = 1e-6
 #: relight camera space <-> OpenCV camera space (flip Y and Z).
 _FLIP = np.diag([1.0, -1.0, -1.0])
 
@@ -367,7 +369,7 @@ def robust_fit(obj: np.ndarray, img: np.ndarray, rvec: np.ndarray, tvec: np.ndar
         else:
             break
         x, r, jac = x + step, r_new, jac_new
-        converged = cost - cost_new <= 1e-9 * max(cost, 1.0)
+        converged = cost - cost_new <= ROBUST_TOLERANCE * max(cost, 1.0)
         cost, damping = cost_new, max(damping / 10.0, 1e-7)
         if converged:
             break
