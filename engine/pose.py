@@ -5,10 +5,10 @@ camera), placed so that a pinhole camera of focal length ``f_ref`` at the refere
 centre sees it exactly where the reference shows it (the reference pose is the identity). A
 frame's pose is ``cv2.solvePnPRansac`` against that model with the frame's own camera (focal
 length given, or ``DEFAULT_FOCAL`` x the frame's larger side: a phone or webcam of ~60-degree
-field of view); a very long focal length models the orthographic synthetic camera. Where RANSAC's
-consensus is a minority of the points, the pose is fitted again over all of them with a robust
-(Cauchy) loss, each weighted by how squarely its surface faces the camera: :func:`robust_fit`,
-:func:`facing`.
+field of view); a very long focal length models the orthographic synthetic camera. A tracked
+frame's pose starts from the last one, fitted with a robust (Cauchy) loss, each point weighted by
+how squarely its surface faces the camera (:func:`robust_fit`, :func:`facing`); where RANSAC's
+consensus is a minority of the points, the pose is fitted so again over all of them.
 
 Rotations handed out are in relight's camera space (+X right, +Y up, +Z toward the camera; see
 :mod:`relight.directions`): ``R`` turns the reference head into this frame's head, and
@@ -132,7 +132,8 @@ class PoseEstimator:
                  normals: np.ndarray | None = None):
         self.model = np.asarray(model, dtype=np.float64)
         #: (N, 3) the model points' unit surface normals (toward the reference camera), or None:
-        #: the robust fit weights each point by how squarely it faces the camera (:func:`facing`).
+        #: the warm start and the robust fit weight each point by how squarely it faces the
+        #: camera (:func:`facing`); without them the warm start is Levenberg-Marquardt.
         self.normals = None if normals is None else np.asarray(normals, dtype=np.float64)
         self.k = camera_matrix(frame_size, focal)
         self.frame_size = frame_size
@@ -143,8 +144,9 @@ class PoseEstimator:
     def solve(self, ref_index: np.ndarray, xy: np.ndarray, robust: bool = True) -> Pose | None:
         """The pose of this frame's tracked points (None when no consistent pose exists).
 
-        Tracking (a previous pose): Levenberg-Marquardt from it, then again on the points whose
-        reprojection error is under the RANSAC threshold (when most points agree,
+        Tracking (a previous pose): a fit from it (:meth:`_track`: weighted by :func:`facing`
+        with the model's normals, else Levenberg-Marquardt), then again on the points whose
+        reprojection error is under twice the RANSAC threshold (when most points agree,
         ``TRACK_INLIERS``); RANSAC then LM on its inliers checks it every ``CHECK_EVERY`` frames
         and when the share it explains drops (``CHECK_DROP``) - the one that explains more points
         is kept. At acquisition, and when the warm start fails: RANSAC, then LM. ``robust``: a
@@ -346,29 +348,31 @@ def robust_fit(obj: np.ndarray, img: np.ndarray, rvec: np.ndarray, tvec: np.ndar
         return start
 
     def residual(v):
+        """(2N,) residuals, (N,) their points' errors (px), (2N, 6) Jacobian at the pose ``v``."""
         proj, jac = cv2.projectPoints(obj, v[:3], v[3:], k, None)
-        return proj.reshape(-1, 2) - img, jac[:, :6]
+        r = proj.reshape(-1, 2) - img
+        return r.ravel(), np.linalg.norm(r, axis=1), jac[:, :6]
 
-    r, jac = residual(x)
-    cost = _cauchy_cost(np.linalg.norm(r, axis=1), scale, pw)
+    r, err, jac = residual(x)
+    cost = _cauchy_cost(err, scale, pw)
     damping = 1e-3
     for _ in range(iterations):
-        w = np.repeat(pw / (1.0 + (np.linalg.norm(r, axis=1) / scale) ** 2), 2)
+        w = np.repeat(pw / (1.0 + (err / scale) ** 2), 2)
         a = jac.T @ (jac * w[:, None])
-        g = jac.T @ (w * r.ravel())
-        diag = np.maximum(np.diag(a), 1e-12)
+        g = jac.T @ (w * r)
+        if not (np.isfinite(a).all() and np.isfinite(g).all()):
+            break
+        damped = np.diag(np.maximum(np.diag(a), 1e-12))
         while damping < 1e8:
-            step = np.linalg.solve(a + damping * np.diag(diag), -g) if np.isfinite(a).all() else None
-            if step is None or not np.isfinite(step).all():
-                return (x[:3].reshape(3, 1), x[3:].reshape(3, 1)) if np.isfinite(x).all() else start
-            r_new, jac_new = residual(x + step)
-            cost_new = _cauchy_cost(np.linalg.norm(r_new, axis=1), scale, pw)
+            step = np.linalg.solve(a + damping * damped, -g)
+            r_new, err_new, jac_new = residual(x + step)
+            cost_new = _cauchy_cost(err_new, scale, pw)
             if np.isfinite(cost_new) and cost_new <= cost:
                 break
             damping *= 10.0
         else:
             break
-        x, r, jac = x + step, r_new, jac_new
+        x, r, err, jac = x + step, r_new, err_new, jac_new
         converged = cost - cost_new <= ROBUST_TOLERANCE * max(cost, 1.0)
         cost, damping = cost_new, max(damping / 10.0, 1e-7)
         if converged:
