@@ -4,21 +4,31 @@ A webcam's field of view is not told (60-80 degrees across, and a flat photo mov
 orthographic view), yet the pose depends on it: a head off the frame's centre is seen from the
 side by ``atan(offset / f)``, and its near parts are magnified more than its far ones by the
 head's depth over the distance. With the wrong focal length a rigid model explains the tracked
-points worse. So while the first seconds are tracked with the default guess
-(:data:`.pose.DEFAULT_FOCAL`), every :data:`SAMPLE_EVERY`-th posed frame's inlier points are kept
-(:data:`SAMPLES` of them); then each candidate focal length (:data:`CANDIDATES` x the frame's
-larger side, the last the long one that models an orthographic camera) is scored by how well the
-best rigid pose at that focal length explains each kept frame's points - the mean over the frames
-of the RMS reprojection error, each point's error capped at :data:`ERROR_CAP_PX` (a point LK lost
-must not decide) - in the frame for a file, on a worker beside a live source's frames (no frame
-waits for it). The lowest score wins, refined by a parabola through it and its neighbours in log
-focal length; the estimator switches to it when it explains the kept frames' points better than
-the guess does beyond their frame-to-frame scatter: a one-sided paired t-test of the frames' RMS
-errors at the two focal lengths, at :data:`SIGNIFICANCE`. A fixed share of the mean (2 % before)
-refused the right focal length on heads whose score is shallow - through the studio's 80-degree
-webcam, on two heads of four the minimum lay within 8 % of the truth, 1.7-1.8 % below the
-guess's score but lower in 14-15 of 20 frames (paired t 2.8-3.0) - while a 50-degree clip, whose
-right answer is near the guess, scores t -1.3 to 1.9.
+points worse. So while the first second is tracked (with the default guess,
+:data:`.pose.DEFAULT_FOCAL`, at first), every :data:`SAMPLE_EVERY`-th posed frame's inlier points
+are kept; when :data:`STAGES`' counts of them are in (5, 10, 20 and 40 frames) the search runs
+over all kept so far: each candidate focal length (:data:`CANDIDATES` x the frame's larger side,
+the last the long one that models an orthographic camera) is scored by how well the best rigid
+pose at that focal length explains each kept frame's points - the mean over the frames of the RMS
+reprojection error, each point's error capped at :data:`ERROR_CAP_PX` (a point LK lost must not
+decide) - in the frame for a file, on a worker beside a live source's frames (no frame waits for
+it). The lowest score wins, refined by a parabola through it and its neighbours in log focal
+length; the estimator switches to it when it explains the kept frames' points better than the
+focal length in use does beyond their frame-to-frame scatter: a one-sided paired t-test of the
+frames' RMS errors at the two focal lengths, at :data:`SIGNIFICANCE`. A fixed share of the mean
+(2 % before) refused the right focal length on heads whose score is shallow - through the
+studio's 80-degree webcam, on two heads of four the minimum lay within 8 % of the truth, 1.7-1.8 %
+below the guess's score but lower in 14-15 of 20 frames (paired t 2.8-3.0) - while a 50-degree
+clip, whose right answer is near the guess, scores t -1.3 to 1.9.
+
+Why in stages: until the first switch every frame is posed at the guess, and through a short lens
+that costs more than the search's remaining error - an off-centre head's view ray is off by
+``atan(offset / f)`` at the wrong ``f``. With one run after 40 frames (20 taken every other
+frame before), the studio's 80-degree heads (guess 1.43x the truth) were posed 2.7-5.2 deg off
+(mean) over their first second against 1.4-2.4 told. Even one frame's points put the minimum
+within 0.8-1.25x of the truth there, and five frames are enough for the test to refute a guess
+that far off on two heads of four; the later runs refine over more frames, each against the
+focal length then in use (its evidence, not the guess's, is what a new one must beat).
 
 The model scored is the head's own shape (:attr:`.rig.FaceRig.shape_model`): an orthographic
 capture's reference lifted straight, not through the long pinhole the pose's model is lifted
@@ -46,10 +56,13 @@ from .pose import ORTHOGRAPHIC_FOCAL, camera_matrix
 #: across it, then the orthographic model's long focal length; the widest below the studio's
 #: 80-degree webcam's minimum, so the parabola refines it).
 CANDIDATES = (0.37, 0.45, 0.55, 0.65, 0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, ORTHOGRAPHIC_FOCAL)
-#: A posed frame's points are kept every this many posed frames, this many frames in all (1.3 s
-#: at 30 fps), at most this many points each (spread over the face's).
-SAMPLE_EVERY = 2
-SAMPLES = 20
+#: The search runs when this many posed frames' points are kept, over all kept so far (1.3 s at
+#: 30 fps by the last), each run switching from the focal length in use only on its own evidence:
+#: the first runs end the guess early where the frames refute it clearly, the later ones refine.
+STAGES = (5, 10, 20, 40)
+#: A posed frame's points are kept every this many posed frames, at most this many points each
+#: (spread over the face's).
+SAMPLE_EVERY = 1
 MAX_POINTS = 40
 #: Fewest inlier points a kept frame has.
 MIN_POINTS = 12
@@ -126,8 +139,10 @@ def best_focal(scores: np.ndarray, focals: np.ndarray) -> float:
 
 class FocalSearch:
     """The search over one frame size's tracked frames (see the module docstring): :meth:`observe`
-    each posed frame until :attr:`ready`, then :meth:`run` once - in the frame for a file, on a
-    worker beside a live source's frames (:data:`MAX_POINTS` points a frame, ~0.2 s of CPU in all)."""
+    each posed frame; whenever :attr:`ready`, :meth:`run` - in the frame for a file, on a worker
+    beside a live source's frames (one run at a time; :meth:`observe` may go on meanwhile). Each
+    run scores the points kept so far (the next of :data:`STAGES`' counts, :data:`MAX_POINTS` a
+    frame; ~3.5 ms of CPU a frame scored, ~0.27 s over the four runs) and :attr:`done` after the last."""
 
     def __init__(self, model: np.ndarray, size: tuple[int, int], guess: float):
         self.model = np.asarray(model, np.float64)
@@ -136,20 +151,27 @@ class FocalSearch:
         self.focals = np.asarray(CANDIDATES, np.float64) * max(self.size)
         self.samples: list = []
         self._posed = 0
-        #: The focal length found (px; None: none found, or not yet), and whether the search ran.
+        self.stage = 0  # the runs made
+        #: The focal length in use (px): the guess until a run finds one better.
+        self.current = self.guess
+        #: The last focal length found (px; None: none found, or not yet).
         self.found: float | None = None
-        self.started = False
-        self.done = False
+
+    @property
+    def done(self) -> bool:
+        """Every run made."""
+        return self.stage >= len(STAGES)
 
     @property
     def ready(self) -> bool:
-        """The samples are in and the search has not started."""
-        return not self.started and len(self.samples) >= SAMPLES
+        """The next run's samples are in."""
+        return not self.done and len(self.samples) >= STAGES[self.stage]
 
     def observe(self, ref_index: np.ndarray, xy: np.ndarray) -> None:
         """A posed frame's inlier points (model indices, (N, 2) frame px): every SAMPLE_EVERY-th
-        kept, at most MAX_POINTS of them spread over the list."""
-        if self.started or len(self.samples) >= SAMPLES or len(ref_index) < MIN_POINTS:
+        kept (with at least MIN_POINTS), at most MAX_POINTS of them spread over the list, until
+        the last run's count."""
+        if self.done or len(self.samples) >= STAGES[-1] or len(ref_index) < MIN_POINTS:
             return
         if self._posed % SAMPLE_EVERY == 0:
             pick = np.unique(np.linspace(0, len(ref_index) - 1, min(len(ref_index), MAX_POINTS)).round().astype(int))
@@ -157,15 +179,17 @@ class FocalSearch:
         self._posed += 1
 
     def run(self) -> float | None:
-        """Score the guess and every candidate; the focal length to switch to when it explains the
-        frames' points significantly better than the guess (:func:`significantly_lower`; also
-        :attr:`found`), else None."""
-        self.started = True
-        samples, self.samples = self.samples, []
-        guess = frame_errors(self.model, samples, self.size, self.guess)
+        """The next run: score every candidate over the samples kept so far; the focal length to
+        switch to when it explains their points significantly better than the one in use
+        (:func:`significantly_lower`; it becomes :attr:`current` and :attr:`found`), else None."""
+        samples = self.samples[:STAGES[self.stage]]
+        self.stage += 1
+        if self.done:
+            self.samples = []  # (nothing more is kept)
         scores = np.array([score(self.model, samples, self.size, float(f)) for f in self.focals])
         focal = best_focal(scores, self.focals)
-        if significantly_lower(frame_errors(self.model, samples, self.size, focal), guess):
-            self.found = focal
-        self.done = True
-        return self.found
+        if not significantly_lower(frame_errors(self.model, samples, self.size, focal),
+                                   frame_errors(self.model, samples, self.size, self.current)):
+            return None
+        self.current = self.found = focal
+        return focal

@@ -177,23 +177,24 @@ class FrontStage:
                      thumb=thumb, thumb_scale=thumb.shape[0] / h)
 
     def _search_focal(self, est: PoseEstimator, ref_idx: np.ndarray, xy: np.ndarray, live_source: bool) -> None:
-        """A posed frame's points to the focal search; the search run once its samples are in - in
-        the frame for a file, on the worker for a live source - and the estimator switched to
-        the focal length it found (its pose solved afresh on the next frame)."""
+        """A posed frame's points to the focal search; each of its runs made once its samples are
+        in - in the frame for a file, on the worker for a live source (one at a time, the frames'
+        points still kept meanwhile) - and the estimator switched to the focal length a run found
+        (its pose solved afresh on the next frame)."""
         search = self.focal_search
         if search is None or (search.done and self.focal_job is None):
             return
+        search.observe(ref_idx, xy)
         if self.focal_job is not None:
             if not self.focal_job.done():
                 return
             found, self.focal_job = self.focal_job.result(), None
+        elif not search.ready:
+            return
+        elif live_source:
+            self.focal_job = self.worker.submit(search.run)
+            return
         else:
-            search.observe(ref_idx, xy)
-            if not search.ready:
-                return
-            if live_source:
-                self.focal_job = self.worker.submit(search.run)
-                return
             found = search.run()
         if found is not None:
             est.k = camera_matrix(est.frame_size, found)

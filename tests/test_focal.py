@@ -1,7 +1,7 @@
 """The frames' focal length found from the tracked head (engine.focal, issue 49): a rigid model
 seen through a known pinhole is scored lowest at that pinhole's focal length, the search samples
-its frames, runs once and switches only when it explains the points better, and a path that is
-told no focal length searches (in the frame for a file, on a worker for a live source) while one
+its frames, runs at each stage's count and switches only when it explains the points better than
+the focal length in use, and a path that is told no focal length searches (in the frame for a file, on a worker for a live source) while one
 that is told keeps it."""
 
 import numpy as np
@@ -12,7 +12,7 @@ from relight.engine.focal import (
     CANDIDATES,
     MAX_POINTS,
     SAMPLE_EVERY,
-    SAMPLES,
+    STAGES,
     FocalSearch,
     best_focal,
     score,
@@ -49,7 +49,7 @@ def _head(seed: int, n: int = 80):
     return model, seen
 
 
-def _samples(seen, focal, frames=SAMPLES):
+def _samples(seen, focal, frames=STAGES[-1]):
     rng = np.random.default_rng(7)
     out = []
     for i in range(frames):
@@ -81,29 +81,54 @@ def test_the_parabola_refines_between_neighbours_and_stays_there():
     assert best_focal(np.array([3.0, 1.0, 1.0, 3.0]), focals) in (200.0, pytest.approx(np.exp(x[1:3].mean())))
 
 
-def test_the_search_samples_then_runs_once_and_switches():
+def _search_all(search, frames):
+    """Every frame observed, each run made as soon as it is ready: [(posed frames, found)]."""
+    runs, posed = [], 0
+    for idx, xy in frames:
+        search.observe(idx, xy)
+        posed += 1
+        if search.ready:
+            runs.append((posed, search.run()))
+    return runs
+
+
+def test_the_search_runs_at_each_stage_and_switches():
+    """A guess 1.5x too long is refuted by the first run (5 frames) and the last (40 frames) ends
+    near the truth; nothing is kept after it."""
     model, seen = _head(2)
     f_true = 0.55 * max(SIZE)
     search = FocalSearch(model, SIZE, DEFAULT_FOCAL * max(SIZE))
-    frames = iter(_samples(seen, f_true, SAMPLES * SAMPLE_EVERY))
-    posed = 0
-    while not search.ready:
-        search.observe(*next(frames))
-        posed += 1
-    assert posed == (SAMPLES - 1) * SAMPLE_EVERY + 1  # every SAMPLE_EVERY-th posed frame kept
-    assert all(len(i) <= MAX_POINTS for i, _ in search.samples)
-    found = search.run()
-    assert search.done and not search.ready and search.samples == []  # run once, nothing kept
-    assert found == search.found and abs(found / f_true - 1.0) < FOCAL_FOUND_REL
+    runs = _search_all(search, _samples(seen, f_true, STAGES[-1] * SAMPLE_EVERY + 5))
+    assert [posed for posed, _ in runs] == [(n - 1) * SAMPLE_EVERY + 1 for n in STAGES]
+    assert runs[0][1] is not None and abs(runs[0][1] / f_true - 1.0) < 2 * FOCAL_FOUND_REL
+    assert search.done and not search.ready and search.samples == []
+    search.observe(*_samples(seen, f_true, 1)[0])
+    assert search.samples == []  # (nothing kept once done)
+    assert search.current == search.found and abs(search.found / f_true - 1.0) < FOCAL_FOUND_REL
 
 
 def test_a_search_that_cannot_beat_the_guess_keeps_it():
     model, seen = _head(3)
     guess = 0.8 * max(SIZE)
     search = FocalSearch(model, SIZE, guess)
-    for idx, xy in _samples(seen, guess, SAMPLES * SAMPLE_EVERY):
-        search.observe(idx, xy)
-    assert search.run() is None and search.found is None and search.done
+    runs = _search_all(search, _samples(seen, guess, STAGES[-1] * SAMPLE_EVERY))
+    assert len(runs) == len(STAGES) and all(found is None for _, found in runs)
+    assert search.found is None and search.current == guess and search.done
+
+
+def test_a_later_run_weighs_the_focal_in_use_not_the_guess():
+    """Once a run switched, the next ones switch again only when they beat the focal length in
+    use: a search started at the truth (as if found) never leaves it, while one whose guess is far
+    off moves."""
+    model, seen = _head(4)
+    f_true = 0.7 * max(SIZE)
+    frames = _samples(seen, f_true, STAGES[-1] * SAMPLE_EVERY)
+    settled = FocalSearch(model, SIZE, 1.6 * max(SIZE))
+    settled.current = f_true
+    assert all(found is None for _, found in _search_all(settled, frames)) and settled.current == f_true
+    off = FocalSearch(model, SIZE, 1.6 * max(SIZE))
+    assert any(found is not None for _, found in _search_all(off, frames))
+    assert abs(off.current / f_true - 1.0) < FOCAL_FOUND_REL
 
 
 def test_a_small_gain_in_most_frames_is_significant_and_one_frame_alone_is_not():
@@ -171,17 +196,20 @@ def test_a_path_searches_in_the_frame_for_a_file_and_on_a_worker_for_a_live_sour
         _, info = fp.process(f, i / 30)
         posed += bool(info.face)
         search = fp.front_stage.focal_search
-        if not live_source:  # a file: run in the frame its samples came in (repeatable)
-            assert fp.front_stage.focal_job is None and search.started == search.done
-        if search.started:
+        if not live_source:  # a file: each run made in the frame its samples came in (repeatable)
+            assert fp.front_stage.focal_job is None
+        if search.stage or fp.front_stage.focal_job is not None:
             break
-    assert search.started and posed < len(frames) * 2
+    assert posed < len(frames) * 2
     if live_source:  # (a worker below the frames' priority: on a busy machine it waits for the cores)
         assert fp.front_stage.focal_job is not None
+        kept = len(search.samples)
         fp.join()
-        fp.process(frames[0], 10.0)  # the result taken
-    assert search.done and fp.front_stage.focal_job is None
-    assert fp.frames_focal == (search.found if search.found is not None else search.guess)
+        fp.process(frames[0], 10.0)  # the result taken; the frame's points kept meanwhile
+        assert len(search.samples) >= kept
+    assert search.stage == 1 and fp.front_stage.focal_job is None
+    assert fp.frames_focal == search.current
+    assert search.current == (search.found if search.found is not None else search.guess)
     assert fp.focal_found == (search.found is not None)
 
 
@@ -204,7 +232,7 @@ def test_an_orthographic_captures_shape_is_lifted_straight_for_the_search():
     f_true, distance = 0.6 * max(SIZE), 540.0
     k, flip = camera_matrix(SIZE, f_true), np.diag([1.0, -1.0, -1.0])
     samples = []
-    for i in range(SAMPLES):
+    for i in range(STAGES[-1] // 2):
         r = flip @ rotation_matrix(25.0 * np.sin(i / 5.0), 12.0 * np.sin(i / 7.0), 0.0) @ flip
         proj = (shape @ r.T + [0.0, 0.0, distance]) @ k.T
         samples.append((np.arange(len(pts)), proj[:, :2] / proj[:, 2:]))
