@@ -112,8 +112,8 @@ def focal_default() -> str:
     starting from the frame path's guess (:data:`relight.engine.pose.DEFAULT_FOCAL`)."""
     from ..engine.pose import DEFAULT_FOCAL
 
-    return (f"found from the head over its first ~1.5 s of frames, {DEFAULT_FOCAL:g} x the frame's larger side "
-            "until then")
+    return (f"found from the head over its first frames - first after 5, refined up to 40 (~1.3 s) - "
+            f"{DEFAULT_FOCAL:g} x the frame's larger side until then")
 
 
 def parse_focal(text: str):
