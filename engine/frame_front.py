@@ -62,6 +62,7 @@ class FrontStage:
         self.estimators: dict[tuple[int, int], PoseEstimator] = {}
         self.focal_search: FocalSearch | None = None
         self.focal_job = None  # (a live source's focal search on the worker)
+        self.focal_next: float | None = None  # a focal length found, taken at the next frame's start
         self.angle_filter = OneEuroFilter(ANGLE_MIN_CUTOFF, ANGLE_BETA)
         self.settling = 0  # re-anchorings left while a face's pose is provisional (:meth:`_settle_pose`)
         self.track_gain = 1.0  # the last tracking copy's brightening (.tracking_image.track_exposure)
@@ -74,7 +75,7 @@ class FrontStage:
             est = PoseEstimator(self.rig.model, size, self.rig.focal, self.rig.model_normals)
             self.estimators = {size: est}
             self.focal_search = FocalSearch(self.rig.shape_model, size, est.k[0, 0]) if self.auto_focal else None
-            self.focal_job = None  # (another size's search: its result is not this one's)
+            self.focal_job = self.focal_next = None  # (another size's search: its result is not this one's)
         return est
 
     @property
@@ -101,7 +102,7 @@ class FrontStage:
         for est in self.estimators.values():
             est.last = None
         if self.auto_focal:  # another video: another camera, searched for afresh
-            self.estimators, self.focal_search, self.focal_job = {}, None, None
+            self.estimators, self.focal_search, self.focal_job, self.focal_next = {}, None, None, None
 
     def front(self, rgb, t: float, settings: FrameSettings) -> Front:
         """A frame's :class:`.frame_data.Front` (see :meth:`relight.engine.frame_path.FramePath.front`)."""
@@ -117,6 +118,8 @@ class FrontStage:
         h, w = rgb.shape[:2]
         size = (w, h)
         est = self.estimator(size)
+        if self.focal_next is not None:  # the focal length the search found: the pose solved afresh with it
+            est.k, est.last, self.focal_next = camera_matrix(est.frame_size, self.focal_next), None, None
         grey, ts, track_gain = tracking_image(rgb)
         if track_gain != self.track_gain and self.tracker.prev is not None:
             # The tracking copy's brightening changed (a bright hand or a lamp entered the frame,
@@ -179,8 +182,8 @@ class FrontStage:
     def _search_focal(self, est: PoseEstimator, ref_idx: np.ndarray, xy: np.ndarray, live_source: bool) -> None:
         """A posed frame's points to the focal search; each of its runs made once its samples are
         in - in the frame for a file, on the worker for a live source (one at a time, the frames'
-        points still kept meanwhile) - and the estimator switched to the focal length a run found
-        (its pose solved afresh on the next frame)."""
+        points still kept meanwhile) - and the estimator switched to the focal length a run found at
+        the next frame's start (its pose solved afresh there)."""
         search = self.focal_search
         if search is None or (search.done and self.focal_job is None):
             return
@@ -196,9 +199,10 @@ class FrontStage:
             return
         else:
             found = search.run()
-        if found is not None:
-            est.k = camera_matrix(est.frame_size, found)
-            est.last = None
+        # Taken at the next frame's start: this frame's warp and light go on with the camera its pose
+        # was solved with (the new camera with the old pose put the face 10x off where an
+        # orthographic clip's first run switched).
+        self.focal_next = found
 
     def _anchor_acquired(self, est, pose, grey, ts, track):
         """(track, pose) of a face found on this frame: its landmarks found again at once with the

@@ -208,6 +208,7 @@ def test_a_path_searches_in_the_frame_for_a_file_and_on_a_worker_for_a_live_sour
         fp.join()
         fp.process(frames[0], 10.0)  # the result taken; the frame's points kept meanwhile
         assert len(search.samples) >= kept
+    fp.process(frames[1], 10.1)  # a focal length found is taken at the next frame's start
     assert search.stage == 1 and fp.front_stage.focal_job is None
     assert fp.frames_focal == search.current
     assert search.current == (search.found if search.found is not None else search.guess)
