@@ -1,7 +1,8 @@
 """The frames' focal length found from the tracked head (engine.focal, issue 49): a rigid model
 seen through a known pinhole is scored lowest at that pinhole's focal length, the search samples
 its frames, runs at each stage's count and switches only when it explains the points better than
-the focal length in use, and a path that is told no focal length searches (in the frame for a file, on a worker for a live source) while one
+the focal length in use, and a path that is told no focal length searches (in the frame for a
+file, on a worker for a live source) and takes what it finds at the next frame's start, while one
 that is told keeps it."""
 
 import numpy as np
@@ -88,6 +89,7 @@ def _search_all(search, frames):
         search.observe(idx, xy)
         posed += 1
         if search.ready:
+            assert all(len(i) <= MAX_POINTS for i, _ in search.samples)  # spread over the frame's points
             runs.append((posed, search.run()))
     return runs
 
@@ -208,11 +210,14 @@ def test_a_path_searches_in_the_frame_for_a_file_and_on_a_worker_for_a_live_sour
         fp.join()
         fp.process(frames[0], 10.0)  # the result taken; the frame's points kept meanwhile
         assert len(search.samples) >= kept
+    switched = search.found is not None
+    if switched and not live_source:  # the frame it was found on kept the camera its pose was solved with
+        assert fp.frames_focal == search.guess
     fp.process(frames[1], 10.1)  # a focal length found is taken at the next frame's start
     assert search.stage == 1 and fp.front_stage.focal_job is None
     assert fp.frames_focal == search.current
     assert search.current == (search.found if search.found is not None else search.guess)
-    assert fp.focal_found == (search.found is not None)
+    assert fp.focal_found == switched
 
 
 def test_an_orthographic_captures_shape_is_lifted_straight_for_the_search():
