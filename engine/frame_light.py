@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -38,11 +39,12 @@ class LiveLightStage:
     fit's :class:`.live_light.LiveLight` report), ``now`` ((texel light, spread) of the last fit
     taken, None before one), ``job`` (a fit being made on the worker), ``exposure_lock`` and
     ``next_reference`` (a live-lit reference kept for :meth:`commit_reference`). ``live_source``:
+    whether the frames come from a live source now (the path's settings, read each time); then
     fits after the first are made on the worker."""
 
-    def __init__(self, bundle, rig, relighter, tracker, worker, *, live_source: bool):
+    def __init__(self, bundle, rig, relighter, tracker, worker, *, live_source: Callable[[], bool]):
         self.rig, self.relighter, self.tracker, self.worker = rig, relighter, tracker, worker
-        self.live_source = bool(live_source)
+        self.live_source = live_source
         self.estimator = LightEstimator(basis=shared_basis(bundle, rig.live_pixels, relighter.sample_scale))
         self.last: LiveLight | None = None
         self.now = None
@@ -91,7 +93,7 @@ class LiveLightStage:
             waited = self.took(job.result(), tm, track_gain, defer)
         if fit and self.job is None:
             lin, valid = sample_live(self.rig, rgb, cur, ref, rotation, rigid_warp)
-            if self.live_source and self.now is not None:
+            if self.live_source() and self.now is not None:
                 self.job = self.worker.submit(self.fit, lin, valid, t, rotation)
             else:
                 waited += self.took(self.fit(lin, valid, t, rotation), tm, track_gain, defer)

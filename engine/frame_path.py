@@ -103,8 +103,10 @@ class FramePath:
         self.set_environment(env)
         self.compositor = Compositor(rig.alpha_crop, rig.fill, rig.inv_ambient, rig.normal_crop, rig.origin,
                                      self.relighter)
-        self.person = PersonStage(bundle, rig, self.compositor, self.workers[1], live_source=live)
-        self.live_light = LiveLightStage(bundle, rig, self.relighter, tracker, self.workers[1], live_source=live)
+        # (the stages read the path's settings each time: warm_up's frames run in the frame)
+        live_now = lambda: self.settings.live_source  # noqa: E731
+        self.person = PersonStage(bundle, rig, self.compositor, self.workers[1], live_source=live_now)
+        self.live_light = LiveLightStage(bundle, rig, self.relighter, tracker, self.workers[1], live_source=live_now)
         self.schedule = Scheduler()
         self.field = FieldStage(self.compositor, settings.field_rows)
         self._field_key = None  # the settings the field was made with (:meth:`_plan`)
@@ -260,7 +262,6 @@ class FramePath:
             frames.append(YuvFrame(*rgb_to_planes(ref)))
         settings = self.settings  # (the slow maps in the frame: all of them run)
         self.settings = replace(settings, live_source=False)
-        self.person.live_source = self.live_light.live_source = False
         try:
             for i, f in enumerate(frames):
                 self.reset()
@@ -268,7 +269,6 @@ class FramePath:
                     self.process(f, (2 * i + k) / 30.0)
         finally:
             self.settings = settings
-            self.person.live_source = self.live_light.live_source = settings.live_source
             self.reset()
         return time.perf_counter() - t0
 

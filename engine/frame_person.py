@@ -5,6 +5,7 @@ object holding that state).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,12 +33,14 @@ class PersonStage:
     remakes in a row), ``job`` (maps being made on the worker), ``early`` (the matte model started
     on this frame's work copy: :meth:`start_matte`), ``env_texels`` (the environment's low
     frequencies) and ``frames`` (the path's frames counted by :meth:`next_frame`).
-    ``live_source``: maps after the first are made on the worker."""
+    ``live_source``: whether the frames come from a live source now (the path's settings, read
+    each time: :meth:`relight.engine.frame_path.FramePath.warm_up` runs them in the frame); then
+    maps after the first are made on the worker."""
 
-    def __init__(self, bundle, rig, compositor, worker, *, live_source: bool):
+    def __init__(self, bundle, rig, compositor, worker, *, live_source: Callable[[], bool]):
         self.rig, self.compositor, self.worker = rig, compositor, worker
         self.texel_dirs = bundle.texel_dirs
-        self.live_source = bool(live_source)
+        self.live_source = live_source
         self.matte = None
         self.last: MapsInUse | None = None
         self.seen = -2
@@ -67,7 +70,7 @@ class PersonStage:
         last = self.last_maps()
         if last is None or last.work != self.work_size(frame):
             return self.job is None or self.job.done()
-        return due and self.job is None and not self.live_source and not self.ready()
+        return due and self.job is None and not self.live_source() and not self.ready()
 
     def start_matte(self, frame) -> None:
         """Start the matte model on ``frame``'s work copy on the worker, while the frame's thread
@@ -145,7 +148,7 @@ class PersonStage:
             job, self.job = self.job, None
             maps = self.took(job.result())
         elif due and self.job is None:
-            if self.live_source:
+            if self.live_source():
                 self.job = self.worker.submit(build_person_maps, self._matte(), make())
                 maps = last.maps
             else:

@@ -169,7 +169,7 @@ def test_a_live_source_makes_the_persons_maps_beside_its_frames(small_bundle, cl
     real, real_fit = frame_person.PersonStage.took, frame_light.LiveLightStage.fit
 
     def took(self, made):
-        taken.append(self.live_source)
+        taken.append(self.live_source())
         return real(self, made)
 
     def fit(self, *a):
