@@ -104,9 +104,9 @@ class FramePath:
         self.compositor = Compositor(rig.alpha_crop, rig.fill, rig.inv_ambient, rig.normal_crop, rig.origin,
                                      self.relighter)
         # (the stages read the path's settings each time: warm_up's frames run in the frame)
-        live_now = lambda: self.settings.live_source  # noqa: E731
-        self.person = PersonStage(bundle, rig, self.compositor, self.workers[1], live_source=live_now)
-        self.live_light = LiveLightStage(bundle, rig, self.relighter, tracker, self.workers[1], live_source=live_now)
+        self.person = PersonStage(bundle, rig, self.compositor, self.workers[1], live_source=self._live_source)
+        self.live_light = LiveLightStage(bundle, rig, self.relighter, tracker, self.workers[1],
+                                         live_source=self._live_source)
         self.schedule = Scheduler()
         self.field = FieldStage(self.compositor, settings.field_rows)
         self._field_key = None  # the settings the field was made with (:meth:`_plan`)
@@ -271,6 +271,10 @@ class FramePath:
             self.settings = settings
             self.reset()
         return time.perf_counter() - t0
+
+    def _live_source(self) -> bool:
+        """Whether the frames come from a live source now (:attr:`settings`; off while :meth:`warm_up` runs)."""
+        return self.settings.live_source
 
     # ------------------------------------------------------------------ per frame
     def process(self, rgb, t: float):
