@@ -80,37 +80,51 @@ def pose_run(bundle, clip: Path, focal) -> dict:
             "path_ms": float(np.median(ms)) if ms else None, "errors_deg": [float(e) for e in err]}
 
 
-def heads_run(out: Path, size, fovs, pose_s: float, capture_s: float, heads=HEADS, progress: bool = True) -> list:
-    """The pose through each camera of ``fovs``, focal known and unknown, over every head of
-    ``heads`` (each its own ``capture_s`` s capture and ``pose_s`` s clips at ``size``): per camera
-    and focal, each head's median / p95 and focal used, and the pooled median / p95 over all the
-    heads' frames."""
+def heads_poses(out: Path, size, fovs, pose_s: float, capture_s: float, heads=HEADS, progress: bool = True) -> dict:
+    """:func:`pose_run` through each camera of ``fovs``, focal known and unknown, for every head of
+    ``heads`` (each its own ``capture_s`` s capture and ``pose_s`` s clips at ``size``):
+    {(fov, "known" | "unknown", head): its result}."""
     import relight
 
     from .clips import synth_bundle, synth_live
 
-    rows = []
+    runs = {}
     bundles = {seed: relight.load_bundle(synth_bundle(out, size, capture_s, progress, seed=seed)) for seed in heads}
     for fov in fovs:
         name = "orthographic" if fov is None else f"{fov:g} deg"
         for label in ("known", "unknown"):
-            per, pooled = [], []
             for seed in heads:
                 if progress:
                     print(f"the pose of head {seed} through {name}, focal {label} ...", flush=True)
                 clip = synth_live(out, size, pose_s, progress, seed=seed, fov=fov)
                 f_true = json.loads((clip / "truth" / "meta.json").read_text())["camera"].get("focal_px")
                 focal = None if label == "unknown" else ("ortho" if fov is None else float(f_true))
-                r = pose_run(bundles[seed], clip, focal)
-                pooled += r.pop("errors_deg")
-                per.append({"head": seed, **{k: r[k] for k in ("median_deg", "p95_deg", "faces", "frames",
-                                                              "focal_px", "focal_share")}})
-            err = np.asarray(pooled)
+                runs[(fov, label, seed)] = pose_run(bundles[seed], clip, focal)
+    return runs
+
+
+def heads_rows(runs: dict, fovs, heads=HEADS) -> list:
+    """:func:`heads_poses`' results per camera and focal: each head's median / p95 and focal used,
+    and the pooled median / p95 over all the heads' frames."""
+    rows = []
+    for fov in fovs:
+        name = "orthographic" if fov is None else f"{fov:g} deg"
+        for label in ("known", "unknown"):
+            got = [(seed, runs[(fov, label, seed)]) for seed in heads]
+            per = [{"head": seed, **{k: r[k] for k in ("median_deg", "p95_deg", "faces", "frames", "focal_px",
+                                                        "focal_share")}} for seed, r in got]
+            err = np.asarray([e for _, r in got for e in r["errors_deg"]])
             rows.append({"camera": name, "fov": fov, "focal": label, "heads": per, "median_deg": _q(err, 50),
                          "p95_deg": _q(err, 95), "worst_p95_deg": max((h["p95_deg"] or 0.0) for h in per),
                          "heads_p95_met": sum(h["p95_deg"] is not None and h["p95_deg"] <= GOALS["p95_deg"]
                                               for h in per)})
     return rows
+
+
+def heads_run(out: Path, size, fovs, pose_s: float, capture_s: float, heads=HEADS, progress: bool = True) -> list:
+    """The pose through each camera of ``fovs``, focal known and unknown, over every head of
+    ``heads`` (:func:`heads_poses`), as :func:`heads_rows`."""
+    return heads_rows(heads_poses(out, size, fovs, pose_s, capture_s, heads, progress), fovs, heads)
 
 
 def _q(err: np.ndarray, q: float) -> float | None:
@@ -136,6 +150,9 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
     bundle = relight.load_bundle(bundle_path)
     mask = np.asarray(bundle.mask)
     stem = environment_stem(ENV)
+    # (head 0's runs are this document's rows too: run once)
+    heads = (0,) if quick else HEADS
+    poses = heads_poses(out, size, fovs, pose_s, capture_s, heads, progress)
     rows = []
     for fov in fovs:
         name = "orthographic" if fov is None else f"{fov:g} deg"
@@ -144,10 +161,9 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
         clip = synth_live(out, size, pose_s, progress, fov=fov)
         f_true = json.loads((clip / "truth" / "meta.json").read_text())["camera"].get("focal_px")
         known = "ortho" if fov is None else float(f_true)
-        row = {"camera": name, "fov": fov, "focal_true_px": f_true, "size": list(size),
-               "pose_known": pose_run(bundle, clip, known), "pose_unknown": pose_run(bundle, clip, None)}
+        row = {"camera": name, "fov": fov, "focal_true_px": f_true, "size": list(size)}
         for label in ("known", "unknown"):
-            row[f"pose_{label}"].pop("errors_deg")
+            row[f"pose_{label}"] = {k: v for k, v in poses[(fov, label, 0)].items() if k != "errors_deg"}
         truth = synth_truth_clip(out, size, (ENV,), fov=fov, duration=clip_s, progress=progress)
         for label, focal in (("known", known if fov is None else f"{known:.4f}"), ("unknown", None)):
             work = out / "runs" / f"{truth.name}-{label}"
@@ -159,7 +175,7 @@ def run(out: Path, *, quick: bool = False, progress: bool = True, mode: str = "t
                                           "focal_px": rep.get("focal_px")}
         rows.append(row)
     doc = {"rows": rows, "goals": GOALS, "env": ENV, "mode": mode, "region": region,
-           "heads": heads_run(out, size, fovs, pose_s, capture_s, (0,) if quick else HEADS, progress),
+           "heads": heads_rows(poses, fovs, heads),
            "sphere": sphere_run(size, (65.0,) if quick else (50.0, 65.0, 80.0, 100.0)),
            "captures": capture_run(out, size, capture_s, fovs, progress)}
     with atomic_path(out / "perspective.json") as tmp:
