@@ -154,8 +154,13 @@ class FocalSearch:
         self.stage = 0  # the runs made
         #: The focal length in use (px): the guess until a run finds one better.
         self.current = self.guess
-        #: The last focal length found (px; None: none found, or not yet).
-        self.found: float | None = None
+
+    @property
+    def found(self) -> float | None:
+        """The last focal length found (px; None: none found, or not yet) - :attr:`current` once a
+        run switched from the guess (a switch needs errors lower than the focal length in use's,
+        so never to the same one)."""
+        return None if self.current == self.guess else self.current
 
     @property
     def done(self) -> bool:
@@ -181,7 +186,7 @@ class FocalSearch:
     def run(self) -> float | None:
         """The next run: score every candidate over the samples kept so far; the focal length to
         switch to when it explains their points significantly better than the one in use
-        (:func:`significantly_lower`; it becomes :attr:`current` and :attr:`found`), else None."""
+        (:func:`significantly_lower`; it becomes :attr:`current`), else None."""
         samples = self.samples[:STAGES[self.stage]]
         self.stage += 1
         if self.done:
@@ -191,5 +196,5 @@ class FocalSearch:
         if not significantly_lower(frame_errors(self.model, samples, self.size, focal),
                                    frame_errors(self.model, samples, self.size, self.current)):
             return None
-        self.current = self.found = focal
+        self.current = focal
         return focal
